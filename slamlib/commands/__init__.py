@@ -1,0 +1,10 @@
+"""Sub-commands of the ``slamlib`` console script.
+
+Each module listed in :data:`COMMANDS` defines ``NAME`` (the sub-command), ``HELP`` (one line),
+``add_arguments(parser)`` and ``main(args) -> int``. Modules are imported only when listed or run, so
+``slamlib --help`` stays fast and a broken optional dependency only breaks its own command.
+"""
+
+COMMANDS = {
+    "bench": "slamlib.commands.bench",
+}

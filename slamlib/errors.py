@@ -1,0 +1,30 @@
+"""Errors raised for bad input. Every message names the file, and the line where there is one."""
+
+from __future__ import annotations
+
+import os
+
+
+class DataFormatError(ValueError):
+    """Bad input data: ``str(err)`` reads ``path:line: message`` (or ``path: message`` without a line).
+
+    Attributes
+    ----------
+    path : str
+        The file that holds the bad data.
+    line : int or None
+        1-based line number inside ``path`` where the problem is, when the file is text.
+    message : str
+        What is wrong, in words that suggest the fix.
+    """
+
+    def __init__(self, path: str | os.PathLike, message: str, line: int | None = None):
+        self.path = os.fspath(path)
+        self.line = line
+        self.message = message
+        where = f"{self.path}:{line}" if line is not None else self.path
+        super().__init__(f"{where}: {message}")
+
+
+class BackendUnavailableError(RuntimeError):
+    """A compute backend was asked for that this machine cannot run (e.g. ``backend="cuda"`` without a GPU)."""

@@ -1,0 +1,55 @@
+# slamlib: `make book` builds the Jupyter Book (HTML under _build/html), `make test` runs every test.
+# Both do all set-up first on a fresh Debian-like machine: system packages, the virtual environment
+# (.venv, pinned by requirements.lock), slamlib installed editable with its test and book extras.
+
+PYTHON ?= python3
+VENV   := .venv
+BIN    := $(VENV)/bin
+# Generated data (the default synthetic drive) and Numba's compile cache live in the checkout, shared by
+# the tests, the notebooks and the book build.
+export SLAMLIB_CACHE ?= $(CURDIR)/_cache
+export NUMBA_CACHE_DIR ?= $(CURDIR)/_cache/numba
+export MPLBACKEND ?= Agg
+
+SYSTEM_PACKAGES := libusb-1.0-0 libvulkan1 mesa-vulkan-drivers
+SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
+
+.PHONY: all setup system-packages book test test-unit test-notebooks bench clean
+
+all: book
+
+setup: system-packages $(VENV)/.installed
+
+# open3d needs libusb-1.0 at import; offscreen rendering needs Vulkan (libvulkan1, mesa-vulkan-drivers).
+system-packages:
+	@missing=""; for p in $(SYSTEM_PACKAGES); do dpkg -s $$p >/dev/null 2>&1 || missing="$$missing $$p"; done; \
+	if [ -n "$$missing" ]; then \
+	  if command -v apt-get >/dev/null; then \
+	    echo "installing system packages:$$missing"; \
+	    $(SUDO) apt-get update -qq && DEBIAN_FRONTEND=noninteractive $(SUDO) apt-get install -y -qq $$missing >/dev/null; \
+	  else echo "warning: please install$$missing with your system's package manager" >&2; fi; \
+	fi
+
+$(VENV)/.installed: pyproject.toml requirements.lock
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install -q --upgrade pip
+	$(BIN)/python -m pip install -q -c requirements.lock -e ".[test,book]"
+	touch $@
+
+# Build the book: executes every notebook (on the embedded default data) and writes HTML under _build/html.
+book: setup
+	$(BIN)/jupyter-book build --all -W -n --keep-going .
+	@echo "book: open _build/html/index.html"
+
+# The whole test suite: unit tests, then every notebook executed by nbval (each ends with assert cells).
+test: setup
+	$(BIN)/python -m pytest -p no:dash --nbval-lax tests notebooks
+
+test-unit: setup
+	$(BIN)/python -m pytest -p no:dash tests
+
+bench: setup
+	$(BIN)/slamlib bench --list
+
+clean:
+	rm -rf _build _cache .pytest_cache

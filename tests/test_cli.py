@@ -1,0 +1,38 @@
+"""The console script and the package's public basics."""
+
+import subprocess
+import sys
+
+import slamlib
+from slamlib.cli import build_parser, main
+from slamlib.commands import COMMANDS
+from slamlib.paths import kitti_sample_dir
+
+
+def test_version_is_a_release_string():
+    parts = slamlib.__version__.split(".")
+    assert len(parts) == 3 and all(p.isdigit() for p in parts)
+
+
+def test_help_lists_every_command(capsys):
+    parser = build_parser()
+    text = parser.format_help()
+    for name in COMMANDS:
+        assert name in text
+
+
+def test_console_script_runs_as_module():
+    out = subprocess.run([sys.executable, "-m", "slamlib.cli", "--help"], capture_output=True, text=True,
+                         check=True).stdout
+    assert "bench" in out
+
+
+def test_no_command_prints_help(capsys):
+    assert main([]) == 0
+    assert "usage: slamlib" in capsys.readouterr().out
+
+
+def test_shipped_kitti_samples_keep_their_attribution():
+    readme = (kitti_sample_dir() / "README.md").read_text()
+    assert "CC BY-NC-SA 3.0" in readme and "Geiger" in readme
+    assert (kitti_sample_dir() / "raw/2011_09_26/calib_imu_to_velo.txt").is_file()

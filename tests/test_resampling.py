@@ -1,0 +1,196 @@
+"""Tests for slamlib.resampling: invariants (hypothesis), unbiasedness (fixed-seed statistics), bad input."""
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
+
+from slamlib.resampling import (
+    effective_sample_size,
+    multinomial_resample,
+    normalise_log_weights,
+    residual_resample,
+    stratified_resample,
+    systematic_resample,
+)
+
+weights_strategy = arrays(
+    np.float64,
+    st.integers(1, 60),
+    elements=st.floats(0.0, 1e3, allow_nan=False, allow_infinity=False),
+).filter(lambda w: w.sum() > 0)
+u0_strategy = st.floats(0.0, 1.0, exclude_max=True)
+
+RNG_SAMPLERS = [stratified_resample, multinomial_resample, residual_resample]
+
+
+def _all_samplers(u0=0.5, seed=0):
+    """(name, callable(weights)) pairs covering the four samplers."""
+    return [("systematic", lambda w: systematic_resample(w, u0))] + [
+        (f.__name__, lambda w, f=f: f(w, np.random.default_rng(seed))) for f in RNG_SAMPLERS
+    ]
+
+
+@settings(max_examples=60, deadline=None)
+@given(w=weights_strategy, u0=u0_strategy, seed=st.integers(0, 2**32 - 1))
+def test_count_preserved_and_indexes_in_range(w, u0, seed):
+    for name, sampler in _all_samplers(u0, seed):
+        idx = sampler(w)
+        assert idx.shape == w.shape, name
+        assert idx.dtype == np.int64, name
+        assert idx.min() >= 0 and idx.max() < w.size, name
+        assert np.all(w[idx] > 0), f"{name} picked a zero-weight particle"
+
+
+@settings(max_examples=100, deadline=None)
+@given(w=weights_strategy, u0=u0_strategy)
+def test_systematic_gives_floor_or_ceil_copies(w, u0):
+    p = w.size
+    expected = p * w / w.sum()
+    counts = np.bincount(systematic_resample(w, u0), minlength=p)
+    # one pointer per 1/P interval: copies within floor/ceil of P w_i (tiny slack for round-off at boundaries)
+    assert np.all(counts >= np.floor(expected - 1e-9))
+    assert np.all(counts <= np.ceil(expected + 1e-9))
+
+
+@settings(max_examples=60, deadline=None)
+@given(w=weights_strategy, seed=st.integers(0, 2**32 - 1))
+def test_residual_keeps_the_deterministic_copies(w, seed):
+    expected = w.size * w / w.sum()
+    counts = np.bincount(residual_resample(w, np.random.default_rng(seed)), minlength=w.size)
+    assert np.all(counts >= np.floor(expected - 1e-9))
+
+
+def test_systematic_matches_the_low_variance_sampler_by_hand():
+    # Probabilistic Robotics Table 4.4 written out as a loop: r = u0 / P, U = r + k / P, advance while U > c.
+    w = np.array([0.1, 0.4, 0.05, 0.25, 0.2])
+    for u0 in (0.0, 0.13, 0.5, 0.99):
+        p = w.size
+        c, i, want = w[0], 0, []
+        for k in range(p):
+            u = (u0 + k) / p
+            while u >= c:
+                i += 1
+                c += w[i]
+            want.append(i)
+        np.testing.assert_array_equal(systematic_resample(w, u0), want)
+        np.testing.assert_array_equal(systematic_resample(w * 13.0, u0), want)  # scale-free
+
+
+@pytest.mark.parametrize("name", ["systematic", "stratified_resample", "multinomial_resample",
+                                  "residual_resample"])
+def test_unbiased_and_higher_weight_never_fewer_copies_in_expectation(name):
+    """Mean copies over many fixed-seed runs approach P w_i and are ordered like the weights."""
+    rng = np.random.default_rng(1234)
+    w = np.array([0.02, 0.05, 0.08, 0.13, 0.22, 0.5])
+    p, runs = w.size, 3000
+    total = np.zeros(p)
+    for _ in range(runs):
+        if name == "systematic":
+            idx = systematic_resample(w, rng.random())
+        else:
+            idx = globals()[name](w, rng)
+        total += np.bincount(idx, minlength=p)
+    mean = total / runs
+    # standard error of a mean count is at most sqrt(P w (1 - w) / runs) < 0.03; allow 5 of them
+    np.testing.assert_allclose(mean, p * w, atol=0.15)
+    assert np.all(np.diff(mean) > 0), mean
+
+
+@settings(max_examples=100, deadline=None)
+@given(w=weights_strategy)
+def test_effective_sample_size_bounds(w):
+    ess = effective_sample_size(w)
+    assert 1.0 <= ess <= w.size
+    assert ess <= np.count_nonzero(w) + 1e-9  # never more than the particles that carry weight
+
+
+def test_effective_sample_size_extremes():
+    assert effective_sample_size(np.ones(50)) == pytest.approx(50.0)
+    assert effective_sample_size(np.eye(1, 50, 7).ravel()) == pytest.approx(1.0)
+    assert effective_sample_size([0.5, 0.5, 0.0, 0.0]) == pytest.approx(2.0)
+
+
+@settings(max_examples=100, deadline=None)
+@given(lw=arrays(np.float64, st.integers(1, 40),
+                 elements=st.one_of(st.floats(-1e300, 1e300), st.just(-np.inf))).filter(
+    lambda a: np.isfinite(a).any()))
+def test_normalise_log_weights_sums_to_one(lw):
+    w = normalise_log_weights(lw)
+    assert np.all(np.isfinite(w)) and np.all(w >= 0)
+    assert w.sum() == pytest.approx(1.0)
+    assert np.all(w[np.isneginf(lw)] == 0)
+    assert w[np.argmax(lw)] == w.max()
+
+
+def test_normalise_log_weights_matches_softmax_and_survives_huge_values():
+    lw = np.array([0.0, np.log(2.0), np.log(5.0)])
+    np.testing.assert_allclose(normalise_log_weights(lw), [1 / 8, 2 / 8, 5 / 8])
+    np.testing.assert_allclose(normalise_log_weights(lw + 1e6), [1 / 8, 2 / 8, 5 / 8])
+    np.testing.assert_allclose(normalise_log_weights(lw - 1e6), [1 / 8, 2 / 8, 5 / 8])
+    np.testing.assert_allclose(normalise_log_weights([-np.inf, 3.0, -np.inf]), [0, 1, 0])
+
+
+@pytest.mark.parametrize("bad, message", [
+    ([-np.inf, -np.inf], "all log_weights are -inf"),
+    ([0.0, np.nan], "NaN"),
+    ([0.0, np.inf], r"\+inf"),
+    ([], "non-empty"),
+])
+def test_normalise_log_weights_rejects_bad_input(bad, message):
+    with pytest.raises(ValueError, match=message):
+        normalise_log_weights(np.asarray(bad, dtype=float))
+
+
+@pytest.mark.parametrize("bad, message", [
+    ([0.5, -0.1, 0.6], "non-negative"),
+    ([0.5, np.nan], "NaN"),
+    ([0.5, np.inf], "inf"),
+    ([0.0, 0.0], "sum to zero"),
+    ([], "empty"),
+    ([[0.5, 0.5]], "1-D"),
+])
+def test_samplers_reject_bad_weights(bad, message):
+    w = np.asarray(bad, dtype=float)
+    with pytest.raises(ValueError, match=message):
+        systematic_resample(w, 0.5)
+    for f in RNG_SAMPLERS:
+        with pytest.raises(ValueError, match=message):
+            f(w, np.random.default_rng(0))
+    with pytest.raises(ValueError, match=message):
+        effective_sample_size(w)
+
+
+def test_bad_offset_and_rng():
+    for u0 in (-0.1, 1.0, np.nan):
+        with pytest.raises(ValueError, match="u0"):
+            systematic_resample([0.5, 0.5], u0)
+    with pytest.raises(TypeError, match="Generator"):
+        stratified_resample([0.5, 0.5], 3)
+
+
+def test_seeded_samplers_are_deterministic():
+    w = np.random.default_rng(5).random(40)
+    for f in RNG_SAMPLERS:
+        a = f(w, np.random.default_rng(11))
+        b = f(w, np.random.default_rng(11))
+        np.testing.assert_array_equal(a, b)
+
+
+@pytest.mark.parametrize("p", [1, 3, 7, 49, 1000])
+def test_offset_just_below_one_stays_in_range(p):
+    """(u0 + P - 1) / P rounds to exactly 1.0 for u0 = 1 - 2**-52 and some P; the index must stay below P."""
+    u0 = np.nextafter(1.0, 0.0)
+    for w in (np.ones(p), np.r_[np.ones(p - 1), 0.0] if p > 1 else np.ones(1)):
+        idx = systematic_resample(w, u0)
+        assert idx.max() < p and np.all(w[idx] > 0)
+
+
+def test_trailing_zero_weights_are_never_picked():
+    w = np.array([0.3, 0.7, 0.0, 0.0])
+    for u0 in (0.0, 0.5, np.nextafter(1.0, 0.0)):
+        assert set(systematic_resample(w, u0)) <= {0, 1}
+    rng = np.random.default_rng(0)
+    for f in RNG_SAMPLERS:
+        assert set(f(np.tile(w, 50), rng) % 4) <= {0, 1}

@@ -1,0 +1,345 @@
+"""Tests for slamlib.sim1d: the world and sensors, each of the twelve steps, the filter and the command."""
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from slamlib.sim1d import (
+    OccupancyGrid1D,
+    ParticleSLAM1D,
+    SensorModel1D,
+    VelocityProfile,
+    dead_reckon,
+    extract_landmarks,
+    initialise_particles,
+    likelihood_field,
+    make_world,
+    merge_scan,
+    offset_by_motion,
+    perturb_with_noise,
+    pick_best_particle,
+    read_imu,
+    read_scan,
+    read_timing,
+    resample_particles,
+    run_slam_1d,
+    score_particles,
+    simulate,
+    transform_scan,
+)
+
+CLEAN = SensorModel1D(velocity_noise=0.0, velocity_bias=0.0, range_noise=0.0, dropout=0.0, clutter_rate=0.0)
+
+
+@pytest.fixture(scope="module")
+def world():
+    return make_world(seed=1)
+
+
+@pytest.fixture(scope="module")
+def clean_recording(world):
+    return simulate(world, n_frames=80, seed=2, sensors=CLEAN)
+
+
+# ------------------------------------------------------------------------------------------ world and sensors
+def test_velocity_profile_position_is_the_integral_of_velocity():
+    prof = VelocityProfile(mean=1.2, components=((0.7, 9.0, 0.3), (0.2, 3.1, -1.0)))
+    t = np.linspace(0.0, 20.0, 200_001)
+    v = prof.velocity(t)
+    numeric = np.concatenate([[0.0], np.cumsum(0.5 * (v[1:] + v[:-1]) * np.diff(t))])  # trapezoid rule
+    np.testing.assert_allclose(prof.position(t), numeric, atol=1e-6)
+    assert prof.position(0.0) == 0.0
+
+
+def test_world_has_a_colonnade_and_irregular_structure(world):
+    lm = world.landmarks
+    assert np.all(np.diff(lm) > 0)
+    c0, c1, spacing = world.colonnade
+    inside = lm[(lm >= c0 - 1e-9) & (lm <= c1 + 1e-9)]
+    np.testing.assert_allclose(np.diff(inside), spacing)
+    outside_gaps = np.diff(lm[lm < c0 - spacing])
+    assert outside_gaps.std() > 0.1  # irregular
+    with pytest.raises(ValueError, match="gap"):
+        make_world(gap=(0.0, 1.0))
+
+
+def test_simulated_frames_timing_and_scans(world):
+    sensors = SensorModel1D()
+    rec = simulate(world, n_frames=120, seed=5, sensors=sensors)
+    assert len(rec) == 120
+    dts = rec.dts
+    assert dts[0] == 0.0 and rec.frames[0].velocity == 0.0
+    assert np.all(np.abs(dts[1:] - sensors.period) <= sensors.jitter * sensors.period + 1e-12)
+    assert dts[1:].std() > 0  # jittered
+    np.testing.assert_allclose(rec.times, np.cumsum(dts))
+    for frame, x in zip(rec.frames, rec.true_positions):
+        assert np.all(np.abs(frame.scan) <= sensors.max_range)
+        assert np.all(np.diff(frame.scan) >= 0)
+    # dropouts: fewer returns than landmarks in range, on average by about the dropout rate
+    in_range = [np.sum(np.abs(world.landmarks - x) <= sensors.max_range) for x in rec.true_positions]
+    returned = [len(o) for o in rec.true_offsets]
+    assert np.sum(returned) / np.sum(in_range) == pytest.approx(1 - sensors.dropout, abs=0.05)
+    assert rec.landmark_returns.sum() == np.sum(returned)
+
+
+def test_noise_free_scans_are_exact_offsets(world, clean_recording):
+    for frame, x in zip(clean_recording.frames, clean_recording.true_positions):
+        want = world.landmarks[np.abs(world.landmarks - x) <= CLEAN.max_range] - x
+        np.testing.assert_allclose(frame.scan, np.sort(want), atol=1e-12)
+
+
+def test_velocity_sensor_bias_and_noise(world):
+    sensors = SensorModel1D(velocity_noise=0.2, velocity_bias=0.3)
+    rec = simulate(world, n_frames=400, seed=3, sensors=sensors)
+    true_mean_v = np.diff(rec.true_positions) / rec.dts[1:]
+    err = rec.measured_velocities[1:] - true_mean_v
+    assert err.mean() == pytest.approx(0.3, abs=0.03)
+    assert err.std() == pytest.approx(0.2, rel=0.15)
+
+
+def test_simulation_is_deterministic(world):
+    a, b = simulate(world, 50, seed=9), simulate(world, 50, seed=9)
+    c = simulate(world, 50, seed=10)
+    np.testing.assert_array_equal(a.times, b.times)
+    assert all(np.array_equal(fa.scan, fb.scan) and fa.velocity == fb.velocity for fa, fb in zip(a.frames, b.frames))
+    assert not np.array_equal(a.times, c.times)
+
+
+def test_bad_parameters_raise():
+    with pytest.raises(ValueError, match="dropout"):
+        SensorModel1D(dropout=1.0)
+    with pytest.raises(ValueError, match="n_frames"):
+        simulate(make_world(), n_frames=0)
+    with pytest.raises(ValueError, match="n_particles"):
+        initialise_particles(0)
+
+
+# -------------------------------------------------------------------------------------------- steps 1 to 7
+def test_initialise_and_read_steps(clean_recording):
+    p = initialise_particles(7)
+    assert p.shape == (7,) and np.all(p == 0)
+    f = clean_recording.frames[3]
+    np.testing.assert_array_equal(read_scan(f), f.scan)
+    assert read_imu(f) == f.velocity and read_timing(f) == f.dt
+
+
+def test_offset_by_motion_integrates_the_velocity(clean_recording):
+    """With a noise-free velocity sensor, chaining step 5 reproduces the true positions (the exact integral)."""
+    x = initialise_particles(3)
+    for frame, want in zip(clean_recording.frames, clean_recording.true_positions):
+        x = offset_by_motion(x, read_imu(frame), read_timing(frame))
+        np.testing.assert_allclose(x, want, atol=1e-9)
+    np.testing.assert_allclose(dead_reckon(clean_recording), clean_recording.true_positions, atol=1e-9)
+
+
+def test_perturb_with_noise_is_gaussian_and_seeded():
+    x = np.full(20_000, 3.0)
+    y = perturb_with_noise(x, 0.25, np.random.default_rng(0))
+    assert (y - 3.0).mean() == pytest.approx(0.0, abs=0.01)
+    assert (y - 3.0).std() == pytest.approx(0.25, rel=0.03)
+    np.testing.assert_array_equal(y, perturb_with_noise(x, 0.25, np.random.default_rng(0)))
+    np.testing.assert_array_equal(perturb_with_noise(x, 0.0, np.random.default_rng(0)), x)
+    with pytest.raises(ValueError):
+        perturb_with_noise(x, -1.0, np.random.default_rng(0))
+
+
+@settings(max_examples=50, deadline=None)
+@given(xs=st.lists(st.floats(-100, 100), min_size=1, max_size=8),
+       zs=st.lists(st.floats(-10, 10), min_size=0, max_size=8))
+def test_transform_scan_is_pose_plus_offset(xs, zs):
+    pts = transform_scan(np.array(xs), np.array(zs))
+    assert pts.shape == (len(xs), len(zs))
+    for i, x in enumerate(xs):
+        for j, z in enumerate(zs):
+            assert pts[i, j] == x + z
+    np.testing.assert_array_equal(transform_scan(xs[0], np.array(zs)), pts[0])
+
+
+def test_transform_scan_at_the_true_pose_lands_on_the_landmarks(world, clean_recording):
+    for frame, x in zip(clean_recording.frames[::10], clean_recording.true_positions[::10]):
+        pts = transform_scan(x, frame.scan)
+        assert np.abs(pts[:, None] - world.landmarks[None, :]).min(axis=1).max() < 1e-9
+
+
+# ----------------------------------------------------------------------------------------- map and scoring
+def _map_from_truth(recording, frames, resolution=0.05):
+    grid = OccupancyGrid1D.empty(-30, 90, resolution)
+    for k in frames:
+        grid = merge_scan(grid, transform_scan(recording.true_positions[k], recording.frames[k].scan))
+    return grid
+
+
+def test_merge_scan_adds_counts_and_is_pure():
+    grid = OccupancyGrid1D.empty(0.0, 10.0, 0.5)
+    pts = np.array([0.1, 0.2, 3.7, 9.99, -0.1, 10.0, 25.0])  # the last three are off the grid
+    new = merge_scan(grid, pts)
+    assert grid.total == 0  # input untouched
+    assert new.total == 4
+    assert new.counts[0] == 2 and new.counts[7] == 1 and new.counts[19] == 1
+    again = merge_scan(new, pts[:1])
+    assert again.counts[0] == 3 and again.total == 5
+
+
+@settings(max_examples=40, deadline=None)
+@given(pts=st.lists(st.floats(-5, 15, allow_nan=False), max_size=30))
+def test_merge_scan_counts_every_point_on_the_grid(pts):
+    grid = OccupancyGrid1D.empty(0.0, 10.0, 0.25)
+    pts = np.array(pts, dtype=np.float64)
+    new = merge_scan(grid, pts)
+    cells = grid.cell_of(pts)
+    assert new.total == np.sum((cells >= 0) & (cells < grid.counts.size))
+
+
+def test_likelihood_field_peaks_at_structure():
+    grid = OccupancyGrid1D.empty(0.0, 10.0, 0.05)
+    grid = merge_scan(grid, np.r_[np.full(20, 2.0), 7.0])  # a well-observed landmark and a single hit
+    f = likelihood_field(grid, sigma=0.1, n_sat=3.0)
+    c = grid.centres
+    assert f.max() <= 1.0 + 1e-12 and f.min() >= 0.0
+    assert f[grid.cell_of(2.0)] == pytest.approx(1.0)
+    assert f[grid.cell_of(7.0)] == pytest.approx(1 / 3)
+    assert f[grid.cell_of(4.5)] < 1e-6
+    d = np.abs(c - c[grid.cell_of(2.0)])
+    near = (d > 0) & (d < 0.28)  # within 3 sigma of the peak the field falls like exp(-d^2 / 2 sigma^2)
+    np.testing.assert_allclose(f[near], np.exp(-0.5 * (d[near] / 0.1) ** 2), atol=1e-9)
+
+
+def test_score_prefers_the_true_pose_over_shifted_ones(clean_recording):
+    rec = simulate(make_world(seed=1), n_frames=80, seed=2)  # noisy, with dropouts and clutter
+    grid = _map_from_truth(rec, range(60))
+    k = 70
+    x = rec.true_positions[k]
+    shifts = np.array([-0.5, -0.2, -0.1, 0.0, 0.1, 0.2, 0.5])
+    scores = score_particles(transform_scan(x + shifts, rec.frames[k].scan), grid, sigma=0.07)
+    assert np.argmax(scores) == 3
+    assert np.all(np.diff(scores[:4]) > 0) and np.all(np.diff(scores[3:]) < 0)
+
+
+def test_score_on_an_empty_map_or_scan_is_flat():
+    grid = OccupancyGrid1D.empty(-5, 5, 0.1)
+    s = score_particles(transform_scan(np.array([0.0, 1.0, 2.0]), np.array([1.0, -2.0])), grid, 0.1)
+    np.testing.assert_array_equal(s, 0.0)
+    grid = merge_scan(grid, np.array([1.0]))
+    s = score_particles(transform_scan(np.array([0.0, 1.0]), np.zeros(0)), grid, 0.1)
+    np.testing.assert_array_equal(s, 0.0)
+
+
+def test_pick_best_particle():
+    assert pick_best_particle(np.array([0.1, 0.5, 0.2])) == 1
+    assert pick_best_particle(np.array([0.3, 0.3, 0.1])) == 0
+    with pytest.raises(ValueError):
+        pick_best_particle(np.zeros(0))
+
+
+def test_resample_particles_keeps_count_and_favours_high_weights():
+    rng = np.random.default_rng(0)
+    x = np.arange(100, dtype=np.float64)
+    w = np.full(100, 1e-4)
+    w[[10, 20]] = [0.6, 0.3]
+    w /= w.sum()
+    new_x, new_w, done = resample_particles(x, w, rng, ess_threshold=0.5)
+    assert done and new_x.shape == x.shape
+    np.testing.assert_allclose(new_w, 0.01)
+    n10, n20 = np.sum(new_x == 10), np.sum(new_x == 20)
+    assert n10 > n20 > 20 and n10 + n20 >= 85
+    # uniform weights: ESS = P, nothing to do unless forced
+    same_x, same_w, done = resample_particles(x, np.full(100, 0.01), rng, ess_threshold=0.5)
+    assert not done
+    np.testing.assert_array_equal(same_x, x)
+    _, _, done = resample_particles(x, np.full(100, 0.01), rng, ess_threshold=None)
+    assert done
+
+
+# ---------------------------------------------------------------------------------------------- the filter
+def test_first_step_maps_the_scan_at_the_origin(clean_recording):
+    grid = OccupancyGrid1D.empty(-30, 90, 0.05)
+    slam = ParticleSLAM1D(20, grid, 0.3, 0.07, np.random.default_rng(0))
+    info = slam.step(clean_recording.frames[0])
+    assert info.estimate == 0.0 and np.all(info.moved == 0.0)
+    assert slam.grid.total == clean_recording.frames[0].scan.size
+    np.testing.assert_allclose(info.weights, 1 / 20)
+
+
+def test_extract_landmarks_recovers_clusters():
+    rng = np.random.default_rng(4)
+    truth = np.array([1.0, 3.5, 8.2])
+    pts = np.concatenate([t + 0.04 * rng.standard_normal(30) for t in truth] + [[5.7]])  # + one stray hit
+    grid = merge_scan(OccupancyGrid1D.empty(0, 10, 0.05), pts)
+    found = extract_landmarks(grid, sigma=0.1, min_count=5)
+    assert found.size == 3
+    np.testing.assert_allclose(found, truth, atol=0.03)
+
+
+@pytest.fixture(scope="module")
+def runs():
+    out = {}
+    for seed in (0, 1, 2, 3):
+        rec = simulate(make_world(seed=seed), n_frames=200, seed=seed)
+        out[seed] = run_slam_1d(rec, n_particles=100, seed=seed)
+    return out
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2, 3])
+def test_slam_beats_dead_reckoning(runs, seed):
+    r = runs[seed]
+    assert r.slam_error.mean() < r.dead_reckoning_error.mean() / 3
+    assert r.slam_error[-1] < r.dead_reckoning_error[-1] / 3
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2, 3])
+def test_map_landmarks_close_to_truth(runs, seed):
+    r = runs[seed]
+    errs = r.landmark_errors(min_returns=5)
+    assert errs.size >= 10
+    assert np.median(errs) < 0.1 and errs.max() < 0.3
+    spurious = np.abs(r.landmarks_estimated[:, None] - r.landmarks_true[None, :]).min(axis=1)
+    assert np.mean(spurious < 0.3) >= 0.9
+
+
+def test_run_is_deterministic_and_seed_matters(world):
+    rec = simulate(world, n_frames=60, seed=4)
+    a = run_slam_1d(rec, n_particles=50, seed=7)
+    b = run_slam_1d(rec, n_particles=50, seed=7)
+    c = run_slam_1d(rec, n_particles=50, seed=8)
+    np.testing.assert_array_equal(a.estimated, b.estimated)
+    np.testing.assert_array_equal(a.particle_history, b.particle_history)
+    np.testing.assert_array_equal(a.grid.counts, b.grid.counts)
+    assert not np.array_equal(a.particle_history, c.particle_history)
+    assert a.particle_history.shape == (60, 50) and a.map_history.shape == (60, a.grid.counts.size)
+    np.testing.assert_array_equal(a.map_history[-1], a.grid.counts)
+
+
+def test_history_can_be_dropped(world):
+    r = run_slam_1d(simulate(world, n_frames=20, seed=1), n_particles=10, keep_history=False)
+    assert r.particle_history is None and r.map_history is None and r.estimated.shape == (20,)
+
+
+# ------------------------------------------------------------------------------------------- the command
+def test_sim1d_command(tmp_path, capsys):
+    from slamlib.cli import main
+
+    out = tmp_path / "run.png"
+    assert main(["sim1d", "--particles", "60", "--frames", "120", "--seed", "2", "--plot", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "particle SLAM" in text and "dead reckoning" in text
+    assert out.stat().st_size > 10_000
+    slam_mean = float(text.split("\nparticle SLAM")[1].split()[1])
+    dr_mean = float(text.split("\ndead reckoning")[1].split()[1])
+    assert slam_mean < dr_mean / 3
+
+
+def test_sim1d_plots_and_animation(runs):
+    import matplotlib.pyplot as plt
+
+    from slamlib.sim1d.plot import animate_run, plot_result, plot_world
+
+    fig = plot_result(runs[0], 8.0)
+    assert len(fig.axes) == 3
+    plt.close(fig)
+    fig = plot_world(simulate(make_world(seed=0), n_frames=30, seed=0), frame=10)
+    plt.close(fig)
+    anim = animate_run(runs[0], n_frames=3)
+    html = anim.to_jshtml()
+    plt.close(anim._fig)
+    assert "<img" in html or "animation" in html.lower()

@@ -1,0 +1,113 @@
+"""KITTI raw calibration files (``basedir/DATE/calib_*.txt``), validated before pykitti reads them.
+
+Files and the keys slamlib (and ``pykitti.raw``) need, ``key: numbers`` one per line:
+
+* ``calib_imu_to_velo.txt``: ``R`` (9, row-major 3x3) and ``T`` (3, metres): ``T_velo_imu``, which maps
+  IMU-frame points into the Velodyne frame, ``p_velo = R p_imu + T``.
+* ``calib_velo_to_cam.txt``: ``R`` (9), ``T`` (3): ``T_cam0unrect_velo``.
+* ``calib_cam_to_cam.txt``: ``P_rect_0k`` (12, 3x4) and ``R_rect_0k`` (9) for k = 0..3.
+
+Other lines (``calib_time: 25-May-2012 16:47:16``, ``S_00``, ...) are kept only if numeric, like pykitti.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from slamlib.errors import DataFormatError
+
+__all__ = ["IMU_TO_VELO", "VELO_TO_CAM", "CAM_TO_CAM", "REQUIRED_KEYS", "read_calib_file", "read_rigid",
+           "check_calibration", "load_T_velo_imu"]
+
+IMU_TO_VELO = "calib_imu_to_velo.txt"
+VELO_TO_CAM = "calib_velo_to_cam.txt"
+CAM_TO_CAM = "calib_cam_to_cam.txt"
+
+#: For each calibration file, the keys that must be present and how many numbers each holds.
+REQUIRED_KEYS: dict[str, dict[str, int]] = {
+    IMU_TO_VELO: {"R": 9, "T": 3},
+    VELO_TO_CAM: {"R": 9, "T": 3},
+    CAM_TO_CAM: {**{f"P_rect_0{k}": 12 for k in range(4)}, **{f"R_rect_0{k}": 9 for k in range(4)}},
+}
+
+
+def read_calib_file(path: str | os.PathLike, required: dict[str, int] | None = None) -> dict[str, np.ndarray]:
+    """Read a ``key: v1 v2 ...`` calibration file into ``{key: float64 array}``.
+
+    Lines whose values are not all numbers (e.g. ``calib_time``) are skipped unless their key is in
+    ``required``. Each key in ``required`` must appear with exactly that many finite numbers.
+
+    Raises
+    ------
+    DataFormatError
+        Missing file; a line without ``:``; a required key missing, non-numeric, non-finite or with the
+        wrong count (file and line named).
+    """
+    path = os.fspath(path)
+    required = required or {}
+    if not os.path.isfile(path):
+        raise DataFormatError(path, "calibration file not found")
+    data: dict[str, np.ndarray] = {}
+    with open(path, "r", encoding="ascii", errors="replace") as f:
+        lines = f.read().splitlines()
+    for i, text in enumerate(lines, start=1):
+        if not text.strip():
+            continue
+        if ":" not in text:
+            raise DataFormatError(path, f"calibration line is not 'key: values': {text.strip()!r}", i)
+        key, value = text.split(":", 1)
+        key = key.strip()
+        toks = value.split()
+        try:
+            vals = np.array([float(x) for x in toks], dtype=np.float64)
+        except ValueError:
+            if key in required:
+                raise DataFormatError(path, f"calibration key {key!r} has a non-numeric value", i) from None
+            continue
+        if key in required:
+            if vals.size != required[key]:
+                raise DataFormatError(
+                    path, f"calibration key {key!r} has {vals.size} numbers, expected {required[key]}", i
+                )
+            if not np.all(np.isfinite(vals)):
+                raise DataFormatError(path, f"calibration key {key!r} has a non-finite value", i)
+        data[key] = vals
+    missing = [k for k in required if k not in data]
+    if missing:
+        raise DataFormatError(path, f"calibration key(s) missing: {', '.join(missing)}")
+    return data
+
+
+def read_rigid(path: str | os.PathLike) -> np.ndarray:
+    """4x4 rigid transform ``[[R, T], [0, 1]]`` from a file with keys ``R`` (9, row-major) and ``T`` (3).
+
+    Raises DataFormatError also if ``R`` is not a rotation (``|R^T R - I| > 1e-3`` or ``det R < 0``).
+    """
+    d = read_calib_file(path, {"R": 9, "T": 3})
+    R = d["R"].reshape(3, 3)
+    if np.abs(R.T @ R - np.eye(3)).max() > 1e-3 or np.linalg.det(R) < 0:
+        raise DataFormatError(path, "calibration R is not a rotation matrix (R^T R != I or det R < 0)")
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = d["T"]
+    return T
+
+
+def check_calibration(date_dir: str | os.PathLike) -> None:
+    """Check the three calibration files in ``basedir/DATE`` have every key :data:`REQUIRED_KEYS` lists."""
+    date_dir = Path(date_dir)
+    for name, keys in REQUIRED_KEYS.items():
+        if keys.keys() == {"R", "T"}:
+            read_rigid(date_dir / name)
+        else:
+            read_calib_file(date_dir / name, keys)
+
+
+def load_T_velo_imu(date_dir: str | os.PathLike) -> np.ndarray:
+    """``T_velo_imu`` (4x4) from ``basedir/DATE/calib_imu_to_velo.txt``: ``p_velo = T_velo_imu p_imu``."""
+    return read_rigid(Path(date_dir) / IMU_TO_VELO)
+
+

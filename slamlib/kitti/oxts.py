@@ -1,0 +1,161 @@
+"""KITTI OXTS (GPS/IMU) packets: validated reading, writing, and ground-truth poses.
+
+A KITTI raw drive has one packet per frame in ``oxts/data/NNNNNNNNNN.txt``: one line of 30
+space-separated numbers, named in ``oxts/dataformat.txt`` (and :data:`OXTS_FIELDS`):
+
+====================  =====================================================================
+lat, lon, alt         WGS84 position of the OXTS unit (deg, deg, m)
+roll, pitch, yaw      orientation (rad); ``R_world_imu = Rz(yaw) Ry(pitch) Rx(roll)``, yaw 0 = east
+vn, ve                velocity north / east (m/s)
+vf, vl, vu            velocity forward / left / up in the body frame (m/s)
+ax, ay, az            acceleration in the body x, y, z axes (m/s^2)
+af, al, au            acceleration forward / left / up (m/s^2)
+wx, wy, wz            angular rate about the body x, y, z axes (rad/s)
+wf, wl, wu            angular rate about forward / left / up (rad/s)
+pos_accuracy          position accuracy (m);  vel_accuracy: velocity accuracy (m/s)
+navstat, numsats      navigation status, number of satellites (integers)
+posmode, velmode,     GPS modes (integers)
+orimode
+====================  =====================================================================
+
+Poses follow pykitti (``pykitti.utils.pose_from_oxts_packet``): a Mercator projection with scale
+``s = cos(lat_0)`` taken from a reference packet (the drive's first)::
+
+    t = (s * lon * pi * r / 180,  s * r * ln(tan((90 + lat) * pi / 360)),  alt),   r = 6378137 m
+    R = Rz(yaw) Ry(pitch) Rx(roll)
+
+which gives ``T_enu_imu`` in a local east-north-up frame. slamlib's world frame is the IMU pose of the
+drive's first frame: ``T_w_imu[i] = inv(T_enu_imu[0]) @ T_enu_imu[i]`` (so ``T_w_imu[0] = I``).
+
+Reference: Geiger et al., "Vision meets Robotics: The KITTI Dataset", IJRR 2013; pykitti 0.3.1 ``utils.py``.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from typing import Sequence
+
+import numpy as np
+from pykitti.utils import OxtsPacket, pose_from_oxts_packet, transform_from_rot_trans
+
+from slamlib.errors import DataFormatError
+
+__all__ = [
+    "OXTS_FIELDS",
+    "OxtsPacket",
+    "read_oxts_packet",
+    "parse_oxts_line",
+    "format_oxts_packet",
+    "write_oxts_packet",
+    "mercator_scale",
+    "enu_pose_from_packet",
+    "poses_from_packets",
+]
+
+#: The 30 OXTS field names in file order (pykitti's ``OxtsPacket`` namedtuple fields).
+OXTS_FIELDS: tuple[str, ...] = tuple(OxtsPacket._fields)
+#: The last five fields are integers (flags and counts).
+N_INT_FIELDS = 5
+assert len(OXTS_FIELDS) == 30
+
+
+def parse_oxts_line(text: str, path: str | os.PathLike = "<string>", line: int | None = 1) -> OxtsPacket:
+    """Parse one OXTS line of 30 numbers into an :class:`OxtsPacket` (floats, last five ``int``).
+
+    Raises
+    ------
+    DataFormatError
+        Wrong number of fields (KITTI has 30), a field that is not a number, a non-finite value
+        (nan / inf), or an integer field (navstat, numsats, posmode, velmode, orimode) with a fraction.
+    """
+    parts = text.split()
+    if len(parts) != len(OXTS_FIELDS):
+        raise DataFormatError(
+            path, f"OXTS line has {len(parts)} fields, expected {len(OXTS_FIELDS)} (see oxts/dataformat.txt)", line
+        )
+    values: list = []
+    for k, (name, tok) in enumerate(zip(OXTS_FIELDS, parts)):
+        try:
+            v = float(tok)
+        except ValueError:
+            raise DataFormatError(path, f"OXTS field {k + 1} ({name}) is not a number: {tok!r}", line) from None
+        if not math.isfinite(v):
+            raise DataFormatError(path, f"OXTS field {k + 1} ({name}) is not finite: {tok!r}", line)
+        if k >= len(OXTS_FIELDS) - N_INT_FIELDS:
+            if v != int(v):
+                raise DataFormatError(path, f"OXTS field {k + 1} ({name}) must be an integer, got {tok!r}", line)
+            v = int(v)
+        values.append(v)
+    return OxtsPacket(*values)
+
+
+def read_oxts_packet(path: str | os.PathLike) -> OxtsPacket:
+    """Read one ``oxts/data/NNNNNNNNNN.txt`` file (exactly one non-blank line of 30 numbers).
+
+    Raises
+    ------
+    DataFormatError
+        Missing file, no data line, more than one data line, or a bad line (see :func:`parse_oxts_line`).
+    """
+    path = os.fspath(path)
+    if not os.path.isfile(path):
+        raise DataFormatError(path, "OXTS packet file not found")
+    with open(path, "r", encoding="ascii", errors="replace") as f:
+        lines = f.read().splitlines()
+    data = [(i + 1, s) for i, s in enumerate(lines) if s.strip()]
+    if not data:
+        raise DataFormatError(path, "OXTS packet file is empty (expected one line of 30 numbers)")
+    if len(data) > 1:
+        raise DataFormatError(path, "OXTS packet file has more than one data line (expected exactly one)", data[1][0])
+    line_no, text = data[0]
+    return parse_oxts_line(text, path, line_no)
+
+
+def format_oxts_packet(packet: OxtsPacket | Sequence[float]) -> str:
+    """One OXTS line: 25 floats with ``repr`` precision (round-trips exactly), then 5 integers."""
+    vals = list(packet)
+    if len(vals) != len(OXTS_FIELDS):
+        raise ValueError(f"an OXTS packet has {len(OXTS_FIELDS)} values, got {len(vals)}")
+    n_float = len(OXTS_FIELDS) - N_INT_FIELDS
+    return " ".join([repr(float(v)) for v in vals[:n_float]] + [str(int(v)) for v in vals[n_float:]])
+
+
+def write_oxts_packet(path: str | os.PathLike, packet: OxtsPacket | Sequence[float]) -> None:
+    """Write one packet as ``oxts/data/NNNNNNNNNN.txt`` (one line, newline-terminated)."""
+    with open(path, "w", encoding="ascii") as f:
+        f.write(format_oxts_packet(packet) + "\n")
+
+
+def mercator_scale(lat_deg: float) -> float:
+    """Mercator scale ``cos(lat * pi / 180)`` of the reference latitude (pykitti's ``scale``)."""
+    return float(np.cos(lat_deg * np.pi / 180.0))
+
+
+def enu_pose_from_packet(packet: OxtsPacket, scale: float) -> np.ndarray:
+    """4x4 ``T_enu_imu`` of one packet (pykitti's Mercator convention, absolute, no origin shift)."""
+    R, t = pose_from_oxts_packet(packet, scale)
+    return transform_from_rot_trans(np.asarray(R, dtype=np.float64), np.asarray(t, dtype=np.float64))
+
+
+def poses_from_packets(packets: Sequence[OxtsPacket], reference: OxtsPacket | None = None) -> np.ndarray:
+    """Ground-truth IMU poses ``T_w_imu`` (N, 4, 4), world = IMU pose of ``reference`` (default: packets[0]).
+
+    ``T_w_imu[i] = inv(T_enu_imu(reference)) @ T_enu_imu(packets[i])`` with the Mercator scale of the
+    reference latitude. This equals ``inv(oxts[0].T_w_imu) @ oxts[i].T_w_imu`` of ``pykitti.raw``
+    (pykitti subtracts the first position but keeps the absolute ENU rotation).
+    """
+    if len(packets) == 0:
+        return np.zeros((0, 4, 4))
+    ref = packets[0] if reference is None else reference
+    scale = mercator_scale(ref.lat)
+    T0 = enu_pose_from_packet(ref, scale)
+    T = np.stack([enu_pose_from_packet(p, scale) for p in packets])
+    # [R0^T Ri, R0^T (ti - t0)]: subtract the reference position first (as pykitti does) so the large
+    # Mercator coordinates (~1e6 m) cancel exactly before rotating.
+    R0t = T0[:3, :3].T
+    out = np.zeros_like(T)
+    out[:, :3, :3] = np.einsum("ij,njk->nik", R0t, T[:, :3, :3])
+    out[:, :3, 3] = (T[:, :3, 3] - T0[:3, 3]) @ R0t.T
+    out[:, 3, 3] = 1.0
+    return out

@@ -1,0 +1,108 @@
+"""KITTI raw timestamp files, parsed to integer nanoseconds (no precision lost).
+
+KITTI raw writes one timestamp per line, ``YYYY-MM-DD HH:MM:SS.fffffffff`` (exactly nine fractional
+digits, local time of the recording, no zone), e.g. ``2011-09-26 13:02:25.964389445``. Files:
+``oxts/timestamps.txt`` (one per OXTS packet) and ``velodyne_points/timestamps{,_start,_end}.txt``.
+
+Python's ``datetime`` (and therefore ``pykitti.raw.timestamps``) keeps only microseconds; here each line
+becomes an ``int`` number of nanoseconds since 1970-01-01 00:00:00, treating the wall-clock time as UTC
+(the zone does not matter for differences):
+
+    ns = (days_since_epoch * 86400 + HH * 3600 + MM * 60 + SS) * 10**9 + fffffffff
+
+``int64`` nanoseconds cover the years 1678-2262, which holds every KITTI recording.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import os
+import re
+from typing import Iterable
+
+import numpy as np
+
+from slamlib.errors import DataFormatError
+
+__all__ = ["parse_timestamp_ns", "format_timestamp_ns", "read_timestamps_ns", "write_timestamps_ns"]
+
+_PATTERN = re.compile(r"^(\d{4})-(\d{2})-(\d{2}) (\d{2}):(\d{2}):(\d{2})\.(\d{9})$")
+_EPOCH = _dt.datetime(1970, 1, 1)
+_FORMAT_HINT = "expected 'YYYY-MM-DD HH:MM:SS.fffffffff' (KITTI raw format, 9 fractional digits)"
+
+
+def parse_timestamp_ns(text: str, path: str | os.PathLike = "<string>", line: int | None = None) -> int:
+    """Parse one KITTI timestamp ``YYYY-MM-DD HH:MM:SS.fffffffff`` to integer nanoseconds since 1970 (UTC).
+
+    Parameters
+    ----------
+    text : str
+        The timestamp; surrounding whitespace is ignored.
+    path, line :
+        Where the text came from, only used in the error message.
+
+    Raises
+    ------
+    DataFormatError
+        If the text does not match the format exactly (e.g. 6 fractional digits) or the date/time is invalid
+        (month 13, second 61, ...).
+    """
+    s = text.strip()
+    m = _PATTERN.match(s)
+    if m is None:
+        raise DataFormatError(path, f"bad timestamp {s!r}: {_FORMAT_HINT}", line)
+    y, mo, d, hh, mm, ss, frac = m.groups()
+    try:
+        whole = _dt.datetime(int(y), int(mo), int(d), int(hh), int(mm), int(ss))
+    except ValueError as exc:
+        raise DataFormatError(path, f"bad timestamp {s!r}: {exc}", line) from None
+    seconds = (whole - _EPOCH) // _dt.timedelta(seconds=1)
+    return seconds * 1_000_000_000 + int(frac)
+
+
+def format_timestamp_ns(ns: int) -> str:
+    """Inverse of :func:`parse_timestamp_ns`: integer nanoseconds since 1970 -> ``YYYY-MM-DD HH:MM:SS.fffffffff``."""
+    ns = int(ns)
+    seconds, frac = divmod(ns, 1_000_000_000)
+    whole = _EPOCH + _dt.timedelta(seconds=seconds)
+    return f"{whole:%Y-%m-%d %H:%M:%S}.{frac:09d}"
+
+
+def read_timestamps_ns(path: str | os.PathLike, strictly_increasing: bool = True) -> np.ndarray:
+    """Read a KITTI timestamps file: one ``YYYY-MM-DD HH:MM:SS.fffffffff`` per line -> ``(N,)`` int64 ns.
+
+    Blank lines at the end of the file are ignored; a blank line in the middle is an error.
+
+    Raises
+    ------
+    DataFormatError
+        File missing, empty, a line in the wrong format (file and 1-based line named), or (with
+        ``strictly_increasing``) a timestamp not later than the one before it.
+    """
+    path = os.fspath(path)
+    if not os.path.isfile(path):
+        raise DataFormatError(path, "timestamps file not found")
+    with open(path, "r", encoding="ascii", errors="replace") as f:
+        lines = f.read().splitlines()
+    while lines and not lines[-1].strip():
+        lines.pop()
+    if not lines:
+        raise DataFormatError(path, "timestamps file is empty")
+    out = np.empty(len(lines), dtype=np.int64)
+    for i, text in enumerate(lines):
+        out[i] = parse_timestamp_ns(text, path, i + 1)
+        if strictly_increasing and i > 0 and out[i] <= out[i - 1]:
+            raise DataFormatError(
+                path,
+                f"timestamp {text.strip()!r} is not later than the previous line's "
+                f"({format_timestamp_ns(out[i - 1])}); timestamps must be strictly increasing",
+                i + 1,
+            )
+    return out
+
+
+def write_timestamps_ns(path: str | os.PathLike, timestamps_ns: Iterable[int]) -> None:
+    """Write integer nanosecond timestamps in the KITTI raw format, one per line (newline-terminated)."""
+    with open(path, "w", encoding="ascii") as f:
+        for ns in timestamps_ns:
+            f.write(format_timestamp_ns(int(ns)) + "\n")

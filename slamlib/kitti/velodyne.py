@@ -1,0 +1,56 @@
+"""KITTI Velodyne scans: ``velodyne_points/data/NNNNNNNNNN.bin``, validated.
+
+Each file is a flat array of little-endian float32, four per point: ``x, y, z`` (metres, Velodyne frame:
+x forward, y left, z up) and ``reflectance`` (0..1). The file size must therefore be a multiple of
+16 bytes; a scan is returned as an ``(N, 4)`` float32 array (pykitti's ``load_velo_scan`` layout).
+"""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+
+from slamlib.errors import DataFormatError
+
+__all__ = ["POINT_BYTES", "read_velodyne_scan", "write_velodyne_scan"]
+
+#: Bytes per point: 4 float32 values.
+POINT_BYTES = 16
+
+
+def read_velodyne_scan(path: str | os.PathLike) -> np.ndarray:
+    """Read a ``.bin`` scan into ``(N, 4)`` float32 ``x, y, z, reflectance`` (Velodyne frame, metres).
+
+    Raises
+    ------
+    DataFormatError
+        Missing file, size not a multiple of 16 bytes, or any non-finite (nan / inf) value (the message
+        gives how many points and the first bad point index).
+    """
+    path = os.fspath(path)
+    if not os.path.isfile(path):
+        raise DataFormatError(path, "Velodyne scan file not found")
+    size = os.path.getsize(path)
+    if size % POINT_BYTES:
+        raise DataFormatError(
+            path, f"Velodyne scan has {size} bytes, not a multiple of {POINT_BYTES} (4 float32 per point)"
+        )
+    scan = np.fromfile(path, dtype="<f4").reshape(-1, 4)
+    finite = np.isfinite(scan).all(axis=1)
+    if not finite.all():
+        bad = np.flatnonzero(~finite)
+        raise DataFormatError(
+            path, f"Velodyne scan has {bad.size} point(s) with nan/inf values (first at point index {bad[0]})"
+        )
+    return scan.astype(np.float32, copy=False)
+
+
+def write_velodyne_scan(path: str | os.PathLike, scan: np.ndarray) -> None:
+    """Write an ``(N, 4)`` (or ``(N, 3)``, reflectance 0) array as a KITTI ``.bin`` (little-endian float32)."""
+    scan = np.asarray(scan)
+    if scan.ndim != 2 or scan.shape[1] not in (3, 4):
+        raise ValueError(f"scan must be (N, 4) or (N, 3), got {scan.shape}")
+    if scan.shape[1] == 3:
+        scan = np.concatenate([scan, np.zeros((scan.shape[0], 1), dtype=scan.dtype)], axis=1)
+    np.ascontiguousarray(scan, dtype="<f4").tofile(path)

@@ -1,0 +1,200 @@
+"""The KITTI raw reader on the real shipped pieces and on tiny drives built from them (vs pykitti)."""
+
+import numpy as np
+import pykitti
+import pytest
+
+from slamlib.geometry import invert_pose
+from slamlib.kitti import (
+    OXTS_FIELDS,
+    KittiRawDrive,
+    format_oxts_packet,
+    format_timestamp_ns,
+    load_T_velo_imu,
+    parse_oxts_line,
+    parse_timestamp_ns,
+    read_oxts_packet,
+    read_timestamps_ns,
+    read_velodyne_scan,
+    write_velodyne_scan,
+)
+from slamlib.kitti.sample import SAMPLE_DATE, SAMPLE_DRIVE, make_tiny_drive, sample_raw_paths
+
+P = sample_raw_paths()
+
+
+# ------------------------------------------------------------------ real shipped pieces
+def test_real_calibration_T_velo_imu():
+    T = load_T_velo_imu(P["date_dir"])
+    # Values as printed in calib_imu_to_velo.txt (2011_09_26).
+    assert T.shape == (4, 4)
+    np.testing.assert_array_equal(T[0], [9.999976e-01, 7.553071e-04, -2.035826e-03, -8.086759e-01])
+    np.testing.assert_array_equal(T[1], [-7.854027e-04, 9.998898e-01, -1.482298e-02, 3.195559e-01])
+    np.testing.assert_array_equal(T[2], [2.024406e-03, 1.482454e-02, 9.998881e-01, -7.997231e-01])
+    np.testing.assert_array_equal(T[3], [0, 0, 0, 1])
+    np.testing.assert_allclose(T[:3, :3].T @ T[:3, :3], np.eye(3), atol=1e-6)
+
+
+def test_real_oxts_packet_fields():
+    p = read_oxts_packet(P["oxts_packet"])
+    assert p._fields == OXTS_FIELDS and len(p) == 30
+    assert p.lat == 49.015003823272 and p.lon == 8.4342971002335 and p.alt == 116.43032836914
+    assert p.roll == 0.035752 and p.pitch == 0.00903 and p.yaw == -2.6087069803847
+    assert p.vf == 13.172716663769 and p.vl == -0.12475264293164 and p.vu == -0.032919903047354
+    assert p.af == -0.34030092211055 and p.au == 10.209117821189
+    assert p.wf == 0.0089018002187228 and p.wu == -0.018809330937153
+    assert (p.navstat, p.numsats, p.posmode, p.velmode, p.orimode) == (4, 11, 6, 6, 6)
+    assert all(isinstance(v, int) for v in p[-5:])
+    # forward speed from north/east velocities (the car is level): |vn, ve| ~ |vf, vl|
+    assert np.hypot(p.vn, p.ve) == pytest.approx(np.hypot(p.vf, p.vl), rel=1e-3)
+
+
+def test_oxts_format_round_trip():
+    p = read_oxts_packet(P["oxts_packet"])
+    assert parse_oxts_line(format_oxts_packet(p)) == p
+
+
+def test_real_timestamps_nanoseconds_exact():
+    ts = read_timestamps_ns(P["oxts_timestamps"])
+    assert ts.dtype == np.int64 and ts.shape == (108,)
+    assert ts[0] == parse_timestamp_ns("2011-09-26 13:02:25.964389445")
+    assert ts[0] % 1_000_000_000 == 964389445 and ts[1] % 1_000_000_000 == 74347616
+    assert format_timestamp_ns(ts[0]) == "2011-09-26 13:02:25.964389445"
+    lines = P["oxts_timestamps"].read_text().split()
+    assert format_timestamp_ns(ts[-1]) == " ".join(lines[-2:])
+    dt = np.diff(ts) * 1e-9
+    assert np.all(dt > 0.09) and np.all(dt < 0.12) and abs(dt.mean() - 0.1) < 0.005
+    velo = read_timestamps_ns(P["velo_timestamps"])
+    assert velo.shape == (108,) and velo[0] % 1_000_000_000 == 951199337
+
+
+@pytest.mark.parametrize("name", ["scan0", "scan9"])
+def test_real_scans(name):
+    scan = read_velodyne_scan(P[name])
+    n = P[name].stat().st_size // 16
+    assert scan.shape == (n, 4) and scan.dtype == np.float32
+    assert 100_000 < n < 130_000
+    assert np.isfinite(scan).all()
+    r = np.linalg.norm(scan[:, :3], axis=1)
+    assert r.max() < 130 and np.median(r) > 2  # HDL-64E range
+    assert scan[:, 3].min() >= 0 and scan[:, 3].max() <= 1
+    np.testing.assert_array_equal(scan, pykitti.utils.load_velo_scan(str(P[name])))
+
+
+def test_scan_write_read_round_trip(tmp_path):
+    scan = read_velodyne_scan(P["scan0"])[::97]
+    write_velodyne_scan(tmp_path / "a.bin", scan)
+    np.testing.assert_array_equal(read_velodyne_scan(tmp_path / "a.bin"), scan)
+
+
+# ------------------------------------------------------------------ tiny drives
+@pytest.fixture
+def tiny(tmp_path):
+    make_tiny_drive(tmp_path, n_frames=6, point_stride=200)
+    return tmp_path
+
+
+def _pykitti_world_poses(basedir):
+    pk = pykitti.raw(str(basedir), SAMPLE_DATE, SAMPLE_DRIVE)
+    T0_inv = np.linalg.inv(pk.oxts[0].T_w_imu)
+    return pk, np.stack([T0_inv @ o.T_w_imu for o in pk.oxts])
+
+
+def test_drive_agrees_with_pykitti(tiny):
+    drive = KittiRawDrive(tiny, SAMPLE_DATE, SAMPLE_DRIVE)
+    pk, ref = _pykitti_world_poses(tiny)
+    assert len(drive) == len(pk) == 6
+    np.testing.assert_allclose(drive.T_velo_imu, pk.calib.T_velo_imu, atol=0)
+    G = drive.ground_truth_poses("imu")
+    np.testing.assert_allclose(G, ref, atol=1e-9)
+    np.testing.assert_allclose(G[0], np.eye(4), atol=1e-12)
+    assert np.linalg.norm(G[-1][:3, 3]) > 5  # the car moved ~13 m/s * 0.5 s
+    Gv = drive.ground_truth_poses("velo")
+    np.testing.assert_allclose(Gv, ref @ np.linalg.inv(pk.calib.T_velo_imu), atol=1e-9)
+    for frame, pk_scan, pk_ts in zip(drive, pk.velo, pk.timestamps):
+        np.testing.assert_array_equal(frame.scan, pk_scan)
+        np.testing.assert_allclose(frame.T_w_imu, ref[frame.index], atol=1e-9)
+        np.testing.assert_allclose(frame.T_w_velo, Gv[frame.index], atol=1e-12)
+        assert frame.oxts == pk.oxts[frame.index].packet
+        # pykitti keeps microseconds only (truncated): they agree with ours to the microsecond
+        assert frame.timestamp_ns // 1000 % 1_000_000 == pk_ts.microsecond
+        assert format_timestamp_ns(frame.timestamp_ns)[:19] == pk_ts.strftime("%Y-%m-%d %H:%M:%S")
+    assert drive.calib.T_cam0_velo.shape == (4, 4)
+
+
+def test_frame_fields_and_timing(tiny):
+    drive = KittiRawDrive(tiny, SAMPLE_DATE, int(SAMPLE_DRIVE))
+    ts = read_timestamps_ns(P["oxts_timestamps"])[:6]
+    frames = list(drive)
+    assert [f.index for f in frames] == list(range(6))
+    assert [f.timestamp_ns for f in frames] == list(ts)
+    assert frames[0].dt == 0.0 and frames[0].time_s == 0.0
+    for k in range(1, 6):
+        assert frames[k].dt == pytest.approx((ts[k] - ts[k - 1]) * 1e-9, abs=1e-15)
+        assert frames[k].time_s == pytest.approx((ts[k] - ts[0]) * 1e-9, abs=1e-15)
+    f = frames[2]
+    np.testing.assert_array_equal(f.velocity, [f.oxts.vf, f.oxts.vl, f.oxts.vu])
+    np.testing.assert_array_equal(f.angular_rate, [f.oxts.wf, f.oxts.wl, f.oxts.wu])
+    np.testing.assert_array_equal(f.acceleration, [f.oxts.af, f.oxts.al, f.oxts.au])
+    np.testing.assert_allclose(f.T_w_velo, f.T_w_imu @ np.linalg.inv(drive.T_velo_imu))
+    assert f.scan.dtype == np.float32 and f.scan.shape[1] == 4
+    np.testing.assert_array_equal(drive.timestamps_ns, ts)
+    assert drive.velo_timestamps_ns is not None and drive.velo_timestamps_ns.shape == (6,)
+
+
+def test_imu_arrays_match_frames(tiny):
+    drive = KittiRawDrive(tiny, SAMPLE_DATE, SAMPLE_DRIVE, frames=range(1, 6))
+    imu = drive.imu_arrays()
+    frames = list(drive)
+    np.testing.assert_array_equal(imu.index, [1, 2, 3, 4, 5])
+    np.testing.assert_array_equal(imu.velocity, np.stack([f.velocity for f in frames]))
+    np.testing.assert_array_equal(imu.angular_rate, np.stack([f.angular_rate for f in frames]))
+    np.testing.assert_array_equal(imu.acceleration, np.stack([f.acceleration for f in frames]))
+    np.testing.assert_allclose(imu.dt, [f.dt for f in frames], atol=1e-15)
+    np.testing.assert_allclose(imu.time_s, [f.time_s for f in frames], atol=1e-15)
+    assert imu.dt[0] == 0.0 and imu.time_s[0] > 0.09  # time counts from drive frame 0
+
+
+def test_frame_selection_keeps_world_and_dt(tiny):
+    full = KittiRawDrive(tiny, SAMPLE_DATE, SAMPLE_DRIVE)
+    sub = KittiRawDrive(tiny, SAMPLE_DATE, SAMPLE_DRIVE, frames=slice(1, 6, 2))
+    assert len(sub) == 3
+    G = full.ground_truth_poses()
+    got = list(sub)
+    assert [f.index for f in got] == [1, 3, 5]
+    for f in got:
+        np.testing.assert_allclose(f.T_w_imu, G[f.index], atol=1e-12)
+    assert got[0].dt == 0.0
+    assert got[1].dt == pytest.approx((full.timestamps_ns[3] - full.timestamps_ns[1]) * 1e-9)
+    assert sub[-1].index == 5 and sub[1].dt == got[1].dt
+    np.testing.assert_allclose(sub.ground_truth_poses(), G[[1, 3, 5]], atol=1e-12)
+    with pytest.raises(IndexError):
+        sub[3]
+    with pytest.raises(ValueError, match="out of range"):
+        KittiRawDrive(tiny, SAMPLE_DATE, SAMPLE_DRIVE, frames=range(4, 8))
+
+
+def test_iteration_is_lazy(tiny):
+    """A broken scan in frame 4 does not stop frames 0-3 from being read: files are read frame by frame."""
+    drive = KittiRawDrive(tiny, SAMPLE_DATE, SAMPLE_DRIVE)
+    (drive.velodyne_path(4)).write_bytes(b"\0" * 17)
+    it = iter(drive)
+    assert [next(it).index for _ in range(4)] == [0, 1, 2, 3]
+    from slamlib.errors import DataFormatError
+
+    with pytest.raises(DataFormatError, match="0000000004.bin"):
+        next(it)
+
+
+def test_world_is_first_imu_pose_not_enu(tiny):
+    """pykitti's T_w_imu keeps the absolute ENU rotation; slamlib's world is the frame-0 IMU pose."""
+    drive = KittiRawDrive(tiny, SAMPLE_DATE, SAMPLE_DRIVE)
+    pk, _ = _pykitti_world_poses(tiny)
+    assert not np.allclose(pk.oxts[0].T_w_imu, np.eye(4), atol=1e-3)
+    first = next(iter(drive))
+    np.testing.assert_allclose(first.T_w_imu, np.eye(4), atol=1e-12)
+    np.testing.assert_allclose(first.T_w_velo, invert_pose(drive.T_velo_imu), atol=1e-6)
+    # The car drives forward (IMU +x) at vf: displacement of frame 5 in world ~ vf * t along +x.
+    G = drive.ground_truth_poses()
+    t5 = (drive.timestamps_ns[5] - drive.timestamps_ns[0]) * 1e-9
+    assert G[5, 0, 3] == pytest.approx(first.oxts.vf * t5, rel=0.02)

@@ -1,0 +1,194 @@
+"""ATE, RPE and the KITTI odometry metric: invariants, a literal devkit translation, and the golden values."""
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy.spatial.transform import Rotation
+
+from slamlib.geometry import make_pose
+from slamlib.kitti import read_kitti_poses
+from slamlib.metrics import (
+    absolute_trajectory_error,
+    kitti_odometry_error,
+    relative_pose_error,
+    rotation_angle,
+    trajectory_distances,
+    umeyama_alignment,
+)
+from slamlib.paths import kitti_sample_dir
+
+ODO = kitti_sample_dir() / "odometry"
+
+
+def _random_trajectory(rng, n=50):
+    R = Rotation.from_rotvec(rng.normal(scale=0.3, size=(n, 3))).as_matrix()
+    t = np.cumsum(rng.normal(size=(n, 3)), axis=0)
+    return make_pose(R, t)
+
+
+def test_ate_identical_is_zero():
+    T = _random_trajectory(np.random.default_rng(0))
+    for align in (False, True, "sim3"):
+        r = absolute_trajectory_error(T, T, align=align)
+        assert r.rmse == pytest.approx(0, abs=1e-9) and r.max == pytest.approx(0, abs=1e-9)
+
+
+def test_ate_of_shifted_trajectory():
+    T = _random_trajectory(np.random.default_rng(1))
+    shift = np.array([1.0, -2.0, 0.5])
+    S = T.copy()
+    S[:, :3, 3] += shift
+    r = absolute_trajectory_error(S, T)
+    assert r.rmse == pytest.approx(np.linalg.norm(shift), rel=1e-12)
+    np.testing.assert_allclose(r.errors, np.linalg.norm(shift), rtol=1e-12)
+    r = absolute_trajectory_error(S, T, align=True)
+    assert r.rmse == pytest.approx(0, abs=1e-9)
+    np.testing.assert_allclose(r.translation, -shift, atol=1e-9)
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.integers(0, 2**31), st.floats(0.2, 5.0))
+def test_umeyama_recovers_similarity(seed, scale):
+    rng = np.random.default_rng(seed)
+    src = rng.normal(size=(20, 3)) * 5
+    R = Rotation.random(random_state=seed).as_matrix()
+    t = rng.normal(size=3) * 10
+    dst = scale * src @ R.T + t
+    R2, t2, s2 = umeyama_alignment(src, dst, with_scale=True)
+    np.testing.assert_allclose(R2, R, atol=1e-9)
+    np.testing.assert_allclose(t2, t, atol=1e-7)
+    assert s2 == pytest.approx(scale, rel=1e-9)
+    assert np.linalg.det(R2) == pytest.approx(1.0)
+    # rigid alignment of a rigidly moved copy gives zero ATE
+    assert absolute_trajectory_error(src, src @ R.T + t, align="se3").rmse < 1e-8
+
+
+def test_ate_alignment_never_worse():
+    rng = np.random.default_rng(2)
+    T = _random_trajectory(rng)
+    noisy = T.copy()
+    noisy[:, :3, 3] += rng.normal(scale=0.3, size=(len(T), 3))
+    assert absolute_trajectory_error(noisy, T, align=True).rmse <= absolute_trajectory_error(noisy, T).rmse
+
+
+def test_rpe_invariant_to_global_transform_and_detects_drift():
+    rng = np.random.default_rng(3)
+    T = _random_trajectory(rng, 40)
+    G = make_pose(Rotation.from_rotvec([0.1, -0.4, 1.0]).as_matrix(), [5, 6, 7])
+    r = relative_pose_error(G @ T, T, delta=3)
+    assert r.trans_rmse < 1e-9 and r.rot_rmse < 1e-6
+    assert r.first.size == 37 and np.all(r.last - r.first == 3)
+    # a constant extra forward step of 0.1 m per frame gives RPE(1 frame) of exactly 0.1 m
+    step = make_pose(np.eye(3), [0.1, 0, 0])
+    D = T.copy()
+    for i in range(1, len(T)):
+        D[i] = D[i - 1] @ (np.linalg.inv(T[i - 1]) @ T[i]) @ step
+    r = relative_pose_error(D, T, delta=1)
+    np.testing.assert_allclose(r.trans_errors, 0.1, rtol=1e-9)
+    np.testing.assert_allclose(r.rot_errors, 0, atol=1e-6)
+
+
+def test_rpe_by_distance():
+    n = 30
+    T = np.tile(np.eye(4), (n, 1, 1))
+    T[:, 0, 3] = np.arange(n) * 2.0  # 2 m per frame
+    r = relative_pose_error(T, T, delta=10, unit="m")
+    np.testing.assert_array_equal(r.last - r.first, 5)
+    assert r.first.size == n - 5
+    with pytest.raises(ValueError, match="no pose pair"):
+        relative_pose_error(T, T, delta=1000, unit="m")
+
+
+def test_rotation_angle():
+    for a in (0.0, 0.3, 2.0, np.pi):
+        R = Rotation.from_rotvec([0, a / np.sqrt(2), a / np.sqrt(2)]).as_matrix()
+        assert rotation_angle(R) == pytest.approx(a, abs=1e-7)
+
+
+def _devkit_literal(poses_gt, poses_result, lengths=(100, 200, 300, 400, 500, 600, 700, 800), step=10):
+    """Line-by-line translation of evaluate_odometry.cpp (calcSequenceErrors + saveStats), in float64."""
+    dist = [0.0]
+    for i in range(1, len(poses_gt)):
+        dist.append(dist[i - 1] + np.linalg.norm(poses_gt[i - 1][:3, 3] - poses_gt[i][:3, 3]))
+    dist = np.array(dist)
+    errs = []
+    for first in range(0, len(poses_gt), step):
+        for length in lengths:
+            after = np.flatnonzero(dist[first:] > dist[first] + length)
+            if after.size == 0:
+                continue
+            last = first + after[0]
+            d_gt = np.linalg.inv(poses_gt[first]) @ poses_gt[last]
+            d_res = np.linalg.inv(poses_result[first]) @ poses_result[last]
+            E = np.linalg.inv(d_res) @ d_gt
+            r = np.arccos(max(min(0.5 * (E[0, 0] + E[1, 1] + E[2, 2] - 1.0), 1.0), -1.0))
+            t = np.linalg.norm(E[:3, 3])
+            errs.append((r / length, t / length))
+    e = np.array(errs)
+    return e[:, 1].mean() * 100, np.degrees(e[:, 0].mean()), len(errs)
+
+
+def test_kitti_metric_matches_literal_devkit():
+    gt = read_kitti_poses(ODO / "poses" / "07.txt")
+    rng = np.random.default_rng(4)
+    # a drifting estimate: perturb each relative motion slightly
+    est = gt.copy()
+    for i in range(1, len(gt)):
+        noise = make_pose(Rotation.from_rotvec(rng.normal(scale=2e-3, size=3)).as_matrix(),
+                          rng.normal(scale=0.01, size=3))
+        est[i] = est[i - 1] @ (np.linalg.inv(gt[i - 1]) @ gt[i]) @ noise
+    t_ref, r_ref, n_ref = _devkit_literal(gt, est)
+    r = kitti_odometry_error(est, gt)
+    assert r.n_segments == n_ref
+    assert r.t_err_percent == pytest.approx(t_ref, rel=1e-10)
+    assert r.r_err_deg_per_m == pytest.approx(r_ref, rel=1e-10)
+    assert r.t_err_percent > 0.1
+    assert sum(v[2] for v in r.per_length.values()) == r.n_segments
+    # per-length means average back to the overall mean
+    tl = np.array([v[0] * v[2] for v in r.per_length.values()]).sum() / r.n_segments
+    assert tl == pytest.approx(r.t_err_percent, rel=1e-12)
+    # ground truth against itself: zero error
+    z = kitti_odometry_error(gt, gt)
+    assert z.t_err_percent < 1e-6 and z.r_err_deg_per_m < 1e-4
+
+
+def test_kitti_segments_follow_last_frame_rule():
+    gt = read_kitti_poses(ODO / "poses" / "05.txt")
+    r = kitti_odometry_error(gt, gt)
+    d = trajectory_distances(gt)
+    assert np.all(r.first % 10 == 0)
+    assert np.all(d[r.last] > d[r.first] + r.length)
+    assert np.all(d[r.last - 1] <= d[r.first] + r.length)
+
+
+def test_kitti_golden_orb_slam2_sequence_00():
+    """Published figures for the shipped ORB-SLAM2 result on sequence 00: 0.6997 % and 0.002535 deg/m.
+
+    The translational error matches to 4 significant digits. The rotational error depends in its 4th
+    digit on how the files' 9-decimal (not exactly orthonormal) rotations are inverted: general inverses
+    as the devkit give 0.0025333 deg/m, rigid ones 0.0025356 (see ``kitti_odometry_error``); both are
+    checked within 0.1 % of the published 0.002535.
+    """
+    gt = read_kitti_poses(ODO / "poses" / "00.txt")
+    est = read_kitti_poses(ODO / "results" / "00_orb_slam2.txt")
+    for rigid in (False, True):
+        r = kitti_odometry_error(est, gt, rigid_inverse=rigid)
+        assert float(f"{r.t_err_percent:.4g}") == 0.6997
+        assert r.r_err_deg_per_m == pytest.approx(0.002535, rel=1e-3)
+    assert set(r.per_length) == {100.0, 200.0, 300.0, 400.0, 500.0, 600.0, 700.0, 800.0}
+    # errors per metre shrink with segment length for a loop-closing SLAM result
+    t_by_len = [r.per_length[L][0] for L in sorted(r.per_length)]
+    assert t_by_len[0] > t_by_len[-1]
+
+
+def test_bad_inputs():
+    T = np.tile(np.eye(4), (5, 1, 1))
+    with pytest.raises(ValueError, match="associate"):
+        absolute_trajectory_error(T, T[:4])
+    with pytest.raises(ValueError, match="shorter than the shortest segment"):
+        kitti_odometry_error(T, T)
+    with pytest.raises(ValueError, match="align"):
+        absolute_trajectory_error(T, T, align="affine")
+    with pytest.raises(ValueError):
+        absolute_trajectory_error(np.zeros((5, 2)), np.zeros((5, 2)))

@@ -1,0 +1,138 @@
+"""Generate whole synthetic KITTI raw drives: route -> OXTS + town scene + HDL-64E scans -> files.
+
+:func:`write_drive` is deterministic from its ``seed`` (timestamps, IMU noise, scene layout and LIDAR noise
+use independent streams spawned from it). :func:`default_drive` generates the package's default drive once
+into :func:`slamlib.paths.cache_dir` (keyed by its parameters and :data:`GENERATOR_VERSION`, regenerated
+when incomplete or stale) and returns ``(basedir, date, drive)`` for ``pykitti.raw(basedir, date, f"{drive:04d}")``
+or ``slamlib.kitti.KittiRawDrive(basedir, date, drive)``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import shutil
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from slamlib.geometry import invert_pose
+from slamlib.paths import cache_dir
+from slamlib.synth.lidar import Hdl64, ray_directions, simulate_scan
+from slamlib.synth.oxts import ImuNoise, oxts_packets
+from slamlib.synth.routes import Route, get_route
+from slamlib.synth.scene import build_scene
+from slamlib.synth.writer import (SCAN_PERIOD, drive_dir, frame_timestamps_ns, read_marker, write_calib,
+                                  write_marker, write_oxts, write_scan, write_velodyne_timestamps)
+
+__all__ = ["GENERATOR_VERSION", "write_drive", "default_drive", "resolve_route", "DEFAULT_FRAMES"]
+
+#: Bump when the generator's output changes: cached drives of another version are regenerated.
+GENERATOR_VERSION = "synth-2"
+#: KITTI 07 key frames of the default drive (30 s, ~220 m through the town part of sequence 07).
+DEFAULT_FRAMES = (0, 300)
+
+
+def resolve_route(route, frames=None) -> tuple[Route, int]:
+    """``(Route, n_frames)`` from a :class:`Route` or name and a frame selection.
+
+    ``frames``: ``None`` (as many 10 Hz frames as the route spans), an ``int`` n, or ``(start, stop)`` /
+    ``slice``: for a KITTI route name those select the odometry key frames (the drive then has
+    ``stop - start`` frames); for other routes ``(0, n)`` means n frames.
+    """
+    if isinstance(route, str):
+        if route in ("00", "05", "07") and isinstance(frames, (tuple, list, slice)):
+            sl = frames if isinstance(frames, slice) else slice(*frames)
+            start = sl.start or 0
+            stop = sl.stop
+            key = slice(start, None if stop is None else stop + 2)
+            r = get_route(route, key)
+            n = int((r.t1 - r.t0 - 0.03) / SCAN_PERIOD) + 1
+            return r, (n if stop is None else min(n, stop - start))
+        r = get_route(route)
+    else:
+        r = route
+    n_max = int((r.t1 - r.t0 - 0.03) / SCAN_PERIOD) + 1
+    if frames is None:
+        n = n_max
+    elif isinstance(frames, int):
+        n = frames
+    else:
+        sl = frames if isinstance(frames, slice) else slice(*frames)
+        n = len(range(*sl.indices(n_max)))
+    if n < 1 or n > n_max:
+        raise ValueError(f"route {r.name!r} spans at most {n_max} frames, asked for {n}")
+    return r, n
+
+
+def write_drive(basedir, route="07", date: str = "2011_09_26", drive: int = 1, frames=DEFAULT_FRAMES,
+                seed: int = 0, noise: ImuNoise = ImuNoise(), lidar: Hdl64 = Hdl64(), scans: bool = True,
+                progress: bool = True) -> tuple[Path, str, int]:
+    """Write a synthetic drive under ``basedir`` in the KITTI raw layout (see :mod:`slamlib.synth.writer`).
+
+    Parameters
+    ----------
+    basedir : output root; the drive goes to ``basedir/DATE/DATE_drive_NNNN_sync``.
+    route : a :class:`Route` or a name (``"straight"``, ``"loop"``, ``"00"``, ``"05"``, ``"07"``).
+    frames : frame selection, see :func:`resolve_route`.
+    seed : master seed; the same arguments give byte-identical files.
+    noise : IMU noise of the OXTS velocity / rate / acceleration fields.
+    lidar : sensor model (reduce ``columns`` / raise ``beam_stride`` for fast tests).
+    scans : write Velodyne scans (``False``: OXTS + timestamps only, empty ``velodyne_points/data``; the
+        drive then still loads in ``pykitti.raw`` for OXTS but has no scans).
+    progress : show a tqdm progress bar.
+
+    Returns ``(Path(basedir), date, drive)``.
+    """
+    from tqdm.auto import tqdm
+    from slamlib.kitti.calib import load_T_velo_imu
+
+    r, n = resolve_route(route, frames)
+    ss = np.random.SeedSequence(seed)
+    rng_time, rng_imu, rng_scene, rng_lidar = (np.random.default_rng(s) for s in ss.spawn(4))
+    ddir = drive_dir(basedir, date, drive)
+    if ddir.exists():
+        shutil.rmtree(ddir)
+    date_dir = write_calib(basedir, date)
+    ts = frame_timestamps_ns(n, date, rng_time)
+    t_route = r.t0 + (ts["oxts"] - ts["oxts"][0]) * 1e-9
+    packets = oxts_packets(r, t_route, noise, seed=int(rng_imu.integers(2**63)))
+    write_oxts(ddir, packets, ts["oxts"])
+    write_velodyne_timestamps(ddir, ts)
+    if scans:
+        T_velo_imu = load_T_velo_imu(date_dir)
+        dense_t = np.linspace(t_route[0], t_route[-1], max(2, int((t_route[-1] - t_route[0]) * 20) + 2))
+        scene = build_scene(r.position(dense_t), seed=int(rng_scene.integers(2**63)))
+        rc = scene.raycasting_scene()
+        dirs = ray_directions(lidar)
+        T_w_velo = r.pose(t_route) @ invert_pose(T_velo_imu)
+        for k in tqdm(range(n), desc=f"synth drive {drive:04d}", disable=not progress, unit="scan"):
+            write_scan(ddir, k, simulate_scan(rc, scene.albedo, T_w_velo[k], rng_lidar, lidar, dirs))
+    write_marker(ddir, {"version": GENERATOR_VERSION, "route": r.name, "frames": n, "seed": seed,
+                        "noise": noise.as_dict(), "lidar": lidar.as_dict(), "scans": scans})
+    return Path(basedir), date, drive
+
+
+def default_drive(frames=DEFAULT_FRAMES, seed: int = 0, full: bool = False, route: str = "07",
+                  noise: ImuNoise = ImuNoise(), lidar: Hdl64 = Hdl64(), scans: bool = True,
+                  progress: bool = True) -> tuple[Path, str, int]:
+    """The default synthetic drive (KITTI 07 route, key frames ``frames``), generated once into the cache.
+
+    ``full=True`` takes the whole 07 route (~1,100 frames, a few minutes to generate). The cache folder is
+    ``cache_dir()/synth/<hash of the parameters and GENERATOR_VERSION>``; a drive whose completion marker is
+    missing or differs is regenerated. Returns ``(basedir, date, drive)``.
+    """
+    if full:
+        frames = (0, None)
+    params = {"version": GENERATOR_VERSION, "route": route, "frames": list(frames) if frames else None,
+              "seed": seed, "noise": noise.as_dict(), "lidar": lidar.as_dict(), "scans": scans}
+    key = hashlib.sha1(json.dumps(params, sort_keys=True).encode()).hexdigest()[:12]
+    basedir = cache_dir() / "synth" / key
+    date, drive = "2011_09_26", 1
+    marker = read_marker(drive_dir(basedir, date, drive))
+    _, n = resolve_route(route, frames)
+    if marker is None or marker.get("version") != GENERATOR_VERSION or marker.get("frames") != n:
+        write_drive(basedir, route, date, drive, frames=frames, seed=seed, noise=noise, lidar=lidar,
+                    scans=scans, progress=progress)
+    return basedir, date, drive

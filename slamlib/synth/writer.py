@@ -1,0 +1,106 @@
+"""Write synthetic drives in the exact KITTI raw ("sync") layout, readable unmodified by ``pykitti.raw``.
+
+Layout written (``DATE`` e.g. ``2011_09_26``, ``NNNN`` the drive number)::
+
+    basedir/DATE/calib_imu_to_velo.txt, calib_velo_to_cam.txt, calib_cam_to_cam.txt   (the real 2011_09_26 files)
+    basedir/DATE/DATE_drive_NNNN_sync/oxts/dataformat.txt, timestamps.txt, data/0000000000.txt ...
+    basedir/DATE/DATE_drive_NNNN_sync/velodyne_points/timestamps.txt, timestamps_start.txt,
+        timestamps_end.txt, data/0000000000.bin ...   (float32 x, y, z, reflectance)
+
+Timing, modelled on the shipped real drive 2011_09_26_drive_0001 (its files give: scan period 0.10315 s
+with 45 us jitter; OXTS stamps 11-21 ms after the scan stamps; a sweep runs from the previous sweep's end
+to ``timestamp + 51.6 ms``)::
+
+    t_velo[k]  = t_start + k * period + N(0, jitter)          (period 0.10315 s, jitter 3.2e-5 s)
+    t_oxts[k]  = t_velo[k] + U(0.011, 0.021)
+    t_end[k]   = t_velo[k] + 0.0516,   t_start_sweep[k] = t_end[k-1]  (t_velo[0] - 0.0516 for k = 0)
+
+The vehicle state of frame ``k`` (OXTS packet and the scan's sensor pose) is the route at
+``t_oxts[k] - t_oxts[0] + route_t0`` (so ``pykitti``'s ``T_w_velo`` is exactly the pose the scan was cast
+from). A completed drive gets a ``.slamlib_synth.json`` marker (parameters + generator version) written last.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+
+from slamlib.kitti.oxts import format_oxts_packet
+from slamlib.kitti.timestamps import write_timestamps_ns
+from slamlib.paths import kitti_sample_dir
+
+__all__ = ["CALIB_FILES", "MARKER", "drive_dir", "write_calib", "frame_timestamps_ns", "write_oxts",
+           "write_velodyne_timestamps", "write_scan", "SCAN_PERIOD"]
+
+CALIB_FILES = ("calib_imu_to_velo.txt", "calib_velo_to_cam.txt", "calib_cam_to_cam.txt")
+MARKER = ".slamlib_synth.json"
+SCAN_PERIOD = 0.10315
+_SAMPLE = kitti_sample_dir() / "raw" / "2011_09_26"
+
+
+def drive_dir(basedir, date: str, drive: int) -> Path:
+    """``basedir/DATE/DATE_drive_NNNN_sync``."""
+    return Path(basedir) / date / f"{date}_drive_{int(drive):04d}_sync"
+
+
+def write_calib(basedir, date: str) -> Path:
+    """Copy the three real 2011_09_26 calibration files into ``basedir/DATE``; returns that folder."""
+    d = Path(basedir) / date
+    d.mkdir(parents=True, exist_ok=True)
+    for name in CALIB_FILES:
+        shutil.copyfile(_SAMPLE / name, d / name)
+    return d
+
+
+def frame_timestamps_ns(n: int, date: str, rng: np.random.Generator, start_time: str = "13:02:25.9") -> dict:
+    """Integer-nanosecond timestamps of ``n`` frames (see the module docstring for the model).
+
+    Returns ``{"velo", "start", "end", "oxts"}`` each ``(n,)`` int64 ns since 1970 (wall clock as UTC).
+    """
+    day = _dt.datetime.strptime(date + " " + start_time, "%Y_%m_%d %H:%M:%S.%f").replace(tzinfo=_dt.timezone.utc)
+    t0 = int(round(day.timestamp() * 1e9))
+    k = np.arange(n)
+    velo = t0 + np.round((k * SCAN_PERIOD + 3.2e-5 * rng.standard_normal(n)) * 1e9).astype(np.int64)
+    end = velo + 51_600_000 + rng.integers(-20_000, 20_000, n)
+    start = np.r_[velo[:1] - 51_600_000, end[:-1]]
+    oxts = velo + rng.integers(11_000_000, 21_000_000, n)
+    return {"velo": velo, "start": start, "end": end, "oxts": oxts}
+
+
+def write_oxts(ddir: Path, packets: np.ndarray, oxts_ns: np.ndarray) -> None:
+    """``oxts/dataformat.txt`` (copied from the real drive), ``timestamps.txt`` and one packet per frame."""
+    o = Path(ddir) / "oxts"
+    (o / "data").mkdir(parents=True, exist_ok=True)
+    shutil.copyfile(_SAMPLE / "2011_09_26_drive_0001_sync" / "oxts" / "dataformat.txt", o / "dataformat.txt")
+    write_timestamps_ns(o / "timestamps.txt", oxts_ns)
+    for i, p in enumerate(packets):
+        (o / "data" / f"{i:010d}.txt").write_text(format_oxts_packet(p) + "\n", encoding="ascii")
+
+
+def write_velodyne_timestamps(ddir: Path, ts: dict) -> None:
+    v = Path(ddir) / "velodyne_points"
+    (v / "data").mkdir(parents=True, exist_ok=True)
+    write_timestamps_ns(v / "timestamps.txt", ts["velo"])
+    write_timestamps_ns(v / "timestamps_start.txt", ts["start"])
+    write_timestamps_ns(v / "timestamps_end.txt", ts["end"])
+
+
+def write_scan(ddir: Path, index: int, scan: np.ndarray) -> None:
+    """``velodyne_points/data/NNNNNNNNNN.bin``: ``scan (N, 4)`` as little-endian float32."""
+    np.ascontiguousarray(scan, dtype="<f4").tofile(Path(ddir) / "velodyne_points" / "data" / f"{index:010d}.bin")
+
+
+def write_marker(ddir: Path, params: dict) -> None:
+    (Path(ddir) / MARKER).write_text(json.dumps(params, indent=1, sort_keys=True), encoding="ascii")
+
+
+def read_marker(ddir: Path) -> dict | None:
+    p = Path(ddir) / MARKER
+    try:
+        return json.loads(p.read_text(encoding="ascii"))
+    except (OSError, ValueError):
+        return None

@@ -1,0 +1,154 @@
+"""Tests of the synthetic KITTI drive generator (slamlib.synth): layout, ground truth, sensor statistics, noise."""
+
+import numpy as np
+import pykitti
+import pytest
+
+from slamlib.kitti.oxts import OxtsPacket, poses_from_packets
+from slamlib.kitti.timestamps import read_timestamps_ns
+from slamlib.odometry import dead_reckon
+from slamlib.paths import kitti_sample_dir
+from slamlib.synth import (ZERO_NOISE, Hdl64, ImuNoise, hdl64_elevations, kitti_route, loop_route, oxts_packets,
+                           ray_directions, resolve_route, write_drive)
+from slamlib.synth.writer import drive_dir
+
+FAST_LIDAR = Hdl64(columns=500)
+
+
+@pytest.fixture(scope="module")
+def tiny_drive(tmp_path_factory):
+    base = tmp_path_factory.mktemp("synth")
+    write_drive(base, "07", frames=(0, 5), seed=3, progress=False)
+    return base
+
+
+def test_layout_is_kitti_raw(tiny_drive):
+    d = drive_dir(tiny_drive, "2011_09_26", 1)
+    for name in ("calib_imu_to_velo.txt", "calib_velo_to_cam.txt", "calib_cam_to_cam.txt"):
+        assert (tiny_drive / "2011_09_26" / name).read_bytes() == \
+            (kitti_sample_dir() / "raw" / "2011_09_26" / name).read_bytes()
+    assert sorted(p.name for p in (d / "oxts" / "data").iterdir()) == [f"{i:010d}.txt" for i in range(5)]
+    assert sorted(p.name for p in (d / "velodyne_points" / "data").iterdir()) == [f"{i:010d}.bin" for i in range(5)]
+    for name in ("timestamps.txt", "timestamps_start.txt", "timestamps_end.txt"):
+        lines = (d / "velodyne_points" / name).read_text().splitlines()
+        assert len(lines) == 5 and all(len(x) == 29 and x.startswith("2011-09-26 ") for x in lines)
+    assert (d / "oxts" / "dataformat.txt").exists()
+
+
+def test_pykitti_loads_and_ground_truth_matches_route(tiny_drive):
+    data = pykitti.raw(str(tiny_drive), "2011_09_26", "0001")
+    assert len(data.oxts) == 5 and len(data.velo_files) == 5
+    scan = data.get_velo(2)
+    assert scan.shape[1] == 4 and scan.dtype == np.float32 and len(scan) > 50000
+    route, _ = resolve_route("07", (0, 5))
+    ns = read_timestamps_ns(drive_dir(tiny_drive, "2011_09_26", 1) / "oxts" / "timestamps.txt")
+    truth = route.pose(route.t0 + (ns - ns[0]) * 1e-9)
+    T0 = data.oxts[0].T_w_imu
+    for k, o in enumerate(data.oxts):
+        T = np.linalg.inv(T0) @ o.T_w_imu
+        assert np.abs(T[:3, 3] - truth[k, :3, 3]).max() < 1e-3
+        assert np.abs(T[:3, :3] - truth[k, :3, :3]).max() < 1e-6
+
+
+def test_deterministic_from_seed(tmp_path):
+    a = write_drive(tmp_path / "a", "loop", frames=3, seed=7, lidar=FAST_LIDAR, progress=False)[0]
+    b = write_drive(tmp_path / "b", "loop", frames=3, seed=7, lidar=FAST_LIDAR, progress=False)[0]
+    c = write_drive(tmp_path / "c", "loop", frames=3, seed=8, lidar=FAST_LIDAR, progress=False)[0]
+    rel = "2011_09_26/2011_09_26_drive_0001_sync/velodyne_points/data/0000000002.bin"
+    assert (a / rel).read_bytes() == (b / rel).read_bytes()
+    assert (a / rel).read_bytes() != (c / rel).read_bytes()
+
+
+def _elevation_fractions(scan):
+    e = np.degrees(np.arctan2(scan[:, 2], np.linalg.norm(scan[:, :2], axis=1)))
+    h = np.histogram(e, bins=[-26, -20, -15, -10, -5, 0, 3])[0]
+    return h / h.sum()
+
+
+#: Five places along the default route (KITTI 07 key frames), each generated with its own seed.
+PLACES = [(0, 5), (50, 55), (100, 105), (200, 205), (250, 255)]
+
+
+def test_scan_statistics_close_to_real(tiny_drive, tmp_path):
+    """Points per scan and the elevation histogram, averaged along the route, within 20 % of the real scans'.
+
+    The real sample is one place (stop-and-go traffic); a single synthetic place differs more, mostly in the
+    top bin (sky or facade at the horizon), so the statistic is taken over five places of the route.
+    """
+    real = [np.fromfile(p, np.float32).reshape(-1, 4) for p in sorted((kitti_sample_dir() / "velodyne_sample").glob("*.bin"))]
+    syn = []
+    for seed, frames in enumerate(PLACES):
+        base = tiny_drive if frames == (0, 5) else write_drive(tmp_path / str(seed), "07", frames=frames, seed=3,
+                                                               progress=False)[0]
+        data = pykitti.raw(str(base), "2011_09_26", "0001")
+        syn += [data.get_velo(k) for k in range(5)]
+    n_real = np.mean([len(s) for s in real])
+    n_syn = np.mean([len(s) for s in syn])
+    assert abs(n_syn - n_real) < 0.2 * n_real
+    f_real = np.mean([_elevation_fractions(s) for s in real], axis=0)
+    f_syn = np.mean([_elevation_fractions(s) for s in syn], axis=0)
+    assert np.all(np.abs(f_syn - f_real) < 0.2 * f_real), (f_syn, f_real)
+    assert 0 <= syn[0][:, 3].min() and syn[0][:, 3].max() < 1
+
+
+def test_ego_vehicle_hides_only_the_lowest_rings():
+    """As in the real scans: the upper block and the upper lower-block rings see all round (the real rings above
+    -19 deg lose under 10 %, the model under 15 %); the lowest rings lose about half their points behind the car
+    (real: 41-46 %)."""
+    d = ray_directions(Hdl64())
+    elevation = np.degrees(np.arcsin(d[:, 2]))
+    e = np.degrees(hdl64_elevations())
+    kept = np.array([(np.abs(elevation - x) < 1e-3).sum() for x in e]) / Hdl64().columns
+    assert np.all(kept[e > -19] > 0.85)
+    assert np.all(kept[:32] == 1.0)
+    assert 0.3 < kept[-1] < 0.7
+
+
+def test_timestamps_like_kitti(tiny_drive):
+    d = drive_dir(tiny_drive, "2011_09_26", 1)
+    v = read_timestamps_ns(d / "velodyne_points" / "timestamps.txt")
+    o = read_timestamps_ns(d / "oxts" / "timestamps.txt")
+    s = read_timestamps_ns(d / "velodyne_points" / "timestamps_start.txt")
+    e = read_timestamps_ns(d / "velodyne_points" / "timestamps_end.txt")
+    dt = np.diff(v) * 1e-9
+    assert np.all((dt > 0.1025) & (dt < 0.1038)) and np.std(dt) > 0
+    assert np.all((o - v > 10e6) & (o - v < 22e6))
+    assert np.all(s < v) and np.all(v < e) and np.all(s[1:] == e[:-1])
+
+
+def _drift(noise, seed=0):
+    route = kitti_route("07", (0, 400))
+    t = np.arange(0, route.t1, 0.10315)
+    o = oxts_packets(route, t, noise, seed=seed)
+    D = dead_reckon(o[:, 8:11], o[:, 20:23], np.r_[0, np.diff(t)])
+    T = route.pose(t)
+    length = np.linalg.norm(np.diff(T[:, :3, 3], axis=0), axis=1).sum()
+    return np.linalg.norm(D[-1, :3, 3] - T[-1, :3, 3]) / length
+
+
+def test_dead_reckoning_drift_default_noise_several_percent():
+    assert 0.02 < _drift(ImuNoise()) < 0.2
+
+
+def test_dead_reckoning_drift_zero_noise_tiny():
+    assert _drift(ZERO_NOISE) < 1e-3
+
+
+def test_oxts_pose_fields_exact_on_loop():
+    r = loop_route()
+    t = np.linspace(0, r.t1, 200)
+    o = oxts_packets(r, t, ImuNoise(), seed=1, enu_yaw0=0.0)
+    P = poses_from_packets([OxtsPacket(*x) for x in o])
+    T = r.pose(t)
+    assert np.abs(P[:, :3, 3] - T[:, :3, 3]).max() < 1e-3
+    assert np.abs(P[:, :3, :3] - T[:, :3, :3]).max() < 1e-6
+    assert np.all(o[:, 25] == 4) and o.shape == (200, 30)
+
+
+def test_route_07_is_planar_z_up():
+    r = kitti_route("07")
+    p = r.position(np.linspace(r.t0, r.t1, 1000))
+    assert 650 < r.length() < 740          # KITTI reports 694.7 m for sequence 07
+    assert np.ptp(p[:, 2]) < 0.05 * np.ptp(p[:, :2], axis=0).max()
+    f = r.specific_force_body(np.linspace(r.t0, r.t1, 200))
+    assert abs(np.median(f[:, 2]) - 9.81) < 0.3

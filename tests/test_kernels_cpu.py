@@ -1,0 +1,230 @@
+"""The Numba CPU backend against the numpy reference, and the reference against the definitions."""
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from slamlib import geometry
+from slamlib.errors import BackendUnavailableError
+from slamlib.kernels import Backend, get_backend
+from slamlib.maps import MortonBVHMap, VoxelHashMap
+
+REF = get_backend("numpy")
+CPU = get_backend("cpu")
+
+
+def _particles(rng, P, spread=0.3):
+    R = geometry.rpy_to_matrix(rng.uniform(-np.pi, np.pi, (P, 3)) * spread)
+    t = rng.normal(0.0, 3.0, (P, 3))
+    return R, t
+
+
+def test_get_backend_names():
+    for name in ("numpy", "cpu"):
+        b = get_backend(name)
+        assert isinstance(b, Backend) and b.name == name
+        assert callable(b.score_particles) and callable(b.systematic_resample)
+    with pytest.raises(ValueError, match="unknown backend"):
+        get_backend("opencl")
+
+
+def test_get_backend_cuda_is_a_backend_or_a_clear_error():
+    try:
+        b = get_backend("cuda")
+    except BackendUnavailableError as exc:
+        assert "numba-cuda" in str(exc) or "cpu" in str(exc)
+    else:
+        assert b.name == "cuda"
+
+
+finite = st.floats(-3.0, 3.0, allow_nan=False)
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.integers(1, 40), st.tuples(finite, finite, finite), st.tuples(finite, finite, finite),
+       st.integers(0, 2**32 - 1))
+def test_move_particles_cpu_equals_reference(P, rpy_delta, trans_delta, seed):
+    rng = np.random.default_rng(seed)
+    R, t = _particles(rng, P)
+    noise = rng.standard_normal((P, 6))
+    sigma = rng.uniform(0.0, 0.2, 6)
+    R_ref, t_ref = REF.move_particles(R, t, rpy_delta, trans_delta, noise, sigma)
+    R_cpu, t_cpu = CPU.move_particles(R, t, rpy_delta, trans_delta, noise, sigma)
+    np.testing.assert_allclose(R_cpu, R_ref, atol=1e-12)
+    np.testing.assert_allclose(t_cpu, t_ref, atol=1e-10)
+    # rotations stay rotations
+    np.testing.assert_allclose(np.einsum("pji,pjk->pik", R_cpu, R_cpu), np.broadcast_to(np.eye(3), R.shape),
+                               atol=1e-10)
+
+
+def test_move_particles_is_step5_then_step6():
+    """The CONTRIBUTING.md formula as 4x4 products: step 5 rotates by dR and then moves by trans_delta in the
+    rotated body frame, ``T_i <- T_i [dR, 0] [I, trans_delta]``; step 6 is ``T_i <- T_i [N_i, sigma_t n_i]``.
+
+    (Note ``[dR, 0] [I, d] = [dR, dR d]``: the formula's ``t_i + R_i dR trans_delta`` is not ``T_i [dR, d]``,
+    whose translation is ``t_i + R_i d``.)"""
+    rng = np.random.default_rng(11)
+    P = 7
+    R, t = _particles(rng, P)
+    rpy_delta, trans_delta = np.array([0.01, -0.03, 0.2]), np.array([1.2, 0.1, -0.05])
+    noise, sigma = rng.standard_normal((P, 6)), np.array([0.1, 0.05, 0.02, 0.01, 0.02, 0.03])
+    dR = geometry.rpy_to_matrix(rpy_delta)
+    for backend in (REF, CPU):
+        R_new, t_new = backend.move_particles(R, t, rpy_delta, trans_delta, noise, sigma)
+        for i in range(P):
+            T = geometry.make_pose(R[i], t[i])
+            T = T @ geometry.make_pose(dR, np.zeros(3)) @ geometry.make_pose(np.eye(3), trans_delta)  # step 5
+            T = T @ geometry.make_pose(geometry.rpy_to_matrix(sigma[3:] * noise[i, 3:]),
+                                       sigma[:3] * noise[i, :3])  # step 6
+            np.testing.assert_allclose(geometry.make_pose(R_new[i], t_new[i]), T, atol=1e-12)
+            # and the formula written out
+            N_i = geometry.rpy_to_matrix(sigma[3:] * noise[i, 3:])
+            np.testing.assert_allclose(R_new[i], R[i] @ dR @ N_i, atol=1e-12)
+            np.testing.assert_allclose(t_new[i], t[i] + R[i] @ dR @ (trans_delta + sigma[:3] * noise[i, :3]),
+                                       atol=1e-12)
+
+
+@settings(max_examples=20, deadline=None)
+@given(st.integers(0, 3000), st.integers(0, 2**32 - 1))
+def test_transform_points_cpu_equals_reference_and_geometry(N, seed):
+    rng = np.random.default_rng(seed)
+    T = geometry.make_pose(geometry.rpy_to_matrix(rng.uniform(-3, 3, 3)), rng.normal(0, 50, 3))
+    pts = rng.normal(0.0, 30.0, (N, 3)).astype(np.float32)
+    out_cpu, out_ref = CPU.transform_points(T, pts), REF.transform_points(T, pts)
+    assert out_cpu.dtype == np.float32 and out_cpu.shape == (N, 3)
+    exact = pts.astype(np.float64) @ T[:3, :3].T + T[:3, 3]
+    np.testing.assert_allclose(out_ref, exact, atol=1e-4, rtol=1e-5)
+    np.testing.assert_allclose(out_cpu, out_ref, atol=1e-4, rtol=1e-5)
+
+
+def test_transform_points_rejects_bad_shapes():
+    with pytest.raises(ValueError):
+        CPU.transform_points(np.eye(3), np.zeros((4, 3), np.float32))
+    with pytest.raises(ValueError):
+        CPU.transform_points(np.eye(4), np.zeros((4, 2), np.float32))
+
+
+def _box_world(rng, n=6000):
+    """Points on the faces of a few random boxes plus clutter, around (0, 0, 0), metres."""
+    out = []
+    for _ in range(4):
+        c, size = rng.uniform(-4, 4, 3), rng.uniform(0.5, 3.0, 3)
+        p = rng.uniform(-0.5, 0.5, (n // 4, 3))
+        ax = rng.integers(0, 3, n // 4)
+        p[np.arange(n // 4), ax] = np.sign(p[np.arange(n // 4), ax]) * 0.5
+        out.append(c + p * size)
+    return np.vstack(out + [rng.uniform(-6, 6, (n // 10, 3))]).astype(np.float32)
+
+
+def _maps(rng):
+    world = _box_world(rng)
+    maps = [VoxelHashMap(voxel_size=0.4, capacity=2**14), MortonBVHMap(radius=0.3, dedup_level=2),
+            MortonBVHMap(radius=1.0, sigma=0.3, quantum=0.02, dedup_level=0)]
+    for m in maps:
+        m.merge(world)
+    return maps
+
+
+@settings(max_examples=10, deadline=None)
+@given(st.integers(1, 30), st.integers(1, 700), st.integers(0, 2**32 - 1))
+def test_score_particles_cpu_equals_reference(P, N, seed):
+    rng = np.random.default_rng(seed)
+    maps = _maps(rng)
+    R, t = _particles(rng, P, spread=0.1)
+    t *= 0.1
+    pts = rng.uniform(-7, 7, (N, 3)).astype(np.float32)  # many near surfaces, some outside the map
+    for m in maps:
+        lk = m.lookup()
+        ref = REF.score_particles(R, t, pts, lk)
+        cpu = CPU.score_particles(R, t, pts, lk)
+        assert cpu.shape == (P,) and cpu.dtype == np.float64
+        np.testing.assert_allclose(cpu, ref, rtol=1e-9, atol=1e-6)
+
+
+def test_score_particles_empty_map_and_far_points():
+    rng = np.random.default_rng(5)
+    R, t = _particles(rng, 4)
+    pts = rng.normal(0, 5, (50, 3)).astype(np.float32)
+    for m in (VoxelHashMap(capacity=64, m_max=9.0), MortonBVHMap(radius=0.5, sigma=0.25)):
+        floor = -0.5 * 9.0 if isinstance(m, VoxelHashMap) else -0.5 * 0.5**2 / 0.25**2
+        for backend in (REF, CPU):
+            np.testing.assert_allclose(backend.score_particles(R, t, pts, m.lookup()), 50 * floor)
+        m.merge(pts)  # now the identity pose hits every point exactly
+        I, z = np.eye(3)[None], np.zeros((1, 3))
+        for backend in (REF, CPU):
+            s = backend.score_particles(I, z, pts, m.lookup())
+            assert s[0] > 50 * floor
+            far = backend.score_particles(I, z + 1e4, pts, m.lookup())
+            np.testing.assert_allclose(far, 50 * floor)
+
+
+def test_score_particles_is_exact_nearest_neighbour_for_morton():
+    """Morton score = -0.5 min(d_nn, r)^2 / sigma^2 by brute force, for single points."""
+    rng = np.random.default_rng(6)
+    world = rng.uniform(-2, 2, (3000, 3)).astype(np.float32)
+    m = MortonBVHMap(radius=0.4, sigma=0.2, dedup_level=0)
+    m.merge(world)
+    stored = m.points().astype(np.float64)
+    queries = rng.uniform(-2.5, 2.5, (200, 3))
+    I = np.eye(3)[None]
+    for q in queries:
+        d = np.sqrt(np.min(np.sum((stored - q) ** 2, axis=1)))
+        want = -0.5 * min(d, 0.4) ** 2 / 0.2**2
+        got = CPU.score_particles(I, q[None], np.zeros((1, 3), np.float32), m.lookup())[0]
+        np.testing.assert_allclose(got, want, atol=1e-9)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.lists(st.floats(0.0, 10.0, allow_nan=False), min_size=1, max_size=300), st.floats(0.0, 0.999999))
+def test_systematic_resample_cpu_equals_reference(w, u0):
+    w = np.asarray(w)
+    if not w.sum() > 0:
+        w = w + 1.0
+    ref = REF.systematic_resample(w, u0)
+    cpu = CPU.systematic_resample(w, u0)
+    np.testing.assert_array_equal(cpu, ref)
+    assert cpu.dtype == np.int64
+    assert np.all(np.diff(cpu) >= 0)
+    assert np.all(w[cpu] > 0)  # zero-weight particles are never drawn
+    counts = np.bincount(cpu, minlength=len(w))
+    expected = len(w) * w / w.sum()
+    assert np.all(counts >= np.floor(expected - 1e-9)) and np.all(counts <= np.ceil(expected + 1e-9))
+
+
+def test_systematic_resample_by_definition():
+    """index i is the first j with (u0 + i) / P < cumsum(w)[j]: the filterpy loop, written out."""
+    w = np.array([0.1, 0.0, 0.5, 0.15, 0.25])
+    u0 = 0.3
+    c = np.cumsum(w)
+    want, j = [], 0
+    for i in range(5):
+        while (u0 + i) / 5 >= c[j]:
+            j += 1
+        want.append(j)
+    np.testing.assert_array_equal(CPU.systematic_resample(w, u0), want)
+    np.testing.assert_array_equal(REF.systematic_resample(w * 7.0, u0), want)  # scale does not matter
+
+
+def test_systematic_resample_matches_slamlib_resampling_when_present():
+    resampling = pytest.importorskip("slamlib.resampling")
+    fn = getattr(resampling, "systematic_resample", None)
+    if fn is None:
+        pytest.skip("slamlib.resampling has no systematic_resample")
+    rng = np.random.default_rng(9)
+    w = rng.random(200)
+    w /= w.sum()
+    try:
+        theirs = fn(w, 0.37)
+    except TypeError:
+        pytest.skip("slamlib.resampling.systematic_resample takes another signature")
+    np.testing.assert_array_equal(CPU.systematic_resample(w, 0.37), np.asarray(theirs))
+
+
+@pytest.mark.parametrize("backend", [REF, CPU], ids=["numpy", "cpu"])
+def test_systematic_resample_rejects_bad_weights(backend):
+    for w in ([], [0.0, 0.0], [1.0, -0.5], [np.nan, 1.0]):
+        with pytest.raises(ValueError):
+            backend.systematic_resample(np.asarray(w, float), 0.5)
+    with pytest.raises(ValueError):
+        backend.systematic_resample(np.ones(3), 1.0)

@@ -1,0 +1,116 @@
+"""Lookup-table Gaussian noise (slamlib.noise): tables, equality of the numpy / Numba / CUDA builds, moments,
+and the absence of correlation across frames and threads (and its presence in the seed project's variant)."""
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from slamlib import noise as N
+
+
+@pytest.fixture(scope="module")
+def tables():
+    return N.make_tables(seed=2017)
+
+
+def _check_uncorrelated(series, limit):
+    """The property the filter needs: lag-1 correlation over frames (axis 0) and threads (axis 1) below limit."""
+    r_steps = N.lag_correlation(series, 1, axis=0)
+    r_threads = N.lag_correlation(series, 1, axis=1)
+    assert abs(r_steps) < limit, f"consecutive frames correlated: r = {r_steps:.3f}"
+    assert abs(r_threads) < limit, f"neighbouring threads correlated: r = {r_threads:.3f}"
+
+
+def test_tables_are_normal_quantiles_and_permutations(tables):
+    T = 1 << tables.bits
+    assert tables.normal.shape == (T,) and tables.perm.shape == (6, T)
+    assert abs(tables.normal.astype(np.float64).mean()) < 1e-6
+    assert abs(tables.normal.astype(np.float64).var() - 1.0) < 1e-5
+    for k in range(6):
+        assert np.array_equal(np.sort(tables.perm[k]), np.arange(T))
+    assert not np.array_equal(tables.perm[0], tables.perm[1])
+    drawn = N.make_tables(seed=1, bits=10, exact=False)
+    assert drawn.normal.shape == (1024,) and abs(drawn.normal.mean()) < 0.15
+    with pytest.raises(ValueError):
+        N.make_tables(seed=1, bits=17)
+
+
+def test_numpy_numba_and_cuda_builds_agree_bit_for_bit(tables):
+    from slamlib.kernels import cuda as kc
+
+    a = N.lut_normal(tables, 257, step=9, seed=4)
+    assert np.array_equal(a, N.lut_normal_nb(tables, 257, step=9, seed=4))
+    assert np.array_equal(a, kc.lut_normal_device(N.LutNoise(tables, 9, 4), 257).copy_to_host())
+    assert np.array_equal(a, N.LutNoise(tables, 9, 4).draw(257))
+
+
+@settings(max_examples=60, deadline=None)
+@given(thread=st.integers(0, 2**32 - 1), step=st.integers(0, 2**32 - 1), seed=st.integers(0, 2**32 - 1),
+       k=st.integers(0, 5))
+def test_index_in_range_and_numba_matches_numpy(thread, step, seed, k):
+    tables = N.make_tables(seed=0, bits=8)
+    nb = N.numba_functions()
+    i_np = int(N.lut_index(np.uint64(thread), step, seed, k, tables.perm, tables.bits))
+    i_nb = int(nb["lut_index"](np.uint64(thread), np.uint64(step), np.uint64(seed), k, tables.perm, tables.bits))
+    assert i_np == i_nb and 0 <= i_np < 256
+    assert int(nb["counter_hash"](np.uint64(thread), np.uint64(step), np.uint64(seed))) == int(
+        N.counter_hash(np.uint64(thread), step, seed))
+
+
+def test_fmix32_is_a_bijection_on_a_range():
+    h = N.fmix32(np.arange(1 << 16, dtype=np.uint64))
+    assert np.unique(h).size == 1 << 16 and h.max() < 2**32
+
+
+def test_moments_and_ks(tables):
+    s = N.noise_statistics(N.lut_normal(tables, 20000, step=3, seed=1))
+    assert abs(s["mean"]) < 0.02
+    assert abs(s["var"] - 1.0) < 0.03
+    assert abs(s["kurtosis"] - 3.0) < 0.1
+    assert s["ks"] < 0.01
+
+
+def test_components_uncorrelated(tables):
+    c = np.corrcoef(N.lut_normal(tables, 20000, step=0, seed=5).T)
+    off = c[~np.eye(6, dtype=bool)]
+    assert np.max(np.abs(off)) < 0.04
+
+
+def test_noise_changes_every_frame_and_across_threads(tables):
+    series = np.stack([N.lut_normal(tables, 256, step=s, seed=7)[:, 0] for s in range(200)])  # (steps, threads)
+    _check_uncorrelated(series, 0.05)
+    one = np.array([N.lut_normal(tables, 1, step=s, seed=7, start=3)[0, 3] for s in range(2000)])
+    assert abs(N.lag_correlation(one, 1)) < 0.07  # one particle over 2000 frames (sd of r ~ 0.022)
+    wide = N.lut_normal(tables, 4096, step=1, seed=7)[:, 0]
+    assert abs(np.corrcoef(wide[:-256], wide[256:])[0, 1]) < 0.05  # no period of 256 threads
+    assert not np.array_equal(N.lut_normal(tables, 64, 1, 7), N.lut_normal(tables, 64, 1, 8))  # seeds differ
+
+
+def test_particles_rarely_share_their_six_draws(tables):
+    # Two particles share all six draws only when 2 log2(T) = 24 hash bits agree: P^2 / 2 / 2^24 = 0.75 pairs
+    # expected for P = 5000 (birthday bound); the seed variant has only 256 distinct rows.
+    dup = [5000 - np.unique(N.lut_normal(tables, 5000, step=s, seed=3), axis=0).shape[0] for s in range(10)]
+    assert np.mean(dup) < 3.0
+    t8 = N.make_tables(seed=2017, bits=N.SEED_BITS)
+    assert np.unique(N.seed_lut_normal(t8, 5000), axis=0).shape[0] == 256
+
+
+def test_seed_variant_fails_the_same_check():
+    t8 = N.make_tables(seed=2017, bits=N.SEED_BITS)
+    series = np.stack([N.seed_lut_normal(t8, 512, step=s)[:, 0] for s in range(20)])
+    assert N.lag_correlation(series, 1, axis=0) == pytest.approx(1.0)  # same noise at every frame
+    assert np.array_equal(series[0, :256], series[0, 256:])  # repeats every 256 threads
+    with pytest.raises(AssertionError, match="consecutive frames correlated"):
+        _check_uncorrelated(series, 0.05)
+
+
+def test_statistics_helpers_on_known_input():
+    rng = np.random.default_rng(0)
+    s = N.noise_statistics(rng.standard_normal(50000))
+    assert abs(s["kurtosis"] - 3) < 0.1 and s["ks"] < 0.01
+    assert N.noise_statistics(rng.random(50000))["ks"] > 0.1  # uniform is not normal
+    x = np.arange(100.0)
+    assert N.lag_correlation(x, 1) == pytest.approx(1.0)
+    with pytest.raises(ValueError):
+        N.lut_normal(N.make_tables(0, bits=8), 4, step=-1, seed=0)

@@ -8,4 +8,5 @@ Each module listed in :data:`COMMANDS` defines ``NAME`` (the sub-command), ``HEL
 COMMANDS = {
     "bench": "slamlib.commands.bench",
     "sim1d": "slamlib.commands.sim1d",
+    "run": "slamlib.commands.run",
 }

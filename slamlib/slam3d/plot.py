@@ -1,0 +1,118 @@
+"""Figures of a 3D SLAM run: trajectories with and without SLAM against ground truth, top-down maps, animation.
+
+All functions take arrays (poses ``(F, 4, 4)`` ``T_world_body``, map points ``(M, 3)``, world frame, metres) and
+return a matplotlib ``Figure`` (or ``FuncAnimation``); nothing is shown or saved here.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["plot_trajectories", "plot_map_topdown", "animate_map_building"]
+
+
+def _subsample(points: np.ndarray, max_points: int, seed: int = 0) -> np.ndarray:
+    if len(points) <= max_points:
+        return points
+    return points[np.random.default_rng(seed).choice(len(points), max_points, replace=False)]
+
+
+def plot_trajectories(poses, dead_reckoning=None, ground_truth=None, map_points=None, ax=None, title=None):
+    """Top-down (x, y) plot of the SLAM trajectory, dead reckoning and ground truth, over a faint map.
+
+    Parameters
+    ----------
+    poses : (F, 4, 4) SLAM poses; dead_reckoning, ground_truth : (F, 4, 4) or None.
+    map_points : (M, 3) or None, drawn as light grey dots (at most 60,000).
+    """
+    import matplotlib.pyplot as plt
+
+    if ax is None:
+        fig, ax = plt.subplots(figsize=(7, 6))
+    else:
+        fig = ax.figure
+    if map_points is not None and len(map_points):
+        m = _subsample(np.asarray(map_points), 60_000)
+        ax.scatter(m[:, 0], m[:, 1], s=0.2, c="0.8", lw=0, rasterized=True)
+        ax.plot([], [], "o", color="0.8", ms=4, label="map")  # legend proxy (the dots are tiny)
+    if ground_truth is not None:
+        ax.plot(ground_truth[:, 0, 3], ground_truth[:, 1, 3], "k-", lw=2.0, label="ground truth")
+    if dead_reckoning is not None:
+        ax.plot(dead_reckoning[:, 0, 3], dead_reckoning[:, 1, 3], "-", color="tab:red", lw=1.3,
+                label="dead reckoning (IMU only)")
+    ax.plot(poses[:, 0, 3], poses[:, 1, 3], "-", color="tab:blue", lw=1.3, label="particle SLAM")
+    ax.plot(poses[0, 0, 3], poses[0, 1, 3], "go", ms=6, label="start")
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_xlabel("x (m, world = first IMU pose)")
+    ax.set_ylabel("y (m)")
+    ax.legend(loc="best", fontsize=8)
+    ax.set_title(title or "Trajectory with and without SLAM")
+    return fig
+
+
+def plot_map_topdown(map_points, poses=None, ax=None, max_points: int = 200_000, title=None, zlim=None):
+    """Top-down view of the map coloured by height ``z`` (m), with the trajectory on top.
+
+    ``zlim`` (lo, hi) clips the colour scale (default: 2nd and 98th percentiles of z).
+    """
+    import matplotlib.pyplot as plt
+
+    if ax is None:
+        fig, ax = plt.subplots(figsize=(8, 7))
+    else:
+        fig = ax.figure
+    m = _subsample(np.asarray(map_points), max_points)
+    lo, hi = zlim if zlim is not None else (np.percentile(m[:, 2], [2, 98]) if len(m) else (0.0, 1.0))
+    order = np.argsort(m[:, 2])  # high points drawn last (walls, trees over the ground)
+    sc = ax.scatter(m[order, 0], m[order, 1], c=m[order, 2], s=0.3, lw=0, cmap="viridis", vmin=lo, vmax=hi,
+                    rasterized=True)
+    fig.colorbar(sc, ax=ax, label="height z (m)", shrink=0.8)
+    if poses is not None:
+        ax.plot(poses[:, 0, 3], poses[:, 1, 3], "r-", lw=1.2, label="SLAM trajectory")
+        ax.legend(loc="best", fontsize=8)
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.set_title(title or f"Map, top-down, coloured by height ({len(map_points):,} elements)")
+    return fig
+
+
+def animate_map_building(snapshots, poses, ground_truth=None, max_points: int = 15_000, interval: int = 200,
+                         figsize=(6, 5), dpi: int = 80):
+    """``FuncAnimation`` of the map growing: one frame per snapshot ``(position k, map points, pose)``.
+
+    Each frame shows the map so far (top-down, coloured by height, at most ``max_points`` points), the SLAM
+    trajectory up to ``k`` and the ground truth. Render with ``anim.to_jshtml()``.
+    """
+    import matplotlib.pyplot as plt
+    from matplotlib.animation import FuncAnimation
+
+    fig, ax = plt.subplots(figsize=figsize, dpi=dpi)
+    allp = np.asarray(snapshots[-1][1])
+    lo, hi = np.percentile(allp[:, 2], [2, 98]) if len(allp) else (0.0, 1.0)
+    pad = 20.0
+    xy = poses[:, :2, 3]
+    ax.set_xlim(xy[:, 0].min() - pad, xy[:, 0].max() + pad)
+    ax.set_ylim(xy[:, 1].min() - pad, xy[:, 1].max() + pad)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    sc = ax.scatter([], [], s=0.4, c=[], cmap="viridis", vmin=lo, vmax=hi, lw=0)
+    (gt_line,) = ax.plot([], [], "k-", lw=1.0, label="ground truth")
+    (line,) = ax.plot([], [], "r-", lw=1.5, label="SLAM")
+    ax.legend(loc="upper left", fontsize=7)
+
+    def update(j):
+        k, pts, _ = snapshots[j]
+        pts = _subsample(np.asarray(pts), max_points, seed=j)
+        sc.set_offsets(pts[:, :2])
+        sc.set_array(pts[:, 2])
+        line.set_data(poses[: k + 1, 0, 3], poses[: k + 1, 1, 3])
+        if ground_truth is not None:
+            gt_line.set_data(ground_truth[: k + 1, 0, 3], ground_truth[: k + 1, 1, 3])
+        ax.set_title(f"map after frame {k}: {len(snapshots[j][1]):,} elements")
+        return sc, line, gt_line
+
+    anim = FuncAnimation(fig, update, frames=len(snapshots), interval=interval, blit=False)
+    plt.close(fig)
+    return anim

@@ -1,0 +1,94 @@
+"""Scan preprocessing for the 3D pipeline: range crop, voxel down-sampling, a fixed-size seeded sample.
+
+A KITTI HDL-64E scan holds ~120,000 points (the synthetic ones ~100,000), far more than the particle filter
+needs: scoring costs ``P x N`` map lookups (``P`` particles, ``N`` points), and consecutive points of one ring are
+a few centimetres apart near the car and metres apart far away. Step 2 (``read_scan``) therefore
+
+1. **crops by range** in the sensor frame, ``min_range <= |p| <= max_range``: drops returns from the ego
+   vehicle and very far, sparse, noisy returns;
+2. **voxel down-samples**: keeps the first point of every occupied voxel of edge ``voxel_size`` (exact LIDAR
+   points, not voxel centres, so the map keeps the sensor's precision), which evens out the density (the ground
+   next to the car no longer dominates);
+3. for step 8 only, **samples** ``n`` of those points at random without replacement, with a
+   ``numpy.random.Generator`` passed in (seeded, reproducible). The map merge (step 10) uses the whole
+   down-sampled scan.
+
+All functions are pure: arrays in, arrays out. Points are ``(N, 3)`` float32 metres.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["crop_range", "voxel_downsample", "sample_points"]
+
+
+def crop_range(points, min_range: float = 0.0, max_range: float = np.inf) -> np.ndarray:
+    """Keep the points with ``min_range <= |p| <= max_range`` (Euclidean range from the frame's origin, m).
+
+    Parameters
+    ----------
+    points : (N, 3) or (N, 4) array
+        Points in the sensor frame (a 4th reflectance column is kept).
+    min_range, max_range : float
+        Range limits in metres.
+
+    Returns
+    -------
+    (M, 3) or (M, 4) array, same dtype, in the input order.
+    """
+    pts = np.asarray(points)
+    if pts.ndim != 2 or pts.shape[1] < 3:
+        raise ValueError(f"points must have shape (N, 3) or (N, 4), got {pts.shape}")
+    r2 = np.einsum("ij,ij->i", pts[:, :3], pts[:, :3], dtype=np.float64)
+    keep = (r2 >= float(min_range) ** 2) & (r2 <= float(max_range) ** 2)
+    return pts[keep]
+
+
+def voxel_downsample(points, voxel_size: float) -> np.ndarray:
+    """One point per occupied voxel: the first point (in input order) of each voxel of edge ``voxel_size`` m.
+
+    Voxel of point ``p``: ``floor(p / voxel_size)`` per axis. The kept points are exact input points (not voxel
+    centres or means), in the order of their first appearance, so the output is deterministic.
+    ``voxel_size <= 0`` returns the points unchanged.
+
+    Parameters
+    ----------
+    points : (N, 3) or (N, 4) array
+    voxel_size : float, metres
+
+    Returns
+    -------
+    (M, 3) or (M, 4) array, ``M <= N``.
+    """
+    pts = np.asarray(points)
+    if pts.ndim != 2 or pts.shape[1] < 3:
+        raise ValueError(f"points must have shape (N, 3) or (N, 4), got {pts.shape}")
+    if voxel_size <= 0 or len(pts) == 0:
+        return pts
+    idx = np.floor(pts[:, :3].astype(np.float64) / float(voxel_size)).astype(np.int64)
+    idx -= idx.min(axis=0)
+    span = idx.max(axis=0) + 1
+    if np.prod(span.astype(np.float64)) < 2.0**62:
+        keys = (idx[:, 0] * span[1] + idx[:, 1]) * span[2] + idx[:, 2]
+        _, first = np.unique(keys, return_index=True)
+    else:  # astronomically spread points: fall back to row-unique
+        _, first = np.unique(idx, axis=0, return_index=True)
+    return pts[np.sort(first)]
+
+
+def sample_points(points, n: int, rng: np.random.Generator) -> np.ndarray:
+    """``min(n, N)`` distinct points drawn uniformly at random without replacement (order randomised).
+
+    Parameters
+    ----------
+    points : (N, 3) array
+    n : int
+        Sample size (``n <= 0`` or ``n >= N`` returns all points, in the input order).
+    rng : numpy.random.Generator
+        The randomness (seeded by the caller).
+    """
+    pts = np.asarray(points)
+    if n <= 0 or n >= len(pts):
+        return pts
+    return pts[rng.choice(len(pts), size=int(n), replace=False)]

@@ -1,0 +1,229 @@
+"""Run :class:`~slamlib.slam3d.ParticleSLAM3D` over a whole KITTI raw drive and evaluate it.
+
+:func:`run_drive` iterates a :class:`slamlib.kitti.KittiRawDrive` (or any sequence of frames), registers every
+frame, and returns a :class:`SLAMRun` with the SLAM and dead-reckoning trajectories, the ground truth (when the
+frames carry ``T_w_imu``), timing, and the map. :func:`evaluate` computes ATE, RPE and the KITTI odometry metric
+for both trajectories.
+
+Frames: all trajectories are body (IMU) poses in the world = the IMU pose at the **first processed frame**;
+ground truth ``T_w_imu`` of a drive is re-expressed in that frame (``inv(G_0) G_k``), so ``--frames 100:400``
+is evaluated from frame 100 on.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from slamlib.geometry import invert_pose
+from slamlib.slam3d.pipeline import ParticleSLAM3D, SLAM3DConfig
+
+__all__ = ["SLAMRun", "run_drive", "evaluate", "parse_frames", "save_run"]
+
+
+@dataclass
+class SLAMRun:
+    """Result of :func:`run_drive`.
+
+    Attributes
+    ----------
+    poses, dead_reckoning : (F, 4, 4) SLAM and dead-reckoning ``T_world_body`` (world = first processed body pose).
+    ground_truth : (F, 4, 4) or None
+        Ground-truth body poses in the same world, when the frames have ``T_w_imu``.
+    timestamps : (F,) seconds since the first processed frame.
+    frame_indices : (F,) drive frame numbers.
+    seconds : wall-clock time of the SLAM loop (frame reading included), ``fps = F / seconds``.
+    slam : the filter (its ``map``, ``config``, particles).
+    snapshots : list of ``(frame position, map points (M, 3), pose (4, 4))`` taken every ``snapshot_every`` frames.
+    frame_seconds : (F,) wall-clock seconds of each ``register_frame`` call (reading the frame not included).
+    """
+
+    poses: np.ndarray
+    dead_reckoning: np.ndarray
+    ground_truth: np.ndarray | None
+    timestamps: np.ndarray
+    frame_indices: np.ndarray
+    seconds: float
+    slam: ParticleSLAM3D = field(repr=False)
+    snapshots: list = field(default_factory=list, repr=False)
+    frame_seconds: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
+
+    @property
+    def fps(self) -> float:
+        """Frames per second of the SLAM loop."""
+        return len(self.poses) / self.seconds if self.seconds > 0 else float("nan")
+
+
+def parse_frames(text: str | None, n: int | None = None) -> slice | None:
+    """``"A:B"``, ``"A:"``, ``":B"`` or ``"B"`` (first B frames) -> ``slice``; ``None``/``""`` -> ``None`` (all).
+
+    Raises ``ValueError`` on anything else, or on an empty range.
+    """
+    if text is None or str(text).strip() == "":
+        return None
+    s = str(text).strip()
+    try:
+        if ":" in s:
+            a, b = s.split(":", 1)
+            sl = slice(int(a) if a.strip() else 0, int(b) if b.strip() else None)
+        else:
+            sl = slice(0, int(s))
+    except ValueError:
+        raise ValueError(f"--frames must look like A:B, A:, :B or B (integers), got {text!r}") from None
+    if sl.start < 0 or (sl.stop is not None and sl.stop <= sl.start):
+        raise ValueError(f"--frames {text!r} selects no frames")
+    if n is not None and sl.start >= n:
+        raise ValueError(f"--frames {text!r} starts after the last frame ({n - 1})")
+    return sl
+
+
+def run_drive(frames, config: SLAM3DConfig | None = None, T_velo_imu=None, progress: bool = True,
+              snapshot_every: int = 0, desc: str = "slam3d") -> SLAMRun:
+    """Register every frame of ``frames`` with a fresh :class:`ParticleSLAM3D`.
+
+    Parameters
+    ----------
+    frames : iterable of frames (``.scan``, ``.velocity``, ``.angular_rate``, ``.dt``; optional ``.T_w_imu``,
+        ``.time_s``, ``.index``), e.g. a :class:`slamlib.kitti.KittiRawDrive` (its ``T_velo_imu`` is used when
+        ``T_velo_imu`` is not given).
+    config : filter settings.
+    progress : show a tqdm bar with frames/s.
+    snapshot_every : keep a copy of the map points every that many frames (0: none), for animations.
+
+    Returns a :class:`SLAMRun`.
+    """
+    from tqdm.auto import tqdm
+
+    if T_velo_imu is None:
+        T_velo_imu = getattr(frames, "T_velo_imu", None)
+    slam = ParticleSLAM3D(config, T_velo_imu=T_velo_imu)
+    gt, times, idx, snaps, frame_seconds = [], [], [], [], []
+    total = len(frames) if hasattr(frames, "__len__") else None
+    bar = tqdm(frames, total=total, desc=desc, unit="frame", disable=not progress, smoothing=0.1)
+    t0 = time.perf_counter()
+    for k, frame in enumerate(bar):
+        tf = time.perf_counter()
+        pose = slam.register_frame(frame)
+        frame_seconds.append(time.perf_counter() - tf)
+        gt.append(getattr(frame, "T_w_imu", None))
+        times.append(float(getattr(frame, "time_s", k * 0.1)))
+        idx.append(int(getattr(frame, "index", k)))
+        if snapshot_every and k % snapshot_every == 0:
+            snaps.append((k, slam.map_points(), pose.copy()))
+    seconds = time.perf_counter() - t0
+    bar.close()
+    ground_truth = None
+    if gt and all(g is not None for g in gt):
+        G = np.asarray(gt, dtype=np.float64)
+        ground_truth = invert_pose(G[0])[None] @ G
+    times = np.asarray(times)
+    return SLAMRun(slam.trajectory, slam.dead_reckoning, ground_truth, times - (times[0] if len(times) else 0.0),
+                   np.asarray(idx, dtype=np.int64), seconds, slam, snaps, np.asarray(frame_seconds))
+
+
+def _metrics(est, gt) -> dict:
+    from slamlib.metrics import absolute_trajectory_error, kitti_odometry_error, relative_pose_error, \
+        trajectory_distances
+
+    ate = absolute_trajectory_error(est, gt)
+    out = {"ate_rmse_m": ate.rmse, "ate_max_m": ate.max, "final_error_m": float(ate.errors[-1])}
+    if len(est) > 10:
+        rpe = relative_pose_error(est, gt, delta=10)
+        out.update(rpe_10f_trans_rmse_m=rpe.trans_rmse, rpe_10f_rot_rmse_deg=float(np.degrees(rpe.rot_rmse)))
+    if trajectory_distances(gt)[-1] > 100.0:
+        k = kitti_odometry_error(est, gt)
+        out.update(kitti_t_err_percent=k.t_err_percent, kitti_r_err_deg_per_m=k.r_err_deg_per_m,
+                   kitti_segments=k.n_segments)
+    return out
+
+
+def evaluate(run: SLAMRun) -> dict:
+    """ATE (RMSE, m, no alignment: both start at the same pose), RPE over 10 frames, and the KITTI odometry
+    metric (segments of 100..800 m; only for paths over 100 m) of the SLAM and dead-reckoning trajectories.
+
+    Returns ``{"slam": {...}, "dead_reckoning": {...}, "path_length_m", "frames", "fps"}``; raises ValueError
+    without ground truth.
+    """
+    from slamlib.metrics import trajectory_distances
+
+    if run.ground_truth is None:
+        raise ValueError("this run has no ground truth (frames without T_w_imu)")
+    return {
+        "frames": int(len(run.poses)),
+        "path_length_m": float(trajectory_distances(run.ground_truth)[-1]),
+        "fps": float(run.fps),
+        "slam": _metrics(run.poses, run.ground_truth),
+        "dead_reckoning": _metrics(run.dead_reckoning, run.ground_truth),
+    }
+
+
+def save_run(run: SLAMRun, out_dir, map_format: str = "ply", plots: bool = True, extra: dict | None = None) -> dict:
+    """Write a run's results into ``out_dir`` and return ``{name: path}`` of the files written.
+
+    * ``slam_poses.txt`` / ``slam_tum.txt``: SLAM trajectory in KITTI (12 numbers per line) and TUM formats;
+    * ``dead_reckoning_poses.txt`` / ``dead_reckoning_tum.txt``: the IMU-only baseline;
+    * ``ground_truth_poses.txt`` / ``ground_truth_tum.txt`` when the frames had ground truth;
+    * ``times.txt``: seconds since the first processed frame (KITTI odometry ``times.txt``);
+    * ``map.ply`` or ``map.pcd`` (open3d): the map's points (voxel means or stored points, including the parts
+      pruned on the way, :meth:`ParticleSLAM3D.map_points`), world frame;
+    * ``metrics.json``: frames/s, settings and, with ground truth, :func:`evaluate` (ATE, RPE, KITTI metric);
+    * ``trajectory.png`` (with and without SLAM vs ground truth) and ``map_topdown.png`` (coloured by height).
+    """
+    import json
+    from pathlib import Path
+
+    from slamlib.kitti.trajectory_io import write_kitti_poses, write_times, write_tum
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    files = {}
+    trajs = {"slam": run.poses, "dead_reckoning": run.dead_reckoning}
+    if run.ground_truth is not None:
+        trajs["ground_truth"] = run.ground_truth
+    for name, T in trajs.items():
+        files[f"{name}_kitti"] = out / f"{name}_poses.txt"
+        write_kitti_poses(files[f"{name}_kitti"], T)
+        files[f"{name}_tum"] = out / f"{name}_tum.txt"
+        write_tum(files[f"{name}_tum"], run.timestamps, T)
+    files["times"] = out / "times.txt"
+    write_times(files["times"], run.timestamps)
+
+    if map_format not in ("ply", "pcd"):
+        raise ValueError(f"map_format must be 'ply' or 'pcd', got {map_format!r}")
+    import open3d as o3d
+
+    pts = run.slam.map_points()
+    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.asarray(pts, dtype=np.float64)))
+    files["map"] = out / f"map.{map_format}"
+    if not o3d.io.write_point_cloud(str(files["map"]), pcd):
+        raise OSError(f"open3d could not write {files['map']}")
+
+    info = {"frames": int(len(run.poses)), "seconds": float(run.seconds), "fps": float(run.fps),
+            "frame_indices": [int(run.frame_indices[0]), int(run.frame_indices[-1])] if len(run.poses) else [],
+            "map_elements": int(len(run.slam.map)), "map_points_written": int(len(pts)), "config": run.slam.config.as_dict()}
+    if extra:
+        info.update(extra)
+    if run.ground_truth is not None:
+        info["metrics"] = evaluate(run)
+    files["metrics"] = out / "metrics.json"
+    files["metrics"].write_text(json.dumps(info, indent=2) + "\n")
+
+    if plots:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+
+        from slamlib.slam3d.plot import plot_map_topdown, plot_trajectories
+
+        fig = plot_trajectories(run.poses, run.dead_reckoning, run.ground_truth, pts)
+        files["trajectory_plot"] = out / "trajectory.png"
+        fig.savefig(files["trajectory_plot"], dpi=120, bbox_inches="tight")
+        plt.close(fig)
+        fig = plot_map_topdown(pts, run.poses)
+        files["map_plot"] = out / "map_topdown.png"
+        fig.savefig(files["map_plot"], dpi=120, bbox_inches="tight")
+        plt.close(fig)
+    return files

@@ -1,0 +1,443 @@
+"""Tests of the 3D particle SLAM pipeline (slamlib.slam3d): each step alone, the per-frame loop on a tiny
+in-memory world, determinism, backends agreeing, and the ``slamlib run`` command on a tiny synthetic drive."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from slamlib.geometry import invert_pose, make_pose, matrix_to_rpy, rpy_to_matrix, transform_points
+from slamlib.kernels import get_backend
+from slamlib.maps import VoxelHashMap
+from slamlib.metrics import absolute_trajectory_error
+from slamlib.odometry import dead_reckon
+from slamlib.slam3d import (ParticleSLAM3D, SLAM3DConfig, crop_range, initialise_particles, merge_scan,
+                            motion_increment, motion_noise_sigma, move_particles, offset_by_motion, parse_frames,
+                            perturb_with_noise, pick_best_particle, read_imu, read_scan, read_timing,
+                            resample_particles, run_drive, sample_points, score_particles, transform_scan,
+                            voxel_downsample)
+
+CPU = get_backend("cpu")
+NUMPY = get_backend("numpy")
+
+
+# ------------------------------------------------------------------------------------------ a tiny world
+def world_points(seed: int = 0) -> np.ndarray:
+    """Points (M, 3) on a small town: ground at z = -1.7 m, two stepped facades along x, boxes at random yaw."""
+    rng = np.random.default_rng(seed)
+    parts = [np.c_[rng.uniform(-45, 45, (12000, 2)), np.full(12000, -1.7)]]
+    for side in (-1.0, 1.0):  # facades at |y| = 9 (+0.8 every other 5 m step)
+        x = rng.uniform(-45, 45, 5000)
+        y = side * (9.0 + 0.8 * (np.floor(x / 5.0) % 2))
+        parts.append(np.c_[x, y, rng.uniform(-1.7, 4.0, 5000)])
+        xs = np.repeat(np.arange(-45, 45, 5.0), 60)  # the step faces (normal to x)
+        parts.append(np.c_[xs, side * rng.uniform(9.0, 9.8, xs.size), rng.uniform(-1.7, 4.0, xs.size)])
+    for cx, cy, yaw in rng.uniform([-40, -7, 0], [40, 7, np.pi], (10, 3)):  # 2 x 1 x 1.5 m boxes
+        u = rng.uniform(-1, 1, (500, 3)) * [1.0, 0.5, 0.75]
+        face = rng.integers(0, 3, 500)
+        u[np.arange(500), face] = np.sign(u[np.arange(500), face]) * np.array([1.0, 0.5, 0.75])[face]
+        parts.append(u @ rpy_to_matrix([0, 0, yaw]).T + [cx, cy, -0.95])
+    return np.vstack(parts).astype(np.float32)
+
+
+@dataclass
+class SimFrame:
+    """What ParticleSLAM3D reads from a frame (the slamlib.kitti.Frame attributes it uses)."""
+
+    scan: np.ndarray
+    velocity: np.ndarray
+    angular_rate: np.ndarray
+    dt: float
+    T_w_imu: np.ndarray
+    time_s: float
+    index: int
+
+
+def simulate(n: int = 30, seed: int = 0, speed: float = 5.0, yaw_rate: float = 0.15):
+    """Frames of a drive through :func:`world_points`: scans (body frame, range 2-30 m, 1 cm noise, 4,000 random
+    points each) and an IMU with 6 % speed scale error and a 0.06 rad/s yaw-rate bias. Returns (frames, gt)."""
+    rng = np.random.default_rng(seed + 1)
+    world = world_points(seed)
+    dt = np.full(n, 0.1)
+    v = np.tile([speed, 0.0, 0.0], (n, 1))
+    w = np.tile([0.0, 0.0, yaw_rate], (n, 1))
+    T0 = make_pose(np.eye(3), [-20.0, -2.0, 0.0])
+    gt = dead_reckon(v, w, dt, T0)
+    frames = []
+    for k in range(n):
+        body = transform_points(invert_pose(gt[k]), world)
+        body = crop_range(body, 2.0, 30.0)
+        body = body[rng.choice(len(body), min(4000, len(body)), replace=False)]
+        body = body + rng.normal(0, 0.01, body.shape).astype(np.float32)
+        scan = np.c_[body, np.full(len(body), 0.5)].astype(np.float32)
+        v_meas = v[k] * [1.06, 1.0, 1.0] + rng.normal(0, 0.02, 3)
+        w_meas = w[k] + [0.0, 0.0, 0.06] + rng.normal(0, 0.002, 3)
+        frames.append(SimFrame(scan, v_meas, w_meas, 0.0 if k == 0 else 0.1, gt[k], 0.1 * k, k))
+    return frames, invert_pose(gt[0])[None] @ gt
+
+
+def tiny_config(**kw) -> SLAM3DConfig:
+    base = dict(particles=100, points=300, min_range=2.0, max_range=30.0, voxel_size=0.3,
+                map_params={"capacity": 2**14}, sigma_xyz_per_m=(0.06, 0.04, 0.02),
+                sigma_rpy_per_s=(0.01, 0.01, 0.06), seed=3)
+    base.update(kw)
+    return SLAM3DConfig(**base)
+
+
+@pytest.fixture(scope="module")
+def drive():
+    return simulate()
+
+
+def random_particles(rng, P):
+    R = rpy_to_matrix(rng.uniform(-0.3, 0.3, (P, 3)) * [1, 1, 10])
+    t = rng.uniform(-5, 5, (P, 3))
+    return R, t
+
+
+# ------------------------------------------------------------------------------------------ preprocessing
+def test_crop_range_keeps_the_annulus():
+    pts = np.array([[1, 0, 0], [0, 3, 0], [0, 0, 10], [20, 0, 0]], np.float32)
+    assert np.array_equal(crop_range(pts, 2.0, 15.0), pts[1:3])
+
+
+def test_voxel_downsample_one_exact_point_per_voxel():
+    rng = np.random.default_rng(0)
+    pts = rng.uniform(-3, 3, (5000, 3)).astype(np.float32)
+    out = voxel_downsample(pts, 1.0)
+    keys = np.floor(out / 1.0).astype(int)
+    assert len(np.unique(keys, axis=0)) == len(out) == len(np.unique(np.floor(pts).astype(int), axis=0))
+    # kept points are input points (the first of each voxel, in input order)
+    first = {}
+    for i, k in enumerate(map(tuple, np.floor(pts).astype(int))):
+        first.setdefault(k, i)
+    assert np.array_equal(out, pts[sorted(first.values())])
+
+
+def test_sample_points_is_seeded_and_distinct():
+    pts = np.arange(3000, dtype=np.float32).reshape(1000, 3)
+    a = sample_points(pts, 100, np.random.default_rng(5))
+    b = sample_points(pts, 100, np.random.default_rng(5))
+    c = sample_points(pts, 100, np.random.default_rng(6))
+    assert np.array_equal(a, b) and not np.array_equal(a, c)
+    assert len(np.unique(a[:, 0])) == 100
+    assert len(sample_points(pts, 5000, np.random.default_rng(0))) == 1000
+
+
+# ------------------------------------------------------------------------------------------ steps 1-4
+def test_initialise_particles_all_at_start_pose():
+    T0 = make_pose(rpy_to_matrix([0.1, -0.2, 0.3]), [1, 2, 3])
+    R, t, log_w = initialise_particles(7, T0)
+    assert R.shape == (7, 3, 3) and t.shape == (7, 3)
+    assert np.allclose(R, T0[:3, :3]) and np.allclose(t, T0[:3, 3])
+    assert np.allclose(np.exp(log_w), 1 / 7)
+    with pytest.raises(ValueError):
+        initialise_particles(0)
+
+
+def test_read_scan_moves_points_into_the_body_frame():
+    T_velo_imu = make_pose(rpy_to_matrix([0.01, -0.02, 0.03]), [-0.8, 0.3, -0.8])
+    scan = np.array([[5, 0, 0, 0.1], [0, 1, 0, 0.2], [0, 8, 1, 0.3]], np.float32)  # 2nd point inside min_range
+    pts = read_scan(SimFrame(scan, None, None, 0.1, None, 0, 0), invert_pose(T_velo_imu), 3.0, 60.0, 0.0)
+    expected = transform_points(invert_pose(T_velo_imu), scan[[0, 2], :3].astype(np.float64))
+    assert pts.dtype == np.float32 and np.allclose(pts, expected, atol=1e-5)
+
+
+def test_read_imu_and_timing(drive):
+    frames, _ = drive
+    v, w = read_imu(frames[3])
+    assert np.array_equal(v, frames[3].velocity) and np.array_equal(w, frames[3].angular_rate)
+    assert read_timing(frames[0]) == 0.0 and read_timing(frames[3]) == pytest.approx(0.1)
+    with pytest.raises(ValueError):
+        read_timing(SimFrame(None, None, None, -0.1, None, 0, 0))
+
+
+# ------------------------------------------------------------------------------------------ steps 5-6
+def test_offset_by_motion_matches_the_dead_reckoning_increment():
+    rng = np.random.default_rng(1)
+    v0, w0, v1, w1 = rng.normal(0, [5, 0.3, 0.1], (4, 3))
+    R, t = random_particles(rng, 6)
+    rpy, dp = motion_increment(v0, w0, v1, w1, 0.1)
+    R2, t2 = offset_by_motion(R, t, rpy, dp, CPU)
+    dr = dead_reckon(np.array([v0, v1]), np.array([w0, w1]), np.array([0.0, 0.1]))  # from the identity
+    for i in range(6):
+        expected = make_pose(R[i], t[i]) @ dr[1]
+        assert np.allclose(make_pose(R2[i], t2[i]), expected, atol=1e-12)
+
+
+def test_perturb_with_noise_has_the_configured_spread():
+    P = 20000
+    sigma = np.array([0.05, 0.03, 0.01, 0.002, 0.004, 0.01])
+    R, t, _ = initialise_particles(P)
+    R2, t2 = perturb_with_noise(R, t, sigma, np.random.default_rng(0), CPU)
+    spread = np.r_[t2.std(axis=0), matrix_to_rpy(R2).std(axis=0)]
+    assert np.allclose(spread, sigma, rtol=0.04)
+    assert np.allclose(np.r_[t2.mean(axis=0), matrix_to_rpy(R2).mean(axis=0)], 0, atol=4 * sigma / np.sqrt(P))
+    assert np.allclose(R2 @ np.swapaxes(R2, 1, 2), np.eye(3), atol=1e-12)
+
+
+def test_motion_noise_sigma_grows_with_distance_and_time():
+    s0 = motion_noise_sigma([0, 0, 0], 0.0)
+    s1 = motion_noise_sigma([1.0, 0, 0], 0.1)
+    s2 = motion_noise_sigma([2.0, 0, 0], 0.1)
+    s3 = motion_noise_sigma([1.0, 0, 0], 0.2)
+    assert np.all(s0 == 0) and np.all(s2 > s1) and np.all(s3 > s1)
+    assert np.allclose(motion_noise_sigma([0, 3, 4], 0.0, sigma_xyz_per_m=(1, 2, 3), sigma_rpy_per_m=(0, 0, 1)),
+                       [5, 10, 15, 0, 0, 5])
+
+
+def test_steps_5_then_6_equal_the_fused_move():
+    rng = np.random.default_rng(2)
+    R, t = random_particles(rng, 50)
+    noise = rng.standard_normal((50, 6))
+    sigma = np.array([0.1, 0.05, 0.02, 0.01, 0.01, 0.03])
+    rpy, dp = np.array([0.01, -0.02, 0.1]), np.array([1.0, 0.1, -0.05])
+    Ra, ta = offset_by_motion(R, t, rpy, dp, CPU)
+    Ra, ta = perturb_with_noise(Ra, ta, sigma, None, CPU, noise=noise)
+    Rb, tb = move_particles(R, t, rpy, dp, noise, sigma, CPU)
+    assert np.allclose(Ra, Rb, atol=1e-12) and np.allclose(ta, tb, atol=1e-12)
+
+
+# ------------------------------------------------------------------------------------------ steps 7-8
+@settings(max_examples=25, deadline=None)
+@given(st.lists(st.floats(-3, 3), min_size=6, max_size=6))
+def test_transform_scan_is_the_rigid_transform(vals):
+    R = rpy_to_matrix(vals[3:])
+    t = np.array(vals[:3]) * 10
+    pts = np.random.default_rng(0).uniform(-50, 50, (64, 3)).astype(np.float32)
+    out = transform_scan(R, t, pts, CPU)
+    assert out.dtype == np.float32 and out.shape == pts.shape
+    assert np.allclose(out, pts.astype(np.float64) @ R.T + t, atol=1e-4)
+
+
+@pytest.fixture(scope="module")
+def built_map(drive):
+    """A map built from 5 frames at their true poses, and frame 6's body points with its true pose."""
+    frames, gt = drive
+    m = VoxelHashMap(capacity=2**14)
+    for k in range(5):
+        merge_scan(m, gt[k], read_scan(frames[k], None, 2.0, 30.0, 0.3), CPU)
+    return m, read_scan(frames[6], None, 2.0, 30.0, 0.3), gt[6]
+
+
+def test_score_prefers_the_true_pose(built_map):
+    m, pts, T = built_map
+    sample = sample_points(pts, 400, np.random.default_rng(0))
+    offsets = [np.zeros(6), [0.3, 0, 0, 0, 0, 0], [0, -0.3, 0, 0, 0, 0], [0, 0, 0.2, 0, 0, 0],
+               [0, 0, 0, 0.03, 0, 0], [0, 0, 0, 0, -0.03, 0], [0, 0, 0, 0, 0, 0.03]]
+    poses = np.array([T @ make_pose(rpy_to_matrix(o[3:]), o[:3]) for o in np.asarray(offsets, float)])
+    scores = score_particles(poses[:, :3, :3], poses[:, :3, 3], sample, m, CPU)
+    assert scores.shape == (len(offsets),) and np.all(scores <= 0)
+    assert np.argmax(scores) == 0 and np.all(scores[1:] < scores[0] - 1.0)
+
+
+def test_numpy_and_cpu_scores_agree(built_map):
+    m, pts, T = built_map
+    rng = np.random.default_rng(4)
+    R = T[:3, :3] @ rpy_to_matrix(rng.normal(0, 0.01, (8, 3)))
+    t = T[:3, 3] + rng.normal(0, 0.1, (8, 3))
+    sample = sample_points(pts, 200, rng)
+    assert np.allclose(score_particles(R, t, sample, m, NUMPY), score_particles(R, t, sample, m, CPU), rtol=1e-9)
+
+
+# ------------------------------------------------------------------------------------------ steps 9-11
+def test_pick_best_particle_best_and_local_mean():
+    R = rpy_to_matrix(np.array([[0, 0, 0.0], [0, 0, 0.02], [0, 0, 0.04], [0, 0, 1.0]]))
+    t = np.array([[0, 0, 0], [0.1, 0, 0], [0.2, 0, 0], [5, 0, 0]], float)
+    log_w = np.log([0.2, 0.3, 0.2, 0.3 - 1e-9])
+    T, i = pick_best_particle(log_w, R, t, "best")
+    assert i == 1 and np.allclose(T, make_pose(R[1], t[1]))
+    T, i = pick_best_particle(log_w, R, t, "mean", radius=0.5)  # particle 3 is 5 m away: not averaged in
+    assert i == 1 and np.allclose(T[:3, 3], [0.1, 0, 0]) and np.allclose(matrix_to_rpy(T[:3, :3]), [0, 0, 0.02])
+    with pytest.raises(ValueError):
+        pick_best_particle(log_w, R, t, "median")
+
+
+def test_merge_scan_grows_the_map_where_the_pose_puts_it(drive):
+    frames, gt = drive
+    m = VoxelHashMap(capacity=2**14)
+    pts = read_scan(frames[0], None, 2.0, 30.0, 0.3)
+    merge_scan(m, gt[0], pts, CPU)
+    n1 = len(m)
+    T_far = make_pose(np.eye(3), [200.0, 0, 0])
+    merge_scan(m, T_far, pts, CPU)
+    assert n1 > 100 and len(m) > 1.8 * n1
+    assert (m.points()[:, 0] > 150).sum() >= 0.9 * n1
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.lists(st.floats(-50, 0), min_size=2, max_size=60), st.integers(0, 1000))
+def test_resample_keeps_count_and_draws_heavy_particles(log_w, seed):
+    log_w = np.asarray(log_w)
+    P = len(log_w)
+    R, t = random_particles(np.random.default_rng(seed), P)
+    R2, t2, lw2, done = resample_particles(R, t, log_w, np.random.default_rng(seed), CPU, ess_fraction=1.0)
+    assert R2.shape == R.shape and t2.shape == t.shape and lw2.shape == (P,)
+    w = np.exp(log_w - log_w.max())
+    w /= w.sum()
+    if done:
+        assert np.allclose(np.exp(lw2), 1.0 / P)
+        idx = [int(np.flatnonzero(np.all(t == ti, axis=1))[0]) for ti in t2]
+        counts = np.bincount(idx, minlength=P)
+        assert np.all(np.abs(counts - P * w) < 1.0 + 1e-9)  # systematic: floor or ceil of P w_i
+    else:
+        assert np.allclose(w, 1.0 / P)
+
+
+def test_resample_only_below_the_ess_threshold():
+    R, t, _ = initialise_particles(10)
+    t = t + np.arange(10)[:, None]
+    log_w = np.log(np.r_[np.full(5, 0.15), np.full(5, 0.05)])  # ESS = 1 / (5 * .0225 + 5 * .0025) = 8
+    assert not resample_particles(R, t, log_w, np.random.default_rng(0), CPU, ess_fraction=0.5)[3]
+    assert resample_particles(R, t, log_w, np.random.default_rng(0), CPU, ess_fraction=0.9)[3]
+
+
+# ------------------------------------------------------------------------------------------ step 12
+def test_register_frame_beats_dead_reckoning(drive):
+    frames, gt = drive
+    slam = ParticleSLAM3D(tiny_config())
+    for f in frames:
+        slam.register_frame(f)
+    ate_slam = absolute_trajectory_error(slam.trajectory, gt).rmse
+    ate_dr = absolute_trajectory_error(slam.dead_reckoning, gt).rmse
+    assert ate_dr > 0.3  # the IMU alone drifts
+    assert ate_slam < ate_dr / 4
+    assert slam.n_resampled > 0 and len(slam.poses) == len(frames)
+
+
+def test_dead_reckoning_twin_is_the_imu_integral(drive):
+    frames, _ = drive
+    slam = ParticleSLAM3D(tiny_config(particles=5, points=50))
+    for f in frames[:6]:
+        slam.register_frame(f)
+    v = np.array([f.velocity for f in frames[:6]])
+    w = np.array([f.angular_rate for f in frames[:6]])
+    assert np.allclose(slam.dead_reckoning, dead_reckon(v, w, [f.dt for f in frames[:6]]), atol=1e-12)
+
+
+def test_same_seed_same_trajectory_other_seed_differs(drive):
+    frames, _ = drive
+
+    def traj(seed):
+        slam = ParticleSLAM3D(tiny_config(particles=50, points=200, seed=seed))
+        for f in frames[:8]:
+            slam.register_frame(f)
+        return slam.trajectory
+
+    a, b, c = traj(1), traj(1), traj(2)
+    assert np.array_equal(a, b)
+    assert not np.allclose(a[1:], c[1:])
+
+
+def test_numpy_and_cpu_backends_give_the_same_trajectory(drive):
+    frames, _ = drive
+
+    def traj(backend):
+        slam = ParticleSLAM3D(tiny_config(particles=16, points=100, backend=backend, seed=7))
+        for f in frames[:4]:
+            slam.register_frame(f)
+        return slam.trajectory
+
+    assert np.allclose(traj("numpy"), traj("cpu"), atol=1e-9)
+
+
+def test_cuda_backend_gives_the_cpu_trajectory(drive):
+    """In Numba's CUDA simulator (tests/conftest.py) unless SLAMLIB_REAL_CUDA=1: tiny sizes."""
+    frames, _ = drive
+
+    def traj(backend):
+        slam = ParticleSLAM3D(tiny_config(particles=8, points=30, backend=backend, seed=7, voxel_size=1.5))
+        for f in frames[:3]:
+            slam.register_frame(f)
+        return slam.trajectory
+
+    assert np.allclose(traj("cuda"), traj("cpu"), atol=1e-6)
+
+
+def test_refine_and_bvh_map_also_track(drive):
+    frames, gt = drive
+    run = run_drive(frames[:15], tiny_config(map_type="bvh", map_params={}, refine=1, estimate="mean"), progress=False)
+    assert run.ground_truth is not None and np.allclose(run.ground_truth, gt[:15])
+    ate_slam = absolute_trajectory_error(run.poses, run.ground_truth).rmse
+    ate_dr = absolute_trajectory_error(run.dead_reckoning, run.ground_truth).rmse
+    assert ate_slam < ate_dr / 2
+
+
+def test_pruned_map_points_are_kept_for_export(drive):
+    frames, _ = drive
+    slam = ParticleSLAM3D(tiny_config(particles=10, points=50, prune_every=5, prune_radius=12.0))
+    for f in frames[:10]:  # pruned after frames 5 and 10
+        slam.register_frame(f)
+    assert slam.archive and len(slam.map_points()) == len(slam.map) + sum(len(a) for a in slam.archive)
+    assert np.linalg.norm(slam.map.points() - slam.poses[-1][:3, 3], axis=1).max() <= 12.0 + 1e-4
+    assert np.linalg.norm(slam.archive[-1] - slam.poses[-1][:3, 3], axis=1).min() > 12.0 - 1e-4
+
+
+def test_config_rejects_bad_values():
+    for bad in (dict(map_type="octree"), dict(particles=0), dict(temperature=0.0), dict(estimate="median")):
+        with pytest.raises(ValueError):
+            SLAM3DConfig(**bad)
+
+
+def test_parse_frames():
+    assert parse_frames("10:20") == slice(10, 20)
+    assert parse_frames("5:") == slice(5, None)
+    assert parse_frames("30") == slice(0, 30)
+    assert parse_frames(None) is None
+    for bad in ("a:b", "20:10", "-3:5"):
+        with pytest.raises(ValueError):
+            parse_frames(bad)
+    with pytest.raises(ValueError):
+        parse_frames("100:200", n=50)
+
+
+# ------------------------------------------------------------------------------------------ slamlib run
+@pytest.fixture(scope="module")
+def tiny_drive(tmp_path_factory):
+    from slamlib.synth import Hdl64, write_drive
+
+    base = tmp_path_factory.mktemp("kitti")
+    return write_drive(base, route="07", frames=(0, 12), seed=1, lidar=Hdl64(columns=500, beam_stride=2),
+                       progress=False)
+
+
+def test_slamlib_run_writes_trajectories_map_metrics_and_plots(tiny_drive, tmp_path):
+    from slamlib.cli import main
+    from slamlib.kitti import read_kitti_poses, read_tum
+
+    base, date, drive = tiny_drive
+    out = tmp_path / "out"
+    rc = main(["run", "--basedir", str(base), "--date", date, "--drive", str(drive), "--frames", "1:11",
+               "--particles", "50", "--points", "200", "--out", str(out), "--no-progress"])
+    assert rc == 0
+    slam = read_kitti_poses(out / "slam_poses.txt")
+    _, tum = read_tum(out / "slam_tum.txt")
+    assert slam.shape == (10, 4, 4) and np.allclose(tum, slam, atol=1e-9)
+    assert read_kitti_poses(out / "dead_reckoning_poses.txt").shape == (10, 4, 4)
+    info = json.loads((out / "metrics.json").read_text())
+    assert info["frames"] == 10 and info["fps"] > 0 and info["frame_indices"] == [1, 10]
+    assert {"slam", "dead_reckoning"} <= set(info["metrics"])
+    assert info["metrics"]["slam"]["ate_rmse_m"] >= 0
+    import open3d as o3d
+
+    assert len(o3d.io.read_point_cloud(str(out / "map.ply")).points) == info["map_points_written"] > 0
+    assert (out / "trajectory.png").stat().st_size > 1000 and (out / "map_topdown.png").stat().st_size > 1000
+
+
+@pytest.mark.parametrize("which,needle", [("basedir", "is not a folder"), ("date", "dates there: 2011_09_26"),
+                                          ("drive", "drives there: 0001")])
+def test_slamlib_run_explains_a_wrong_drive(tiny_drive, tmp_path, which, needle):
+    from slamlib.cli import main
+
+    base, date, drive = tiny_drive
+    args = {"basedir": str(base), "date": date, "drive": str(drive)}
+    args[which] = {"basedir": str(tmp_path / "nowhere"), "date": "2011_10_03", "drive": "0042"}[which]
+    with pytest.raises(SystemExit) as exc:
+        main(["run", "--basedir", args["basedir"], "--date", args["date"], "--drive", args["drive"],
+              "--out", str(tmp_path / "o"), "--no-progress"])
+    assert needle in str(exc.value) and "not found" in str(exc.value)

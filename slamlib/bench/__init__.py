@@ -15,6 +15,11 @@ import numpy as np
 
 BENCHMARKS = {
     # name: module path; modules are imported only when run.
+    "kernels": "slamlib.bench.kernels",
+    "maps": "slamlib.bench.maps",
+    "noise": "slamlib.bench.noise",
+    "cuda": "slamlib.bench.cuda",
+    "slam3d": "slamlib.bench.slam3d",
 }
 
 

@@ -43,6 +43,7 @@ __all__ = [
     "absolute_trajectory_error",
     "RPEResult",
     "relative_pose_error",
+    "trajectory_metrics",
     "KittiOdometryResult",
     "kitti_odometry_error",
 ]
@@ -304,3 +305,23 @@ def kitti_odometry_error(estimate, ground_truth, lengths=KITTI_LENGTHS, step: in
         n_segments=int(first.size), per_length=per_length,
         first=first, last=last, length=length, t_err=t_err, r_err=r_err, speed=speed,
     )
+
+
+def trajectory_metrics(estimate, ground_truth) -> dict:
+    """The summary ``slamlib run`` reports for one trajectory against ground truth (same frame, same start).
+
+    ``ate_rmse_m``, ``ate_max_m``, ``final_error_m`` (:func:`absolute_trajectory_error`, no alignment);
+    with more than 10 poses ``rpe_10f_trans_rmse_m`` and ``rpe_10f_rot_rmse_deg`` (:func:`relative_pose_error`
+    over 10 frames); for paths longer than 100 m the KITTI metric ``kitti_t_err_percent``,
+    ``kitti_r_err_deg_per_m`` and ``kitti_segments`` (:func:`kitti_odometry_error`).
+    """
+    ate = absolute_trajectory_error(estimate, ground_truth)
+    out = {"ate_rmse_m": ate.rmse, "ate_max_m": ate.max, "final_error_m": float(ate.errors[-1])}
+    if len(ate.errors) > 10:
+        rpe = relative_pose_error(estimate, ground_truth, delta=10)
+        out.update(rpe_10f_trans_rmse_m=rpe.trans_rmse, rpe_10f_rot_rmse_deg=float(np.degrees(rpe.rot_rmse)))
+    if trajectory_distances(ground_truth)[-1] > 100.0:
+        k = kitti_odometry_error(estimate, ground_truth)
+        out.update(kitti_t_err_percent=k.t_err_percent, kitti_r_err_deg_per_m=k.r_err_deg_per_m,
+                   kitti_segments=k.n_segments)
+    return out

@@ -192,3 +192,22 @@ def test_bad_inputs():
         absolute_trajectory_error(T, T, align="affine")
     with pytest.raises(ValueError):
         absolute_trajectory_error(np.zeros((5, 2)), np.zeros((5, 2)))
+
+
+def test_trajectory_metrics_summary_keys_by_path_length():
+    """The run summary: ATE/RPE always; the KITTI metric only once the path exceeds 100 m."""
+    from slamlib.metrics import trajectory_metrics
+
+    def straight(n, step):
+        T = np.tile(np.eye(4), (n, 1, 1))
+        T[:, 0, 3] = np.arange(n) * step
+        return T
+
+    short, long_ = straight(50, 1.0), straight(300, 1.0)
+    m = trajectory_metrics(short, short)
+    assert m["ate_rmse_m"] == 0 and m["rpe_10f_trans_rmse_m"] == 0 and "kitti_t_err_percent" not in m
+    drifted = long_.copy()
+    drifted[:, 0, 3] *= 1.01  # 1 % scale error
+    m = trajectory_metrics(drifted, long_)
+    # segments end at the first frame past their length (devkit rule), so slightly over 1 %
+    assert 1.0 <= m["kitti_t_err_percent"] < 1.02 and abs(m["final_error_m"] - 2.99) < 1e-9

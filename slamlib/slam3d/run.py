@@ -123,22 +123,6 @@ def run_drive(frames, config: SLAM3DConfig | None = None, T_velo_imu=None, progr
                    np.asarray(idx, dtype=np.int64), seconds, slam, snaps, np.asarray(frame_seconds))
 
 
-def _metrics(est, gt) -> dict:
-    from slamlib.metrics import absolute_trajectory_error, kitti_odometry_error, relative_pose_error, \
-        trajectory_distances
-
-    ate = absolute_trajectory_error(est, gt)
-    out = {"ate_rmse_m": ate.rmse, "ate_max_m": ate.max, "final_error_m": float(ate.errors[-1])}
-    if len(est) > 10:
-        rpe = relative_pose_error(est, gt, delta=10)
-        out.update(rpe_10f_trans_rmse_m=rpe.trans_rmse, rpe_10f_rot_rmse_deg=float(np.degrees(rpe.rot_rmse)))
-    if trajectory_distances(gt)[-1] > 100.0:
-        k = kitti_odometry_error(est, gt)
-        out.update(kitti_t_err_percent=k.t_err_percent, kitti_r_err_deg_per_m=k.r_err_deg_per_m,
-                   kitti_segments=k.n_segments)
-    return out
-
-
 def evaluate(run: SLAMRun) -> dict:
     """ATE (RMSE, m, no alignment: both start at the same pose), RPE over 10 frames, and the KITTI odometry
     metric (segments of 100..800 m; only for paths over 100 m) of the SLAM and dead-reckoning trajectories.
@@ -146,7 +130,7 @@ def evaluate(run: SLAMRun) -> dict:
     Returns ``{"slam": {...}, "dead_reckoning": {...}, "path_length_m", "frames", "fps"}``; raises ValueError
     without ground truth.
     """
-    from slamlib.metrics import trajectory_distances
+    from slamlib.metrics import trajectory_distances, trajectory_metrics
 
     if run.ground_truth is None:
         raise ValueError("this run has no ground truth (frames without T_w_imu)")
@@ -154,8 +138,8 @@ def evaluate(run: SLAMRun) -> dict:
         "frames": int(len(run.poses)),
         "path_length_m": float(trajectory_distances(run.ground_truth)[-1]),
         "fps": float(run.fps),
-        "slam": _metrics(run.poses, run.ground_truth),
-        "dead_reckoning": _metrics(run.dead_reckoning, run.ground_truth),
+        "slam": trajectory_metrics(run.poses, run.ground_truth),
+        "dead_reckoning": trajectory_metrics(run.dead_reckoning, run.ground_truth),
     }
 
 

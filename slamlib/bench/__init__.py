@@ -8,7 +8,9 @@ so ratios between rows are meaningful even on a shared, noisy machine; absolute 
 
 from __future__ import annotations
 
+import json
 import time
+from pathlib import Path
 from typing import Callable
 
 import numpy as np
@@ -20,6 +22,7 @@ BENCHMARKS = {
     "noise": "slamlib.bench.noise",
     "cuda": "slamlib.bench.cuda",
     "slam3d": "slamlib.bench.slam3d",
+    "peers": "slamlib.bench.peers",
 }
 
 
@@ -42,3 +45,14 @@ def median_time(fn: Callable[[], object], repeat: int = 7, warmup: int = 1) -> d
         "max_s": float(arr.max()),
         "repeat": int(repeat),
     }
+
+
+def results_dir() -> Path:
+    """``benchmarks/results`` of the source checkout this package runs from (where ``slamlib bench`` writes)."""
+    return Path(__file__).resolve().parents[2] / "benchmarks" / "results"
+
+
+def load_result(name: str) -> dict | None:
+    """The committed result ``benchmarks/results/NAME.json`` as a dict, or ``None`` when it does not exist."""
+    path = results_dir() / f"{name}.json"
+    return json.loads(path.read_text()) if path.is_file() else None

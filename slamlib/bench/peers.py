@@ -1,0 +1,91 @@
+"""``slamlib bench peers``: KISS-ICP, the LIDAR odometry to beat, beside slamlib's particle SLAM on one drive.
+
+KISS-ICP (Vizzo et al., "KISS-ICP: In Defense of Point-to-Point ICP", RA-L 2023; ``pip install kiss-icp``, MIT
+licence) registers each full scan against a local voxel map with point-to-point ICP and an adaptive threshold.
+It uses the LIDAR only; slamlib's filter uses the LIDAR and the IMU. Both run here on the same frames of the
+default synthetic drive, one after the other in one process, and are scored with the same metrics
+(:func:`slamlib.metrics.trajectory_metrics`) against the same ground truth:
+
+* KISS-ICP gets the raw Velodyne scan (``x, y, z`` float64, its default configuration, de-skewing off since the
+  synthetic scans are cast from one pose). Its poses ``P_k = T_{velo_0 <- velo_k}`` are turned into body (IMU)
+  poses ``T_{body_0 <- body_k} = T_velo_imu^{-1} P_k T_velo_imu`` (KITTI ``calib_imu_to_velo.txt``).
+* slamlib runs :class:`~slamlib.slam3d.SLAM3DConfig` defaults (300 particles, voxel map, Numba CPU).
+
+Reported per method: per-frame time (median, from the registration call alone, file reading excluded), frames/s
+of that median, and ATE / RPE / KITTI error. ``--quick`` uses the first 60 frames of the 300-frame drive;
+the full run adds the whole ~690 m route.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+HELP = "KISS-ICP (LIDAR-only ICP odometry) beside slamlib's particle SLAM on the same drive: time per frame, ATE"
+
+INSTALL_HINT = "slamlib bench peers needs KISS-ICP: pip install kiss-icp (or pip install -e '.[peers]')"
+
+
+def _kiss_icp(drive) -> tuple[np.ndarray, np.ndarray]:
+    """Run KISS-ICP over ``drive``; return body poses ``(F, 4, 4)`` and per-frame registration seconds ``(F,)``."""
+    from kiss_icp.config import load_config
+    from kiss_icp.kiss_icp import KissICP
+
+    config = load_config(None)
+    config.data.deskew = False
+    odometry = KissICP(config)
+    T_velo_imu = drive.T_velo_imu
+    T_imu_velo = np.linalg.inv(T_velo_imu)
+    poses, seconds = [], []
+    no_times = np.zeros(0)
+    for frame in drive:
+        points = np.asarray(frame.scan[:, :3], dtype=np.float64)
+        t0 = time.perf_counter()
+        odometry.register_frame(points, no_times)
+        seconds.append(time.perf_counter() - t0)
+        poses.append(T_imu_velo @ odometry.last_pose @ T_velo_imu)
+    return np.asarray(poses), np.asarray(seconds)
+
+
+def _compare(drive) -> dict:
+    from slamlib.metrics import trajectory_distances, trajectory_metrics
+    from slamlib.slam3d import SLAM3DConfig, run_drive
+
+    slam = run_drive(drive, SLAM3DConfig(), progress=False)
+    gt = slam.ground_truth
+    kiss_poses, kiss_seconds = _kiss_icp(drive)
+    rows = {}
+    for name, poses, seconds in (("kiss_icp", kiss_poses, kiss_seconds),
+                                 ("slamlib", slam.poses, slam.frame_seconds)):
+        median = float(np.median(seconds[1:]))
+        rows[name] = {"frame_ms_median": round(median * 1e3, 2), "fps_median": round(1.0 / median, 1),
+                      **{k: round(float(v), 5) for k, v in trajectory_metrics(poses, gt).items()}}
+    rows["dead_reckoning"] = {k: round(float(v), 5)
+                              for k, v in trajectory_metrics(slam.dead_reckoning, gt).items()}
+    out = {"frames": int(len(gt)), "path_length_m": round(float(trajectory_distances(gt)[-1]), 1),
+           "scan_points_median": int(np.median([len(drive[i].scan) for i in range(0, len(drive), 25)])),
+           **rows}
+    print(out, flush=True)
+    return out
+
+
+def run(quick: bool = False) -> dict:
+    try:
+        import kiss_icp  # noqa: F401
+    except ImportError:
+        raise SystemExit(INSTALL_HINT) from None
+    import numba
+    from importlib.metadata import version
+
+    from slamlib.kitti import KittiRawDrive
+    from slamlib.synth import DEFAULT_FRAMES, default_drive
+
+    drive = KittiRawDrive(*default_drive(progress=False), frames=range(0, 60) if quick else None)
+    run_drive_warm = KittiRawDrive(*default_drive(progress=False), frames=range(0, 5))
+    _compare(run_drive_warm)  # JIT compilation and caches, untimed
+    drives = {f"default drive {DEFAULT_FRAMES}": _compare(drive)}
+    if not quick:
+        drives["whole route (full=True)"] = _compare(KittiRawDrive(*default_drive(full=True, progress=False)))
+    return {"kiss_icp_version": version("kiss-icp"), "numba_threads": int(numba.get_num_threads()),
+            "drives": drives}

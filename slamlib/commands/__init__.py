@@ -9,4 +9,5 @@ COMMANDS = {
     "bench": "slamlib.commands.bench",
     "sim1d": "slamlib.commands.sim1d",
     "run": "slamlib.commands.run",
+    "synth": "slamlib.commands.synth",
 }

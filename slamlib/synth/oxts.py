@@ -32,7 +32,7 @@ pykitti 0.3.1 ``utils.pose_from_oxts_packet``.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, asdict
+from dataclasses import dataclass, asdict, fields
 
 import numpy as np
 
@@ -69,6 +69,23 @@ class ImuNoise:
 
     def as_dict(self) -> dict:
         return {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(self).items()}
+
+    def scaled(self, k: float) -> "ImuNoise":
+        """Every term (``*_sigma``, ``*_bias``, ``*_scale``) multiplied by ``k >= 0``: ``k = 0`` gives exact
+        fields (equal to :data:`ZERO_NOISE`), ``k = 2`` twice the errors. Dead-reckoning drift grows about
+        linearly in ``k`` (it is dominated by the biases and the scale error)."""
+        k = float(k)
+        if not (k >= 0 and np.isfinite(k)):
+            raise ValueError(f"noise scale must be a finite number >= 0, got {k}")
+
+        def scale(x):  # "+ 0.0" turns the -0.0 of 0 * (negative bias) into 0.0, so as_dict() matches ZERO_NOISE's
+            return k * float(x) + 0.0
+
+        out = {}
+        for f in fields(self):
+            v = getattr(self, f.name)
+            out[f.name] = tuple(scale(x) for x in v) if isinstance(v, tuple) else scale(v)
+        return ImuNoise(**out)
 
 
 ZERO_NOISE = ImuNoise(0.0, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), 0.0, (0.0, 0.0, 0.0), 0.0, (0.0, 0.0, 0.0))

@@ -5,6 +5,7 @@ import pykitti
 import pytest
 
 from slamlib.kitti.oxts import OxtsPacket, poses_from_packets
+from slamlib.kitti.scan_stats import elevation_fractions
 from slamlib.kitti.timestamps import read_timestamps_ns
 from slamlib.odometry import dead_reckon
 from slamlib.paths import kitti_sample_dir
@@ -59,12 +60,6 @@ def test_deterministic_from_seed(tmp_path):
     assert (a / rel).read_bytes() != (c / rel).read_bytes()
 
 
-def _elevation_fractions(scan):
-    e = np.degrees(np.arctan2(scan[:, 2], np.linalg.norm(scan[:, :2], axis=1)))
-    h = np.histogram(e, bins=[-26, -20, -15, -10, -5, 0, 3])[0]
-    return h / h.sum()
-
-
 #: Five places along the default route (KITTI 07 key frames), each generated with its own seed.
 PLACES = [(0, 5), (50, 55), (100, 105), (200, 205), (250, 255)]
 
@@ -85,8 +80,8 @@ def test_scan_statistics_close_to_real(tiny_drive, tmp_path):
     n_real = np.mean([len(s) for s in real])
     n_syn = np.mean([len(s) for s in syn])
     assert abs(n_syn - n_real) < 0.2 * n_real
-    f_real = np.mean([_elevation_fractions(s) for s in real], axis=0)
-    f_syn = np.mean([_elevation_fractions(s) for s in syn], axis=0)
+    f_real = np.mean([elevation_fractions(s) for s in real], axis=0)
+    f_syn = np.mean([elevation_fractions(s) for s in syn], axis=0)
     assert np.all(np.abs(f_syn - f_real) < 0.2 * f_real), (f_syn, f_real)
     assert 0 <= syn[0][:, 3].min() and syn[0][:, 3].max() < 1
 
@@ -152,3 +147,8 @@ def test_route_07_is_planar_z_up():
     assert np.ptp(p[:, 2]) < 0.05 * np.ptp(p[:, :2], axis=0).max()
     f = r.specific_force_body(np.linspace(r.t0, r.t1, 200))
     assert abs(np.median(f[:, 2]) - 9.81) < 0.3
+
+
+def test_kitti_route_rejects_an_empty_selection_clearly():
+    with pytest.raises(ValueError, match="key frames 0..1100"):
+        kitti_route("07", (2000, 2100))

@@ -166,6 +166,9 @@ def kitti_route(sequence: str = "07", frames: slice | tuple | None = None) -> Ro
     if frames is not None:
         sl = frames if isinstance(frames, slice) else slice(*frames)
         P, times = P[sl], times[sl]
+        if len(P) < 4:
+            raise ValueError(f"KITTI sequence {sequence} has key frames 0..{n - 1}: the selection {frames!r} "
+                             f"keeps {len(P)} of them, a route needs at least 4")
     T_ci = kitti_T_cam_imu()
     T = invert_pose(T_ci) @ P @ T_ci
     T = invert_pose(T[0]) @ T

@@ -22,6 +22,7 @@ BENCHMARKS = {
     "noise": "slamlib.bench.noise",
     "cuda": "slamlib.bench.cuda",
     "slam3d": "slamlib.bench.slam3d",
+    "synth": "slamlib.bench.synth",
     "peers": "slamlib.bench.peers",
 }
 

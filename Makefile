@@ -6,10 +6,10 @@ PYTHON ?= python3
 VENV   := .venv
 BIN    := $(VENV)/bin
 # Generated data (the default synthetic drive) and Numba's compile cache live in the checkout, shared by
-# the tests, the notebooks and the book build.
+# the tests, the notebooks and the book build. (No MPLBACKEND here: a notebook kernel started with
+# MPLBACKEND=Agg draws no inline figures, so the book would have none; tests/conftest.py picks Agg itself.)
 export SLAMLIB_CACHE ?= $(CURDIR)/_cache
 export NUMBA_CACHE_DIR ?= $(CURDIR)/_cache/numba
-export MPLBACKEND ?= Agg
 
 SYSTEM_PACKAGES := libusb-1.0-0 libvulkan1 mesa-vulkan-drivers
 SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)

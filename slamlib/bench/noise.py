@@ -45,14 +45,14 @@ def make_source(name: str, P: int, seed: int) -> Callable[[int], np.ndarray]:
         from numba.cuda.random import init_xoroshiro128p_states_cpu, xoroshiro128p_dtype, xoroshiro128p_normal_float32
 
         states = np.empty(P, dtype=xoroshiro128p_dtype)
-        # Under the CUDA simulator these run as plain Python on numpy uint64 scalars: the seeding's splitmix64
-        # relies on uint64 wrap-around, which numpy reports as an overflow (harmless, and exact).
+        # Under the CUDA simulator these run as plain Python on numpy uint64 scalars: the seeding (splitmix64)
+        # and each draw (s0 + s1) rely on uint64 wrap-around, which numpy reports as an overflow (harmless, exact).
         with warnings.catch_warnings(), np.errstate(over="ignore"):
             warnings.simplefilter("ignore", NumbaWarning)
             init_xoroshiro128p_states_cpu(states, seed, 0)
 
         def draw(step):
-            with warnings.catch_warnings():
+            with warnings.catch_warnings(), np.errstate(over="ignore"):
                 warnings.simplefilter("ignore", NumbaWarning)
                 return np.array([xoroshiro128p_normal_float32(states, i) for i in range(P)], np.float64)
 

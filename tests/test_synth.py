@@ -60,7 +60,7 @@ def test_deterministic_from_seed(tmp_path):
     assert (a / rel).read_bytes() != (c / rel).read_bytes()
 
 
-#: Five places along the default route (KITTI 07 key frames), each generated with its own seed.
+#: Five places along the default route (KITTI 07 key frames), each written into its own folder with seed 3.
 PLACES = [(0, 5), (50, 55), (100, 105), (200, 205), (250, 255)]
 
 
@@ -72,8 +72,8 @@ def test_scan_statistics_close_to_real(tiny_drive, tmp_path):
     """
     real = [np.fromfile(p, np.float32).reshape(-1, 4) for p in sorted((kitti_sample_dir() / "velodyne_sample").glob("*.bin"))]
     syn = []
-    for seed, frames in enumerate(PLACES):
-        base = tiny_drive if frames == (0, 5) else write_drive(tmp_path / str(seed), "07", frames=frames, seed=3,
+    for k, frames in enumerate(PLACES):
+        base = tiny_drive if frames == (0, 5) else write_drive(tmp_path / str(k), "07", frames=frames, seed=3,
                                                                progress=False)[0]
         data = pykitti.raw(str(base), "2011_09_26", "0001")
         syn += [data.get_velo(k) for k in range(5)]

@@ -37,9 +37,12 @@ __all__ = [
     "effective_sample_size",
     "multinomial_resample",
     "normalise_log_weights",
+    "resample_indexes",
     "residual_resample",
     "stratified_resample",
     "systematic_resample",
+    "uniform_log_weights",
+    "weights_from_log_weights",
 ]
 
 
@@ -58,7 +61,7 @@ def _check_weights(weights) -> np.ndarray:
         raise ValueError(f"weights contain NaN at index {int(np.flatnonzero(np.isnan(w))[0])}")
     if not np.isfinite(w).all():
         raise ValueError(f"weights contain inf at index {int(np.flatnonzero(~np.isfinite(w))[0])}; "
-                         "pass log-weights through normalise_log_weights first")
+                         "pass log-weights through weights_from_log_weights first")
     if (w < 0).any():
         i = int(np.flatnonzero(w < 0)[0])
         raise ValueError(f"weights must be non-negative, got {w[i]!r} at index {i}")
@@ -235,7 +238,21 @@ def effective_sample_size(weights) -> float:
     return min(max(ess, 1.0), float(w.size))  # clip round-off just outside [1, P]
 
 
-def normalise_log_weights(log_weights) -> np.ndarray:
+def _check_log_weights(log_weights) -> np.ndarray:
+    """``log_weights`` as a float64 ``(P,)`` array, or a ``ValueError`` naming what is wrong with it."""
+    lw = np.asarray(log_weights, dtype=np.float64)
+    if lw.ndim != 1 or lw.size == 0:
+        raise ValueError(f"log_weights must be a non-empty 1-D array of shape (P,), got shape {lw.shape}")
+    if np.isnan(lw).any():
+        raise ValueError(f"log_weights contain NaN at index {int(np.flatnonzero(np.isnan(lw))[0])}")
+    if np.isposinf(lw).any():
+        raise ValueError(f"log_weights contain +inf at index {int(np.flatnonzero(np.isposinf(lw))[0])}")
+    if np.isneginf(lw.max()):
+        raise ValueError("all log_weights are -inf: every particle has zero likelihood (the filter diverged)")
+    return lw
+
+
+def weights_from_log_weights(log_weights) -> np.ndarray:
     """Normalised weights from log-weights (log-likelihood scores) by the log-sum-exp trick.
 
     .. math:: w_i = \\exp(\\ell_i - m) / \\sum_j \\exp(\\ell_j - m), \\qquad m = \\max_j \\ell_j
@@ -259,16 +276,40 @@ def normalise_log_weights(log_weights) -> np.ndarray:
         On NaN or ``+inf`` entries, an empty or non-1-D array, or when every entry is ``-inf`` (no particle is
         possible: the filter has diverged).
     """
-    lw = np.asarray(log_weights, dtype=np.float64)
-    if lw.ndim != 1 or lw.size == 0:
-        raise ValueError(f"log_weights must be a non-empty 1-D array of shape (P,), got shape {lw.shape}")
-    if np.isnan(lw).any():
-        raise ValueError(f"log_weights contain NaN at index {int(np.flatnonzero(np.isnan(lw))[0])}")
-    if np.isposinf(lw).any():
-        raise ValueError(f"log_weights contain +inf at index {int(np.flatnonzero(np.isposinf(lw))[0])}")
-    m = lw.max()
-    if np.isneginf(m):
-        raise ValueError("all log_weights are -inf: every particle has zero likelihood (the filter diverged)")
+    lw = _check_log_weights(log_weights)
     with np.errstate(over="ignore"):  # e.g. -1e308 - 1e308 = -inf, whose exp is the right 0
-        w = np.exp(lw - m)
+        w = np.exp(lw - lw.max())
     return w / w.sum()
+
+
+def normalise_log_weights(log_weights) -> np.ndarray:
+    """Log-weights shifted so that ``logsumexp = 0`` (their ``exp`` sums to 1): ``l_i - m - log sum_j exp(l_j - m)``.
+
+    The filters keep their weights in this form at every dimension (products of per-point likelihoods underflow
+    as plain numbers). Same input rules and errors as :func:`weights_from_log_weights`; ``-inf`` stays ``-inf``.
+    """
+    lw = _check_log_weights(log_weights)
+    m = lw.max()
+    with np.errstate(over="ignore"):
+        return lw - (m + np.log(np.sum(np.exp(lw - m))))
+
+
+def uniform_log_weights(n: int) -> np.ndarray:
+    """``(n,)`` log-weights ``-log n``: every particle equally likely (after step 1 and after resampling)."""
+    return np.full(int(n), -np.log(int(n)))
+
+
+def resample_indexes(log_weights, rng: np.random.Generator, ess_fraction: float | None = 0.5,
+                     sampler=systematic_resample) -> np.ndarray | None:
+    """Step 11's decision and draw, shared by every dimension: indexes of the survivors, or ``None`` (keep all).
+
+    Resample when ``ess_fraction`` is ``None`` (always) or when the effective sample size
+    ``ESS = 1 / sum w_i^2`` of ``w = exp(normalise_log_weights(log_weights))`` is below ``ess_fraction * P``
+    (Doucet, Godsill & Andrieu 2000 use ``P / 2``). Then one offset ``u0 ~ U[0, 1)`` is drawn from ``rng`` and
+    ``sampler(w, u0)`` returns the ``(P,)`` int64 indexes: :func:`systematic_resample` by default, or a compute
+    backend's ``systematic_resample`` (same signature). Nothing is drawn from ``rng`` when no resampling is due.
+    """
+    w = weights_from_log_weights(log_weights)
+    if ess_fraction is not None and not effective_sample_size(w) < float(ess_fraction) * w.size:
+        return None
+    return np.asarray(sampler(w, float(rng.random())), dtype=np.int64)

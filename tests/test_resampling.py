@@ -10,9 +10,12 @@ from slamlib.resampling import (
     effective_sample_size,
     multinomial_resample,
     normalise_log_weights,
+    resample_indexes,
     residual_resample,
     stratified_resample,
     systematic_resample,
+    uniform_log_weights,
+    weights_from_log_weights,
 )
 
 weights_strategy = arrays(
@@ -116,20 +119,20 @@ def test_effective_sample_size_extremes():
 @given(lw=arrays(np.float64, st.integers(1, 40),
                  elements=st.one_of(st.floats(-1e300, 1e300), st.just(-np.inf))).filter(
     lambda a: np.isfinite(a).any()))
-def test_normalise_log_weights_sums_to_one(lw):
-    w = normalise_log_weights(lw)
+def test_weights_from_log_weights_sums_to_one(lw):
+    w = weights_from_log_weights(lw)
     assert np.all(np.isfinite(w)) and np.all(w >= 0)
     assert w.sum() == pytest.approx(1.0)
     assert np.all(w[np.isneginf(lw)] == 0)
     assert w[np.argmax(lw)] == w.max()
 
 
-def test_normalise_log_weights_matches_softmax_and_survives_huge_values():
+def test_weights_from_log_weights_matches_softmax_and_survives_huge_values():
     lw = np.array([0.0, np.log(2.0), np.log(5.0)])
-    np.testing.assert_allclose(normalise_log_weights(lw), [1 / 8, 2 / 8, 5 / 8])
-    np.testing.assert_allclose(normalise_log_weights(lw + 1e6), [1 / 8, 2 / 8, 5 / 8])
-    np.testing.assert_allclose(normalise_log_weights(lw - 1e6), [1 / 8, 2 / 8, 5 / 8])
-    np.testing.assert_allclose(normalise_log_weights([-np.inf, 3.0, -np.inf]), [0, 1, 0])
+    np.testing.assert_allclose(weights_from_log_weights(lw), [1 / 8, 2 / 8, 5 / 8])
+    np.testing.assert_allclose(weights_from_log_weights(lw + 1e6), [1 / 8, 2 / 8, 5 / 8])
+    np.testing.assert_allclose(weights_from_log_weights(lw - 1e6), [1 / 8, 2 / 8, 5 / 8])
+    np.testing.assert_allclose(weights_from_log_weights([-np.inf, 3.0, -np.inf]), [0, 1, 0])
 
 
 @pytest.mark.parametrize("bad, message", [
@@ -138,9 +141,38 @@ def test_normalise_log_weights_matches_softmax_and_survives_huge_values():
     ([0.0, np.inf], r"\+inf"),
     ([], "non-empty"),
 ])
-def test_normalise_log_weights_rejects_bad_input(bad, message):
-    with pytest.raises(ValueError, match=message):
-        normalise_log_weights(np.asarray(bad, dtype=float))
+def test_log_weight_functions_reject_bad_input(bad, message):
+    for fn in (weights_from_log_weights, normalise_log_weights):
+        with pytest.raises(ValueError, match=message):
+            fn(np.asarray(bad, dtype=float))
+
+
+@settings(max_examples=100, deadline=None)
+@given(lw=arrays(np.float64, st.integers(1, 40), elements=st.floats(-1e6, 1e6)))
+def test_normalise_log_weights_returns_log_weights_of_the_same_distribution(lw):
+    out = normalise_log_weights(lw)
+    assert np.exp(out).sum() == pytest.approx(1.0)
+    np.testing.assert_allclose(np.exp(out), weights_from_log_weights(lw), rtol=1e-9, atol=1e-300)
+    np.testing.assert_allclose(out - out.max(), lw - lw.max(), rtol=0, atol=1e-6)  # a shift, nothing else
+
+
+def test_resample_indexes_follows_the_ess_rule_and_draws_only_when_due():
+    P = 100
+    flat = uniform_log_weights(P)
+    assert np.allclose(np.exp(flat).sum(), 1.0)
+    rng = np.random.default_rng(0)
+    state = rng.bit_generator.state
+    assert resample_indexes(flat, rng, ess_fraction=0.5) is None          # ESS = P: nothing to do
+    assert rng.bit_generator.state == state                               # and nothing drawn
+    peaked = np.log(np.r_[np.full(10, 1.0), np.full(P - 10, 1e-6)])      # ESS ~ 10 < 50
+    idx = resample_indexes(peaked, np.random.default_rng(1), ess_fraction=0.5)
+    assert idx.shape == (P,) and set(np.unique(idx)) <= set(range(10))
+    u0 = np.random.default_rng(1).random()
+    np.testing.assert_array_equal(idx, systematic_resample(weights_from_log_weights(peaked), u0))
+    assert resample_indexes(flat, np.random.default_rng(2), ess_fraction=None) is not None   # None: always
+    calls = []
+    resample_indexes(peaked, np.random.default_rng(3), 0.5, sampler=lambda w, u: calls.append(u) or np.arange(P))
+    assert len(calls) == 1 and 0 <= calls[0] < 1
 
 
 @pytest.mark.parametrize("bad, message", [

@@ -16,11 +16,11 @@ from slamlib.kernels import get_backend
 from slamlib.maps import VoxelHashMap
 from slamlib.metrics import absolute_trajectory_error
 from slamlib.odometry import dead_reckon
-from slamlib.slam3d import (ParticleSLAM3D, SLAM3DConfig, crop_range, initialise_particles, merge_scan,
-                            motion_increment, motion_noise_sigma, move_particles, offset_by_motion, parse_frames,
-                            perturb_with_noise, pick_best_particle, read_imu, read_scan, read_timing,
-                            resample_particles, run_drive, sample_points, score_particles, transform_scan,
-                            voxel_downsample)
+from slamlib.slam3d import (MotionConfig, ParticleSLAM3D, Particles3D, ScanConfig, SLAM3DConfig, crop_range,
+                            initialise_particles, merge_scan, motion_increment, motion_noise_sigma,
+                            offset_by_motion, parse_frames, perturb_with_noise, pick_best_particle, read_imu,
+                            read_scan, read_timing, resample_particles, run_drive, sample_points, score_particles,
+                            transform_scan, voxel_downsample)
 
 CPU = get_backend("cpu")
 NUMPY = get_backend("numpy")
@@ -82,11 +82,14 @@ def simulate(n: int = 30, seed: int = 0, speed: float = 5.0, yaw_rate: float = 0
 
 
 def tiny_config(**kw) -> SLAM3DConfig:
-    base = dict(particles=100, points=300, min_range=2.0, max_range=30.0, voxel_size=0.3,
-                map_params={"capacity": 2**14}, sigma_xyz_per_m=(0.06, 0.04, 0.02),
+    base = dict(particles=100, scored_points=300, min_range=2.0, max_range=30.0, downsample_voxel=0.3,
+                params={"capacity": 2**14}, sigma_xyz_per_m=(0.06, 0.04, 0.02),
                 sigma_rpy_per_s=(0.01, 0.01, 0.06), seed=3)
     base.update(kw)
-    return SLAM3DConfig(**base)
+    return SLAM3DConfig.of(**base)
+
+
+SCAN = ScanConfig(2.0, 30.0, 0.3)  # the tiny world's scan settings
 
 
 @pytest.fixture(scope="module")
@@ -97,7 +100,7 @@ def drive():
 def random_particles(rng, P):
     R = rpy_to_matrix(rng.uniform(-0.3, 0.3, (P, 3)) * [1, 1, 10])
     t = rng.uniform(-5, 5, (P, 3))
-    return R, t
+    return Particles3D(R, t)
 
 
 # ------------------------------------------------------------------------------------------ preprocessing
@@ -132,8 +135,9 @@ def test_sample_points_is_seeded_and_distinct():
 # ------------------------------------------------------------------------------------------ steps 1-4
 def test_initialise_particles_all_at_start_pose():
     T0 = make_pose(rpy_to_matrix([0.1, -0.2, 0.3]), [1, 2, 3])
-    R, t, log_w = initialise_particles(7, T0)
-    assert R.shape == (7, 3, 3) and t.shape == (7, 3)
+    p, log_w = initialise_particles(7, T0)
+    R, t = p.R, p.t
+    assert len(p) == 7 and R.shape == (7, 3, 3) and t.shape == (7, 3)
     assert np.allclose(R, T0[:3, :3]) and np.allclose(t, T0[:3, 3])
     assert np.allclose(np.exp(log_w), 1 / 7)
     with pytest.raises(ValueError):
@@ -143,7 +147,7 @@ def test_initialise_particles_all_at_start_pose():
 def test_read_scan_moves_points_into_the_body_frame():
     T_velo_imu = make_pose(rpy_to_matrix([0.01, -0.02, 0.03]), [-0.8, 0.3, -0.8])
     scan = np.array([[5, 0, 0, 0.1], [0, 1, 0, 0.2], [0, 8, 1, 0.3]], np.float32)  # 2nd point inside min_range
-    pts = read_scan(SimFrame(scan, None, None, 0.1, None, 0, 0), invert_pose(T_velo_imu), 3.0, 60.0, 0.0)
+    pts = read_scan(SimFrame(scan, None, None, 0.1, None, 0, 0), ScanConfig(3.0, 60.0, 0.0), invert_pose(T_velo_imu))
     expected = transform_points(invert_pose(T_velo_imu), scan[[0, 2], :3].astype(np.float64))
     assert pts.dtype == np.float32 and np.allclose(pts, expected, atol=1e-5)
 
@@ -161,20 +165,25 @@ def test_read_imu_and_timing(drive):
 def test_offset_by_motion_matches_the_dead_reckoning_increment():
     rng = np.random.default_rng(1)
     v0, w0, v1, w1 = rng.normal(0, [5, 0.3, 0.1], (4, 3))
-    R, t = random_particles(rng, 6)
-    rpy, dp = motion_increment(v0, w0, v1, w1, 0.1)
-    R2, t2 = offset_by_motion(R, t, rpy, dp, CPU)
+    p = random_particles(rng, 6)
+    p2 = offset_by_motion(p, (v1, w1), 0.1, (v0, w0), CPU)
     dr = dead_reckon(np.array([v0, v1]), np.array([w0, w1]), np.array([0.0, 0.1]))  # from the identity
     for i in range(6):
-        expected = make_pose(R[i], t[i]) @ dr[1]
-        assert np.allclose(make_pose(R2[i], t2[i]), expected, atol=1e-12)
+        expected = make_pose(p.R[i], p.t[i]) @ dr[1]
+        assert np.allclose(make_pose(p2.R[i], p2.t[i]), expected, atol=1e-12)
+    rpy, dp = motion_increment((v1, w1), 0.1, (v0, w0))
+    assert np.allclose(make_pose(rpy_to_matrix(rpy), dp), dr[1], atol=1e-12)
+    # without the previous sample, the current twist is held over dt
+    held = dead_reckon(np.array([v1, v1]), np.array([w1, w1]), np.array([0.0, 0.1]))
+    assert np.allclose(offset_by_motion(p, (v1, w1), 0.1).poses(), p.poses() @ held[1], atol=1e-12)
 
 
 def test_perturb_with_noise_has_the_configured_spread():
     P = 20000
     sigma = np.array([0.05, 0.03, 0.01, 0.002, 0.004, 0.01])
-    R, t, _ = initialise_particles(P)
-    R2, t2 = perturb_with_noise(R, t, sigma, np.random.default_rng(0), CPU)
+    p, _ = initialise_particles(P)
+    p2 = perturb_with_noise(p, sigma, np.random.default_rng(0), backend=CPU)
+    R2, t2 = p2.R, p2.t
     spread = np.r_[t2.std(axis=0), matrix_to_rpy(R2).std(axis=0)]
     assert np.allclose(spread, sigma, rtol=0.04)
     assert np.allclose(np.r_[t2.mean(axis=0), matrix_to_rpy(R2).mean(axis=0)], 0, atol=4 * sigma / np.sqrt(P))
@@ -182,25 +191,36 @@ def test_perturb_with_noise_has_the_configured_spread():
 
 
 def test_motion_noise_sigma_grows_with_distance_and_time():
-    s0 = motion_noise_sigma([0, 0, 0], 0.0)
-    s1 = motion_noise_sigma([1.0, 0, 0], 0.1)
-    s2 = motion_noise_sigma([2.0, 0, 0], 0.1)
-    s3 = motion_noise_sigma([1.0, 0, 0], 0.2)
+    still = (np.zeros(3), np.zeros(3))
+
+    def imu(speed):
+        return np.array([speed, 0.0, 0.0]), np.zeros(3)
+
+    s0 = motion_noise_sigma(still, 0.0)
+    s1 = motion_noise_sigma(imu(10.0), 0.1)
+    s2 = motion_noise_sigma(imu(20.0), 0.1)
+    s3 = motion_noise_sigma(imu(5.0), 0.2)   # the same 1 m in twice the time
     assert np.all(s0 == 0) and np.all(s2 > s1) and np.all(s3 > s1)
-    assert np.allclose(motion_noise_sigma([0, 3, 4], 0.0, sigma_xyz_per_m=(1, 2, 3), sigma_rpy_per_m=(0, 0, 1)),
+    config = MotionConfig(sigma_xyz_per_m=(1, 2, 3), sigma_xyz_per_s=(0, 0, 0), sigma_rpy_per_m=(0, 0, 1),
+                          sigma_rpy_per_s=(0, 0, 0))
+    assert np.allclose(config.sigma([0, 3, 4], 0.0), [5, 10, 15, 0, 0, 5])
+    assert np.allclose(motion_noise_sigma((np.array([0.0, 30, 40]), np.zeros(3)), 0.1, None, config),
                        [5, 10, 15, 0, 0, 5])
+    assert np.allclose(config.scaled(2.0).sigma([0, 3, 4], 0.0), [10, 20, 30, 0, 0, 10])
+    with pytest.raises(ValueError, match="sigma_xyz_per_m"):
+        MotionConfig(sigma_xyz_per_m=(1, -2, 3))
 
 
 def test_steps_5_then_6_equal_the_fused_move():
     rng = np.random.default_rng(2)
-    R, t = random_particles(rng, 50)
+    p = random_particles(rng, 50)
     noise = rng.standard_normal((50, 6))
     sigma = np.array([0.1, 0.05, 0.02, 0.01, 0.01, 0.03])
-    rpy, dp = np.array([0.01, -0.02, 0.1]), np.array([1.0, 0.1, -0.05])
-    Ra, ta = offset_by_motion(R, t, rpy, dp, CPU)
-    Ra, ta = perturb_with_noise(Ra, ta, sigma, None, CPU, noise=noise)
-    Rb, tb = move_particles(R, t, rpy, dp, noise, sigma, CPU)
-    assert np.allclose(Ra, Rb, atol=1e-12) and np.allclose(ta, tb, atol=1e-12)
+    imu_prev, imu = (np.array([9.0, 0.2, 0.0]), np.array([0.0, 0.01, 0.3])), (np.array([10.0, 0, 0]), np.zeros(3))
+    a = perturb_with_noise(offset_by_motion(p, imu, 0.1, imu_prev, CPU), sigma, None, noise, CPU)
+    rpy, dp = motion_increment(imu, 0.1, imu_prev)
+    Rb, tb = CPU.move_particles(p.R, p.t, rpy, rpy_to_matrix(rpy).T @ dp, noise, sigma)   # the fused kernel
+    assert np.allclose(a.R, Rb, atol=1e-12) and np.allclose(a.t, tb, atol=1e-12)
 
 
 # ------------------------------------------------------------------------------------------ steps 7-8
@@ -210,9 +230,11 @@ def test_transform_scan_is_the_rigid_transform(vals):
     R = rpy_to_matrix(vals[3:])
     t = np.array(vals[:3]) * 10
     pts = np.random.default_rng(0).uniform(-50, 50, (64, 3)).astype(np.float32)
-    out = transform_scan(R, t, pts, CPU)
+    out = transform_scan(make_pose(R, t), pts, CPU)
     assert out.dtype == np.float32 and out.shape == pts.shape
     assert np.allclose(out, pts.astype(np.float64) @ R.T + t, atol=1e-4)
+    both = transform_scan(Particles3D(np.stack([R, np.eye(3)]), np.stack([t, np.zeros(3)])), pts, CPU)
+    assert both.shape == (2, 64, 3) and np.array_equal(both[0], out) and np.allclose(both[1], pts)
 
 
 @pytest.fixture(scope="module")
@@ -221,8 +243,8 @@ def built_map(drive):
     frames, gt = drive
     m = VoxelHashMap(capacity=2**14)
     for k in range(5):
-        merge_scan(m, gt[k], read_scan(frames[k], None, 2.0, 30.0, 0.3), CPU)
-    return m, read_scan(frames[6], None, 2.0, 30.0, 0.3), gt[6]
+        assert merge_scan(m, gt[k], read_scan(frames[k], SCAN), CPU) is m   # in place
+    return m, read_scan(frames[6], SCAN), gt[6]
 
 
 def test_score_prefers_the_true_pose(built_map):
@@ -231,7 +253,7 @@ def test_score_prefers_the_true_pose(built_map):
     offsets = [np.zeros(6), [0.3, 0, 0, 0, 0, 0], [0, -0.3, 0, 0, 0, 0], [0, 0, 0.2, 0, 0, 0],
                [0, 0, 0, 0.03, 0, 0], [0, 0, 0, 0, -0.03, 0], [0, 0, 0, 0, 0, 0.03]]
     poses = np.array([T @ make_pose(rpy_to_matrix(o[3:]), o[:3]) for o in np.asarray(offsets, float)])
-    scores = score_particles(poses[:, :3, :3], poses[:, :3, 3], sample, m, CPU)
+    scores = score_particles(Particles3D(poses[:, :3, :3], poses[:, :3, 3]), sample, m, CPU)
     assert scores.shape == (len(offsets),) and np.all(scores <= 0)
     assert np.argmax(scores) == 0 and np.all(scores[1:] < scores[0] - 1.0)
 
@@ -239,29 +261,29 @@ def test_score_prefers_the_true_pose(built_map):
 def test_numpy_and_cpu_scores_agree(built_map):
     m, pts, T = built_map
     rng = np.random.default_rng(4)
-    R = T[:3, :3] @ rpy_to_matrix(rng.normal(0, 0.01, (8, 3)))
-    t = T[:3, 3] + rng.normal(0, 0.1, (8, 3))
+    p = Particles3D(T[:3, :3] @ rpy_to_matrix(rng.normal(0, 0.01, (8, 3))), T[:3, 3] + rng.normal(0, 0.1, (8, 3)))
     sample = sample_points(pts, 200, rng)
-    assert np.allclose(score_particles(R, t, sample, m, NUMPY), score_particles(R, t, sample, m, CPU), rtol=1e-9)
+    assert np.allclose(score_particles(p, sample, m, NUMPY), score_particles(p, sample, m, CPU), rtol=1e-9)
 
 
 # ------------------------------------------------------------------------------------------ steps 9-11
 def test_pick_best_particle_best_and_local_mean():
     R = rpy_to_matrix(np.array([[0, 0, 0.0], [0, 0, 0.02], [0, 0, 0.04], [0, 0, 1.0]]))
     t = np.array([[0, 0, 0], [0.1, 0, 0], [0.2, 0, 0], [5, 0, 0]], float)
+    p = Particles3D(R, t)
     log_w = np.log([0.2, 0.3, 0.2, 0.3 - 1e-9])
-    T, i = pick_best_particle(log_w, R, t, "best")
+    T, i = pick_best_particle(p, log_w, "best")
     assert i == 1 and np.allclose(T, make_pose(R[1], t[1]))
-    T, i = pick_best_particle(log_w, R, t, "mean", radius=0.5)  # particle 3 is 5 m away: not averaged in
+    T, i = pick_best_particle(p, log_w, "mean", radius=0.5)  # particle 3 is 5 m away: not averaged in
     assert i == 1 and np.allclose(T[:3, 3], [0.1, 0, 0]) and np.allclose(matrix_to_rpy(T[:3, :3]), [0, 0, 0.02])
     with pytest.raises(ValueError):
-        pick_best_particle(log_w, R, t, "median")
+        pick_best_particle(p, log_w, "median")
 
 
 def test_merge_scan_grows_the_map_where_the_pose_puts_it(drive):
     frames, gt = drive
     m = VoxelHashMap(capacity=2**14)
-    pts = read_scan(frames[0], None, 2.0, 30.0, 0.3)
+    pts = read_scan(frames[0], SCAN)
     merge_scan(m, gt[0], pts, CPU)
     n1 = len(m)
     T_far = make_pose(np.eye(3), [200.0, 0, 0])
@@ -275,8 +297,10 @@ def test_merge_scan_grows_the_map_where_the_pose_puts_it(drive):
 def test_resample_keeps_count_and_draws_heavy_particles(log_w, seed):
     log_w = np.asarray(log_w)
     P = len(log_w)
-    R, t = random_particles(np.random.default_rng(seed), P)
-    R2, t2, lw2, done = resample_particles(R, t, log_w, np.random.default_rng(seed), CPU, ess_fraction=1.0)
+    p = random_particles(np.random.default_rng(seed), P)
+    R, t = p.R, p.t
+    p2, lw2, done = resample_particles(p, log_w, np.random.default_rng(seed), ess_fraction=1.0, backend=CPU)
+    R2, t2 = p2.R, p2.t
     assert R2.shape == R.shape and t2.shape == t.shape and lw2.shape == (P,)
     w = np.exp(log_w - log_w.max())
     w /= w.sum()
@@ -286,15 +310,16 @@ def test_resample_keeps_count_and_draws_heavy_particles(log_w, seed):
         counts = np.bincount(idx, minlength=P)
         assert np.all(np.abs(counts - P * w) < 1.0 + 1e-9)  # systematic: floor or ceil of P w_i
     else:
-        assert np.allclose(w, 1.0 / P)
+        assert np.allclose(w, 1.0 / P) and p2 is p and np.allclose(np.exp(lw2), w)
 
 
 def test_resample_only_below_the_ess_threshold():
-    R, t, _ = initialise_particles(10)
-    t = t + np.arange(10)[:, None]
+    p, _ = initialise_particles(10)
+    p = Particles3D(p.R, p.t + np.arange(10)[:, None])
     log_w = np.log(np.r_[np.full(5, 0.15), np.full(5, 0.05)])  # ESS = 1 / (5 * .0225 + 5 * .0025) = 8
-    assert not resample_particles(R, t, log_w, np.random.default_rng(0), CPU, ess_fraction=0.5)[3]
-    assert resample_particles(R, t, log_w, np.random.default_rng(0), CPU, ess_fraction=0.9)[3]
+    assert not resample_particles(p, log_w, np.random.default_rng(0), 0.5, CPU)[2]
+    assert resample_particles(p, log_w, np.random.default_rng(0), 0.9, CPU)[2]
+    assert resample_particles(p, np.log(np.full(10, 0.1)), np.random.default_rng(0), None, CPU)[2]   # None: always
 
 
 # ------------------------------------------------------------------------------------------ step 12
@@ -312,7 +337,7 @@ def test_register_frame_beats_dead_reckoning(drive):
 
 def test_dead_reckoning_twin_is_the_imu_integral(drive):
     frames, _ = drive
-    slam = ParticleSLAM3D(tiny_config(particles=5, points=50))
+    slam = ParticleSLAM3D(tiny_config(particles=5, scored_points=50))
     for f in frames[:6]:
         slam.register_frame(f)
     v = np.array([f.velocity for f in frames[:6]])
@@ -324,7 +349,7 @@ def test_same_seed_same_trajectory_other_seed_differs(drive):
     frames, _ = drive
 
     def traj(seed):
-        slam = ParticleSLAM3D(tiny_config(particles=50, points=200, seed=seed))
+        slam = ParticleSLAM3D(tiny_config(particles=50, scored_points=200, seed=seed))
         for f in frames[:8]:
             slam.register_frame(f)
         return slam.trajectory
@@ -338,7 +363,7 @@ def test_numpy_and_cpu_backends_give_the_same_trajectory(drive):
     frames, _ = drive
 
     def traj(backend):
-        slam = ParticleSLAM3D(tiny_config(particles=16, points=100, backend=backend, seed=7))
+        slam = ParticleSLAM3D(tiny_config(particles=16, scored_points=100, backend=backend, seed=7))
         for f in frames[:4]:
             slam.register_frame(f)
         return slam.trajectory
@@ -351,7 +376,7 @@ def test_cuda_backend_gives_the_cpu_trajectory(drive):
     frames, _ = drive
 
     def traj(backend):
-        slam = ParticleSLAM3D(tiny_config(particles=8, points=30, backend=backend, seed=7, voxel_size=1.5))
+        slam = ParticleSLAM3D(tiny_config(particles=8, scored_points=30, backend=backend, seed=7, downsample_voxel=1.5))
         for f in frames[:3]:
             slam.register_frame(f)
         return slam.trajectory
@@ -361,7 +386,7 @@ def test_cuda_backend_gives_the_cpu_trajectory(drive):
 
 def test_refine_and_bvh_map_also_track(drive):
     frames, gt = drive
-    run = run_drive(frames[:15], tiny_config(map_type="bvh", map_params={}, refine=1, estimate="mean"), progress=False)
+    run = run_drive(frames[:15], tiny_config(kind="morton_bvh", params={}, refine=1, estimate="mean"), progress=False)
     assert run.ground_truth is not None and np.allclose(run.ground_truth, gt[:15])
     ate_slam = absolute_trajectory_error(run.poses, run.ground_truth).rmse
     ate_dr = absolute_trajectory_error(run.dead_reckoning, run.ground_truth).rmse
@@ -370,7 +395,7 @@ def test_refine_and_bvh_map_also_track(drive):
 
 def test_pruned_map_points_are_kept_for_export(drive):
     frames, _ = drive
-    slam = ParticleSLAM3D(tiny_config(particles=10, points=50, prune_every=5, prune_radius=12.0))
+    slam = ParticleSLAM3D(tiny_config(particles=10, scored_points=50, prune_every=5, prune_radius=12.0))
     for f in frames[:10]:  # pruned after frames 5 and 10
         slam.register_frame(f)
     assert slam.archive and len(slam.map_points()) == len(slam.map) + sum(len(a) for a in slam.archive)
@@ -379,9 +404,21 @@ def test_pruned_map_points_are_kept_for_export(drive):
 
 
 def test_config_rejects_bad_values():
-    for bad in (dict(map_type="octree"), dict(particles=0), dict(temperature=0.0), dict(estimate="median")):
-        with pytest.raises(ValueError):
-            SLAM3DConfig(**bad)
+    for bad, message in ((dict(kind="octree"), "map kind"), (dict(kind="voxel"), "now called 'voxel_hash'"),
+                         (dict(particles=0), "particles"), (dict(temperature=0.0), "temperature"),
+                         (dict(estimate="median"), "estimate"), (dict(min_range=5.0, max_range=4.0), "min_range"),
+                         (dict(voxel_size=0.3), "unknown SLAM3D setting 'voxel_size'")):
+        with pytest.raises(ValueError, match=message):
+            SLAM3DConfig.of(**bad)
+
+
+def test_config_groups_hold_each_default_once_and_by_name():
+    c = SLAM3DConfig.of(particles=7, max_range=30.0, kind="morton_bvh", seed=4)
+    assert (c.filter.particles, c.scan.max_range, c.map.kind, c.seed) == (7, 30.0, "morton_bvh", 4)
+    assert c.scan.min_range == ScanConfig().min_range and c.filter.scored_points == SLAM3DConfig().filter.scored_points
+    d = c.as_dict()
+    assert d["filter"]["particles"] == 7 and d["motion"]["sigma_xyz_per_m"] == list(MotionConfig().sigma_xyz_per_m)
+    json.dumps(d)
 
 
 def test_parse_frames():
@@ -441,3 +478,18 @@ def test_slamlib_run_explains_a_wrong_drive(tiny_drive, tmp_path, which, needle)
         main(["run", "--basedir", args["basedir"], "--date", args["date"], "--drive", args["drive"],
               "--out", str(tmp_path / "o"), "--no-progress"])
     assert needle in str(exc.value) and "not found" in str(exc.value)
+
+
+def test_slamlib_run_map_names_and_bad_settings(tiny_drive, tmp_path, capsys):
+    from slamlib.cli import main
+
+    base, date, drive = tiny_drive
+    common = ["run", "--basedir", str(base), "--date", date, "--drive", str(drive), "--no-progress", "--no-plots"]
+    with pytest.raises(SystemExit) as exc:
+        main(common + ["--particles", "0", "--out", str(tmp_path / "a")])
+    assert "particles" in str(exc.value) and ">= 1" in str(exc.value)
+    assert main(common + ["--frames", "0:3", "--particles", "5", "--points", "20", "--map", "bvh",
+                          "--out", str(tmp_path / "b")]) == 0
+    assert "--map bvh is now called --map morton_bvh" in capsys.readouterr().out
+    info = json.loads((tmp_path / "b" / "metrics.json").read_text())
+    assert info["config"]["map"]["kind"] == "morton_bvh" and info["config"]["filter"]["particles"] == 5

@@ -28,18 +28,28 @@ def add_arguments(parser) -> None:
                    help="with no --basedir: the whole synthetic drive (~1,100 frames, ~690 m) instead of 300 frames")
     g.add_argument("--frames", default=None, metavar="A:B",
                    help="frame range A:B (drive frame numbers, B exclusive; A:, :B or B also work); default all")
-    f = parser.add_argument_group("filter")
-    f.add_argument("--particles", type=int, default=300, help="number of particles (default 300)")
-    f.add_argument("--points", type=int, default=1000, help="scan points scored per particle per frame (default 1000)")
-    f.add_argument("--map", dest="map_type", choices=("voxel", "bvh"), default="voxel",
-                   help="map structure: hashed NDT voxels (default) or exact points in a Morton BVH")
+    from slamlib.kernels import BACKENDS
+    from slamlib.slam3d.config import MAP_KINDS, OLD_MAP_NAMES, FilterConfig, MapConfig, SLAM3DConfig
+
+    f = parser.add_argument_group("filter (defaults from slamlib.slam3d.config)")
+    f.add_argument("--particles", type=int, default=FilterConfig.particles,
+                   help=f"number of particles (default {FilterConfig.particles})")
+    f.add_argument("--points", type=int, default=FilterConfig.scored_points,
+                   help=f"scan points scored per particle per frame (default {FilterConfig.scored_points})")
+    f.add_argument("--map", dest="map_kind", choices=MAP_KINDS + tuple(OLD_MAP_NAMES), default=MapConfig.kind,
+                   metavar="{" + ",".join(MAP_KINDS) + "}",
+                   help=f"map structure: hashed NDT voxels or exact points in a Morton BVH (default {MapConfig.kind}; "
+                        f"the old names {' and '.join(OLD_MAP_NAMES)} still work)")
     f.add_argument("--noise", type=float, default=1.0, metavar="SCALE",
                    help="scale of step 6's motion noise (all six sigmas; default 1.0 = the tuned defaults)")
-    f.add_argument("--temperature", type=float, default=None,
-                   help="likelihood temperature: log L = score / (N * T) (default from SLAM3DConfig)")
-    f.add_argument("--refine", type=int, default=0, help="coarse-to-fine annealing rounds per frame (default 0)")
-    f.add_argument("--seed", type=int, default=0, help="seed of the filter's random numbers (default 0)")
-    f.add_argument("--backend", choices=("numpy", "cpu", "cuda"), default="cpu", help="compute backend (default cpu)")
+    f.add_argument("--temperature", type=float, default=FilterConfig.temperature,
+                   help=f"likelihood temperature: log L = score / (N * T) (default {FilterConfig.temperature})")
+    f.add_argument("--refine", type=int, default=FilterConfig.refine,
+                   help=f"coarse-to-fine annealing rounds per frame (default {FilterConfig.refine})")
+    f.add_argument("--seed", type=int, default=SLAM3DConfig.seed,
+                   help=f"seed of the filter's random numbers (default {SLAM3DConfig.seed})")
+    f.add_argument("--backend", choices=BACKENDS, default=SLAM3DConfig.backend,
+                   help=f"compute backend (default {SLAM3DConfig.backend})")
     o = parser.add_argument_group("output")
     o.add_argument("--out", type=Path, default=Path("slam3d_run"), help="output folder (default ./slam3d_run)")
     o.add_argument("--map-format", choices=("ply", "pcd"), default="ply", help="map file format (default ply)")
@@ -61,18 +71,27 @@ def _drive_hint(basedir: Path, date: str | None, drive: str | None) -> str:
 
 def main(args) -> int:
     import json
+    from dataclasses import replace
 
     from slamlib.errors import BackendUnavailableError, DataFormatError
     from slamlib.kitti import KittiRawDrive
     from slamlib.slam3d import SLAM3DConfig, parse_frames, run_drive, save_run
+    from slamlib.slam3d.config import OLD_MAP_NAMES
 
     given = [x is not None for x in (args.basedir, args.date, args.drive)]
     if any(given) and not all(given):
         raise SystemExit("slamlib run: give all of --basedir, --date and --drive, or none (synthetic default drive)")
-    if args.particles < 1 or args.points < 1:
-        raise SystemExit("slamlib run: --particles and --points must be >= 1")
     if not args.noise >= 0:
         raise SystemExit("slamlib run: --noise must be >= 0")
+    kind = OLD_MAP_NAMES.get(args.map_kind, args.map_kind)
+    if kind != args.map_kind:
+        print(f"slamlib run: note: --map {args.map_kind} is now called --map {kind}")
+    try:
+        cfg = SLAM3DConfig.of(particles=args.particles, scored_points=args.points, kind=kind, backend=args.backend,
+                              seed=args.seed, refine=args.refine, temperature=args.temperature)
+        cfg = replace(cfg, motion=cfg.motion.scaled(float(args.noise)))
+    except ValueError as exc:
+        raise SystemExit(f"slamlib run: {exc}") from None
     if all(given):
         drive_id = int(args.drive) if str(args.drive).isdigit() else args.drive  # "5" and "0005" both work
         basedir, date, source = args.basedir, args.date, "kitti"
@@ -93,17 +112,9 @@ def main(args) -> int:
     if len(drive) < 2:
         raise SystemExit("slamlib run: need at least 2 frames")
 
-    base = SLAM3DConfig()
-    scale = float(args.noise)
-    cfg = SLAM3DConfig(
-        particles=args.particles, points=args.points, map_type=args.map_type, backend=args.backend, seed=args.seed,
-        refine=args.refine, temperature=args.temperature if args.temperature is not None else base.temperature,
-        sigma_xyz_per_m=tuple(scale * s for s in base.sigma_xyz_per_m),
-        sigma_xyz_per_s=tuple(scale * s for s in base.sigma_xyz_per_s),
-        sigma_rpy_per_m=tuple(scale * s for s in base.sigma_rpy_per_m),
-        sigma_rpy_per_s=tuple(scale * s for s in base.sigma_rpy_per_s))
     print(f"slamlib run: {source}: {drive.path} frames {drive.frames[0]}..{drive.frames[-1]} ({len(drive)}), "
-          f"{cfg.particles} particles x {cfg.points} points, map {cfg.map_type}, backend {cfg.backend}")
+          f"{cfg.filter.particles} particles x {cfg.filter.scored_points} points, map {cfg.map.kind}, "
+          f"backend {cfg.backend}")
     try:
         run = run_drive(drive, cfg, progress=not args.no_progress)
     except BackendUnavailableError as exc:

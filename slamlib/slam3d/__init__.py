@@ -6,26 +6,29 @@ Quick start::
     from slamlib.slam3d import SLAM3DConfig, run_drive, evaluate
     from slamlib.synth import default_drive
     drive = KittiRawDrive(*default_drive(), frames=range(0, 100))
-    run = run_drive(drive, SLAM3DConfig(particles=300))
+    run = run_drive(drive, SLAM3DConfig.of(particles=300))
     print(evaluate(run)["slam"]["ate_rmse_m"], run.fps)
 
 Modules: :mod:`~slamlib.slam3d.steps` (one pure function per step, shared names),
-:mod:`~slamlib.slam3d.pipeline` (:class:`ParticleSLAM3D` with ``register_frame``, :class:`SLAM3DConfig`),
+:mod:`~slamlib.slam3d.config` (:class:`SLAM3DConfig` and its groups, every default once),
+:mod:`~slamlib.slam3d.pipeline` (:class:`ParticleSLAM3D` with ``register_frame``),
 :mod:`~slamlib.slam3d.preprocess` (range crop, voxel down-sampling, scoring sample),
 :mod:`~slamlib.slam3d.run` (whole drives, metrics). Particles are IMU/body poses ``T_world_body``; the world is
 the body pose at the first processed frame.
 """
 
-from slamlib.slam3d.pipeline import MAP_NAMES, ParticleSLAM3D, SLAM3DConfig, make_slam_map
+from slamlib.slam3d.config import (MAP_KINDS, FilterConfig, MapConfig, MotionConfig, ScanConfig,
+                                   SLAM3DConfig)
+from slamlib.slam3d.pipeline import ParticleSLAM3D
 from slamlib.slam3d.preprocess import crop_range, sample_points, voxel_downsample
 from slamlib.slam3d.run import SLAMRun, evaluate, parse_frames, run_drive, save_run
-from slamlib.slam3d.steps import (initialise_particles, merge_scan, motion_increment, motion_noise_sigma,
-                                  move_particles, offset_by_motion, perturb_with_noise, pick_best_particle,
+from slamlib.slam3d.steps import (Particles3D, initialise_particles, merge_scan, motion_increment,
+                                  motion_noise_sigma, offset_by_motion, perturb_with_noise, pick_best_particle,
                                   read_imu, read_scan, read_timing, resample_particles, score_particles,
                                   transform_scan)
 
-__all__ = ["ParticleSLAM3D", "SLAM3DConfig", "MAP_NAMES", "make_slam_map", "SLAMRun", "run_drive", "evaluate",
-           "save_run", "parse_frames", "crop_range", "voxel_downsample", "sample_points", "initialise_particles",
-           "read_scan", "read_imu", "read_timing", "motion_increment", "motion_noise_sigma", "move_particles",
-           "offset_by_motion", "perturb_with_noise", "transform_scan", "score_particles", "pick_best_particle",
-           "merge_scan", "resample_particles"]
+__all__ = ["ParticleSLAM3D", "SLAM3DConfig", "ScanConfig", "MotionConfig", "MapConfig", "FilterConfig", "MAP_KINDS",
+           "Particles3D", "SLAMRun", "run_drive", "evaluate", "save_run", "parse_frames", "crop_range",
+           "voxel_downsample", "sample_points", "initialise_particles", "read_scan", "read_imu", "read_timing",
+           "motion_increment", "motion_noise_sigma", "offset_by_motion", "perturb_with_noise", "transform_scan",
+           "score_particles", "pick_best_particle", "merge_scan", "resample_particles"]

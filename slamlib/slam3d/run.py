@@ -18,7 +18,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from slamlib.geometry import invert_pose
-from slamlib.slam3d.pipeline import ParticleSLAM3D, SLAM3DConfig
+from slamlib.slam3d.config import SLAM3DConfig
+from slamlib.slam3d.pipeline import ParticleSLAM3D
 
 __all__ = ["SLAMRun", "run_drive", "evaluate", "parse_frames", "save_run"]
 

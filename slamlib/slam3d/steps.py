@@ -14,28 +14,33 @@ State and frames
 The steps
 ---------
 1. :func:`initialise_particles` -- ``P`` copies of the start pose (the map defines the world, so there is no
-   uncertainty at frame 0).
+   uncertainty at frame 0), as :class:`Particles3D`, and uniform log-weights.
 2. :func:`read_scan` -- range crop, voxel down-sampling, Velodyne -> body frame.
 3. :func:`read_imu` -- body velocities ``(vf, vl, vu)`` m/s and angular rates ``(wf, wl, wu)`` rad/s.
 4. :func:`read_timing` -- ``dt`` seconds since the previous frame.
 5. :func:`offset_by_motion` -- ``T_i <- T_i [dR, dp]`` with the IMU increment ``(dR, dp)`` over ``dt``
-   (:func:`slamlib.odometry.imu_increment`, midpoint twist integrated on SE(3)).
+   (:func:`motion_increment`: the midpoint twist of the previous and this IMU sample, integrated on SE(3)).
 6. :func:`perturb_with_noise` -- ``T_i <- T_i [N_i, sigma_t n_i]``: Gaussian noise in the body frame with the
    spread of :func:`motion_noise_sigma` (grows with distance travelled and with ``dt``).
-7. :func:`transform_scan` -- body points into the world with one pose: ``p_w = R p_b + t``.
+7. :func:`transform_scan` -- body points into the world with each particle's pose (or one pose): ``R p_b + t``.
 8. :func:`score_particles` -- fused 7 + 8 for every particle against the map built so far (the backend's
    ``score_particles``; never builds ``P x N`` points). Returns log-likelihood scores.
 9. :func:`pick_best_particle` -- the maximum-weight particle, or the weighted mean around it.
-10. :func:`merge_scan` -- the whole down-sampled scan, moved with the chosen pose, into the map.
+10. :func:`merge_scan` -- the whole down-sampled scan, moved with the chosen pose, into the map (in place).
 11. :func:`resample_particles` -- systematic resampling (Kitagawa 1996) when the effective sample size falls
     below a fraction of ``P``; weights reset to uniform.
 12. the loop: :meth:`slamlib.slam3d.ParticleSLAM3D.register_frame`.
 
-Steps 5 and 6 are one call to the backend's fused ``move_particles`` in the pipeline (:func:`move_particles`);
-the separate functions call the same kernel with zero noise / zero motion, so they compose to exactly the fused
-result. Note: the backends' ``move_particles`` applies ``trans_delta`` *after* the rotation increment
-(``t + R dR trans_delta``, CONTRIBUTING.md); :func:`move_particles` passes ``dR^T dp`` so that the particles move
-by exactly the SE(3) increment ``[dR, dp]`` that dead reckoning uses.
+The signatures follow the contract of :mod:`slamlib.contract`, shared with 1D: the leading parameters (particles,
+log-weights, map, pose, points, rng) in the same order at every dimension; what 3D adds comes after them with a
+default, in particular ``backend`` -- a name (``"numpy"``, ``"cpu"``, ``"cuda"``) or a
+:class:`slamlib.kernels.Backend` -- and the setting groups of :mod:`slamlib.slam3d.config`, whose defaults are
+the pipeline's.
+
+Steps 5 and 6 call the backend's fused ``move_particles`` kernel, step 5 with zero noise and step 6 with zero
+motion, so step 5 then step 6 equals one fused call. The kernels apply ``trans_delta`` *after* the rotation
+increment (``t + R dR trans_delta``, CONTRIBUTING.md); step 5 passes ``dR^T dp`` so that the particles move by
+exactly the SE(3) increment ``[dR, dp]`` that dead reckoning uses.
 
 References: S. Thrun, W. Burgard, D. Fox, *Probabilistic Robotics* (2005), ch. 4.3 (particle filter), 5.3
 (motion model), 6.4 (likelihood field), 13 (FastSLAM); G. Grisetti et al., "Improved techniques for grid
@@ -43,59 +48,86 @@ mapping with Rao-Blackwellized particle filters", IEEE T-RO 2007; Gothoskar & Ta
 page (the twelve steps, 2017).
 """
 
+
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 
 from slamlib.geometry import make_pose, rpy_to_matrix
+from slamlib.kernels import Backend, get_backend
 from slamlib.odometry import imu_increment
-from slamlib.resampling import effective_sample_size
+from slamlib.resampling import normalise_log_weights, resample_indexes, uniform_log_weights
+from slamlib.slam3d.config import MotionConfig, ScanConfig
 from slamlib.slam3d.preprocess import crop_range, voxel_downsample
 
 __all__ = [
-    "initialise_particles", "read_scan", "read_imu", "read_timing", "motion_increment", "motion_noise_sigma",
-    "offset_by_motion", "perturb_with_noise", "move_particles", "transform_scan", "score_particles",
-    "normalise_log_weights",
+    "Particles3D", "initialise_particles", "read_scan", "read_imu", "read_timing", "motion_increment",
+    "motion_noise_sigma", "offset_by_motion", "perturb_with_noise", "transform_scan", "score_particles",
     "pick_best_particle", "merge_scan", "resample_particles", "weighted_mean_pose", "project_to_rotation",
 ]
 
+#: Default compute backend of the step functions (Numba CPU kernels).
+DEFAULT_BACKEND = "cpu"
+
+
+def _backend(backend) -> Backend:
+    """A :class:`~slamlib.kernels.Backend` from a name or a backend object."""
+    return get_backend(backend) if isinstance(backend, str) else backend
+
+
+@dataclass(frozen=True)
+class Particles3D:
+    """``P`` poses ``T_world_body = [R_i, t_i]``: ``R (P, 3, 3)`` float64 rotations, ``t (P, 3)`` float64 positions.
+
+    ``len(particles)`` is ``P``; ``particles[idx]`` with an index array selects particles (resampling).
+    """
+
+    R: np.ndarray
+    t: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+    def __getitem__(self, idx) -> "Particles3D":
+        return Particles3D(self.R[idx], self.t[idx])
+
+    def poses(self) -> np.ndarray:
+        """The particles as 4x4 poses ``(P, 4, 4)``."""
+        return make_pose(self.R, self.t)
+
 
 # ------------------------------------------------------------------------------------------------ step 1
-def initialise_particles(n: int, T0=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Step 1: ``n`` particles all at the start pose ``T0`` (4x4, default identity = the world origin).
+def initialise_particles(n_particles: int, pose0=None) -> tuple[Particles3D, np.ndarray]:
+    """Step 1: ``n_particles`` particles all at the start pose ``pose0`` (4x4, default identity = the world origin).
 
-    Returns
-    -------
-    R : (n, 3, 3) float64, t : (n, 3) float64
-        Particle poses ``T_world_body``.
-    log_w : (n,) float64
-        Uniform log-weights ``-log n``.
+    Returns ``(particles, log_weights)``: :class:`Particles3D` and uniform log-weights ``-log P`` ``(P,)``.
     """
-    n = int(n)
+    n = int(n_particles)
     if n < 1:
         raise ValueError(f"need at least one particle, got {n}")
-    T0 = np.eye(4) if T0 is None else np.asarray(T0, dtype=np.float64)
+    T0 = np.eye(4) if pose0 is None else np.asarray(pose0, dtype=np.float64)
     R = np.repeat(T0[None, :3, :3], n, axis=0).copy()
     t = np.repeat(T0[None, :3, 3], n, axis=0).copy()
-    return R, t, np.full(n, -np.log(n))
+    return Particles3D(R, t), uniform_log_weights(n)
 
 
 # ------------------------------------------------------------------------------------------------ steps 2-4
-def read_scan(frame, T_body_velo=None, min_range: float = 3.0, max_range: float = 60.0,
-              voxel_size: float = 0.25) -> np.ndarray:
+def read_scan(frame, scan_config: ScanConfig = ScanConfig(), T_body_velo=None) -> np.ndarray:
     """Step 2: the frame's scan, cropped, down-sampled and moved into the body (IMU) frame.
 
     Parameters
     ----------
     frame : object with ``.scan`` (N, 4) float32 ``x, y, z, reflectance`` in the Velodyne frame
         (e.g. :class:`slamlib.kitti.Frame`), or an (N, 3)/(N, 4) array.
+    scan_config : :class:`~slamlib.slam3d.config.ScanConfig`
+        Range crop ``[min_range, max_range]`` in the Velodyne frame
+        (:func:`~slamlib.slam3d.preprocess.crop_range`) and the down-sampling voxel edge ``downsample_voxel``
+        (:func:`~slamlib.slam3d.preprocess.voxel_downsample`; 0 = off), metres.
     T_body_velo : (4, 4), optional
         Velodyne pose in the body frame, ``p_body = T_body_velo p_velo`` (KITTI: ``inv(T_velo_imu)``);
         default identity.
-    min_range, max_range : float
-        Range crop in the Velodyne frame, metres (:func:`~slamlib.slam3d.preprocess.crop_range`).
-    voxel_size : float
-        Down-sampling voxel edge, metres (:func:`~slamlib.slam3d.preprocess.voxel_downsample`; 0 = off).
 
     Returns
     -------
@@ -105,7 +137,8 @@ def read_scan(frame, T_body_velo=None, min_range: float = 3.0, max_range: float 
     scan = np.asarray(scan)
     if scan.ndim != 2 or scan.shape[1] not in (3, 4):
         raise ValueError(f"scan must have shape (N, 3) or (N, 4), got {scan.shape}")
-    pts = voxel_downsample(crop_range(scan[:, :3], min_range, max_range), voxel_size)
+    c = scan_config
+    pts = voxel_downsample(crop_range(scan[:, :3], c.min_range, c.max_range), c.downsample_voxel)
     pts = np.asarray(pts, dtype=np.float32)
     if T_body_velo is not None:
         T = np.asarray(T_body_velo, dtype=np.float64)
@@ -114,7 +147,8 @@ def read_scan(frame, T_body_velo=None, min_range: float = 3.0, max_range: float 
 
 
 def read_imu(frame) -> tuple[np.ndarray, np.ndarray]:
-    """Step 3: body-frame velocity ``(vf, vl, vu)`` m/s and angular rate ``(wf, wl, wu)`` rad/s, each (3,)."""
+    """Step 3: ``imu = (velocity, angular_rate)``: body velocity ``(vf, vl, vu)`` m/s and rates ``(wf, wl, wu)``
+    rad/s, each (3,)."""
     return (np.asarray(frame.velocity, dtype=np.float64).reshape(3),
             np.asarray(frame.angular_rate, dtype=np.float64).reshape(3))
 
@@ -128,92 +162,78 @@ def read_timing(frame) -> float:
 
 
 # ------------------------------------------------------------------------------------------------ step 5
-def motion_increment(v_prev, w_prev, v_cur, w_cur, dt: float) -> tuple[np.ndarray, np.ndarray]:
-    """Body-frame motion over ``dt`` from two IMU samples: ``(rpy_delta (3,) rad, trans_delta (3,) m)``.
+def motion_increment(imu, dt: float, previous_imu=None) -> tuple[np.ndarray, np.ndarray]:
+    """Body-frame motion over ``dt``: ``(rpy_delta (3,) rad, trans_delta (3,) m)``.
 
-    The midpoint-twist SE(3) increment of :func:`slamlib.odometry.imu_increment` -- the same one dead reckoning
-    uses -- so that ``T_new = T_old @ make_pose(rpy_to_matrix(rpy_delta), trans_delta)``.
+    The midpoint-twist SE(3) increment of :func:`slamlib.odometry.imu_increment` between ``previous_imu`` and
+    ``imu`` (each ``(velocity, angular_rate)``; without ``previous_imu`` the twist of ``imu`` is held over
+    ``dt``) -- the same increment dead reckoning uses, so that
+    ``T_new = T_old @ make_pose(rpy_to_matrix(rpy_delta), trans_delta)``.
     """
-    rpy, trans = imu_increment(v_prev, w_prev, v_cur, w_cur, dt)
+    v, w = imu
+    v_prev, w_prev = imu if previous_imu is None else previous_imu
+    rpy, trans = imu_increment(v_prev, w_prev, v, w, dt)
     return np.asarray(rpy, dtype=np.float64).reshape(3), np.asarray(trans, dtype=np.float64).reshape(3)
 
 
-def _kernel_translation(rpy_delta, trans_delta) -> np.ndarray:
-    """The ``trans_delta`` argument for the backends' ``move_particles`` that applies the body increment exactly.
-
-    The backends compute ``t_new = t_i + R_i dR (trans_delta + sigma_t n_i)`` (CONTRIBUTING.md): the translation
-    is expressed *after* the rotation increment. The SE(3) composition ``T_i [dR, dp]`` (what dead reckoning
-    does) needs ``t_i + R_i dp``, so the pipeline passes ``dR^T dp``: then
-    ``t_new = t_i + R_i dp + R_i dR sigma_t n_i``, exactly step 5 followed by step 6.
-    """
-    return rpy_to_matrix(np.asarray(rpy_delta, dtype=np.float64)).T @ np.asarray(trans_delta, dtype=np.float64)
-
-
-def move_particles(R, t, rpy_delta, trans_delta, noise, sigma, backend) -> tuple[np.ndarray, np.ndarray]:
-    """Steps 5 + 6 fused (one backend call): ``T_i <- T_i [dR, dp] [N_i, sigma[:3] * n_i[:3]]``.
-
-    ``dR = rpy_to_matrix(rpy_delta)``, ``dp = trans_delta`` (body increment from :func:`motion_increment`),
-    ``N_i = rpy_to_matrix(sigma[3:] * noise[i, 3:])``, ``noise (P, 6)`` standard normal. Equals
-    :func:`offset_by_motion` then :func:`perturb_with_noise` with the same ``noise``.
-    """
-    return backend.move_particles(R, t, rpy_delta, _kernel_translation(rpy_delta, trans_delta), noise,
-                                  np.asarray(sigma, dtype=np.float64))
-
-
-def offset_by_motion(R, t, rpy_delta, trans_delta, backend) -> tuple[np.ndarray, np.ndarray]:
+def offset_by_motion(particles: Particles3D, imu, dt: float, previous_imu=None,
+                     backend=DEFAULT_BACKEND) -> Particles3D:
     """Step 5: move every particle by the body-frame increment: ``R_i <- R_i dR``, ``t_i <- t_i + R_i dp``.
 
-    ``dR = rpy_to_matrix(rpy_delta)``, ``dp = trans_delta`` (see :func:`motion_increment`): the SE(3) product
-    ``T_i [dR, dp]``, the same increment as dead reckoning. Implemented as :func:`move_particles` with zero
-    noise, so step 5 then step 6 equals the fused call.
+    ``(dR, dp)`` from :func:`motion_increment` (``imu``, ``dt``, ``previous_imu``): the SE(3) product
+    ``T_i [dR, dp]``, the same increment as dead reckoning. The backend's ``move_particles`` with zero noise;
+    it applies the translation after the rotation increment, hence the ``dR^T dp`` passed to it.
     """
-    P = len(R)
-    return move_particles(R, t, rpy_delta, trans_delta, np.zeros((P, 6)), np.zeros(6), backend)
+    rpy, dp = motion_increment(imu, dt, previous_imu)
+    P = len(particles)
+    R, t = _backend(backend).move_particles(particles.R, particles.t, rpy, rpy_to_matrix(rpy).T @ dp,
+                                            np.zeros((P, 6)), np.zeros(6))
+    return Particles3D(R, t)
 
 
-def motion_noise_sigma(trans_delta, dt: float, sigma_xyz_per_m=(0.02, 0.02, 0.01), sigma_xyz_per_s=(0.05, 0.05, 0.05),
-                       sigma_rpy_per_m=(0.0005, 0.0005, 0.002), sigma_rpy_per_s=(0.002, 0.002, 0.005)) -> np.ndarray:
-    """Standard deviations ``(6,)`` of step 6's noise for one frame: translation x, y, z (m), roll, pitch, yaw (rad).
+def motion_noise_sigma(imu, dt: float, previous_imu=None, motion_config: MotionConfig = MotionConfig()) -> np.ndarray:
+    """Standard deviations ``(6,)`` of step 6's noise for this frame: translation x, y, z (m), roll, pitch, yaw (rad).
 
-    ``sigma_xyz = sigma_xyz_per_m * |dp| + sigma_xyz_per_s * dt`` and
-    ``sigma_rpy = sigma_rpy_per_m * |dp| + sigma_rpy_per_s * dt``: odometry errors grow with the distance
-    travelled (speed scale errors, slip) and with time (biases, integration), as the usual odometry motion
-    model's ``alpha`` parameters (Thrun et al. 2005, table 5.5). ``|dp|`` is the length of ``trans_delta`` (m).
-    Per-axis in the body frame (x forward, y left, z up).
+    ``motion_config.sigma(dp, dt)`` (:class:`~slamlib.slam3d.config.MotionConfig`) with ``dp`` the translation
+    of :func:`motion_increment`: the spread grows with the distance travelled and with time.
     """
-    d = float(np.linalg.norm(trans_delta))
-    dt = float(dt)
-    s = np.empty(6)
-    s[:3] = np.asarray(sigma_xyz_per_m, dtype=np.float64) * d + np.asarray(sigma_xyz_per_s, dtype=np.float64) * dt
-    s[3:] = np.asarray(sigma_rpy_per_m, dtype=np.float64) * d + np.asarray(sigma_rpy_per_s, dtype=np.float64) * dt
-    return s
+    return motion_config.sigma(motion_increment(imu, dt, previous_imu)[1], dt)
 
 
 # ------------------------------------------------------------------------------------------------ step 6
-def perturb_with_noise(R, t, sigma, rng: np.random.Generator, backend, noise=None) -> tuple[np.ndarray, np.ndarray]:
+def perturb_with_noise(particles: Particles3D, sigma, rng: np.random.Generator, noise=None,
+                       backend=DEFAULT_BACKEND) -> Particles3D:
     """Step 6: ``T_i <- T_i [N_i, sigma[:3] * n_i[:3]]``, ``N_i = rpy_to_matrix(sigma[3:] * n_i[3:])``.
 
     ``n_i ~ N(0, I_6)`` drawn from ``rng`` as a ``(P, 6)`` array (translation x, y, z then roll, pitch, yaw), or
-    passed in as ``noise``. The noise acts in each particle's body frame (backend ``move_particles`` with zero
-    motion). Returns the new ``(R, t)``.
+    passed in as ``noise``. The noise acts in each particle's body frame (the backend's ``move_particles`` with
+    zero motion).
     """
-    P = len(R)
+    P = len(particles)
     if noise is None:
         noise = rng.standard_normal((P, 6))
-    return backend.move_particles(R, t, np.zeros(3), np.zeros(3), noise, np.asarray(sigma, dtype=np.float64))
+    R, t = _backend(backend).move_particles(particles.R, particles.t, np.zeros(3), np.zeros(3), noise,
+                                            np.asarray(sigma, dtype=np.float64))
+    return Particles3D(R, t)
 
 
 # ------------------------------------------------------------------------------------------------ step 7
-def transform_scan(R, t, points, backend) -> np.ndarray:
-    """Step 7: body-frame ``points (N, 3)`` into the world with one pose ``(R (3,3), t (3,))``: ``R p + t``.
+def transform_scan(particles, points, backend=DEFAULT_BACKEND) -> np.ndarray:
+    """Step 7: body-frame ``points (N, 3)`` into the world with each particle's pose: ``R_i p + t_i``.
 
-    Returns (N, 3) float32 (backend ``transform_points``). Scoring (step 8) fuses this for all particles.
+    ``particles`` is a :class:`Particles3D` -> ``(P, N, 3)`` float32, or one pose ``T_world_body`` (4, 4) ->
+    ``(N, 3)`` float32 (the backend's ``transform_points``). Scoring (step 8) fuses this step for all particles
+    and never builds the ``P x N`` points.
     """
-    return backend.transform_points(make_pose(R, t), np.ascontiguousarray(points, dtype=np.float32))
+    be = _backend(backend)
+    pts = np.ascontiguousarray(points, dtype=np.float32)
+    if isinstance(particles, Particles3D):
+        return np.stack([be.transform_points(T, pts) for T in particles.poses()]).reshape(len(particles), -1, 3)
+    return be.transform_points(np.asarray(particles, dtype=np.float64), pts)
 
 
 # ------------------------------------------------------------------------------------------------ step 8
-def score_particles(R, t, points, world_map, backend) -> np.ndarray:
+def score_particles(particles: Particles3D, points, world_map, backend=DEFAULT_BACKEND) -> np.ndarray:
     """Step 8 (fused with 7): log-likelihood score ``(P,)`` of each particle's pose for the body-frame scan.
 
     ``score_i = sum_j term(R_i p_j + t_i)`` with the map's robust per-point term (truncated NDT Mahalanobis
@@ -221,14 +241,8 @@ def score_particles(R, t, points, world_map, backend) -> np.ndarray:
     :mod:`slamlib.maps.base`). Higher is better; the maximum is 0. ``points`` is the scoring sample (N, 3)
     float32, ``world_map`` the :class:`slamlib.maps.Map3D` built so far.
     """
-    return backend.score_particles(R, t, np.ascontiguousarray(points, dtype=np.float32), world_map.lookup())
-
-
-def normalise_log_weights(log_w) -> np.ndarray:
-    """Log-weights shifted so that ``logsumexp(log_w) = 0`` (``exp`` then sums to 1); stable for any scale."""
-    log_w = np.asarray(log_w, dtype=np.float64)
-    m = np.max(log_w)
-    return log_w - (m + np.log(np.sum(np.exp(log_w - m))))
+    return _backend(backend).score_particles(particles.R, particles.t, np.ascontiguousarray(points, dtype=np.float32),
+                                             world_map.lookup())
 
 
 # ------------------------------------------------------------------------------------------------ step 9
@@ -250,55 +264,50 @@ def weighted_mean_pose(R, t, weights) -> np.ndarray:
     return make_pose(project_to_rotation(np.einsum("p,pij->ij", w, R)), w @ t)
 
 
-def pick_best_particle(log_w, R, t, mode: str = "best", radius: float = 0.5) -> tuple[np.ndarray, int]:
+def pick_best_particle(particles: Particles3D, log_weights, estimate: str = "best",
+                       radius: float = 0.5) -> tuple[np.ndarray, int]:
     """Step 9: the pose estimate of this frame and the index of the highest-weight particle.
 
-    ``mode="best"``: the maximum-weight particle's pose. ``mode="mean"``: the weighted mean
-    (:func:`weighted_mean_pose`) of the particles within ``radius`` metres of the best one -- a local mean that
-    averages out the sampling noise of the cloud without blending separate modes.
+    ``estimate="best"``: the maximum-weight particle's pose (ties to the lowest index). ``estimate="mean"``: the
+    weighted mean (:func:`weighted_mean_pose`) of the particles within ``radius`` metres of the best one -- a
+    local mean that averages out the sampling noise of the cloud without blending separate modes.
 
     Returns ``(T_world_body (4, 4), best_index)``.
     """
-    log_w = np.asarray(log_w, dtype=np.float64)
+    log_w = np.asarray(log_weights, dtype=np.float64)
+    R, t = particles.R, particles.t
     i = int(np.argmax(log_w))
-    if mode == "best":
+    if estimate == "best":
         return make_pose(R[i], t[i]), i
-    if mode != "mean":
-        raise ValueError(f"mode must be 'best' or 'mean', got {mode!r}")
+    if estimate != "mean":
+        raise ValueError(f"estimate must be 'best' or 'mean', got {estimate!r}")
     near = np.sum((t - t[i]) ** 2, axis=1) <= radius**2
     w = np.exp(log_w[near] - log_w[i])
     return weighted_mean_pose(R[near], t[near], w), i
 
 
 # ------------------------------------------------------------------------------------------------ step 10
-def merge_scan(world_map, T_world_body, points, backend):
-    """Step 10: add the body-frame scan ``points (N, 3)`` moved by ``T_world_body`` (4, 4) into ``world_map``.
+def merge_scan(world_map, pose, points, backend=DEFAULT_BACKEND):
+    """Step 10: add the body-frame scan ``points (N, 3)`` placed by ``pose`` (``T_world_body``, 4x4) to ``world_map``.
 
-    Merges the whole down-sampled scan (not only the scoring sample). Returns the map (changed in place).
+    Merges the whole down-sampled scan (not only the scoring sample). Changes ``world_map`` in place and returns it.
     """
-    T = np.asarray(T_world_body, dtype=np.float64)
-    world_map.merge(transform_scan(T[:3, :3], T[:3, 3], points, backend))
+    world_map.merge(transform_scan(pose, points, backend))
     return world_map
 
 
 # ------------------------------------------------------------------------------------------------ step 11
-def resample_particles(R, t, log_w, rng: np.random.Generator, backend, ess_fraction: float = 1.0):
-    """Step 11: systematic resampling by weight when ``ESS < ess_fraction * P``.
+def resample_particles(particles: Particles3D, log_weights, rng: np.random.Generator, ess_fraction: float | None = 0.5,
+                       backend=DEFAULT_BACKEND) -> tuple[Particles3D, np.ndarray, bool]:
+    """Step 11: systematic resampling by weight when ``ESS < ess_fraction * P`` (``None``: always).
 
-    ``ESS = 1 / sum w_i^2`` (Kong, Liu & Wong 1994) of the normalised weights ``w = exp(log_w)``.
-    ``ess_fraction = 1.0`` resamples at every frame (unless all weights are equal), ``0.5`` only when half
-    the particles carry the weight. Resampling draws one offset ``u0 ~ U[0, 1)`` from ``rng`` and calls the
-    backend's ``systematic_resample`` (Kitagawa 1996): every particle is copied ``floor(P w_i)`` or
-    ``ceil(P w_i)`` times; the weights are then uniform.
+    :func:`slamlib.resampling.resample_indexes` with the backend's ``systematic_resample`` (Kitagawa 1996): one
+    offset ``u0 ~ U[0, 1)`` from ``rng``, every particle copied ``floor(P w_i)`` or ``ceil(P w_i)`` times, and
+    the log-weights reset to uniform. ``ESS = 1 / sum w_i^2`` (Kong, Liu & Wong 1994).
 
-    Returns ``(R, t, log_w, resampled: bool)``; ``P`` is unchanged.
+    Returns ``(particles, log_weights, resampled: bool)``; ``P`` is unchanged.
     """
-    log_w = normalise_log_weights(log_w)
-    w = np.exp(log_w)
-    P = len(w)
-    ess = effective_sample_size(w)
-    if not ess < ess_fraction * P:
-        return R, t, log_w, False
-    u0 = float(rng.random())
-    idx = backend.systematic_resample(w, u0)
-    return R[idx], t[idx], np.full(P, -np.log(P)), True
+    idx = resample_indexes(log_weights, rng, ess_fraction, _backend(backend).systematic_resample)
+    if idx is None:
+        return particles, normalise_log_weights(log_weights), False
+    return particles[idx], uniform_log_weights(len(particles)), True

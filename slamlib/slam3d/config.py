@@ -1,0 +1,222 @@
+"""Settings of the 3D particle SLAM, in four groups: scan (step 2), motion (steps 5-6), map (steps 8 and 10), filter.
+
+Every default is written once, here: the step functions of :mod:`slamlib.slam3d.steps` take these groups as
+their default arguments, and ``slamlib run`` reads its option defaults from them. Defaults are tuned on the
+default synthetic drive on 2 CPU cores (``slamlib bench slam3d``).
+
+Build a configuration by group (``SLAM3DConfig(filter=FilterConfig(particles=100))``) or by setting name
+(``SLAM3DConfig.of(particles=100, max_range=30.0)``: every setting name is unique across the groups).
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field, fields, replace
+
+import numpy as np
+
+__all__ = ["ScanConfig", "MotionConfig", "MapConfig", "FilterConfig", "SLAM3DConfig", "MAP_KINDS",
+           "OLD_MAP_NAMES"]
+
+#: Map kinds (:func:`slamlib.maps.make_map`): hashed NDT voxels, exact points in a Morton-code BVH.
+MAP_KINDS = ("voxel_hash", "morton_bvh")
+#: Earlier spellings of the map kinds, still accepted by ``slamlib run --map`` (with a note) but not here.
+OLD_MAP_NAMES = {"voxel": "voxel_hash", "bvh": "morton_bvh"}
+#: Hash-table slots of the default voxel map (2**19 = 524,288 voxels before it must grow; ~22 MiB).
+DEFAULT_VOXEL_CAPACITY = 2**19
+
+
+@dataclass(frozen=True)
+class ScanConfig:
+    """Step 2: how a raw scan becomes the body-frame points the filter uses.
+
+    Attributes
+    ----------
+    min_range, max_range : float
+        Range crop in the Velodyne frame, metres (drops returns off the car itself and sparse far returns).
+    downsample_voxel : float
+        Edge of the scan's down-sampling voxel, metres (one point kept per voxel; 0 = off). Not the map's voxel
+        (:attr:`MapConfig.params` ``voxel_size``).
+    """
+
+    min_range: float = 3.0
+    max_range: float = 60.0
+    downsample_voxel: float = 0.25
+
+    def __post_init__(self):
+        if not 0 <= self.min_range < self.max_range:
+            raise ValueError(f"need 0 <= min_range < max_range, got {self.min_range}, {self.max_range}")
+        if not self.downsample_voxel >= 0:
+            raise ValueError(f"downsample_voxel must be >= 0, got {self.downsample_voxel}")
+
+
+@dataclass(frozen=True)
+class MotionConfig:
+    """Step 6: the spread of the motion noise per axis (body x, y, z, then roll, pitch, yaw).
+
+    ``sigma_xyz = sigma_xyz_per_m |dp| + sigma_xyz_per_s dt`` (metres) and
+    ``sigma_rpy = sigma_rpy_per_m |dp| + sigma_rpy_per_s dt`` (radians), with ``|dp|`` the distance travelled in
+    the frame: odometry errors grow with distance (scale errors, slip) and with time (biases), as the odometry
+    motion model's ``alpha`` parameters (Thrun, Burgard & Fox 2005, table 5.5).
+    """
+
+    sigma_xyz_per_m: tuple = (0.02, 0.02, 0.01)
+    sigma_xyz_per_s: tuple = (0.05, 0.05, 0.05)
+    sigma_rpy_per_m: tuple = (0.0005, 0.0005, 0.002)
+    sigma_rpy_per_s: tuple = (0.002, 0.002, 0.005)
+
+    def __post_init__(self):
+        for f in fields(self):
+            v = np.asarray(getattr(self, f.name), dtype=np.float64)
+            if v.shape != (3,) or not np.all(v >= 0):
+                raise ValueError(f"{f.name} must be three non-negative numbers, got {getattr(self, f.name)!r}")
+            object.__setattr__(self, f.name, tuple(float(x) for x in v))
+
+    def sigma(self, trans_delta, dt: float) -> np.ndarray:
+        """Standard deviations ``(6,)`` for a frame that moved ``trans_delta`` (3,) metres in ``dt`` seconds."""
+        d, dt = float(np.linalg.norm(trans_delta)), float(dt)
+        s = np.empty(6)
+        s[:3] = np.asarray(self.sigma_xyz_per_m) * d + np.asarray(self.sigma_xyz_per_s) * dt
+        s[3:] = np.asarray(self.sigma_rpy_per_m) * d + np.asarray(self.sigma_rpy_per_s) * dt
+        return s
+
+    def scaled(self, k: float) -> "MotionConfig":
+        """All six spreads multiplied by ``k`` (``slamlib run --noise``)."""
+        return MotionConfig(*(tuple(k * x for x in getattr(self, f.name)) for f in fields(self)))
+
+
+@dataclass(frozen=True)
+class MapConfig:
+    """Steps 8 and 10: the map structure and how it forgets.
+
+    Attributes
+    ----------
+    kind : str
+        ``"voxel_hash"`` (hashed NDT voxels, :class:`slamlib.maps.VoxelHashMap`) or ``"morton_bvh"`` (exact points
+        in a Morton-code BVH, :class:`slamlib.maps.MortonBVHMap`).
+    params : dict
+        Keyword arguments of the map's constructor (e.g. ``{"voxel_size": 0.5}``); the voxel map gets
+        ``capacity = 2**19`` unless given.
+    prune_every, prune_radius : int, float
+        Every ``prune_every`` frames drop map elements farther than ``prune_radius`` metres from the vehicle
+        (bounded memory and lookup time on long drives; 0 disables).
+    keep_pruned : bool
+        Keep the pruned elements' points for the exported map (:meth:`ParticleSLAM3D.map_points`).
+    """
+
+    kind: str = "voxel_hash"
+    params: dict = field(default_factory=dict)
+    prune_every: int = 20
+    prune_radius: float = 120.0
+    keep_pruned: bool = True
+
+    def __post_init__(self):
+        if self.kind not in MAP_KINDS:
+            hint = f" (now called {OLD_MAP_NAMES[self.kind]!r})" if self.kind in OLD_MAP_NAMES else ""
+            raise ValueError(f"map kind must be one of {', '.join(map(repr, MAP_KINDS))}, got {self.kind!r}{hint}")
+        if int(self.prune_every) < 0 or not self.prune_radius > 0:
+            raise ValueError(f"need prune_every >= 0 and prune_radius > 0, got {self.prune_every}, "
+                             f"{self.prune_radius}")
+
+    def make(self):
+        """A fresh, empty map of this kind (:func:`slamlib.maps.make_map`)."""
+        from slamlib.maps import make_map
+
+        params = dict(self.params)
+        if self.kind == "voxel_hash":
+            params.setdefault("capacity", DEFAULT_VOXEL_CAPACITY)
+        return make_map(self.kind, **params)
+
+
+@dataclass(frozen=True)
+class FilterConfig:
+    """The particle filter around the steps.
+
+    Attributes
+    ----------
+    particles : int
+        Number of particles ``P``.
+    scored_points : int
+        Scan points sampled for scoring (step 8) per frame; step 10 merges the whole down-sampled scan.
+    temperature : float
+        Likelihood tempering: ``log L = score / (N * temperature)`` (:mod:`slamlib.slam3d.pipeline`).
+    ess_fraction : float
+        Step 11 resamples when the effective sample size is below ``ess_fraction * P`` (1.0: every frame).
+    estimate : str
+        Step 9: ``"best"`` particle or ``"mean"`` (weighted mean of the particles near the best).
+    refine : int
+        Annealing rounds per frame (coarse to fine); 0 = plain particle filter.
+    refine_shrink : float
+        Noise scale factor per annealing round.
+    """
+
+    particles: int = 300
+    scored_points: int = 1000
+    temperature: float = 0.02
+    ess_fraction: float = 0.5
+    estimate: str = "best"
+    refine: int = 0
+    refine_shrink: float = 0.4
+
+    def __post_init__(self):
+        if int(self.particles) < 1 or int(self.scored_points) < 1:
+            raise ValueError(f"particles and scored_points must be >= 1, got {self.particles}, {self.scored_points}")
+        if not self.temperature > 0:
+            raise ValueError(f"temperature must be > 0, got {self.temperature}")
+        if self.estimate not in ("best", "mean"):
+            raise ValueError(f"estimate must be 'best' or 'mean', got {self.estimate!r}")
+        if int(self.refine) < 0 or not 0 < self.refine_shrink <= 1:
+            raise ValueError(f"need refine >= 0 and 0 < refine_shrink <= 1, got {self.refine}, {self.refine_shrink}")
+
+
+_GROUPS = {"scan": ScanConfig, "motion": MotionConfig, "map": MapConfig, "filter": FilterConfig}
+
+
+@dataclass(frozen=True)
+class SLAM3DConfig:
+    """All settings of :class:`slamlib.slam3d.ParticleSLAM3D`: four groups, the compute backend and the seed.
+
+    Attributes
+    ----------
+    scan, motion, map, filter : :class:`ScanConfig`, :class:`MotionConfig`, :class:`MapConfig`,
+        :class:`FilterConfig`.
+    backend : str
+        ``"numpy"`` (reference, slow), ``"cpu"`` (Numba) or ``"cuda"``.
+    seed : int
+        Seed of the filter's ``numpy.random.Generator`` (noise, scoring sample, resampling offsets).
+    """
+
+    scan: ScanConfig = field(default_factory=ScanConfig)
+    motion: MotionConfig = field(default_factory=MotionConfig)
+    map: MapConfig = field(default_factory=MapConfig)
+    filter: FilterConfig = field(default_factory=FilterConfig)
+    backend: str = "cpu"
+    seed: int = 0
+
+    @classmethod
+    def of(cls, **settings) -> "SLAM3DConfig":
+        """The default configuration with ``settings`` changed by name, e.g. ``of(particles=100, kind="morton_bvh")``."""
+        return cls().with_(**settings)
+
+    def with_(self, **settings) -> "SLAM3DConfig":
+        """A copy with ``settings`` changed by name (group fields, or ``backend`` / ``seed``)."""
+        groups = {g: {} for g in _GROUPS}
+        top = {}
+        for name, value in settings.items():
+            owner = [g for g, c in _GROUPS.items() if name in {f.name for f in fields(c)}]
+            if owner:
+                groups[owner[0]][name] = value
+            elif name in ("backend", "seed"):
+                top[name] = value
+            else:
+                known = sorted({f.name for c in _GROUPS.values() for f in fields(c)} | {"backend", "seed"})
+                raise ValueError(f"unknown SLAM3D setting {name!r}; known: {', '.join(known)}")
+        changed = {g: replace(getattr(self, g), **kw) for g, kw in groups.items() if kw}
+        return replace(self, **changed, **top)
+
+    def as_dict(self) -> dict:
+        """JSON-friendly nested dict of the settings."""
+        def plain(v):
+            if isinstance(v, dict):
+                return {k: plain(x) for k, x in v.items()}
+            return list(v) if isinstance(v, tuple) else v
+        return plain(asdict(self))

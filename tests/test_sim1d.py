@@ -28,6 +28,7 @@ from slamlib.sim1d import (
     simulate,
     transform_scan,
 )
+from slamlib.resampling import normalise_log_weights, uniform_log_weights
 
 CLEAN = SensorModel1D(velocity_noise=0.0, velocity_bias=0.0, range_noise=0.0, dropout=0.0, clutter_rate=0.0)
 
@@ -117,8 +118,11 @@ def test_bad_parameters_raise():
 
 # -------------------------------------------------------------------------------------------- steps 1 to 7
 def test_initialise_and_read_steps(clean_recording):
-    p = initialise_particles(7)
+    p, log_w = initialise_particles(7)
     assert p.shape == (7,) and np.all(p == 0)
+    np.testing.assert_allclose(log_w, -np.log(7))
+    p, _ = initialise_particles(3, pose0=2.5)
+    np.testing.assert_array_equal(p, 2.5)
     f = clean_recording.frames[3]
     np.testing.assert_array_equal(read_scan(f), f.scan)
     assert read_imu(f) == f.velocity and read_timing(f) == f.dt
@@ -126,7 +130,7 @@ def test_initialise_and_read_steps(clean_recording):
 
 def test_offset_by_motion_integrates_the_velocity(clean_recording):
     """With a noise-free velocity sensor, chaining step 5 reproduces the true positions (the exact integral)."""
-    x = initialise_particles(3)
+    x, _ = initialise_particles(3)
     for frame, want in zip(clean_recording.frames, clean_recording.true_positions):
         x = offset_by_motion(x, read_imu(frame), read_timing(frame))
         np.testing.assert_allclose(x, want, atol=1e-9)
@@ -166,19 +170,28 @@ def test_transform_scan_at_the_true_pose_lands_on_the_landmarks(world, clean_rec
 def _map_from_truth(recording, frames, resolution=0.05):
     grid = OccupancyGrid1D.empty(-30, 90, resolution)
     for k in frames:
-        grid = merge_scan(grid, transform_scan(recording.true_positions[k], recording.frames[k].scan))
+        merge_scan(grid, recording.true_positions[k], recording.frames[k].scan)
     return grid
 
 
-def test_merge_scan_adds_counts_and_is_pure():
+def test_merge_scan_adds_counts_in_place():
     grid = OccupancyGrid1D.empty(0.0, 10.0, 0.5)
     pts = np.array([0.1, 0.2, 3.7, 9.99, -0.1, 10.0, 25.0])  # the last three are off the grid
-    new = merge_scan(grid, pts)
-    assert grid.total == 0  # input untouched
+    before = grid.copy()
+    new = merge_scan(grid, 0.0, pts)
+    assert new is grid  # the map is changed in place and returned (the contract's step 10)
+    assert before.total == 0  # a copy is independent
     assert new.total == 4
     assert new.counts[0] == 2 and new.counts[7] == 1 and new.counts[19] == 1
-    again = merge_scan(new, pts[:1])
-    assert again.counts[0] == 3 and again.total == 5
+    again = merge_scan(new, 0.0, pts[:1])
+    assert again is grid and again.counts[0] == 3 and again.total == 5
+
+
+def test_merge_scan_places_the_points_with_the_pose():
+    a = merge_scan(OccupancyGrid1D.empty(0.0, 10.0, 0.5), 3.0, np.array([-2.9, 0.7, 6.99]))
+    b = merge_scan(OccupancyGrid1D.empty(0.0, 10.0, 0.5), 0.0, transform_scan(3.0, np.array([-2.9, 0.7, 6.99])))
+    np.testing.assert_array_equal(a.counts, b.counts)
+    assert a.counts[0] == 1 and a.counts[7] == 1 and a.counts[19] == 1
 
 
 @settings(max_examples=40, deadline=None)
@@ -186,14 +199,14 @@ def test_merge_scan_adds_counts_and_is_pure():
 def test_merge_scan_counts_every_point_on_the_grid(pts):
     grid = OccupancyGrid1D.empty(0.0, 10.0, 0.25)
     pts = np.array(pts, dtype=np.float64)
-    new = merge_scan(grid, pts)
     cells = grid.cell_of(pts)
+    new = merge_scan(grid, 0.0, pts)
     assert new.total == np.sum((cells >= 0) & (cells < grid.counts.size))
 
 
 def test_likelihood_field_peaks_at_structure():
     grid = OccupancyGrid1D.empty(0.0, 10.0, 0.05)
-    grid = merge_scan(grid, np.r_[np.full(20, 2.0), 7.0])  # a well-observed landmark and a single hit
+    grid = merge_scan(grid, 0.0, np.r_[np.full(20, 2.0), 7.0])  # a well-observed landmark and a single hit
     f = likelihood_field(grid, sigma=0.1, n_sat=3.0)
     c = grid.centres
     assert f.max() <= 1.0 + 1e-12 and f.min() >= 0.0
@@ -211,25 +224,41 @@ def test_score_prefers_the_true_pose_over_shifted_ones(clean_recording):
     k = 70
     x = rec.true_positions[k]
     shifts = np.array([-0.5, -0.2, -0.1, 0.0, 0.1, 0.2, 0.5])
-    scores = score_particles(transform_scan(x + shifts, rec.frames[k].scan), grid, sigma=0.07)
+    scores = score_particles(x + shifts, rec.frames[k].scan, grid, sigma=0.07)
     assert np.argmax(scores) == 3
     assert np.all(np.diff(scores[:4]) > 0) and np.all(np.diff(scores[3:]) < 0)
 
 
+def test_score_particles_defaults_and_precomputed_field():
+    rec = simulate(make_world(seed=1), n_frames=80, seed=2)
+    grid = _map_from_truth(rec, range(60))
+    xs, scan = rec.true_positions[70] + np.linspace(-0.3, 0.3, 9), rec.frames[70].scan
+    default = score_particles(xs, scan, grid)  # sigma=None: two grid cells
+    np.testing.assert_array_equal(default, score_particles(xs, scan, grid, 2 * grid.resolution))
+    field = likelihood_field(grid, 0.07)
+    np.testing.assert_array_equal(score_particles(xs, scan, grid, 0.07, field=field),
+                                  score_particles(xs, scan, grid, 0.07))
+    assert score_particles(float(xs[4]), scan, grid, 0.07).shape == (1,)  # one pose
+
+
 def test_score_on_an_empty_map_or_scan_is_flat():
     grid = OccupancyGrid1D.empty(-5, 5, 0.1)
-    s = score_particles(transform_scan(np.array([0.0, 1.0, 2.0]), np.array([1.0, -2.0])), grid, 0.1)
+    s = score_particles(np.array([0.0, 1.0, 2.0]), np.array([1.0, -2.0]), grid, 0.1)
     np.testing.assert_array_equal(s, 0.0)
-    grid = merge_scan(grid, np.array([1.0]))
-    s = score_particles(transform_scan(np.array([0.0, 1.0]), np.zeros(0)), grid, 0.1)
+    grid = merge_scan(grid, 0.0, np.array([1.0]))
+    s = score_particles(np.array([0.0, 1.0]), np.zeros(0), grid, 0.1)
     np.testing.assert_array_equal(s, 0.0)
 
 
 def test_pick_best_particle():
-    assert pick_best_particle(np.array([0.1, 0.5, 0.2])) == 1
-    assert pick_best_particle(np.array([0.3, 0.3, 0.1])) == 0
+    x = np.array([4.0, 5.0, 6.0])
+    pose, i = pick_best_particle(x, np.log([0.1, 0.5, 0.2]))
+    assert (pose, i) == (5.0, 1) and isinstance(pose, float) and isinstance(i, int)
+    assert pick_best_particle(x, np.log([0.3, 0.3, 0.1])) == (4.0, 0)  # ties go to the lowest index
     with pytest.raises(ValueError):
-        pick_best_particle(np.zeros(0))
+        pick_best_particle(np.zeros(0), np.zeros(0))
+    with pytest.raises(ValueError):
+        pick_best_particle(x, np.zeros(2))
 
 
 def test_resample_particles_keeps_count_and_favours_high_weights():
@@ -238,17 +267,33 @@ def test_resample_particles_keeps_count_and_favours_high_weights():
     w = np.full(100, 1e-4)
     w[[10, 20]] = [0.6, 0.3]
     w /= w.sum()
-    new_x, new_w, done = resample_particles(x, w, rng, ess_threshold=0.5)
+    new_x, new_lw, done = resample_particles(x, np.log(w), rng, ess_fraction=0.5)
     assert done and new_x.shape == x.shape
-    np.testing.assert_allclose(new_w, 0.01)
+    np.testing.assert_allclose(new_lw, np.log(0.01))  # uniform log-weights -log P
     n10, n20 = np.sum(new_x == 10), np.sum(new_x == 20)
     assert n10 > n20 > 20 and n10 + n20 >= 85
     # uniform weights: ESS = P, nothing to do unless forced
-    same_x, same_w, done = resample_particles(x, np.full(100, 0.01), rng, ess_threshold=0.5)
+    same_x, same_lw, done = resample_particles(x, np.full(100, np.log(0.01)), rng, ess_fraction=0.5)
     assert not done
     np.testing.assert_array_equal(same_x, x)
-    _, _, done = resample_particles(x, np.full(100, 0.01), rng, ess_threshold=None)
+    np.testing.assert_allclose(same_lw, np.log(0.01))
+    _, _, done = resample_particles(x, np.full(100, np.log(0.01)), rng, ess_fraction=None)
     assert done
+
+
+def test_resample_particles_returns_normalised_log_weights():
+    x = np.linspace(0.0, 1.0, 8)
+    scores = np.array([-3.0, -1.0, -2.0, -1.5, -4.0, -2.5, -1.2, -3.3])  # unnormalised log-likelihoods
+    rng = np.random.default_rng(5)
+    state = rng.bit_generator.state
+    kept_x, kept_lw, done = resample_particles(x, scores, rng, ess_fraction=0.1)
+    assert not done and rng.bit_generator.state == state  # no resampling: nothing drawn
+    np.testing.assert_array_equal(kept_x, x)
+    np.testing.assert_allclose(kept_lw, normalise_log_weights(scores))
+    assert np.logaddexp.reduce(kept_lw) == pytest.approx(0.0, abs=1e-12) and np.all(kept_lw <= 0)
+    new_x, new_lw, done = resample_particles(x, scores, rng, ess_fraction=None)
+    assert done and set(new_x) <= set(x)
+    np.testing.assert_array_equal(new_lw, uniform_log_weights(8))
 
 
 # ---------------------------------------------------------------------------------------------- the filter
@@ -258,14 +303,34 @@ def test_first_step_maps_the_scan_at_the_origin(clean_recording):
     info = slam.step(clean_recording.frames[0])
     assert info.estimate == 0.0 and np.all(info.moved == 0.0)
     assert slam.grid.total == clean_recording.frames[0].scan.size
+    assert grid.total == slam.grid.total  # the grid handed in is the map, merged into in place
     np.testing.assert_allclose(info.weights, 1 / 20)
+    np.testing.assert_allclose(info.log_weights, -np.log(20))
+    np.testing.assert_allclose(slam.log_weights, -np.log(20))
+    np.testing.assert_allclose(slam.weights, 1 / 20)
+
+
+def test_filter_state_is_log_weights_and_map_history_is_copied(world):
+    rec = simulate(world, n_frames=40, seed=6)
+    grid = OccupancyGrid1D.empty(-30, 90, 0.05)
+    slam = ParticleSLAM1D(30, grid, 0.4, 0.07, np.random.default_rng(1), ess_fraction=None)
+    for frame in rec.frames[:10]:
+        info = slam.step(frame)
+        assert info.resampled  # ess_fraction=None: every frame
+        np.testing.assert_allclose(slam.log_weights, -np.log(30))
+        assert np.logaddexp.reduce(info.log_weights) == pytest.approx(0.0, abs=1e-12)
+        np.testing.assert_allclose(info.weights, np.exp(info.log_weights))
+        assert info.estimate == info.moved[info.best] == info.moved[np.argmax(info.log_weights)]
+    r = run_slam_1d(rec, n_particles=30, seed=1)
+    totals = r.map_history.sum(axis=1)
+    assert np.all(np.diff(totals) >= 0) and totals[0] < totals[-1]  # each row a snapshot, not the final grid
 
 
 def test_extract_landmarks_recovers_clusters():
     rng = np.random.default_rng(4)
     truth = np.array([1.0, 3.5, 8.2])
     pts = np.concatenate([t + 0.04 * rng.standard_normal(30) for t in truth] + [[5.7]])  # + one stray hit
-    grid = merge_scan(OccupancyGrid1D.empty(0, 10, 0.05), pts)
+    grid = merge_scan(OccupancyGrid1D.empty(0, 10, 0.05), 0.0, pts)
     found = extract_landmarks(grid, sigma=0.1, min_count=5)
     assert found.size == 3
     np.testing.assert_allclose(found, truth, atol=0.03)

@@ -2,8 +2,9 @@
 
 * :mod:`slamlib.sim1d.world`: :func:`make_world`, :class:`VelocityProfile`, :class:`SensorModel1D`,
   :func:`simulate` -> :class:`Recording1D` of :class:`Frame` objects.
-* :mod:`slamlib.sim1d.steps`: one pure function per step (names shared with the 3D filter, see
-  ``CONTRIBUTING.md``), the :class:`OccupancyGrid1D` map, its likelihood field and :func:`extract_landmarks`.
+* :mod:`slamlib.sim1d.steps`: one pure function per step, keeping the step contract shared with the 3D filter
+  (:mod:`slamlib.contract`: names, leading parameters, results), the :class:`OccupancyGrid1D` map (changed in
+  place by step 10), its likelihood field and :func:`extract_landmarks`.
 * :mod:`slamlib.sim1d.filter`: :class:`ParticleSLAM1D` (``step(frame)`` is the twelve steps) and
   :func:`run_slam_1d` -> :class:`SLAM1DResult`.
 * :mod:`slamlib.sim1d.plot`: figures and the animation used by the book (imports matplotlib when called).

@@ -1,12 +1,12 @@
 """The 1D particle SLAM filter: a thin object whose :meth:`ParticleSLAM1D.step` is the twelve steps.
 
-State per frame: particle positions ``x (P,)``, their normalised weights ``w (P,)`` and the map
-(:class:`~slamlib.sim1d.steps.OccupancyGrid1D`). Between resamplings the weights carry the product of all scores
-since the last one (``w_i <- w_i exp(s_i)``, normalised in log space by
-:func:`slamlib.resampling.normalise_log_weights`), which is the sequential importance sampling update
-(Doucet, Godsill & Andrieu 2000); resampling is triggered when the effective sample size falls below
-``ess_threshold * P``. The estimate is the best particle (step 9, as in the seed project), and the weighted mean
-is recorded beside it.
+State per frame: particle positions ``x (P,)``, their normalised **log**-weights ``log w (P,)`` (``logsumexp = 0``,
+as at every dimension, :mod:`slamlib.contract`) and the map (:class:`~slamlib.sim1d.steps.OccupancyGrid1D`,
+changed in place by step 10). Between resamplings the log-weights carry the sum of all scores since the last one
+(``log w_i <- log w_i + s_i``, normalised by :func:`slamlib.resampling.normalise_log_weights`), which is the
+sequential importance sampling update (Doucet, Godsill & Andrieu 2000); resampling is triggered when the
+effective sample size falls below ``ess_fraction * P``. The estimate is the best particle (step 9, as in the seed
+project), and the weighted mean is recorded beside it.
 
 This is the "map from the best particle" simplification of particle SLAM: one shared map, built from the best
 pose of each frame (the seed project's scheme), rather than a map per particle as in FastSLAM / Rao-Blackwellised
@@ -19,12 +19,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from slamlib.resampling import effective_sample_size, normalise_log_weights
+from slamlib.resampling import effective_sample_size, normalise_log_weights, weights_from_log_weights
 from slamlib.sim1d.steps import (
     OccupancyGrid1D,
     extract_landmarks,
     initialise_particles,
-    likelihood_field,
     merge_scan,
     offset_by_motion,
     perturb_with_noise,
@@ -34,7 +33,6 @@ from slamlib.sim1d.steps import (
     read_timing,
     resample_particles,
     score_particles,
-    transform_scan,
 )
 from slamlib.sim1d.world import Frame, Recording1D
 
@@ -46,11 +44,14 @@ class StepInfo:
     """What one call of :meth:`ParticleSLAM1D.step` did (for plots and tests).
 
     ``moved`` are the particles after steps 5-6 (before resampling), ``scores`` their step-8 log-likelihoods,
-    ``weights`` the normalised weights after scoring, ``best`` the step-9 index, ``estimate = moved[best]``.
+    ``log_weights`` the normalised log-weights after scoring and ``weights`` their ``exp`` (linear, summing to 1,
+    for plots), ``best`` the step-9 index, ``estimate = moved[best]``, ``ess`` the effective sample size of
+    ``weights`` and ``resampled`` whether step 11 resampled.
     """
 
     moved: np.ndarray
     scores: np.ndarray
+    log_weights: np.ndarray
     weights: np.ndarray
     best: int
     estimate: float
@@ -68,6 +69,7 @@ class ParticleSLAM1D:
         P.
     grid : OccupancyGrid1D
         The (usually empty) map to start from; its extent bounds the map (not the landmarks' positions).
+        :meth:`step` adds to it in place (step 10): pass ``grid.copy()`` to keep the original.
     motion_noise : float
         ``sigma_u`` (m/s): step 6 spreads the particles by ``sigma_u dt``. Use at least the velocity sensor's
         noise; larger values let the filter absorb an unknown bias.
@@ -75,48 +77,55 @@ class ParticleSLAM1D:
         Width of the likelihood field (m), e.g. ``sqrt(sigma_r^2 + resolution^2)``.
     eps : float
         Random-return term of the per-return likelihood ``F + eps``.
-    ess_threshold : float or None
-        Resample when ``ESS < ess_threshold * P``; ``None`` resamples every frame.
+    ess_fraction : float or None
+        Resample when ``ESS < ess_fraction * P``; ``None`` resamples every frame.
     rng : numpy.random.Generator
         Source of the motion noise and the resampling offsets.
+
+    Attributes
+    ----------
+    particles : (P,) float64 positions; log_weights : (P,) float64 log-weights (logsumexp 0);
+    grid : the map, changed in place by every :meth:`step`.
     """
 
     def __init__(self, n_particles: int, grid: OccupancyGrid1D, motion_noise: float, likelihood_sigma: float,
-                 rng: np.random.Generator, eps: float = 0.05, ess_threshold: float | None = 0.5):
+                 rng: np.random.Generator, eps: float = 0.05, ess_fraction: float | None = 0.5):
         if not isinstance(rng, np.random.Generator):
             raise TypeError("rng must be a numpy.random.Generator")
-        self.particles = initialise_particles(n_particles)  # step 1
-        self.weights = np.full(self.particles.size, 1.0 / self.particles.size)
+        self.particles, self.log_weights = initialise_particles(n_particles)                    # 1
         self.grid = grid
         self.motion_noise = float(motion_noise)
         self.likelihood_sigma = float(likelihood_sigma)
         self.eps = float(eps)
-        self.ess_threshold = ess_threshold
+        self.ess_fraction = ess_fraction
         self.rng = rng
+
+    @property
+    def weights(self) -> np.ndarray:
+        """The particles' linear weights ``exp(log_weights)`` (summing to 1), for plots."""
+        return weights_from_log_weights(self.log_weights)
 
     @property
     def estimate(self) -> float:
         """The best particle's position (m)."""
-        return float(self.particles[pick_best_particle(self.weights)])
+        return pick_best_particle(self.particles, self.log_weights)[0]
 
     def step(self, frame: Frame) -> StepInfo:
         """Steps 2-11 for one frame (step 12 is calling this for every frame)."""
-        scan = read_scan(frame)                                                   # 2
-        velocity = read_imu(frame)                                                # 3
-        dt = read_timing(frame)                                                   # 4
-        moved = offset_by_motion(self.particles, velocity, dt)                    # 5
-        moved = perturb_with_noise(moved, self.motion_noise * dt, self.rng)       # 6
-        points = transform_scan(moved, scan)                                      # 7
-        field = likelihood_field(self.grid, self.likelihood_sigma)
-        scores = score_particles(points, self.grid, self.likelihood_sigma, self.eps, field=field)  # 8
-        weights = normalise_log_weights(np.log(self.weights) + scores)
-        best = pick_best_particle(weights)                                        # 9
-        self.grid = merge_scan(self.grid, transform_scan(moved[best], scan))      # 10
-        ess = effective_sample_size(weights)
-        self.particles, self.weights, resampled = resample_particles(             # 11
-            moved, weights, self.rng, self.ess_threshold)
-        return StepInfo(moved=moved, scores=scores, weights=weights, best=best, estimate=float(moved[best]),
-                        mean=float(np.dot(weights, moved)), ess=ess, resampled=resampled)
+        points = read_scan(frame)                                                               # 2
+        imu = read_imu(frame)                                                                   # 3
+        dt = read_timing(frame)                                                                 # 4
+        moved = offset_by_motion(self.particles, imu, dt)                                       # 5
+        moved = perturb_with_noise(moved, self.motion_noise * dt, self.rng)                     # 6
+        scores = score_particles(moved, points, self.grid, self.likelihood_sigma, self.eps)     # 7 + 8
+        log_w = normalise_log_weights(self.log_weights + scores)
+        pose, best = pick_best_particle(moved, log_w)                                           # 9
+        merge_scan(self.grid, pose, points)                                                     # 10
+        self.particles, self.log_weights, resampled = resample_particles(                       # 11
+            moved, log_w, self.rng, self.ess_fraction)
+        weights = weights_from_log_weights(log_w)
+        return StepInfo(moved=moved, scores=scores, log_weights=log_w, weights=weights, best=best, estimate=pose,
+                        mean=float(np.dot(weights, moved)), ess=effective_sample_size(weights), resampled=resampled)
 
 
 def dead_reckon(recording: Recording1D, x0: float = 0.0) -> np.ndarray:
@@ -191,7 +200,7 @@ class SLAM1DResult:
 
 def run_slam_1d(recording: Recording1D, n_particles: int = 200, seed: int = 0, motion_noise: float | None = None,
                 likelihood_sigma: float | None = None, resolution: float = 0.05, eps: float = 0.05,
-                ess_threshold: float | None = 0.5, keep_history: bool = True, landmark_min_count: int = 5,
+                ess_fraction: float | None = 0.5, keep_history: bool = True, landmark_min_count: int = 5,
                 progress: bool = False) -> SLAM1DResult:
     """Run :class:`ParticleSLAM1D` over every frame of ``recording`` (step 12, the loop).
 
@@ -207,7 +216,7 @@ def run_slam_1d(recording: Recording1D, n_particles: int = 200, seed: int = 0, m
         Defaults to ``sqrt(sigma_r^2 + resolution^2)`` (at least 2 cells).
     resolution : float, map cell size (m). The map spans the landmark-free bounds ``[x_0 - D - R, x_0 + D + R]``
         with ``D`` the distance that ``v_max`` covers in the run's duration and ``R`` the sensor range.
-    eps, ess_threshold : see :class:`ParticleSLAM1D`.
+    eps, ess_fraction : see :class:`ParticleSLAM1D`.
     keep_history : keep particles, weights and map counts of every frame (K x P and K x C).
     landmark_min_count : passed to :func:`~slamlib.sim1d.steps.extract_landmarks`.
     progress : show a tqdm progress bar.
@@ -222,7 +231,7 @@ def run_slam_1d(recording: Recording1D, n_particles: int = 200, seed: int = 0, m
     reach = np.abs(recording.measured_velocities).max() * recording.times[-1] + 1.0
     grid = OccupancyGrid1D.empty(-reach - sensors.max_range, reach + sensors.max_range, resolution)
     slam = ParticleSLAM1D(n_particles, grid, motion_noise, likelihood_sigma, np.random.default_rng(seed), eps=eps,
-                          ess_threshold=ess_threshold)
+                          ess_fraction=ess_fraction)
     k_frames = len(recording)
     estimated, mean_est, ess, resampled = (np.zeros(k_frames) for _ in range(4))
     resampled = resampled.astype(bool)
@@ -235,7 +244,7 @@ def run_slam_1d(recording: Recording1D, n_particles: int = 200, seed: int = 0, m
         if keep_history:
             particle_history[k] = info.moved
             weight_history[k] = info.weights
-            map_history[k] = slam.grid.counts
+            map_history[k] = slam.grid.counts  # a copy (into the int32 row): the grid changes in place
     return SLAM1DResult(
         times=recording.times.copy(), true_positions=recording.true_positions.copy(), estimated=estimated,
         mean_estimated=mean_est, dead_reckoned=dead_reckon(recording), ess=ess, resampled=resampled,

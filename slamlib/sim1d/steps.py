@@ -1,26 +1,28 @@
 """The twelve steps of particle SLAM in one dimension, one pure function per step.
 
-A particle is a hypothesis ``x_i`` (metres) of the vehicle's position; the set is an ``(P,)`` float64 array.
-The map is a 1D **occupancy-count grid** (:class:`OccupancyGrid1D`): cell ``c`` counts how many scan returns
-were merged into ``[origin + c r, origin + (c + 1) r)``. The step names are shared with the 3D filter
-(``CONTRIBUTING.md``):
+A particle is a hypothesis ``x_i`` (metres) of the vehicle's position; the set is an ``(P,)`` float64 array,
+weighted by ``(P,)`` **log**-weights normalised to ``logsumexp = 0``. The map is a 1D **occupancy-count grid**
+(:class:`OccupancyGrid1D`): cell ``c`` counts how many scan returns were merged into
+``[origin + c r, origin + (c + 1) r)``. Names, leading parameters and results follow the step contract shared
+with the 3D filter (:data:`slamlib.contract.STEPS`, checked by :func:`slamlib.contract.check_steps_module`);
+what 1D needs beyond it comes after the shared parameters and has a default:
 
-====  =======================  =============================================================================
-step  function                 1D math
-====  =======================  =============================================================================
-1     initialise_particles     ``x_i = 0`` (the world frame is the start pose)
-2     read_scan                ``z`` (N,) signed offsets in the body frame
-3     read_imu                 measured velocity ``u_k`` (m/s)
-4     read_timing              ``dt_k`` (s)
-5     offset_by_motion         ``x_i <- x_i + u_k dt_k``
-6     perturb_with_noise       ``x_i <- x_i + sigma n_i``, ``n_i ~ N(0, 1)``
-7     transform_scan           ``p_ij = x_i + z_j`` (body -> world; a 1D pose is a translation)
-8     score_particles          ``s_i = sum_j log(F(p_ij) + eps)`` against the likelihood field ``F`` of the map
-9     pick_best_particle       ``argmax_i w_i``
-10    merge_scan               add one count at each ``x_best + z_j``
-11    resample_particles       systematic resampling (:mod:`slamlib.resampling`) when ESS drops
-12    (the loop)               :meth:`slamlib.sim1d.ParticleSLAM1D.step` per frame
-====  =======================  =============================================================================
+====  =================================================================  =============================================
+step  function (the contract's parameters first)                         1D math
+====  =================================================================  =============================================
+1     ``initialise_particles(n_particles, pose0=0.0)``                   ``x_i = pose0``, ``log w_i = -log P``
+2     ``read_scan(frame) -> points``                                     ``z`` (N,) offsets in the body frame
+3     ``read_imu(frame) -> imu``                                         measured velocity ``u_k`` (m/s)
+4     ``read_timing(frame) -> dt``                                       ``dt_k`` (s)
+5     ``offset_by_motion(particles, imu, dt)``                           ``x_i <- x_i + u_k dt_k``
+6     ``perturb_with_noise(particles, sigma, rng)``                      ``x_i <- x_i + sigma n_i``, ``n_i ~ N(0, 1)``
+7     ``transform_scan(particles, points)``                              ``p_ij = x_i + z_j`` (pose = translation)
+8     ``score_particles(particles, points, world_map, sigma, eps)``      ``s_i = sum_j log(F(p_ij) + eps)`` (7 + 8)
+9     ``pick_best_particle(particles, log_weights) -> (pose, index)``    ``i = argmax log w``, ``pose = x_i``
+10    ``merge_scan(world_map, pose, points) -> world_map``               a count at each ``pose + z_j``, in place
+11    ``resample_particles(particles, log_weights, rng, ess_fraction)``  systematic, when the ESS drops
+12    (the loop)                                                         ``ParticleSLAM1D.step(frame)``
+====  =================================================================  =============================================
 
 The likelihood field (Thrun, Burgard & Fox, *Probabilistic Robotics* 2005, section 6.4) here is the grid of
 counts blurred by a Gaussian and normalised so that each landmark's bump has height ``min(1, hits / n_sat)``
@@ -36,7 +38,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from slamlib.resampling import effective_sample_size, systematic_resample
+from slamlib.resampling import normalise_log_weights, resample_indexes, uniform_log_weights
 from slamlib.sim1d.world import Frame
 
 __all__ = [
@@ -69,7 +71,9 @@ class OccupancyGrid1D:
     resolution : float
         Cell size (m).
     counts : ndarray (C,) int64
-        Number of scan returns merged into each cell.
+        Number of scan returns merged into each cell. The dataclass is frozen (origin and resolution never
+        change) but ``counts`` is a mutable array: step 10 (:func:`merge_scan`) adds to it **in place**, so keep
+        a :meth:`copy` of a grid whose state you want to look at later.
     """
 
     origin: float
@@ -83,6 +87,10 @@ class OccupancyGrid1D:
             raise ValueError(f"need resolution > 0 and hi > lo, got {resolution}, [{lo}, {hi}]")
         n = int(np.ceil((hi - lo) / resolution))
         return cls(origin=float(lo), resolution=float(resolution), counts=np.zeros(n, dtype=np.int64))
+
+    def copy(self) -> "OccupancyGrid1D":
+        """An independent grid with the same extent and a copy of the counts."""
+        return OccupancyGrid1D(origin=self.origin, resolution=self.resolution, counts=self.counts.copy())
 
     @property
     def centres(self) -> np.ndarray:
@@ -141,11 +149,16 @@ def likelihood_field(grid: OccupancyGrid1D, sigma: float, n_sat: float = 3.0) ->
 
 
 # ------------------------------------------------------------------------------------------- the twelve steps
-def initialise_particles(n_particles: int, x0: float = 0.0) -> np.ndarray:
-    """Step 1: ``P`` particles all at ``x0`` (the start pose defines the world frame), ``(P,)`` float64."""
+def initialise_particles(n_particles: int, pose0: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """Step 1: ``P`` particles all at ``pose0`` (default 0: the start pose defines the world frame).
+
+    Returns
+    -------
+    (particles (P,) float64, log_weights (P,) float64 = ``-log P``, :func:`slamlib.resampling.uniform_log_weights`)
+    """
     if n_particles < 1:
         raise ValueError(f"n_particles must be at least 1, got {n_particles}")
-    return np.full(int(n_particles), float(x0), dtype=np.float64)
+    return np.full(int(n_particles), float(pose0), dtype=np.float64), uniform_log_weights(n_particles)
 
 
 def read_scan(frame: Frame) -> np.ndarray:
@@ -163,13 +176,13 @@ def read_timing(frame: Frame) -> float:
     return float(frame.dt)
 
 
-def offset_by_motion(particles: np.ndarray, velocity: float, dt: float) -> np.ndarray:
-    """Step 5: dead-reckon every particle, ``x_i <- x_i + u dt`` (a new ``(P,)`` array).
+def offset_by_motion(particles: np.ndarray, imu: float, dt: float) -> np.ndarray:
+    """Step 5: dead-reckon every particle, ``x_i <- x_i + u dt`` with ``u = imu`` the velocity (a new ``(P,)`` array).
 
     Exact for the integral ``int v`` over the interval when ``u`` is the mean velocity over it (which the
     simulated velocity sensor measures, up to its noise and bias).
     """
-    return np.asarray(particles, dtype=np.float64) + float(velocity) * float(dt)
+    return np.asarray(particles, dtype=np.float64) + float(imu) * float(dt)
 
 
 def perturb_with_noise(particles: np.ndarray, sigma: float, rng: np.random.Generator) -> np.ndarray:
@@ -186,103 +199,114 @@ def perturb_with_noise(particles: np.ndarray, sigma: float, rng: np.random.Gener
     return particles + sigma * rng.standard_normal(particles.shape)
 
 
-def transform_scan(particles, scan: np.ndarray) -> np.ndarray:
+def transform_scan(particles, points: np.ndarray) -> np.ndarray:
     """Step 7: scan points in the world frame for every particle, ``p_ij = x_i + z_j``.
 
     Parameters
     ----------
     particles : float or array (P,)
-        Particle positions (a scalar gives the single-pose ``(N,)`` result).
-    scan : (N,) body-frame offsets.
+        Particle positions (one pose, a scalar, gives the single-pose ``(N,)`` result).
+    points : (N,) body-frame offsets.
 
     Returns
     -------
     ndarray (P, N) float64 (or (N,) for a scalar pose).
     """
-    scan = np.asarray(scan, dtype=np.float64)
+    points = np.asarray(points, dtype=np.float64)
     x = np.asarray(particles, dtype=np.float64)
-    return x[..., None] + scan
+    return x[..., None] + points
 
 
-def score_particles(world_points: np.ndarray, grid: OccupancyGrid1D, sigma: float, eps: float = 0.05,
-                    field: np.ndarray | None = None) -> np.ndarray:
-    """Step 8: log-likelihood of each particle's transformed scan against the map built so far.
+def score_particles(particles, points: np.ndarray, world_map: OccupancyGrid1D, sigma: float | None = None,
+                    eps: float = 0.05, field: np.ndarray | None = None) -> np.ndarray:
+    """Steps 7 + 8: log-likelihood of each particle's transformed scan against the map built so far.
 
-    .. math:: s_i = \\sum_j \\log\\big(F(p_{ij}) + \\varepsilon\\big)
+    .. math:: s_i = \\sum_j \\log\\big(F(x_i + z_j) + \\varepsilon\\big)
 
-    with ``F`` the likelihood field of ``grid`` (:func:`likelihood_field`), linearly interpolated between cell
-    centres and 0 outside the grid. On the **first frame** the map is empty, ``F = 0`` and every particle
-    scores ``N log eps``; to keep the numbers readable an empty map or an empty scan scores all zeros (any
-    constant gives the same normalised weights).
+    with ``x_i + z_j`` from :func:`transform_scan` and ``F`` the likelihood field of ``world_map``
+    (:func:`likelihood_field`), linearly interpolated between cell centres and 0 outside the grid. On the
+    **first frame** the map is empty, ``F = 0`` and every particle scores ``N log eps``; to keep the numbers
+    readable an empty map or an empty scan scores all zeros (any constant gives the same normalised weights).
 
     Parameters
     ----------
-    world_points : (P, N) float64, from :func:`transform_scan`.
-    grid : OccupancyGrid1D, the map before this frame is merged.
-    sigma : float, likelihood-field width (m).
+    particles : (P,) float64 positions (or one pose, a float, for a ``(1,)`` result).
+    points : (N,) body-frame offsets, from :func:`read_scan`.
+    world_map : OccupancyGrid1D, the map before this frame is merged.
+    sigma : float, optional
+        Likelihood-field width (m). ``None``: two grid cells, ``2 * world_map.resolution`` (the floor of
+        :func:`~slamlib.sim1d.run_slam_1d`'s ``max(sqrt(sigma_r^2 + resolution^2), 2 resolution)``, which needs
+        the sensor's range noise ``sigma_r`` and so is chosen by the caller).
     eps : float, weight of the uniform "random return" term (> 0).
-    field : (C,) float64, optional, a precomputed ``likelihood_field(grid, sigma)``.
+    field : (C,) float64, optional, a precomputed ``likelihood_field(world_map, sigma)``.
 
     Returns
     -------
     ndarray (P,) float64 log-likelihoods (all <= N log(1 + eps)).
     """
-    points = np.atleast_2d(np.asarray(world_points, dtype=np.float64))
+    world_points = np.atleast_2d(transform_scan(particles, points))
     if not eps > 0:
         raise ValueError(f"eps must be positive, got {eps}")
-    if points.shape[1] == 0 or grid.total == 0:
-        return np.zeros(points.shape[0])
+    if world_points.shape[1] == 0 or world_map.total == 0:
+        return np.zeros(world_points.shape[0])
     if field is None:
-        field = likelihood_field(grid, sigma)
-    f = np.interp(points, grid.centres, field, left=0.0, right=0.0)
+        field = likelihood_field(world_map, 2.0 * world_map.resolution if sigma is None else sigma)
+    f = np.interp(world_points, world_map.centres, field, left=0.0, right=0.0)
     return np.log(f + eps).sum(axis=1)
 
 
-def pick_best_particle(weights: np.ndarray) -> int:
-    """Step 9: the index of the particle with the highest weight (or score), ``argmax_i w_i``.
+def pick_best_particle(particles: np.ndarray, log_weights: np.ndarray) -> tuple[float, int]:
+    """Step 9: the highest-weight particle, ``i* = argmax_i log w_i``, as ``(pose, index)``.
 
-    Ties go to the lowest index, so the choice is deterministic.
+    ``pose = float(particles[i*])``. Ties go to the lowest index, so the choice is deterministic. Any
+    increasing function of the weights (linear weights, raw scores) picks the same particle.
     """
-    w = np.asarray(weights, dtype=np.float64)
-    if w.ndim != 1 or w.size == 0:
-        raise ValueError(f"weights must be a non-empty (P,) array, got shape {w.shape}")
-    return int(np.argmax(w))
+    lw = np.asarray(log_weights, dtype=np.float64)
+    x = np.asarray(particles, dtype=np.float64)
+    if lw.ndim != 1 or lw.size == 0:
+        raise ValueError(f"log_weights must be a non-empty (P,) array, got shape {lw.shape}")
+    if x.shape != lw.shape:
+        raise ValueError(f"particles shape {x.shape} does not match log_weights shape {lw.shape}")
+    index = int(np.argmax(lw))
+    return float(x[index]), index
 
 
-def merge_scan(grid: OccupancyGrid1D, world_points: np.ndarray) -> OccupancyGrid1D:
-    """Step 10: a new grid with one count added at the cell of each world point (points off the grid dropped).
+def merge_scan(world_map: OccupancyGrid1D, pose: float, points: np.ndarray) -> OccupancyGrid1D:
+    """Step 10: add one count at the cell of each return placed by ``pose`` (``pose + z_j``), **in place**.
 
-    Call it with ``transform_scan(x_best, scan)``: the scan placed by the best particle's pose.
+    ``world_map.counts`` is changed in place (as the 3D maps are, see :mod:`slamlib.contract`) and ``world_map``
+    is returned; returns that fall off the grid are dropped. Copy the grid first (:meth:`OccupancyGrid1D.copy`)
+    to keep the map as it was.
     """
-    cells = grid.cell_of(np.ravel(world_points))
-    cells = cells[(cells >= 0) & (cells < grid.counts.size)]
-    counts = grid.counts + np.bincount(cells, minlength=grid.counts.size)
-    return OccupancyGrid1D(origin=grid.origin, resolution=grid.resolution, counts=counts)
+    cells = world_map.cell_of(np.ravel(transform_scan(pose, points)))
+    cells = cells[(cells >= 0) & (cells < world_map.counts.size)]
+    np.add.at(world_map.counts, cells, 1)
+    return world_map
 
 
-def resample_particles(particles: np.ndarray, weights: np.ndarray, rng: np.random.Generator,
-                       ess_threshold: float | None = 0.5):
+def resample_particles(particles: np.ndarray, log_weights: np.ndarray, rng: np.random.Generator,
+                       ess_fraction: float | None = 0.5):
     """Step 11: systematic resampling when the effective sample size drops.
 
-    When ``ess_threshold`` is ``None``, or ``ESS = 1 / sum w_i^2 < ess_threshold * P``, draw ``u0 ~ U[0, 1)``
-    from ``rng``, pick ``idx = systematic_resample(w, u0)`` (:mod:`slamlib.resampling`) and return
-    ``(particles[idx], uniform weights, True)``; otherwise return copies of the inputs and ``False`` (the
-    weights then keep accumulating scores: ``w_i <- w_i exp(s_i)``).
+    :func:`slamlib.resampling.resample_indexes` decides and draws: when ``ess_fraction`` is ``None`` (always),
+    or ``ESS = 1 / sum w_i^2 < ess_fraction * P`` for ``w = exp(log_weights)``, it draws ``u0 ~ U[0, 1)`` from
+    ``rng`` and returns ``idx = systematic_resample(w, u0)``; this step then returns
+    ``(particles[idx], uniform log-weights -log P, True)``. Otherwise nothing is drawn and it returns a copy of
+    the particles, the normalised log-weights and ``False`` (the log-weights then keep accumulating scores:
+    ``log w_i <- log w_i + s_i``).
 
     Returns
     -------
-    (particles (P,), weights (P,) summing to 1, resampled: bool)
+    (particles (P,), log_weights (P,) with logsumexp 0, resampled: bool)
     """
     particles = np.asarray(particles, dtype=np.float64)
-    w = np.asarray(weights, dtype=np.float64)
-    if w.shape != particles.shape:
-        raise ValueError(f"weights shape {w.shape} does not match particles shape {particles.shape}")
-    ess = effective_sample_size(w)
-    n = particles.size
-    if ess_threshold is None or ess < ess_threshold * n:
-        idx = systematic_resample(w, rng.random())
-        return particles[idx], np.full(n, 1.0 / n), True
-    return particles.copy(), w / w.sum(), False
+    log_w = normalise_log_weights(log_weights)
+    if log_w.shape != particles.shape:
+        raise ValueError(f"log_weights shape {log_w.shape} does not match particles shape {particles.shape}")
+    idx = resample_indexes(log_w, rng, ess_fraction)
+    if idx is None:
+        return particles.copy(), log_w, False
+    return particles[idx], uniform_log_weights(particles.size), True
 
 
 # ----------------------------------------------------------------------------------------- reading the map

@@ -2,9 +2,9 @@
 
 Rows: ``move_particles`` with device LUT noise and with a noise array already on the device (the rotation +
 translation kernels), ``transform_points`` (grid-stride), fused ``score_particles`` on the synthetic street of
-:mod:`slamlib.bench.maps` in the voxel-hash map, ``systematic_resample`` (scan + binary search), and the LUT
-noise fill alone. Each is timed with ``cuda.synchronize()`` after the call, inputs already on the device
-(copies excluded), one launch untimed first (JIT compilation).
+:func:`slamlib.synth.street.street_scene` in the voxel-hash map, ``systematic_resample`` (scan + binary search),
+and the LUT noise fill alone. Each is timed with ``cuda.synchronize()`` after the call, inputs already on the
+device (copies excluded), one launch untimed first (JIT compilation).
 
 Without a GPU there is nothing to measure: the benchmark exits non-zero saying so (it never reports
 simulator timings, which are ~10^6 times slower and meaningless), and no JSON is written.
@@ -45,8 +45,8 @@ def run(quick: bool = False, allow_simulator: bool = False, sizes: dict | None =
 
     from slamlib import geometry
     from slamlib import noise as N
-    from slamlib.bench import median_time
-    from slamlib.bench.maps import street_scene
+    from benchmarks import median_time
+    from slamlib.synth.street import street_scene
     from slamlib.kernels import cuda as kc
     from slamlib.maps import VoxelHashMap
 

@@ -20,7 +20,7 @@ def _row(kind, n, backend, tm):
 def run(quick: bool) -> dict:
     import numba
 
-    from slamlib.bench import median_time
+    from benchmarks import median_time
     from slamlib.geometry import make_pose, rpy_to_matrix
     from slamlib.kernels import get_backend
 

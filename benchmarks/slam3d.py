@@ -2,7 +2,7 @@
 
 Workload: the default synthetic drive (:func:`slamlib.synth.default_drive`, KITTI 07 route, ~100,000-point
 HDL-64E scans), frames ``FRAMES`` (``QUICK_FRAMES`` with ``--quick``), default :class:`SLAM3DConfig` except
-the number of particles (100, 300, 1000) and the map (``voxel``, ``bvh``), Numba CPU backend. Each
+the number of particles (100, 300, 1000) and the map kind (``voxel_hash``, ``morton_bvh``), Numba CPU backend. Each
 configuration runs once after a short untimed warm-up (JIT caches, page cache).
 
 Reported per configuration:
@@ -22,13 +22,13 @@ from __future__ import annotations
 
 import numpy as np
 
-HELP = "3D particle SLAM on the default synthetic drive: frames/s for 100/300/1000 particles x voxel/bvh, ATE"
+HELP = "3D particle SLAM on the default synthetic drive: frames/s for 100/300/1000 particles x voxel_hash/morton_bvh, ATE"
 
 FRAMES = (0, 300)
 QUICK_FRAMES = (0, 40)
 PARTICLES = (100, 300, 1000)
 QUICK_PARTICLES = (100, 300)
-MAPS = ("voxel", "bvh")
+MAPS = ("voxel_hash", "morton_bvh")   # slamlib.slam3d.MAP_KINDS
 
 
 def run(quick: bool = False) -> dict:
@@ -43,14 +43,14 @@ def run(quick: bool = False) -> dict:
     drive = KittiRawDrive(basedir, date, drive_id, frames=range(a, b))
     warm = KittiRawDrive(basedir, date, drive_id, frames=range(0, 5))
     rows = []
-    for map_type in MAPS:
-        run_drive(warm, SLAM3DConfig(map_type=map_type, particles=50), progress=False)  # JIT / cache warm-up
+    for kind in MAPS:
+        run_drive(warm, SLAM3DConfig.of(kind=kind, particles=50), progress=False)  # JIT / cache warm-up
         for P in (QUICK_PARTICLES if quick else PARTICLES):
-            cfg = SLAM3DConfig(particles=P, map_type=map_type)
+            cfg = SLAM3DConfig.of(particles=P, kind=kind)
             r = run_drive(drive, cfg, progress=False)
             m = evaluate(r)
             row = {
-                "map": map_type, "particles": P, "points": cfg.points, "frames": m["frames"],
+                "map": kind, "particles": P, "points": cfg.filter.scored_points, "frames": m["frames"],
                 "fps": round(r.fps, 2),
                 "fps_median": round(float(1.0 / np.median(r.frame_seconds[1:])), 2),
                 "ate_rmse_m": round(m["slam"]["ate_rmse_m"], 4),
@@ -68,7 +68,7 @@ def run(quick: bool = False) -> dict:
         "workload": {"drive": "slamlib.synth.default_drive()", "frames": [a, b],
                      "path_length_m": round(m["path_length_m"], 1), "backend": "cpu",
                      "numba_threads": int(numba.get_num_threads()),
-                     "config": {k: v for k, v in SLAM3DConfig().as_dict().items() if k != "particles"}},
+                     "config": SLAM3DConfig().as_dict()},   # the rows change filter.particles and map.kind
         "results": rows,
     }
 
@@ -84,7 +84,7 @@ def _long_run() -> dict:
     r = run_drive(drive, cfg, progress=False)
     m = evaluate(r)
     out = {"drive": "slamlib.synth.default_drive(full=True)", "frames": m["frames"],
-           "path_length_m": round(m["path_length_m"], 1), "particles": cfg.particles, "map": cfg.map_type,
+           "path_length_m": round(m["path_length_m"], 1), "particles": cfg.filter.particles, "map": cfg.map.kind,
            "fps": round(r.fps, 2), "fps_median": round(float(1.0 / np.median(r.frame_seconds[1:])), 2)}
     for key in ("slam", "dead_reckoning"):
         out[key] = {k: round(float(v), 5) for k, v in m[key].items() if isinstance(v, (int, float))}

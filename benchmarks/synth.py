@@ -39,7 +39,7 @@ def _folder_bytes(path: Path) -> int:
 def run(quick: bool = False) -> dict:
     import open3d as o3d
 
-    from slamlib.bench import median_time
+    from benchmarks import median_time
     from slamlib.geometry import invert_pose
     from slamlib.kitti.calib import load_T_velo_imu
     from slamlib.paths import kitti_sample_dir

@@ -1,0 +1,101 @@
+"""``slamlib bench``: loads the checkout's benchmarks/ package from any folder, writes to one results folder."""
+
+import ast
+import json
+import subprocess
+import sys
+
+import pytest
+
+import slamlib
+from slamlib import paths
+from slamlib.cli import main
+from slamlib.commands.bench import load_benchmarks
+
+NAMES = ("kernels", "maps", "noise", "cuda", "slam3d", "synth", "peers")
+
+
+def test_list_shows_every_benchmark_from_any_folder(tmp_path):
+    res = subprocess.run([sys.executable, "-m", "slamlib.cli", "bench", "--list"], cwd=tmp_path,
+                         capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stderr
+    listed = [line.split()[0] for line in res.stdout.splitlines() if line.strip()]
+    assert listed == list(NAMES)
+    assert all(len(line.split(maxsplit=1)) == 2 for line in res.stdout.splitlines() if line.strip())  # with HELP
+
+
+def test_benchmarks_package_is_the_one_beside_slamlib():
+    package = load_benchmarks()
+    assert package.__file__ == str(paths.SOURCE_ROOT / "benchmarks" / "__init__.py")
+    assert paths.SOURCE_ROOT == paths.benchmarks_dir().parent
+    assert tuple(package.BENCHMARKS) == NAMES
+    assert load_benchmarks() is package
+
+
+def test_without_a_source_checkout_it_says_so_in_one_line(tmp_path, monkeypatch):
+    monkeypatch.setattr(paths, "SOURCE_ROOT", tmp_path)  # an installed slamlib: no benchmarks/ beside it
+    with pytest.raises(SystemExit) as exc:
+        main(["bench", "--list"])
+    message = str(exc.value.code)
+    assert "\n" not in message
+    assert message.startswith("slamlib bench runs from a source checkout of slamlib")
+    assert "pip install -e ." in message and str(tmp_path / "slamlib") in message
+
+
+def test_unknown_benchmark_is_refused():
+    with pytest.raises(SystemExit, match="unknown benchmark 'nope'; known: kernels, maps"):
+        main(["bench", "nope"])
+
+
+def test_results_go_to_one_folder_whatever_the_current_folder(tmp_path, monkeypatch, capsys):
+    tiny = tmp_path / "mods" / "tiny_bench.py"
+    tiny.parent.mkdir()
+    tiny.write_text('HELP = "a tiny benchmark"\n\ndef run(quick):\n    return {"value": 1.5, "quick_seen": quick}\n')
+    monkeypatch.syspath_prepend(str(tiny.parent))
+    monkeypatch.setitem(load_benchmarks().BENCHMARKS, "tiny", "tiny_bench")
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    monkeypatch.chdir(elsewhere)
+
+    monkeypatch.delenv("SLAMLIB_BENCH_RESULTS", raising=False)
+    assert paths.bench_results_dir() == paths.SOURCE_ROOT / "benchmarks" / "results"
+    out = tmp_path / "results"
+    monkeypatch.setenv("SLAMLIB_BENCH_RESULTS", str(out))
+    assert paths.bench_results_dir() == out
+
+    assert main(["bench", "tiny", "--quick"]) == 0
+    d = json.loads((out / "tiny-quick.json").read_text())
+    assert d["benchmark"] == "tiny" and d["quick"] is True and d["value"] == 1.5 and d["quick_seen"] is True
+    assert {"cpu", "cores", "gpu", "python", "numpy", "numba", "utc"} <= set(d["machine"])
+    assert paths.load_bench_result("tiny-quick") == d
+    assert paths.load_bench_result("tiny") is None
+    assert not any(elsewhere.iterdir())
+    assert f"wrote {out / 'tiny-quick.json'}" in capsys.readouterr().out
+
+
+def test_committed_results_are_read_from_the_checkout(monkeypatch):
+    monkeypatch.delenv("SLAMLIB_BENCH_RESULTS", raising=False)
+    d = paths.load_bench_result("kernels")
+    assert d is not None and d["benchmark"] == "kernels" and "machine" in d
+
+
+def test_the_library_never_imports_benchmarks():
+    """Only ``slamlib bench`` loads benchmarks/, by path (importlib), never with an import statement."""
+    root = paths.SOURCE_ROOT / "slamlib"
+    assert (root / "__init__.py").samefile(slamlib.__file__)
+    offenders = []
+    for path in sorted(root.rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            names = ([a.name for a in node.names] if isinstance(node, ast.Import)
+                     else [node.module or ""] if isinstance(node, ast.ImportFrom) and node.level == 0 else [])
+            offenders += [f"{path}:{node.lineno}" for n in names if n.split(".")[0] == "benchmarks"]
+    assert offenders == []
+
+
+def test_benchmarks_chapter_lists_every_benchmark():
+    """notebooks/05_benchmarks.ipynb imports only slamlib, so it names the benchmarks itself: keep them in step."""
+    nb = json.loads((paths.SOURCE_ROOT / "notebooks" / "05_benchmarks.ipynb").read_text())
+    source = "".join("".join(c["source"]) for c in nb["cells"] if c["cell_type"] == "code")
+    line = next(ln for ln in source.splitlines() if ln.startswith("BENCHMARKS = "))
+    assert ast.literal_eval(line.split("=", 1)[1].split("#")[0].strip()) == tuple(load_benchmarks().BENCHMARKS)
+    assert "import benchmarks" not in source and "from benchmarks" not in source

@@ -32,8 +32,8 @@ distribution is the table's (KS distance to N(0, 1) about ``1 / (2 T)`` for exac
 
 Write-once integer math
 -----------------------
-:func:`make_lut_functions` builds ``fmix32``, ``counter_hash``, ``lut_index``, ``lut_draw`` and
-``seed_lut_index`` from one Python source with a decorator: the identity (numpy, vectorised over arrays of
+:func:`make_lut_functions` builds ``fmix32``, ``counter_hash``, ``lut_index`` and ``lut_draw`` from one
+Python source with a decorator: the identity (numpy, vectorised over arrays of
 thread indexes), ``numba.njit`` (CPU), or ``numba.cuda.jit(device=True)`` (GPU; built in
 :mod:`slamlib.kernels.cuda`). All arithmetic is on ``uint64`` holding 32-bit words, masked after every
 multiplication, so nothing overflows and numpy, Numba and the CUDA simulator (which runs device code on numpy
@@ -126,8 +126,6 @@ def make_lut_functions(deco: Callable = _identity) -> dict:
         Table index (int64) of component ``k`` for ``thread`` at frame ``step`` (module docstring).
     ``lut_draw(thread, step, seed, k, normal, perm, bits)``
         ``normal[lut_index(...)]``.
-    ``seed_lut_index(thread, k, perm)``
-        The seed project's index ``perm[k, thread & 0xFF]`` (independent of the frame: the pitfall).
     """
 
     def fmix32(h):
@@ -162,13 +160,7 @@ def make_lut_functions(deco: Callable = _identity) -> dict:
         return normal[lut_index(thread, step, seed, k, perm, bits)]
 
     lut_draw = deco(lut_draw)
-
-    def seed_lut_index(thread, k, perm):
-        return np.int64(perm[k, np.uint64(thread) & _BYTE])
-
-    seed_lut_index = deco(seed_lut_index)
-    return {"fmix32": fmix32, "counter_hash": counter_hash, "lut_index": lut_index, "lut_draw": lut_draw,
-            "seed_lut_index": seed_lut_index}
+    return {"fmix32": fmix32, "counter_hash": counter_hash, "lut_index": lut_index, "lut_draw": lut_draw}
 
 
 _NP = make_lut_functions()

@@ -110,6 +110,56 @@ def test_score_particles_equals_reference_and_cpu(maps, which):
     np.testing.assert_allclose(kc.to_host(dev), want, rtol=1e-9, atol=1e-9)
 
 
+@pytest.mark.parametrize("kind", ["voxel_hash", "morton_bvh"])
+def test_score_particles_uploads_the_map_once_per_version(monkeypatch, kind):
+    """Scoring twice on an unchanged map copies its lookup arrays to the device once; a merge or a prune (new
+    version) uploads them again, and the scores follow the changed map."""
+    from numba import cuda
+
+    rng = np.random.default_rng(12)
+    world = rng.normal(0, 2, (600, 3)).astype(np.float32)
+    m = VoxelHashMap(voxel_size=1.0, capacity=2**10) if kind == "voxel_hash" else MortonBVHMap(radius=0.5)
+    m.merge(world)
+    R, t = _particles(rng, 2)
+    t *= 0.02
+    pts = world[:24]
+    uploaded = []
+    real_to_device = cuda.to_device
+
+    def counting_to_device(a, *args, **kwargs):
+        uploaded.append(a)
+        return real_to_device(a, *args, **kwargs)
+
+    def map_uploads(lookup):
+        fields = [v for v in lookup if isinstance(v, np.ndarray)]
+        return sum(any(np.shares_memory(a, f) for f in fields) for a in uploaded)
+
+    monkeypatch.setattr(cuda, "to_device", counting_to_device)
+    kc.clear_lookup_cache()
+    lk = m.lookup()
+    n_arrays = sum(isinstance(v, np.ndarray) for v in lk)
+    first = kc.score_particles(R, t, pts, lk, threads=8)
+    second = kc.score_particles(R, t, pts, m.lookup(), threads=8)
+    assert map_uploads(lk) == n_arrays  # once, by the first call
+    assert len(uploaded) == n_arrays + 2 * 3  # and R, t, points per call
+    np.testing.assert_array_equal(first, second)
+    if kind == "voxel_hash":
+        m.merge(world[:300] + np.float32(0.3))
+    else:
+        assert m.prune(world[0], 2.0) > 0
+    lk2 = m.lookup()
+    assert lk2.version != lk.version
+    uploaded.clear()
+    got = kc.score_particles(R, t, pts, lk2, threads=8)
+    assert map_uploads(lk2) == n_arrays
+    np.testing.assert_allclose(got, ref.score_particles(R, t, pts, lk2), rtol=1e-9, atol=1e-9)
+    assert not np.allclose(got, first)
+    uploaded.clear()
+    kc.score_particles(R, t, pts, lk2._replace(version=0), threads=8)  # no version: uploaded, not kept
+    kc.score_particles(R, t, pts, lk2._replace(version=0), threads=8)
+    assert map_uploads(lk2) == 2 * n_arrays
+
+
 def test_inclusive_scan_multi_level():
     x = np.random.default_rng(7).random(150)
     got = kc.inclusive_scan(x, threads=8).copy_to_host()  # 19 blocks -> 3 -> 1: two levels of recursion
@@ -137,9 +187,10 @@ def test_systematic_resample_rejects_bad_input():
 def test_get_backend_cuda_in_simulator():
     b = get_backend("cuda")
     assert b.name == "cuda" and b.score_particles is kc.score_particles
-    backend = kc.CudaBackend(threads=32, score_threads=32)
-    idx = backend.systematic_resample(np.array([0.0, 1.0, 0.0, 3.0]), 0.2)
-    np.testing.assert_array_equal(idx, ref.systematic_resample(np.array([0.0, 1.0, 0.0, 3.0]), 0.2))
+    w = np.array([0.0, 1.0, 0.0, 3.0])
+    np.testing.assert_array_equal(b.systematic_resample(w, 0.2), ref.systematic_resample(w, 0.2))
+    # launch sizes are keywords of the module functions
+    np.testing.assert_array_equal(kc.systematic_resample(w, 0.2, threads=32), ref.systematic_resample(w, 0.2))
 
 
 def test_no_gpu_gives_backend_unavailable_error_with_the_fix():
@@ -148,10 +199,11 @@ def test_no_gpu_gives_backend_unavailable_error_with_the_fix():
         if cuda.is_available():
             print("HAS_GPU")
             raise SystemExit(0)
+        import numpy as np
         from slamlib.errors import BackendUnavailableError
         from slamlib.kernels import get_backend
-        from slamlib.kernels.cuda import CudaBackend
-        for make in (lambda: get_backend("cuda"), CudaBackend):
+        from slamlib.kernels import cuda as kc
+        for make in (lambda: get_backend("cuda"), lambda: kc.systematic_resample(np.ones(2), 0.5)):
             try:
                 make()
             except BackendUnavailableError as exc:
@@ -173,7 +225,8 @@ def test_no_gpu_gives_backend_unavailable_error_with_the_fix():
 
 
 def test_bench_cuda_refuses_without_gpu_and_runs_in_simulator_when_asked():
-    from slamlib.bench import cuda as bench_cuda
+    from slamlib.commands.bench import load_benchmark
+    bench_cuda = load_benchmark("cuda")  # benchmarks/cuda.py of this checkout
 
     with pytest.raises(SystemExit, match="no GPU"):
         bench_cuda.run(quick=True)  # the simulator is on in the tests: no timings

@@ -6,13 +6,13 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from numba import njit
 
-from slamlib.bench.maps import street_scan, street_scene
+from slamlib.synth.street import street_scan, street_scene
 from slamlib.geometry import rpy_to_matrix
 from slamlib.kernels import get_backend
 from slamlib.maps import MortonBVHMap, VoxelHashMap, make_map
 from slamlib.maps.base import EMPTY_KEY, HASH_MULTIPLIER
-from slamlib.maps.codes import (axis_indices, hash_slot_nb, hash_slots, morton_codes, morton_nb, pack_key_nb,
-                                pack_keys)
+from slamlib.maps.codes import (axis_indices, find_cell_nb, find_slot_nb, hash_slot_nb, hash_slots,
+                                make_code_functions, morton_codes, morton_nb, pack_key_nb, pack_keys)
 
 
 @njit(cache=True)
@@ -56,6 +56,51 @@ def test_codes_numpy_numba_and_definition_agree(triples, log2c):
 def test_morton_prefix_is_the_parent_cell_code(triples, level):
     u = np.array(triples, dtype=np.int64)
     np.testing.assert_array_equal(morton_codes(u) >> (3 * level), morton_codes(u >> level))
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.lists(st.tuples(coord, coord, coord), min_size=1, max_size=10), st.integers(1, 63))
+def test_codes_scalar_builds_agree_without_overflow(triples, log2c):
+    """The plain build on numpy scalars (how the CUDA simulator runs the device build) equals the njit and the
+    array builds, and never overflows (the hash product is formed from 32-bit halves)."""
+    import warnings
+
+    py = make_code_functions()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        for x, y, z in triples:
+            ux, uy, uz = np.int64(x), np.int64(y), np.int64(z)
+            key = py["pack_key"](ux, uy, uz)
+            assert key == pack_key_nb(x, y, z) == pack_keys(np.array([[x, y, z]]))[0]
+            h = py["hash_slot"](key, np.int64(log2c))
+            assert h == hash_slot_nb(key, log2c) == hash_slots(np.array([key]), log2c)[0]
+            assert h == ((int(key) * HASH_MULTIPLIER) % 2**64) >> (64 - log2c)
+            assert py["morton"](ux, uy, uz) == morton_nb(x, y, z) == _bit_interleave(x, y, z)
+
+
+def test_find_slot_and_find_cell_builds_agree_with_the_tables():
+    rng = np.random.default_rng(3)
+    py = make_code_functions()
+    m = VoxelHashMap(voxel_size=0.5, capacity=2**10)
+    m.merge(_random_points(rng, 3000, scale=3.0))
+    lk = m.lookup()
+    occupied = np.flatnonzero(lk.keys != EMPTY_KEY)
+    for s in occupied[:200]:
+        key = lk.keys[s]
+        assert py["find_slot"](lk.keys, key, np.int64(lk.log2_capacity), np.int64(lk.max_probe)) == s
+        assert find_slot_nb(lk.keys, key, lk.log2_capacity, lk.max_probe) == s
+    stored = set(lk.keys[occupied].tolist())
+    missing = [k for k in rng.integers(0, 2**62, 50) if int(k) not in stored]
+    for key in missing:
+        assert py["find_slot"](lk.keys, np.int64(key), np.int64(lk.log2_capacity), np.int64(lk.max_probe)) == -1
+        assert find_slot_nb(lk.keys, key, lk.log2_capacity, lk.max_probe) == -1
+    mm = MortonBVHMap(radius=0.3)
+    mm.merge(_random_points(rng, 2000, scale=2.0))
+    cells = mm.lookup().cell_codes
+    for k in range(0, cells.size, 7):
+        assert py["find_cell"](cells, cells[k]) == find_cell_nb(cells, cells[k]) == k
+    for code in (cells[0] - 1, cells[-1] + 1, np.int64(0)):
+        assert py["find_cell"](cells, code) == find_cell_nb(cells, code) == (0 if code == cells[0] else -1)
 
 
 def _random_points(rng, n, scale=6.0):

@@ -4,8 +4,18 @@ Same functions, shapes and math as :mod:`slamlib.kernels.reference` (CONTRIBUTIN
 map lookups in :mod:`slamlib.maps.base`). Every function accepts numpy arrays **or** device arrays: when the
 particle / point / weight arrays it is given are device arrays, the results stay on the device (device arrays
 returned, no copy back), so a frame can run ``move -> score -> resample`` without host round trips; with numpy
-inputs it copies in and out and returns numpy (a drop-in for the CPU backends). Use :func:`to_device`,
-:func:`to_host` and :func:`lookup_to_device` (upload a map's lookup once per frame) to manage copies.
+inputs it copies in and out and returns numpy (a drop-in for the CPU backends). Use :func:`to_device` and
+:func:`to_host` to manage copies. A map's lookup is uploaded once per map version, not once per call:
+:func:`lookup_to_device` (called by :func:`score_particles`) keeps the device arrays keyed by the lookup's
+``version`` stamp, which every ``merge`` / ``prune`` of the map renews.
+
+The arithmetic per particle and per point (rotation from roll/pitch/yaw, the motion update, the point
+transform, the NDT voxel term, hashing / linear probing, Morton codes, cell search, the nearest-neighbour
+query) is the ``cuda.jit(device=True)`` build of :func:`slamlib.kernels.device.make_point_functions`, the
+same source as the CPU backend's ``njit`` build; the noise draws are the device build of
+:func:`slamlib.noise.make_lut_functions`. This module only maps threads and blocks onto them, reduces and scans.
+Launch sizes are keywords of the module functions (``threads=``, ``max_blocks=``; defaults :data:`THREADS`,
+:data:`SCORE_THREADS`, :data:`MAX_BLOCKS`).
 
 Thread mapping
 --------------
@@ -20,8 +30,9 @@ Thread mapping
 * **transform_points**: one thread per point, grid-stride loop (``j = blockIdx.x * blockDim.x + threadIdx.x``,
   stepping by ``gridDim.x * blockDim.x``), float32 arithmetic.
 * **score_particles** (step 8, fused): one **block per particle**; its threads stride over the scan points,
-  transform each point by the particle's pose in registers (float64), look it up in the map and accumulate a
-  private float64 sum; a tree reduction in shared memory (``log2(blockDim)`` halving rounds with
+  transform each point by the particle's pose in registers (float64), look it up in the map (voxel map: the
+  trilinear NDT term; Morton map: the brute-force scan of the 2x2x2 nearest cells, ``morton_d2``, rather than
+  the CPU's branch-and-bound, which needs a per-thread stack) and accumulate a private float64 sum; a tree reduction in shared memory (``log2(blockDim)`` halving rounds with
   ``syncthreads``) leaves the particle's score in ``s[0]``. Memory is ``O(P + N + map)``: the ``P x N``
   transformed points (``1000 x 120k x 12 B = 1.4 GB``) are never stored.
 * **systematic_resample** (step 11): an inclusive **scan** (Hillis & Steele 1986, per block in shared memory;
@@ -35,13 +46,13 @@ the simulator), :func:`check_available` raises :class:`~slamlib.errors.BackendUn
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass
+from collections import OrderedDict
 from functools import lru_cache
 
 import numpy as np
 
 from slamlib.errors import BackendUnavailableError
+from slamlib.kernels.device import make_point_functions
 from slamlib.maps.base import KIND_MORTON, KIND_VOXEL_HASH
 from slamlib.noise import N_COMPONENTS, LutNoise, make_lut_functions
 
@@ -99,9 +110,40 @@ def to_host(a) -> np.ndarray:
     return a.copy_to_host() if is_device_array(a) else np.asarray(a)
 
 
+#: How many map versions :func:`lookup_to_device` keeps on the device (least recently used dropped first): the
+#: current map, and one more (the previous version until it ages out, or a second map scored alternately).
+LOOKUP_CACHE_SIZE = 2
+# (kind, version) -> {field name: device array}; see lookup_to_device
+_lookup_cache: OrderedDict = OrderedDict()
+
+
 def lookup_to_device(lookup):
-    """The same lookup NamedTuple with every numpy array field copied to the device (scalars unchanged)."""
-    return type(lookup)(*(to_device(v) if isinstance(v, np.ndarray) else v for v in lookup))
+    """The same lookup NamedTuple with its numpy array fields on the device (scalars unchanged).
+
+    A lookup made by a map carries the map's ``version`` stamp (:attr:`slamlib.maps.base.Map3D.version`,
+    drawn anew by every ``merge`` / ``prune``): its arrays are uploaded once per version and kept, so scoring
+    again before the map changes (the particles of a frame, or frames without a merge) copies nothing; the last
+    :data:`LOOKUP_CACHE_SIZE` versions are kept (:func:`clear_lookup_cache` frees them). A tuple with
+    ``version == 0`` (made by hand) is uploaded on every call and not kept; device array fields pass through.
+    """
+    version = int(getattr(lookup, "version", 0))
+    if not version or not any(isinstance(v, np.ndarray) for v in lookup):
+        return type(lookup)(*(to_device(v) if isinstance(v, np.ndarray) else v for v in lookup))
+    key = (int(lookup.kind), version)
+    arrays = _lookup_cache.get(key)
+    if arrays is None:
+        arrays = {f: to_device(v) for f, v in zip(lookup._fields, lookup) if isinstance(v, np.ndarray)}
+        _lookup_cache[key] = arrays
+        while len(_lookup_cache) > LOOKUP_CACHE_SIZE:
+            _lookup_cache.popitem(last=False)
+    else:
+        _lookup_cache.move_to_end(key)
+    return lookup._replace(**arrays)
+
+
+def clear_lookup_cache() -> None:
+    """Drop the device copies of map lookups kept by :func:`lookup_to_device` (frees their GPU memory)."""
+    _lookup_cache.clear()
 
 
 def tables_to_device(tables):
@@ -119,20 +161,15 @@ def _blocks(n: int, threads: int, cap: int | None = None) -> int:
 if cuda is not None:
     _LUT = make_lut_functions(cuda.jit(device=True))
     _lut_draw = _LUT["lut_draw"]
-
-    @cuda.jit(device=True)
-    def _rpy(r, p, y, out):
-        """``out = Rz(y) Ry(p) Rx(r)`` (3, 3)."""
-        cr, sr, cp, sp, cy, sy = math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), math.sin(y)
-        out[0, 0] = cy * cp
-        out[0, 1] = cy * sp * sr - sy * cr
-        out[0, 2] = cy * sp * cr + sy * sr
-        out[1, 0] = sy * cp
-        out[1, 1] = sy * sp * sr + cy * cr
-        out[1, 2] = sy * sp * cr - cy * sr
-        out[2, 0] = -sp
-        out[2, 1] = cp * sr
-        out[2, 2] = cp * cr
+    # the per-particle / per-point math, the same source as the CPU backend's (slamlib.kernels.device)
+    _D = make_point_functions(cuda.jit(device=True))
+    _rpy_matrix = _D["rpy_matrix"]
+    _pose_times = _D["pose_times"]
+    _compose_rotation = _D["compose_rotation"]
+    _compose_translation = _D["compose_translation"]
+    _world_point = _D["world_point"]
+    _voxel_term = _D["voxel_term"]
+    _morton_d2 = _D["morton_d2"]
 
     @cuda.jit(device=True)
     def _noise(i, k, noise, use_lut, normal, perm, bits, step, seed):
@@ -141,12 +178,6 @@ if cuda is not None:
             return np.float64(_lut_draw(i, step, seed, k, normal, perm, bits))
         return np.float64(noise[i, k])
 
-    @cuda.jit(device=True)
-    def _r_times_dr(R, i, dR, A):
-        for a in range(3):
-            for b in range(3):
-                A[a, b] = R[i, a, 0] * dR[0, b] + R[i, a, 1] * dR[1, b] + R[i, a, 2] * dR[2, b]
-
     @cuda.jit
     def _rotation_kernel(R, dR, sigma, noise, use_lut, normal, perm, bits, step, seed, R_new):
         i = cuda.grid(1)
@@ -154,13 +185,11 @@ if cuda is not None:
             return
         N = cuda.local.array((3, 3), np.float64)
         A = cuda.local.array((3, 3), np.float64)
-        _rpy(sigma[3] * _noise(i, 3, noise, use_lut, normal, perm, bits, step, seed),
-             sigma[4] * _noise(i, 4, noise, use_lut, normal, perm, bits, step, seed),
-             sigma[5] * _noise(i, 5, noise, use_lut, normal, perm, bits, step, seed), N)
-        _r_times_dr(R, i, dR, A)
-        for a in range(3):
-            for b in range(3):
-                R_new[i, a, b] = A[a, 0] * N[0, b] + A[a, 1] * N[1, b] + A[a, 2] * N[2, b]
+        _rpy_matrix(sigma[3] * _noise(i, 3, noise, use_lut, normal, perm, bits, step, seed),
+                    sigma[4] * _noise(i, 4, noise, use_lut, normal, perm, bits, step, seed),
+                    sigma[5] * _noise(i, 5, noise, use_lut, normal, perm, bits, step, seed), N)
+        _pose_times(R, i, dR, A)  # A = R_i dR
+        _compose_rotation(A, N, R_new, i)
 
     @cuda.jit
     def _translation_kernel(R, t, dR, trans_delta, sigma, noise, use_lut, normal, perm, bits, step, seed, t_new):
@@ -168,12 +197,11 @@ if cuda is not None:
         if i >= R.shape[0]:
             return
         A = cuda.local.array((3, 3), np.float64)
-        _r_times_dr(R, i, dR, A)
+        _pose_times(R, i, dR, A)
         sx = trans_delta[0] + sigma[0] * _noise(i, 0, noise, use_lut, normal, perm, bits, step, seed)
         sy = trans_delta[1] + sigma[1] * _noise(i, 1, noise, use_lut, normal, perm, bits, step, seed)
         sz = trans_delta[2] + sigma[2] * _noise(i, 2, noise, use_lut, normal, perm, bits, step, seed)
-        for a in range(3):
-            t_new[i, a] = t[i, a] + A[a, 0] * sx + A[a, 1] * sy + A[a, 2] * sz
+        _compose_translation(t, A, sx, sy, sz, t_new, i)
 
     @cuda.jit
     def _lut_fill_kernel(normal, perm, bits, step, seed, out):
@@ -185,166 +213,9 @@ if cuda is not None:
 
     @cuda.jit
     def _transform_kernel(R, t, pts, out):
-        start = cuda.grid(1)
-        stride = cuda.gridsize(1)
-        r00, r01, r02 = R[0, 0], R[0, 1], R[0, 2]
-        r10, r11, r12 = R[1, 0], R[1, 1], R[1, 2]
-        r20, r21, r22 = R[2, 0], R[2, 1], R[2, 2]
-        for j in range(start, pts.shape[0], stride):
-            x, y, z = pts[j, 0], pts[j, 1], pts[j, 2]
-            out[j, 0] = r00 * x + r01 * y + r02 * z + t[0]
-            out[j, 1] = r10 * x + r11 * y + r12 * z + t[1]
-            out[j, 2] = r20 * x + r21 * y + r22 * z + t[2]
-
-    # ---- map lookups (device versions of slamlib.maps.codes / slamlib.kernels.cpu, same formulas)
-    _M32 = np.uint64(0xFFFFFFFF)
-    _S32 = np.uint64(32)
-    _HASH_LO = np.uint64(0x9E3779B97F4A7C15 & 0xFFFFFFFF)
-    _HASH_HI = np.uint64(0x9E3779B97F4A7C15 >> 32)
-    _OFFSET = np.int64(1 << 20)
-    _AXIS_MAX = np.int64((1 << 21) - 1)
-
-    @cuda.jit(device=True)
-    def _hash_slot(key, log2_capacity):
-        """``((uint64(key) * 0x9E3779B97F4A7C15) mod 2**64) >> (64 - log2_capacity)`` from 32-bit halves
-        (no intermediate overflows, so the simulator's numpy scalars agree with the GPU)."""
-        a = np.uint64(key)
-        a_lo = a & _M32
-        a_hi = a >> _S32
-        lo = a_lo * _HASH_LO
-        cross = ((a_hi * _HASH_LO) & _M32) + ((a_lo * _HASH_HI) & _M32) + (lo >> _S32)
-        prod = ((cross & _M32) << _S32) | (lo & _M32)
-        return np.int64(prod >> np.uint64(64 - log2_capacity))
-
-    @cuda.jit(device=True)
-    def _find_slot(keys, key, log2_capacity, max_probe):
-        mask = (np.int64(1) << log2_capacity) - 1
-        s = _hash_slot(key, log2_capacity)
-        for _ in range(max_probe + 1):
-            k = keys[s]
-            if k == key:
-                return s
-            if k == -1:
-                return -1
-            s = (s + 1) & mask
-        return -1
-
-    @cuda.jit(device=True)
-    def _voxel_term(wx, wy, wz, keys, mean, icov, inv_h, log2_capacity, max_probe, m_max):
-        """Trilinear NDT term of a world point (``VoxelHashLookup``); see ``slamlib.kernels.cpu.voxel_term_nb``."""
-        miss = -0.5 * m_max
-        gx = wx * inv_h - 0.5
-        gy = wy * inv_h - 0.5
-        gz = wz * inv_h - 0.5
-        if not (abs(gx) <= 2.0**21 and abs(gy) <= 2.0**21 and abs(gz) <= 2.0**21):
-            return miss  # far outside the key range, or NaN
-        bx = math.floor(gx)
-        by = math.floor(gy)
-        bz = math.floor(gz)
-        fx = gx - bx
-        fy = gy - by
-        fz = gz - bz
-        ux0 = np.int64(bx) + _OFFSET
-        uy0 = np.int64(by) + _OFFSET
-        uz0 = np.int64(bz) + _OFFSET
-        total = 0.0
-        for dx in range(2):
-            ux = ux0 + dx
-            wgx = fx if dx == 1 else 1.0 - fx
-            for dy in range(2):
-                uy = uy0 + dy
-                wgy = fy if dy == 1 else 1.0 - fy
-                for dz in range(2):
-                    uz = uz0 + dz
-                    w = wgx * wgy * (fz if dz == 1 else 1.0 - fz)
-                    s = -1
-                    if ux >= 0 and ux <= _AXIS_MAX and uy >= 0 and uy <= _AXIS_MAX and uz >= 0 and uz <= _AXIS_MAX:
-                        s = _find_slot(keys, ux | (uy << 21) | (uz << 42), log2_capacity, max_probe)
-                    if s < 0:
-                        total += w * miss
-                        continue
-                    ex = wx - np.float64(mean[s, 0])
-                    ey = wy - np.float64(mean[s, 1])
-                    ez = wz - np.float64(mean[s, 2])
-                    m = (np.float64(icov[s, 0]) * ex * ex + np.float64(icov[s, 3]) * ey * ey
-                         + np.float64(icov[s, 5]) * ez * ez
-                         + 2.0 * (np.float64(icov[s, 1]) * ex * ey + np.float64(icov[s, 2]) * ex * ez
-                                  + np.float64(icov[s, 4]) * ey * ez))
-                    total += w * (-0.5 * min(m, m_max))
-        return total
-
-    @cuda.jit(device=True)
-    def _part1by2(v):
-        v = v & 0x1FFFFF
-        v = (v | (v << 32)) & 0x1F00000000FFFF
-        v = (v | (v << 16)) & 0x1F0000FF0000FF
-        v = (v | (v << 8)) & 0x100F00F00F00F00F
-        v = (v | (v << 4)) & 0x10C30C30C30C30C3
-        v = (v | (v << 2)) & 0x1249249249249249
-        return v
-
-    @cuda.jit(device=True)
-    def _find_cell(cell_codes, code):
-        lo = 0
-        hi = cell_codes.shape[0]
-        while lo < hi:
-            mid = (lo + hi) >> 1
-            if cell_codes[mid] < code:
-                lo = mid + 1
-            else:
-                hi = mid
-        if lo < cell_codes.shape[0] and cell_codes[lo] == code:
-            return lo
-        return -1
-
-    @cuda.jit(device=True)
-    def _morton_d2(wx, wy, wz, points, cell_codes, cell_start, quantum, cell_level, r2):
-        """``min(d_nn^2, r2)`` of a world point in a ``MortonLookup`` (the 2x2x2 nearest cells, brute force)."""
-        best = r2
-        size = np.float64(np.int64(1) << cell_level)
-        inv_q = 1.0 / quantum
-        ux = wx * inv_q + 1048576.0
-        uy = wy * inv_q + 1048576.0
-        uz = wz * inv_q + 1048576.0
-        fx = math.floor(ux / size - 0.5)
-        fy = math.floor(uy / size - 0.5)
-        fz = math.floor(uz / size - 0.5)
-        lim = np.int64(1) << (21 - cell_level)
-        if not (fx >= -1.0 and fy >= -1.0 and fz >= -1.0 and fx < lim and fy < lim and fz < lim):
-            return best
-        cx0 = np.int64(fx)
-        cy0 = np.int64(fy)
-        cz0 = np.int64(fz)
-        for dz in range(2):
-            cz = cz0 + dz
-            if cz < 0 or cz >= lim:
-                continue
-            for dy in range(2):
-                cy = cy0 + dy
-                if cy < 0 or cy >= lim:
-                    continue
-                for dx in range(2):
-                    cx = cx0 + dx
-                    if cx < 0 or cx >= lim:
-                        continue
-                    code = _part1by2(cx) | (_part1by2(cy) << 1) | (_part1by2(cz) << 2)
-                    k = _find_cell(cell_codes, code)
-                    if k < 0:
-                        continue
-                    for j in range(cell_start[k], cell_start[k + 1]):
-                        ex = wx - np.float64(points[j, 0])
-                        ey = wy - np.float64(points[j, 1])
-                        ez = wz - np.float64(points[j, 2])
-                        d2 = ex * ex + ey * ey + ez * ez
-                        if d2 < best:
-                            best = d2
-        return best
-
-    @cuda.jit(device=True)
-    def _world(R, t, i, x, y, z):
-        return (R[i, 0, 0] * x + R[i, 0, 1] * y + R[i, 0, 2] * z + t[i, 0],
-                R[i, 1, 0] * x + R[i, 1, 1] * y + R[i, 1, 2] * z + t[i, 1],
-                R[i, 2, 0] * x + R[i, 2, 1] * y + R[i, 2, 2] * z + t[i, 2])
+        """Grid-stride loop over the points; ``R`` (1, 3, 3), ``t`` (1, 3) float32: one pose."""
+        for j in range(cuda.grid(1), pts.shape[0], cuda.gridsize(1)):
+            out[j, 0], out[j, 1], out[j, 2] = _world_point(R, t, 0, pts[j, 0], pts[j, 1], pts[j, 2])
 
     @cuda.jit
     def _search_kernel(c, u0, out):
@@ -398,7 +269,7 @@ def _block_kernels(threads: int):
         s = cuda.shared.array(threads, np.float64)
         acc = 0.0
         for j in range(tid, pts.shape[0], threads):
-            wx, wy, wz = _world(R, t, i, np.float64(pts[j, 0]), np.float64(pts[j, 1]), np.float64(pts[j, 2]))
+            wx, wy, wz = _world_point(R, t, i, np.float64(pts[j, 0]), np.float64(pts[j, 1]), np.float64(pts[j, 2]))
             acc += _voxel_term(wx, wy, wz, keys, mean, icov, inv_h, log2_capacity, max_probe, m_max)
         _block_sum(s, tid, acc)
         if tid == 0:
@@ -411,7 +282,7 @@ def _block_kernels(threads: int):
         s = cuda.shared.array(threads, np.float64)
         acc = 0.0
         for j in range(tid, pts.shape[0], threads):
-            wx, wy, wz = _world(R, t, i, np.float64(pts[j, 0]), np.float64(pts[j, 1]), np.float64(pts[j, 2]))
+            wx, wy, wz = _world_point(R, t, i, np.float64(pts[j, 0]), np.float64(pts[j, 1]), np.float64(pts[j, 2]))
             acc += scale * _morton_d2(wx, wy, wz, points, cell_codes, cell_start, quantum, cell_level, r2)
         _block_sum(s, tid, acc)
         if tid == 0:
@@ -524,9 +395,9 @@ def transform_points(T, points, threads: int = THREADS, max_blocks: int = MAX_BL
     pts_d = to_device(pts)
     out = cuda.device_array(pts_d.shape, np.float32)
     if pts_d.shape[0]:
-        _transform_kernel[_blocks(pts_d.shape[0], threads, max_blocks), threads](
-            to_device(np.ascontiguousarray(T[:3, :3], dtype=np.float32)),
-            to_device(np.ascontiguousarray(T[:3, 3], dtype=np.float32)), pts_d, out)
+        _transform_kernel[_blocks(pts_d.shape[0], threads, max_blocks), threads](  # the pose as a batch of one
+            to_device(np.ascontiguousarray(T[None, :3, :3], dtype=np.float32)),
+            to_device(np.ascontiguousarray(T[None, :3, 3], dtype=np.float32)), pts_d, out)
     return out if on_device else out.copy_to_host()
 
 
@@ -534,7 +405,9 @@ def score_particles(R, t, points, lookup, threads: int = SCORE_THREADS):
     """Fused transform + map lookup log-likelihood (P,) float64, one block of ``threads`` per particle.
 
     ``lookup`` is a :class:`~slamlib.maps.base.VoxelHashLookup` or :class:`~slamlib.maps.base.MortonLookup`
-    (numpy fields, or device fields from :func:`lookup_to_device`). Returns a device array when ``R`` is one.
+    (numpy fields, or device fields from :func:`lookup_to_device`). A map's numpy lookup is uploaded once per map
+    version (:func:`lookup_to_device` keeps the device copy), not once per call. Returns a device array when
+    ``R`` is one.
     """
     check_available()
     R_d, t_d, on_device = _particles(R, t)
@@ -545,22 +418,20 @@ def score_particles(R, t, points, lookup, threads: int = SCORE_THREADS):
     P = R_d.shape[0]
     out = cuda.device_array(P, np.float64)
     score_voxel, score_morton, _ = _block_kernels(int(threads))
-    if lookup.kind == KIND_VOXEL_HASH:
+    lk = lookup_to_device(lookup)  # uploads the map only when its version changed
+    if lk.kind == KIND_VOXEL_HASH:
         if P:
-            score_voxel[P, threads](R_d, t_d, pts_d, to_device(lookup.keys), to_device(lookup.mean),
-                                    to_device(lookup.icov), float(lookup.inv_voxel_size),
-                                    np.int64(lookup.log2_capacity), np.int64(lookup.max_probe), float(lookup.m_max),
-                                    out)
-    elif lookup.kind == KIND_MORTON:
-        scale = -0.5 / float(lookup.sigma) ** 2
-        r2 = float(lookup.radius) ** 2
-        if P and lookup.cell_codes.shape[0] == 0:  # empty map: every point costs the truncation
+            score_voxel[P, threads](R_d, t_d, pts_d, lk.keys, lk.mean, lk.icov, float(lk.inv_voxel_size),
+                                    np.int64(lk.log2_capacity), np.int64(lk.max_probe), float(lk.m_max), out)
+    elif lk.kind == KIND_MORTON:
+        scale = -0.5 / float(lk.sigma) ** 2
+        r2 = float(lk.radius) ** 2
+        if P and lk.cell_codes.shape[0] == 0:  # empty map: every point costs the truncation
             vals = np.full(P, scale * r2 * pts_d.shape[0])
             return to_device(vals) if on_device else vals
         if P:
-            score_morton[P, threads](R_d, t_d, pts_d, to_device(lookup.points), to_device(lookup.cell_codes),
-                                     to_device(lookup.cell_start), float(lookup.quantum),
-                                     np.int64(lookup.cell_level), r2, scale, out)
+            score_morton[P, threads](R_d, t_d, pts_d, lk.points, lk.cell_codes, lk.cell_start, float(lk.quantum),
+                                     np.int64(lk.cell_level), r2, scale, out)
     else:
         raise ValueError(f"unknown lookup kind {lookup.kind!r}")
     return out if on_device else out.copy_to_host()
@@ -603,37 +474,3 @@ def systematic_resample(weights, u0, threads: int = SCORE_THREADS):
     out = cuda.device_array(P, np.int64)
     _search_kernel[_blocks(P, threads), threads](c, float(u0), out)
     return out if on_device else out.copy_to_host()
-
-
-@dataclass(frozen=True)
-class CudaBackend:
-    """The CUDA kernels with their launch configuration (thin object; the math is in the module functions).
-
-    Construction checks that a GPU (or the simulator) is usable and raises
-    :class:`~slamlib.errors.BackendUnavailableError` otherwise.
-    """
-
-    threads: int = THREADS
-    score_threads: int = SCORE_THREADS
-    max_blocks: int = MAX_BLOCKS
-    name: str = "cuda"
-
-    def __post_init__(self):
-        check_available()
-
-    def move_particles(self, R, t, rpy_delta, trans_delta, noise, sigma):
-        return move_particles(R, t, rpy_delta, trans_delta, noise, sigma, threads=self.threads)
-
-    def transform_points(self, T, points):
-        return transform_points(T, points, threads=self.threads, max_blocks=self.max_blocks)
-
-    def score_particles(self, R, t, points, lookup):
-        return score_particles(R, t, points, lookup, threads=self.score_threads)
-
-    def systematic_resample(self, weights, u0):
-        return systematic_resample(weights, u0, threads=self.score_threads)
-
-    to_device = staticmethod(to_device)
-    to_host = staticmethod(to_host)
-    lookup_to_device = staticmethod(lookup_to_device)
-    tables_to_device = staticmethod(tables_to_device)

@@ -307,11 +307,6 @@ class KittiRawDrive:
             prev = frame.timestamp_ns
             yield frame
 
-    def scans(self) -> Iterator[np.ndarray]:
-        """Yield only the scans (N, 4) float32 of the selected frames, lazily."""
-        for index in self.frames:
-            yield read_velodyne_scan(self.velodyne_path(index))
-
     # ------------------------------------------------------------------ arrays without scans
     def _all_packets(self) -> list[OxtsPacket]:
         from tqdm.auto import tqdm

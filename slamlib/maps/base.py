@@ -13,7 +13,9 @@ that Numba CPU kernels and CUDA kernels can implement the same lookup from the f
 :class:`VoxelHashLookup` and :class:`MortonLookup`. Each tuple starts with an integer ``kind`` field
 (:data:`KIND_VOXEL_HASH`, :data:`KIND_MORTON`) so a backend can dispatch on it. The arrays are the map's own
 buffers (no copy): call ``lookup()`` again after every ``merge`` (scalars such as ``max_probe`` or the number of
-points change, and the Morton arrays are replaced).
+points change, and the Morton arrays are replaced). Its last field, ``version``, is the map's
+:attr:`Map3D.version` stamp of that content: a backend that keeps copies of the arrays elsewhere (the CUDA
+backend keeps them on the device between frames) re-uses them while the stamp is unchanged.
 
 Per-point score terms (both maps) are truncated ("robust") negative squared distances, so points that hit
 structure that is not in the map yet (or outliers) cost a bounded constant instead of dominating:
@@ -34,6 +36,7 @@ pipeline may temper it (divide by a temperature) before exponentiating.
 
 from __future__ import annotations
 
+import itertools
 from abc import ABC, abstractmethod
 from typing import NamedTuple
 
@@ -101,6 +104,10 @@ class VoxelHashLookup(NamedTuple):
         The longest probe distance any stored key needed; lookups give up after ``max_probe + 1`` slots.
     m_max : float
         Truncation of the squared Mahalanobis distance (robust term; also the cost of a miss).
+    version : int
+        :attr:`Map3D.version` of the map when the tuple was made: equal stamps mean equal array contents, so the
+        CUDA backend re-uses its device copy while it is unchanged. 0 (the default, e.g. for a hand-made tuple)
+        means unknown: nothing is cached.
     """
 
     kind: int
@@ -112,6 +119,7 @@ class VoxelHashLookup(NamedTuple):
     log2_capacity: int
     max_probe: int
     m_max: float
+    version: int = 0
 
 
 class MortonLookup(NamedTuple):
@@ -164,6 +172,8 @@ class MortonLookup(NamedTuple):
         Search radius and truncation distance in metres.
     sigma : float
         Standard deviation of the Gaussian point likelihood, metres.
+    version : int
+        The map's content stamp (:attr:`Map3D.version`), as in :class:`VoxelHashLookup`.
     """
 
     kind: int
@@ -177,10 +187,32 @@ class MortonLookup(NamedTuple):
     cell_level: int
     radius: float
     sigma: float
+    version: int = 0
+
+
+# Source of Map3D.version stamps: one counter for the whole process, so a stamp names one content of one map.
+_VERSIONS = itertools.count(1)
 
 
 class Map3D(ABC):
-    """A point map in the world frame with a flat lookup structure for scoring (steps 8 and 10)."""
+    """A point map in the world frame with a flat lookup structure for scoring (steps 8 and 10).
+
+    Implementations call :meth:`_changed` in ``__init__`` and after every change of the arrays behind
+    :meth:`lookup` (``merge``, ``prune``), and pass :attr:`version` as the lookup's ``version`` field.
+    """
+
+    _version = 0
+
+    @property
+    def version(self) -> int:
+        """Stamp of the map's current content: unique in the process, drawn anew by every change (``merge``,
+        ``prune``); 0 for a map that does not keep stamps. Equal stamps mean equal lookup arrays, so copies of
+        them (the CUDA backend's device arrays) can be re-used while it is unchanged."""
+        return self._version
+
+    def _changed(self) -> None:
+        """Draw a new :attr:`version` (the arrays behind :meth:`lookup` changed)."""
+        self._version = next(_VERSIONS)
 
     @abstractmethod
     def merge(self, points_world: np.ndarray) -> None:

@@ -64,6 +64,7 @@ class MortonBVHMap(Map3D):
         self._cell_lo = np.zeros((0, 3), np.float32)
         self._cell_hi = np.zeros((0, 3), np.float32)
         self.n_dropped = 0
+        self._changed()
 
     def _rebuild_cells(self) -> None:
         cells = self._codes >> (3 * self.cell_level)
@@ -117,11 +118,13 @@ class MortonBVHMap(Map3D):
         new_codes[~is_new], new_points[~is_new] = self._codes, self._points
         self._codes, self._points = new_codes, new_points
         self._rebuild_cells()
+        self._changed()
 
     def lookup(self) -> MortonLookup:
         """The flat lookup tuple (the map's arrays, replaced by each merge: call again after merging)."""
         return MortonLookup(KIND_MORTON, self._codes, self._points, self._cell_codes, self._cell_start,
-                            self._cell_lo, self._cell_hi, self.quantum, self.cell_level, self.radius, self.sigma)
+                            self._cell_lo, self._cell_hi, self.quantum, self.cell_level, self.radius, self.sigma,
+                            self.version)
 
     def points(self) -> np.ndarray:
         """The stored points (M, 3) float32 in Morton order, world frame."""
@@ -142,6 +145,7 @@ class MortonBVHMap(Map3D):
         if dropped:
             self._codes, self._points = self._codes[keep], self._points[keep]
             self._rebuild_cells()
+            self._changed()
         return dropped
 
     def __repr__(self) -> str:

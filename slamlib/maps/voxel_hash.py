@@ -23,7 +23,8 @@ import numpy as np
 from numba import njit
 
 from slamlib.maps.base import EMPTY_KEY, KIND_VOXEL_HASH, Map3D, VoxelHashLookup, as_points
-from slamlib.maps.codes import AXIS_OFFSET, axis_index_nb, hash_slot_nb, in_range_nb, pack_key_nb
+from slamlib.maps.codes import (AXIS_MASK, AXIS_OFFSET, KEY_SHIFT_Y, KEY_SHIFT_Z, axis_index_nb, hash_slot_nb,
+                                in_range_nb, pack_key_nb)
 
 
 @njit(cache=True)
@@ -111,9 +112,9 @@ def _merge_nb(points, keys, count, s1, s2, mean, icov, voxel_size, log2_capacity
         s = slots[j]
         if s >= 0:
             key = keys[s]
-            ux = key & 0x1FFFFF
-            uy = (key >> 21) & 0x1FFFFF
-            uz = (key >> 42) & 0x1FFFFF
+            ux = key & AXIS_MASK
+            uy = (key >> KEY_SHIFT_Y) & AXIS_MASK
+            uz = (key >> KEY_SHIFT_Z) & AXIS_MASK
             _update_field(s, count, s1, s2, mean, icov, (ux - AXIS_OFFSET) * voxel_size,
                           (uy - AXIS_OFFSET) * voxel_size, (uz - AXIS_OFFSET) * voxel_size, min_sigma2)
 
@@ -193,6 +194,7 @@ class VoxelHashMap(Map3D):
         self._mean = np.zeros((capacity, 3), np.float32)
         self._icov = np.zeros((capacity, 6), np.float32)
         self._state = np.zeros(3, np.int64)  # n_voxels, max_probe, n_dropped
+        self._changed()
 
     # ------------------------------------------------------------------------------------------- interface
     def merge(self, points_world) -> None:
@@ -200,11 +202,13 @@ class VoxelHashMap(Map3D):
         pts = as_points(points_world, "points_world")
         _merge_nb(pts, self._keys, self._count, self._s1, self._s2, self._mean, self._icov, self.voxel_size,
                   self.log2_capacity, self.max_voxels, self.min_sigma**2, self._state)
+        self._changed()
 
     def lookup(self) -> VoxelHashLookup:
         """The flat lookup tuple (views of the map's buffers; call again after each merge or prune)."""
         return VoxelHashLookup(KIND_VOXEL_HASH, self._keys, self._mean, self._icov, self.voxel_size,
-                               1.0 / self.voxel_size, self.log2_capacity, int(self._state[1]), self.m_max)
+                               1.0 / self.voxel_size, self.log2_capacity, int(self._state[1]), self.m_max,
+                               self.version)
 
     def points(self) -> np.ndarray:
         """Voxel means (M, 3) float32 of the occupied voxels, world frame (for plots and PLY export)."""
@@ -247,6 +251,7 @@ class VoxelHashMap(Map3D):
         self._keys, self._count, self._s1, self._s2, self._mean, self._icov = new
         self._state[0] = int(keep.sum())
         self._state[1] = max_probe
+        self._changed()
         return evicted
 
     def __repr__(self) -> str:

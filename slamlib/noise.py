@@ -38,7 +38,8 @@ thread indexes), ``numba.njit`` (CPU), or ``numba.cuda.jit(device=True)`` (GPU; 
 :mod:`slamlib.kernels.cuda`). All arithmetic is on ``uint64`` holding 32-bit words, masked after every
 multiplication, so nothing overflows and numpy, Numba and the CUDA simulator (which runs device code on numpy
 scalars) agree bit for bit; all constants are ``np.uint64`` so Numba never promotes ``uint64 op int64`` to
-float.
+float. The same pattern builds the maps' integer codes (:func:`slamlib.maps.codes.make_code_functions`) and
+the kernels' per-point math (:func:`slamlib.kernels.device.make_point_functions`).
 
 References: Appleby, MurmurHash3 (``fmix32``); Salmon, Moraes, Dror & Shaw, "Parallel random numbers: as
 easy as 1, 2, 3", SC 2011 (counter-based generators); Vigna, xoroshiro128+ (the stateful baseline).

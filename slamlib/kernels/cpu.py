@@ -30,6 +30,9 @@ from numba import njit, prange
 from slamlib.kernels.device import make_point_functions
 from slamlib.maps.base import KIND_MORTON, KIND_VOXEL_HASH
 
+# The shared math is inlined into the kernels below. Numba's on-disk cache (cache=True) is keyed on this file's
+# timestamp only, so after editing slamlib/kernels/device.py or slamlib/maps/codes.py clear it
+# (rm -rf "$NUMBA_CACHE_DIR", _cache/numba in the Makefile) or the cached kernels keep the old math.
 _F = make_point_functions(njit(inline="always"))
 _rpy_matrix = _F["rpy_matrix"]
 _pose_times = _F["pose_times"]
@@ -148,10 +151,9 @@ def _score_voxel_nb(R, t, pts, keys, mean, icov, inv_h, log2_capacity, max_probe
     return _sum_chunks(partial)
 
 
-#: log2 of the entries of the per-task direct-mapped cache of cell look-ups in ``score_particles`` (Morton map).
+#: log2 of the entries (2**8 = 256) of the per-task direct-mapped cache of cell look-ups in ``score_particles``
+#: (Morton map).
 CELL_CACHE_BITS = 8
-#: Entries of that cache (256).
-CELL_CACHE = 1 << CELL_CACHE_BITS
 
 
 @njit(cache=True, inline="always")

@@ -32,9 +32,10 @@ Thread mapping
 * **score_particles** (step 8, fused): one **block per particle**; its threads stride over the scan points,
   transform each point by the particle's pose in registers (float64), look it up in the map (voxel map: the
   trilinear NDT term; Morton map: the brute-force scan of the 2x2x2 nearest cells, ``morton_d2``, rather than
-  the CPU's branch-and-bound, which needs a per-thread stack) and accumulate a private float64 sum; a tree reduction in shared memory (``log2(blockDim)`` halving rounds with
-  ``syncthreads``) leaves the particle's score in ``s[0]``. Memory is ``O(P + N + map)``: the ``P x N``
-  transformed points (``1000 x 120k x 12 B = 1.4 GB``) are never stored.
+  the CPU's branch-and-bound, which needs a per-thread stack) and accumulate a private float64 sum; a tree
+  reduction in shared memory (``log2(blockDim)`` halving rounds with ``syncthreads``) leaves the particle's
+  score in ``s[0]``. Memory is ``O(P + N + map)``: the ``P x N`` transformed points
+  (``1000 x 120k x 12 B = 1.4 GB``) are never stored.
 * **systematic_resample** (step 11): an inclusive **scan** (Hillis & Steele 1986, per block in shared memory;
   block totals scanned recursively, then added back: Harris et al., GPU Gems 3 ch. 39) of the weights gives
   ``c``; thread ``i`` binary-searches the first ``j`` with ``(u0 + i) / P < c[j] / c[P-1]`` (``j = P - 1`` when

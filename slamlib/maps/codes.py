@@ -27,6 +27,9 @@ Under the CUDA simulator device functions run as Python on numpy scalars, so all
 explicitly typed numpy scalars (the constants below are ``np.int64`` / ``np.uint64``, so Numba never promotes
 ``uint64 op int64`` to float), and the 64-bit hash product is formed from 32-bit halves so that no
 multiplication wraps: numpy scalars, numpy arrays, Numba and the GPU agree without overflow warnings.
+
+Numba's on-disk cache of the ``cache=True`` callers (:mod:`slamlib.maps.voxel_hash`,
+:mod:`slamlib.kernels.cpu`) is keyed on their own files: clear ``$NUMBA_CACHE_DIR`` after editing this one.
 """
 
 from __future__ import annotations

@@ -56,7 +56,7 @@ class ParticleSLAM3D:
 
     Attributes
     ----------
-    particles : :class:`~slamlib.slam3d.steps.Particles3D`; ``log_w`` their log-weights ``(P,)``.
+    particles : :class:`~slamlib.slam3d.steps.Particles3D`; ``log_weights`` their log-weights ``(P,)``.
     map : :class:`slamlib.maps.Map3D` in the world frame.
     poses : list of (4, 4) SLAM estimates ``T_world_body``, one per registered frame.
     dr_poses : list of (4, 4) dead-reckoning poses from the same IMU samples.
@@ -73,7 +73,7 @@ class ParticleSLAM3D:
         self.T_body_velo = None if T_velo_imu is None else np.linalg.inv(np.asarray(T_velo_imu, dtype=np.float64))
         self.map = cfg.map.make()
         self.T0 = np.eye(4) if T0 is None else np.asarray(T0, dtype=np.float64)
-        self.particles, self.log_w = steps.initialise_particles(cfg.filter.particles, self.T0)    # step 1
+        self.particles, self.log_weights = steps.initialise_particles(cfg.filter.particles, self.T0)  # step 1
         self.poses: list[np.ndarray] = []
         self.dr_poses: list[np.ndarray] = []
         self.n_resampled = 0
@@ -97,12 +97,12 @@ class ParticleSLAM3D:
         sigma = steps.motion_noise_sigma(imu, dt, prev, cfg.motion)
         moved = steps.perturb_with_noise(moved, sigma, self.rng, backend=be)                       # 6
         sample = sample_points(points, cfg.filter.scored_points, self.rng)
-        log_w = self._weigh(moved, self.log_w, sample)                                             # 7 + 8
+        log_w = self._weigh(moved, self.log_weights, sample)                                       # 7 + 8
         moved, log_w = self._anneal(moved, log_w, sample, sigma)  # cfg.filter.refine rounds (none by default)
         pose, best = steps.pick_best_particle(moved, log_w, cfg.filter.estimate)                   # 9
         steps.merge_scan(self.map, pose, points, be)                                               # 10
         self._record(pose, imu, dt, points, sample=sample, sigma=sigma, best=best)
-        self.particles, self.log_w, resampled = steps.resample_particles(                          # 11
+        self.particles, self.log_weights, resampled = steps.resample_particles(                    # 11
             moved, log_w, self.rng, cfg.filter.ess_fraction, be)
         self.n_resampled += int(resampled)
         return pose

@@ -93,8 +93,8 @@ def test_the_library_never_imports_benchmarks():
 
 
 def test_benchmarks_chapter_lists_every_benchmark():
-    """notebooks/05_benchmarks.ipynb imports only slamlib, so it names the benchmarks itself: keep them in step."""
-    nb = json.loads((paths.SOURCE_ROOT / "notebooks" / "05_benchmarks.ipynb").read_text())
+    """notebooks/07_benchmarks.ipynb imports only slamlib, so it names the benchmarks itself: keep them in step."""
+    nb = json.loads((paths.SOURCE_ROOT / "notebooks" / "07_benchmarks.ipynb").read_text())
     source = "".join("".join(c["source"]) for c in nb["cells"] if c["cell_type"] == "code")
     line = next(ln for ln in source.splitlines() if ln.startswith("BENCHMARKS = "))
     assert ast.literal_eval(line.split("=", 1)[1].split("#")[0].strip()) == tuple(load_benchmarks().BENCHMARKS)

@@ -6,11 +6,12 @@ import numpy as np
 import pytest
 
 import slamlib.sim1d.steps as steps1d
+import slamlib.sim2d.steps as steps2d
 import slamlib.slam3d.steps as steps3d
 from slamlib.contract import STEPS, check_steps_module
 
 
-@pytest.mark.parametrize("module", [steps1d, steps3d], ids=["1D", "3D"])
+@pytest.mark.parametrize("module", [steps1d, steps2d, steps3d], ids=["1D", "2D", "3D"])
 def test_steps_module_keeps_the_contract(module):
     assert check_steps_module(module) == []
     assert [s.number for s in STEPS] == list(range(1, 12))

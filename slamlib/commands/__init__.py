@@ -8,6 +8,7 @@ Each module listed in :data:`COMMANDS` defines ``NAME`` (the sub-command), ``HEL
 COMMANDS = {
     "bench": "slamlib.commands.bench",
     "sim1d": "slamlib.commands.sim1d",
+    "sim2d": "slamlib.commands.sim2d",
     "run": "slamlib.commands.run",
     "synth": "slamlib.commands.synth",
 }

@@ -1,0 +1,30 @@
+"""The book's figure style: one call in each chapter's set-up cell (``from slamlib.plotstyle import book_style``).
+
+The book's text column is about 690 px wide. Figures are at most :data:`MAX_FIGURE_WIDTH_IN` inches wide at
+``figure.dpi = 100``, so they are shown at (nearly) their own size, and the fonts below stay at 10 pt or more on
+the page. Matplotlib warns when placing a legend with ``loc="best"`` takes over a second; that depends only on the
+machine's load (a busy CI runner), so the warning is silenced here: otherwise it lands in a cell's stderr and
+fails the ``-W`` book build at random.
+"""
+
+from __future__ import annotations
+
+import warnings
+
+__all__ = ["BOOK_RCPARAMS", "MAX_FIGURE_WIDTH_IN", "book_style"]
+
+#: Widest figure (inches at 100 dpi) that the book's ~690 px column shows without shrinking the fonts below 10 pt.
+MAX_FIGURE_WIDTH_IN = 7.0
+
+#: Matplotlib settings of the book's figures (points; 11 pt text, 10.5 pt ticks and legends).
+BOOK_RCPARAMS = {"figure.dpi": 100, "font.size": 11, "axes.titlesize": 11, "axes.labelsize": 11,
+                 "xtick.labelsize": 10.5, "ytick.labelsize": 10.5, "legend.fontsize": 10.5,
+                 "figure.titlesize": 11}
+
+
+def book_style() -> None:
+    """Apply :data:`BOOK_RCPARAMS` and silence matplotlib's load-dependent legend-placement warning."""
+    import matplotlib.pyplot as plt
+
+    plt.rcParams.update(BOOK_RCPARAMS)
+    warnings.filterwarnings("ignore", message='Creating legend with loc="best" can be slow', category=UserWarning)

@@ -5,6 +5,7 @@ Examples::
     slamlib run --out runs/default                                   # the default synthetic drive (300 frames)
     slamlib run --full-default --out runs/full                       # the whole synthetic drive (~690 m)
     slamlib run --basedir ~/kitti --date 2011_09_26 --drive 0005 --frames 0:150 --particles 1000 --out runs/05
+    slamlib run --out runs/default --video map.mp4                   # and a video of the map being built (.gif too)
 
 Writes into ``--out``: the SLAM and dead-reckoning trajectories (KITTI and TUM formats), the ground truth,
 ``times.txt``, the map (PLY or PCD, open3d), ``metrics.json`` (ATE, RPE and the KITTI metric for SLAM and dead
@@ -55,6 +56,9 @@ def add_arguments(parser) -> None:
     o.add_argument("--map-format", choices=("ply", "pcd"), default="ply", help="map file format (default ply)")
     o.add_argument("--no-plots", action="store_true", help="do not write the PNG plots")
     o.add_argument("--no-progress", action="store_true", help="no progress bar")
+    o.add_argument("--video", type=Path, default=None, metavar="PATH",
+                   help="also write a video of the map being built (top-down map, trajectory, current pose): "
+                        "PATH ending in .mp4 (needs imageio-ffmpeg) or .gif (Pillow)")
 
 
 def _drive_hint(basedir: Path, date: str | None, drive: str | None) -> str:
@@ -83,6 +87,13 @@ def main(args) -> int:
         raise SystemExit("slamlib run: give all of --basedir, --date and --drive, or none (synthetic default drive)")
     if not args.noise >= 0:
         raise SystemExit("slamlib run: --noise must be >= 0")
+    if args.video is not None:
+        from slamlib.slam3d.video import check_video_path
+
+        try:
+            check_video_path(args.video)
+        except (ValueError, ImportError) as exc:
+            raise SystemExit(f"slamlib run: --video: {exc}") from None
     kind = OLD_MAP_NAMES.get(args.map_kind, args.map_kind)
     if kind != args.map_kind:
         print(f"slamlib run: note: --map {args.map_kind} is now called --map {kind}")
@@ -116,7 +127,12 @@ def main(args) -> int:
           f"{cfg.filter.particles} particles x {cfg.filter.scored_points} points, map {cfg.map.kind}, "
           f"backend {cfg.backend}")
     try:
-        run = run_drive(drive, cfg, progress=not args.no_progress)
+        if args.video is not None:
+            from slamlib.slam3d.video import snapshot_every_for
+
+            run = run_drive(drive, cfg, progress=not args.no_progress, snapshot_every=snapshot_every_for(len(drive)))
+        else:
+            run = run_drive(drive, cfg, progress=not args.no_progress)
     except BackendUnavailableError as exc:
         raise SystemExit(f"slamlib run: {exc}") from None
     except DataFormatError as exc:
@@ -131,5 +147,10 @@ def main(args) -> int:
         for key, label in (("slam", "particle SLAM"), ("dead_reckoning", "dead reckoning")):
             k = m[key].get("kitti_t_err_percent", float("nan"))
             print(f"{label:22s}{m[key]['ate_rmse_m']:14.3f}{k:17.3f}")
+    if args.video is not None:
+        from slamlib.slam3d.video import write_map_video
+
+        v = write_map_video(run, args.video, progress=not args.no_progress)
+        print(f"wrote {v['frames']} video frames ({v['seconds']:.1f} s, {v['bytes'] / 1e6:.2f} MB) to {args.video}")
     print(f"wrote {len(files)} files to {args.out}")
     return 0

@@ -8,7 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["plot_trajectories", "plot_map_topdown", "animate_map_building"]
+__all__ = ["plot_trajectories", "plot_map_topdown", "animate_map_building", "plot_error_over_distance",
+           "plot_maps_side_by_side", "show_map_render"]
 
 
 def _subsample(points: np.ndarray, max_points: int, seed: int = 0) -> np.ndarray:
@@ -116,3 +117,84 @@ def animate_map_building(snapshots, poses, ground_truth=None, max_points: int = 
     anim = FuncAnimation(fig, update, frames=len(snapshots), interval=interval, blit=False)
     plt.close(fig)
     return anim
+
+
+def plot_error_over_distance(poses, dead_reckoning=None, ground_truth=None, ax=None, log: bool = True, title=None):
+    """Position error |p_est - p_gt| (m) of SLAM (and dead reckoning) against the distance travelled along the
+    ground truth (m, :func:`slamlib.metrics.trajectory_distances`)."""
+    import matplotlib.pyplot as plt
+
+    from slamlib.metrics import trajectory_distances
+
+    if ground_truth is None:
+        raise ValueError("the error over distance needs the ground truth")
+    if ax is None:
+        fig, ax = plt.subplots(figsize=(6.5, 3.5))
+    else:
+        fig = ax.figure
+    dist = trajectory_distances(ground_truth)
+    if dead_reckoning is not None:
+        ax.plot(dist, np.linalg.norm(dead_reckoning[:, :3, 3] - ground_truth[:, :3, 3], axis=1), color="tab:red",
+                label="dead reckoning (IMU only)")
+    ax.plot(dist, np.linalg.norm(poses[:, :3, 3] - ground_truth[:, :3, 3], axis=1), color="tab:blue",
+            label="particle SLAM")
+    if log:
+        ax.set_yscale("log")
+    ax.set_xlabel("distance travelled (m)")
+    ax.set_ylabel("position error (m)")
+    ax.grid(True, which="major", alpha=0.3)
+    ax.legend(loc="best", fontsize=10)
+    ax.set_title(title or "Position error against ground truth")
+    return fig
+
+
+def plot_maps_side_by_side(maps: dict, ground_truth=None, figsize=(9, 4.2), max_points: int = 80_000, zlim=None,
+                           window=None):
+    """Top-down maps of several runs on the same frames, one panel each, one shared height colour scale.
+
+    ``maps``: ``{title: (map points (M, 3), SLAM poses (F, 4, 4))}``; ``ground_truth`` (F, 4, 4) is drawn in
+    black in every panel; ``window`` ``(xmin, xmax, ymin, ymax)`` metres (default: the trajectories + 40 m).
+    """
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, len(maps), figsize=figsize, sharex=True, sharey=True, squeeze=False,
+                             layout="constrained")
+    axes = axes[0]
+    allz = np.concatenate([np.asarray(p)[:, 2] for p, _ in maps.values()])
+    lo, hi = zlim if zlim is not None else np.percentile(allz, [2, 98])
+    sc = None
+    for ax, (name, (pts, poses)) in zip(axes, maps.items()):
+        m = _subsample(np.asarray(pts), max_points)
+        order = np.argsort(m[:, 2])
+        sc = ax.scatter(m[order, 0], m[order, 1], c=m[order, 2], s=0.3, lw=0, cmap="viridis", vmin=lo, vmax=hi,
+                        rasterized=True)
+        if ground_truth is not None:
+            ax.plot(ground_truth[:, 0, 3], ground_truth[:, 1, 3], "k-", lw=1.5, label="ground truth")
+        ax.plot(poses[:, 0, 3], poses[:, 1, 3], "-", color="tab:red", lw=1.2, label="SLAM")
+        ax.set_title(name, fontsize=10)
+        ax.set_xlabel("x (m)")
+        ax.set_aspect("equal", adjustable="box")
+    xy = np.vstack([p[:, :2, 3] for _, p in maps.values()])
+    if window is None:
+        window = (xy[:, 0].min() - 40, xy[:, 0].max() + 40, xy[:, 1].min() - 40, xy[:, 1].max() + 40)
+    axes[0].set_xlim(window[0], window[1])
+    axes[0].set_ylim(window[2], window[3])
+    axes[0].set_ylabel("y (m)")
+    axes[0].legend(loc="lower left", fontsize=10)
+    fig.colorbar(sc, ax=list(axes), label="height z (m)", shrink=0.8)
+    return fig
+
+
+def show_map_render(image, zlim, title=None, figsize=(9, 5.6), cmap: str = "viridis"):
+    """Show a rendered map image (:func:`slamlib.slam3d.render.render_map_3d`) with its height colour bar (m)."""
+    import matplotlib.pyplot as plt
+    from matplotlib.cm import ScalarMappable
+    from matplotlib.colors import Normalize
+
+    fig, ax = plt.subplots(figsize=figsize, layout="constrained")
+    ax.imshow(image)
+    ax.set_axis_off()
+    fig.colorbar(ScalarMappable(Normalize(*zlim), cmap), ax=ax, label="height z (m)", shrink=0.7)
+    if title:
+        ax.set_title(title, fontsize=11)
+    return fig

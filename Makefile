@@ -14,7 +14,7 @@ export NUMBA_CACHE_DIR ?= $(CURDIR)/_cache/numba
 SYSTEM_PACKAGES := libusb-1.0-0 libvulkan1 mesa-vulkan-drivers
 SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 
-.PHONY: all setup system-packages book test test-unit test-notebooks bench clean
+.PHONY: all setup system-packages book test test-unit test-notebooks bench clean mathjax browser-check
 
 all: book
 
@@ -37,7 +37,7 @@ $(VENV)/.installed: pyproject.toml requirements.lock
 	touch $@
 
 # Build the book: executes every notebook (on the embedded default data) and writes HTML under _build/html.
-book: setup
+book: setup mathjax
 	$(BIN)/jupyter-book build --all -W -n --keep-going .
 	@echo "book: open _build/html/index.html"
 
@@ -50,6 +50,34 @@ test-unit: setup
 
 bench: setup
 	$(BIN)/slamlib bench --list
+
+# MathJax 3 served from the book's own _static (sphinx `mathjax_path` in _config.yml), so pages render math
+# offline: fetched once from the npm registry into book/_static/mathjax (git-ignored), only the files that
+# tex-mml-chtml.js loads (its fonts, the TeX extensions it may autoload, the menu and a11y modules).
+MATHJAX_VERSION := 3.2.2
+MATHJAX_DIR     := book/_static/mathjax
+mathjax: $(MATHJAX_DIR)/.version-$(MATHJAX_VERSION)
+
+$(MATHJAX_DIR)/.version-$(MATHJAX_VERSION):
+	@command -v npm >/dev/null || { echo "installing npm"; $(SUDO) apt-get update -qq && \
+	  DEBIAN_FRONTEND=noninteractive $(SUDO) apt-get install -y -qq npm >/dev/null; }
+	@tmp=$$(mktemp -d) && (cd $$tmp && npm pack -q mathjax@$(MATHJAX_VERSION) >/dev/null && tar xzf mathjax-$(MATHJAX_VERSION).tgz) && \
+	rm -rf $(MATHJAX_DIR) && mkdir -p $(MATHJAX_DIR)/input/tex $(MATHJAX_DIR)/output/chtml/fonts && \
+	cp $$tmp/package/es5/tex-mml-chtml.js $$tmp/package/LICENSE $(MATHJAX_DIR)/ && \
+	cp -r $$tmp/package/es5/input/tex/extensions $(MATHJAX_DIR)/input/tex/ && \
+	cp -r $$tmp/package/es5/output/chtml/fonts/woff-v2 $(MATHJAX_DIR)/output/chtml/fonts/ && \
+	cp -r $$tmp/package/es5/ui $$tmp/package/es5/a11y $(MATHJAX_DIR)/ && \
+	rm -rf $$tmp && touch $@ && echo "mathjax $(MATHJAX_VERSION) -> $(MATHJAX_DIR)"
+
+# Loads every page of the built book (_build/html; BOOK_HTML=... for another) in headless Chromium (Debian's
+# package, driven by Playwright) and fails on JavaScript errors, failed or off-machine requests, unrendered
+# math, broken images and internal links, raw pipe tables and animations that do not play:
+# tests/browser/test_book_pages.py. Run after `make book`.
+browser-check: setup
+	@dpkg -s chromium >/dev/null 2>&1 || { echo "installing chromium"; $(SUDO) apt-get update -qq && \
+	  DEBIAN_FRONTEND=noninteractive $(SUDO) apt-get install -y -qq chromium >/dev/null; }
+	@$(BIN)/python -c "import playwright" 2>/dev/null || $(BIN)/python -m pip install -q -c requirements.lock playwright
+	BOOK_BROWSER_CHECK=1 CHROMIUM=/usr/bin/chromium $(BIN)/python -m pytest -p no:dash -p no:cacheprovider tests/browser
 
 clean:
 	rm -rf _build _cache .pytest_cache

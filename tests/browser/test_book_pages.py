@@ -1,0 +1,222 @@
+"""Every page of the built book, loaded in headless Chromium (issue 10, part 6). Run by `make browser-check`.
+
+Each page of `_build/html` (index.html, notebooks/*.html, book/*.html) is served on 127.0.0.1 and loaded
+with Playwright driving Debian's Chromium; a page fails, with a message naming it and what went wrong, on:
+
+- a JavaScript error: an uncaught exception (`pageerror`) or a console message of type error;
+- a request that failed: any request to a host other than 127.0.0.1 (they are all aborted: the book must work
+  offline, e.g. MathJax is served from the book's own `_static/mathjax`), or a local one answered >= 400;
+- math left unrendered (MathJax did not turn the page's math into `mjx-container`s);
+- an image that did not load (`img.complete && img.naturalWidth == 0`);
+- a broken internal link: an `a[href]` to a local file that is not in the build, or to `page.html#anchor`
+  with no element of that id in the page;
+- a table left as raw pipes: a paragraph whose text has `| ... |` lines and a `---` rule row;
+- an animation (matplotlib `to_jshtml`) whose frame does not change within ~1 s of pressing play.
+
+Environment: BOOK_HTML (default `_build/html`), CHROMIUM (default /usr/bin/chromium). The test runs only with
+BOOK_BROWSER_CHECK=1 (set by `make browser-check`, which installs Chromium and Playwright first), so `make test`
+(before `make book`) skips it; with it, a missing build, Playwright or Chromium is an error.
+"""
+
+from __future__ import annotations
+
+import functools
+import http.server
+import os
+import posixpath
+import re
+import shutil
+import threading
+from pathlib import Path
+from urllib.parse import unquote, urlsplit
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+BUILD = Path(os.environ.get("BOOK_HTML", ROOT / "_build" / "html")).resolve()
+CHROMIUM = os.environ.get("CHROMIUM", "/usr/bin/chromium")
+REQUIRED = os.environ.get("BOOK_BROWSER_CHECK") == "1"
+PAGE_TIMEOUT_MS = 30_000
+
+
+def _pages() -> list[str]:
+    if not (BUILD / "index.html").is_file():
+        return []
+    found = [BUILD / "index.html", *sorted(BUILD.glob("notebooks/*.html")), *sorted(BUILD.glob("book/*.html"))]
+    return [p.relative_to(BUILD).as_posix() for p in found]
+
+
+PAGES = _pages()
+
+
+if not REQUIRED:
+    pytestmark = pytest.mark.skip(reason="the browser check runs under `make browser-check` (BOOK_BROWSER_CHECK=1)")
+
+
+def _missing(why: str):
+    if REQUIRED:
+        pytest.fail(f"browser check cannot run: {why}", pytrace=False)
+    pytest.skip(why)
+
+
+class _QuietHandler(http.server.SimpleHTTPRequestHandler):
+    def log_message(self, format, *args):  # noqa: A002 - the base class's name
+        pass
+
+
+@pytest.fixture(scope="module")
+def server():
+    """The built book over HTTP on 127.0.0.1 (a free port), in a thread."""
+    handler = functools.partial(_QuietHandler, directory=str(BUILD))
+    httpd = http.server.ThreadingHTTPServer(("127.0.0.1", 0), handler)
+    thread = threading.Thread(target=httpd.serve_forever, daemon=True)
+    thread.start()
+    yield f"http://127.0.0.1:{httpd.server_address[1]}/"
+    httpd.shutdown()
+    httpd.server_close()
+
+
+@pytest.fixture(scope="module")
+def browser():
+    try:
+        from playwright.sync_api import sync_playwright
+    except ImportError:
+        _missing("playwright is not installed (make browser-check installs it)")
+    if not Path(CHROMIUM).exists() and not shutil.which(CHROMIUM):
+        _missing(f"no Chromium at {CHROMIUM} (make browser-check installs Debian's chromium)")
+    with sync_playwright() as pw:
+        b = pw.chromium.launch(executable_path=CHROMIUM, headless=True, args=["--no-sandbox"])
+        yield b
+        b.close()
+
+
+@functools.lru_cache(maxsize=None)
+def _ids(path: Path) -> frozenset[str]:
+    """The element ids (and old-style `<a name=...>` targets) in one built HTML file."""
+    text = path.read_text(encoding="utf-8", errors="replace")
+    return frozenset(unquote(m) for m in re.findall(r'\b(?:id|name)\s*=\s*["\']([^"\']+)["\']', text))
+
+
+def _check_links(base: str, hrefs: list[str]) -> list[str]:
+    problems = []
+    for href in sorted(set(hrefs)):
+        if not href.startswith(base):
+            continue  # another host, mailto:, javascript: ... not ours to check
+        parts = urlsplit(href)
+        rel = unquote(parts.path)[len(urlsplit(base).path):]
+        target = BUILD / rel
+        if rel == "" or rel.endswith("/"):
+            target = target / "index.html"
+        if not target.exists():
+            problems.append(f"broken internal link {href[len(base) - 1:]}: {target.relative_to(BUILD)} is not in the build")
+            continue
+        if parts.fragment and target.suffix == ".html" and unquote(parts.fragment) not in _ids(target):
+            problems.append(f"broken internal link {href[len(base) - 1:]}: no id {parts.fragment!r} in {rel}")
+    return problems
+
+
+_PIPE_ROW = re.compile(r"^\s*\|.*\|\s*$")
+_RULE_ROW = re.compile(r"^\s*\|?\s*:?-{3,}")
+
+
+def _raw_tables(paragraphs: list[str]) -> list[str]:
+    problems = []
+    for text in paragraphs:
+        lines = text.splitlines()
+        if any(_PIPE_ROW.match(line) for line in lines) and any(_RULE_ROW.match(line) for line in lines):
+            first = next(line for line in lines if _PIPE_ROW.match(line)).strip()
+            problems.append(f"table left as raw pipes (a <p>, not a <table>): {first[:100]!r}")
+    return problems
+
+
+# Runs in the page after load: makes lazy images load, waits for every image to settle, waits for MathJax.
+_SETTLE_JS = """async () => {
+  const imgs = Array.from(document.images);
+  imgs.forEach(i => { if (i.loading === 'lazy') i.loading = 'eager'; });
+  const settle = i => i.complete ? Promise.resolve() : new Promise(r => {
+      i.addEventListener('load', r, {once: true}); i.addEventListener('error', r, {once: true});
+      setTimeout(r, 10000); });
+  await Promise.all(imgs.map(settle));
+  if (window.MathJax && MathJax.startup && MathJax.startup.promise) {
+    await Promise.race([MathJax.startup.promise, new Promise(r => setTimeout(r, 15000))]);
+  }
+}"""
+
+_INSPECT_JS = """() => ({
+  brokenImages: Array.from(document.images)
+      .filter(i => i.complete && i.naturalWidth === 0)
+      .map(i => (i.getAttribute('src') || '(no src)').slice(0, 120)),
+  hrefs: Array.from(document.querySelectorAll('a[href]')).map(a => a.href),
+  paragraphs: Array.from(document.querySelectorAll('p')).map(p => p.textContent).filter(t => t.includes('|')),
+  mathNodes: document.querySelectorAll('.math, span.math, div.math').length,
+  mathJaxLoaded: !!(window.MathJax && MathJax.version),
+  mathRendered: document.querySelectorAll('mjx-container').length,
+  animations: Array.from(document.querySelectorAll('img[id^="_anim_img"]')).map(i => i.id),
+})"""
+
+# Presses an animation's play button and reports whether its frame (the img src) changed within ~1 s.
+_ANIMATE_JS = """async (imgId) => {
+  const img = document.getElementById(imgId);
+  const uuid = imgId.replace('_anim_img', '');
+  const root = img.closest('.animation') || document;
+  const play = root.querySelector(`button[onclick*="anim${uuid}.play_animation"]`)
+      || document.querySelector(`button[onclick*="anim${uuid}.play_animation"]`);
+  if (!play) return 'no play button found';
+  const before = img.src;
+  play.click();
+  await new Promise(r => setTimeout(r, 1000));
+  const after = img.src;
+  const pause = document.querySelector(`button[onclick*="anim${uuid}.pause_animation"]`);
+  if (pause) pause.click();
+  return before === after ? 'the frame did not change within 1 s of pressing play' : null;
+}"""
+
+
+@pytest.mark.parametrize("page_path", PAGES or ["(no built book)"])
+def test_book_page(page_path, server, browser):
+    if not PAGES:
+        _missing(f"no built book at {BUILD} (run `make book` first)")
+    problems: list[str] = []
+    context = browser.new_context()
+    page = context.new_page()
+    page.set_default_timeout(PAGE_TIMEOUT_MS)
+
+    def route(r):  # the book must not need the network: every request off this machine is refused
+        host = urlsplit(r.request.url).hostname
+        if r.request.url.startswith(("data:", "blob:", "about:")) or host == "127.0.0.1":
+            r.continue_()
+        else:
+            r.abort()
+
+    page.route("**/*", route)
+    page.on("pageerror", lambda exc: problems.append(f"JavaScript error: {exc}"))
+    page.on("console", lambda msg: problems.append(f"console error: {msg.text[:300]}") if msg.type == "error" else None)
+    page.on("requestfailed", lambda req: problems.append(
+        f"request failed: {req.url[:200]} ({req.failure or 'failed'})"
+        + ("" if urlsplit(req.url).hostname == "127.0.0.1" else " - an external host: the book must work offline")))
+    page.on("response", lambda resp: problems.append(f"HTTP {resp.status} for {resp.url[:200]}")
+            if resp.status >= 400 and not resp.url.endswith("/favicon.ico") else None)
+    try:
+        refresh = re.search(r'http-equiv="Refresh"\s+content="\d+;\s*url=([^"]+)"',
+                            (BUILD / page_path).read_text(encoding="utf-8", errors="replace"), re.I)
+        if refresh:  # index.html: a redirect to the first page, which must exist and load (checked from there)
+            target = urlsplit(server + posixpath.join(posixpath.dirname(page_path), refresh.group(1)))
+            with page.expect_navigation(url=lambda url: urlsplit(url).path == target.path, wait_until="load"):
+                page.goto(server + page_path)
+        else:
+            page.goto(server + page_path, wait_until="load")
+        page.evaluate(_SETTLE_JS)
+        info = page.evaluate(_INSPECT_JS)
+        problems += [f"image did not load: {src}" for src in info["brokenImages"]]
+        problems += _check_links(server, info["hrefs"])
+        problems += _raw_tables(info["paragraphs"])
+        if info["mathNodes"] and not info["mathRendered"]:
+            problems.append(f"{info['mathNodes']} math element(s) not rendered (MathJax loaded: {info['mathJaxLoaded']})")
+        for img_id in info["animations"]:
+            why = page.evaluate(_ANIMATE_JS, img_id)
+            if why:
+                problems.append(f"animation {img_id}: {why}")
+    finally:
+        context.close()
+    if problems:
+        pytest.fail(f"{page_path}: {len(problems)} problem(s):\n  - " + "\n  - ".join(problems), pytrace=False)

@@ -14,7 +14,7 @@ export NUMBA_CACHE_DIR ?= $(CURDIR)/_cache/numba
 SYSTEM_PACKAGES := libusb-1.0-0 libvulkan1 mesa-vulkan-drivers
 SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 
-.PHONY: all setup system-packages book test test-unit test-notebooks bench clean mathjax browser-check
+.PHONY: all setup system-packages book test test-unit test-notebooks bench clean mathjax browser-check lab
 
 all: book
 
@@ -50,6 +50,11 @@ test-unit: setup
 
 bench: setup
 	$(BIN)/slamlib bench --list
+
+# Every chapter live (widgets, FULL runs): JupyterLab on notebooks/ in the book's environment (installed on first use).
+lab: setup
+	@$(BIN)/python -c "import jupyterlab" 2>/dev/null || $(BIN)/python -m pip install -q -c requirements.lock jupyterlab
+	$(BIN)/jupyter lab notebooks/
 
 # MathJax 3 served from the book's own _static (sphinx `mathjax_path` in _config.yml), so pages render math
 # offline: fetched once from the npm registry into book/_static/mathjax (git-ignored), only the files that

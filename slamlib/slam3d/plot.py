@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 __all__ = ["plot_trajectories", "plot_map_topdown", "animate_map_building", "plot_error_over_distance",
-           "plot_maps_side_by_side", "show_map_render"]
+           "plot_maps_side_by_side", "show_map_render", "draw_snapshot"]
 
 
 def _subsample(points: np.ndarray, max_points: int, seed: int = 0) -> np.ndarray:
@@ -78,6 +78,20 @@ def plot_map_topdown(map_points, poses=None, ax=None, max_points: int = 200_000,
     return fig
 
 
+def draw_snapshot(snapshots, j, poses, ground_truth, scatter, line, gt_line, max_points: int) -> int:
+    """Point the artists at snapshot ``j`` ``(position k, map points, pose)``: the map so far (``scatter``, at most
+    ``max_points`` points, coloured by height), the SLAM trajectory (``line``) and the ground truth (``gt_line``)
+    up to ``k``. Shared by :func:`animate_map_building` and :mod:`slamlib.slam3d.video`; returns ``k``."""
+    k, pts, _ = snapshots[j]
+    pts = _subsample(np.asarray(pts), max_points, seed=j)
+    scatter.set_offsets(pts[:, :2])
+    scatter.set_array(pts[:, 2])
+    line.set_data(poses[: k + 1, 0, 3], poses[: k + 1, 1, 3])
+    if ground_truth is not None:
+        gt_line.set_data(ground_truth[: k + 1, 0, 3], ground_truth[: k + 1, 1, 3])
+    return k
+
+
 def animate_map_building(snapshots, poses, ground_truth=None, max_points: int = 15_000, interval: int = 200,
                          figsize=(6, 5), dpi: int = 80):
     """``FuncAnimation`` of the map growing: one frame per snapshot ``(position k, map points, pose)``.
@@ -104,13 +118,7 @@ def animate_map_building(snapshots, poses, ground_truth=None, max_points: int = 
     ax.legend(loc="upper left", fontsize=7)
 
     def update(j):
-        k, pts, _ = snapshots[j]
-        pts = _subsample(np.asarray(pts), max_points, seed=j)
-        sc.set_offsets(pts[:, :2])
-        sc.set_array(pts[:, 2])
-        line.set_data(poses[: k + 1, 0, 3], poses[: k + 1, 1, 3])
-        if ground_truth is not None:
-            gt_line.set_data(ground_truth[: k + 1, 0, 3], ground_truth[: k + 1, 1, 3])
+        k = draw_snapshot(snapshots, j, poses, ground_truth, sc, line, gt_line, max_points)
         ax.set_title(f"map after frame {k}: {len(snapshots[j][1]):,} elements")
         return sc, line, gt_line
 

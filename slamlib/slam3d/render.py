@@ -15,6 +15,8 @@ import sys
 
 import numpy as np
 
+from slamlib.slam3d.plot import _subsample
+
 __all__ = ["render_map_3d", "offscreen_available", "height_colours", "default_camera"]
 
 
@@ -90,12 +92,6 @@ def offscreen_available() -> bool:
         return img.shape[:2] == (16, 16)
     except Exception:  # no open3d, no EGL/Vulkan driver, no rendering module in this build
         return False
-
-
-def _subsample(points: np.ndarray, max_points: int, seed: int = 0) -> np.ndarray:
-    if len(points) <= max_points:
-        return points
-    return points[np.random.default_rng(seed).choice(len(points), max_points, replace=False)]
 
 
 def render_map_3d(points, poses=None, size=(640, 400), engine: str = "auto", zlim=None, max_points: int = 400_000,

@@ -69,7 +69,7 @@ def map_video_frames(snapshots, poses, ground_truth=None, size=(640, 480), max_p
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    from slamlib.slam3d.render import _subsample
+    from slamlib.slam3d.plot import draw_snapshot
 
     if not snapshots:
         raise ValueError("the run has no snapshots: run_drive(..., snapshot_every=n) keeps them")
@@ -100,13 +100,8 @@ def map_video_frames(snapshots, poses, ground_truth=None, size=(640, 480), max_p
     ax.legend(loc="upper left", fontsize=10)
     title = ax.set_title("", fontsize=10)
     try:
-        for j, (k, pts, pose) in enumerate(snapshots):
-            pts = _subsample(np.asarray(pts), max_points, seed=j)
-            sc.set_offsets(pts[:, :2])
-            sc.set_array(pts[:, 2])
-            line.set_data(poses[: k + 1, 0, 3], poses[: k + 1, 1, 3])
-            if ground_truth is not None:
-                gt_line.set_data(ground_truth[: k + 1, 0, 3], ground_truth[: k + 1, 1, 3])
+        for j, (_, _, pose) in enumerate(snapshots):
+            k = draw_snapshot(snapshots, j, poses, ground_truth, sc, line, gt_line, max_points)
             yaw = np.arctan2(pose[1, 0], pose[0, 0])
             c, s_ = np.cos(yaw), np.sin(yaw)
             car.set_data([pose[0, 3]], [pose[1, 3]])

@@ -173,6 +173,8 @@ def test_offset_by_motion_matches_the_dead_reckoning_increment():
         assert np.allclose(make_pose(p2.R[i], p2.t[i]), expected, atol=1e-12)
     rpy, dp = motion_increment((v1, w1), 0.1, (v0, w0))
     assert np.allclose(make_pose(rpy_to_matrix(rpy), dp), dr[1], atol=1e-12)
+    given = offset_by_motion(p, (v1, w1), 0.1, (v0, w0), CPU, increment=(rpy, dp))  # precomputed: the same move
+    assert np.array_equal(given.R, p2.R) and np.array_equal(given.t, p2.t)
     # without the previous sample, the current twist is held over dt
     held = dead_reckon(np.array([v1, v1]), np.array([w1, w1]), np.array([0.0, 0.1]))
     assert np.allclose(offset_by_motion(p, (v1, w1), 0.1).poses(), p.poses() @ held[1], atol=1e-12)

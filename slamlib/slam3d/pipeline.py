@@ -93,15 +93,16 @@ class ParticleSLAM3D:
         dt = steps.read_timing(frame)                                                              # 4
         if prev is None:  # first frame: the map starts at the start pose
             return self._start(points, imu)
-        moved = steps.offset_by_motion(self.particles, imu, dt, prev, be)                          # 5
-        sigma = steps.motion_noise_sigma(imu, dt, prev, cfg.motion)
+        increment = steps.motion_increment(imu, dt, prev)  # once: steps 5 and 6 and the dead-reckoning twin
+        moved = steps.offset_by_motion(self.particles, imu, dt, prev, be, increment)               # 5
+        sigma = cfg.motion.sigma(increment[1], dt)  # = steps.motion_noise_sigma(imu, dt, prev, cfg.motion)
         moved = steps.perturb_with_noise(moved, sigma, self.rng, backend=be)                       # 6
         sample = sample_points(points, cfg.filter.scored_points, self.rng)
         log_w = self._weigh(moved, self.log_weights, sample)                                       # 7 + 8
         moved, log_w = self._anneal(moved, log_w, sample, sigma)  # cfg.filter.refine rounds (none by default)
         pose, best = steps.pick_best_particle(moved, log_w, cfg.filter.estimate)                   # 9
         steps.merge_scan(self.map, pose, points, be)                                               # 10
-        self._record(pose, imu, dt, points, sample=sample, sigma=sigma, best=best)
+        self._record(pose, imu, increment, points, sample=sample, sigma=sigma, best=best)
         self.particles, self.log_weights, resampled = steps.resample_particles(                    # 11
             moved, log_w, self.rng, cfg.filter.ess_fraction, be)
         self.n_resampled += int(resampled)
@@ -127,15 +128,13 @@ class ParticleSLAM3D:
     def _start(self, points, imu) -> np.ndarray:
         """The first frame: step 10 at the start pose, which is also the first pose of both trajectories."""
         steps.merge_scan(self.map, self.T0, points, self.backend)
-        self._record(self.T0, imu, 0.0, points)
+        self._record(self.T0, imu, None, points)
         return self.poses[-1]
 
-    def _record(self, pose, imu, dt, points, **last) -> None:
-        """Bookkeeping after step 10: the SLAM pose, the dead-reckoning twin, the IMU sample, map pruning."""
-        if self.dr_poses:
-            T_dr = self.dr_poses[-1] @ increment_matrix(*steps.motion_increment(imu, dt, self.imu_prev))
-        else:
-            T_dr = self.T0
+    def _record(self, pose, imu, increment, points, **last) -> None:
+        """Bookkeeping after step 10: the SLAM pose, the dead-reckoning twin (moved by this frame's IMU
+        ``increment``, None on the first frame), the IMU sample, map pruning."""
+        T_dr = self.T0 if increment is None else self.dr_poses[-1] @ increment_matrix(*increment)
         self.poses.append(np.asarray(pose, dtype=np.float64))
         self.dr_poses.append(np.asarray(T_dr, dtype=np.float64))
         self.imu_prev = imu

@@ -13,13 +13,16 @@ from __future__ import annotations
 import re
 import warnings
 
-__all__ = ["BOOK_RCPARAMS", "MAX_FIGURE_WIDTH_IN", "animation_html", "book_style"]
+__all__ = ["BOOK_DPI", "BOOK_RCPARAMS", "MAX_FIGURE_WIDTH_IN", "animation_html", "book_style"]
 
 #: Widest figure (inches at 100 dpi) that the book's ~690 px column shows without shrinking the fonts below 10 pt.
 MAX_FIGURE_WIDTH_IN = 7.0
 
+#: Pixels per inch of the book's figures and animation frames: 1 pt of font is BOOK_DPI / 72 px on the page.
+BOOK_DPI = 100
+
 #: Matplotlib settings of the book's figures (points; 11 pt text, 10.5 pt ticks and legends).
-BOOK_RCPARAMS = {"figure.dpi": 100, "font.size": 11, "axes.titlesize": 11, "axes.labelsize": 11,
+BOOK_RCPARAMS = {"figure.dpi": BOOK_DPI, "font.size": 11, "axes.titlesize": 11, "axes.labelsize": 11,
                  "xtick.labelsize": 10.5, "ytick.labelsize": 10.5, "legend.fontsize": 10.5,
                  "figure.titlesize": 11}
 

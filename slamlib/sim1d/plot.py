@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from slamlib.plotstyle import BOOK_DPI, MAX_FIGURE_WIDTH_IN
+
 __all__ = ["animate_run", "plot_map", "plot_result", "plot_world"]
 
 
@@ -15,7 +17,7 @@ def plot_world(recording, ax=None, frame: int | None = None):
     """The line world: landmarks (ticks), the colonnade span, the vehicle's path and, optionally, one frame's scan."""
     import matplotlib.pyplot as plt
 
-    fig, ax = (ax.figure, ax) if ax is not None else plt.subplots(figsize=(9, 2.2))
+    fig, ax = (ax.figure, ax) if ax is not None else plt.subplots(figsize=(MAX_FIGURE_WIDTH_IN, 2.6))
     world = recording.world
     c0, c1, spacing = world.colonnade
     if spacing > 0:
@@ -34,7 +36,7 @@ def plot_world(recording, ax=None, frame: int | None = None):
         ax.axvspan(xk - r, xk + r, color="C3", alpha=0.08, label="sensor range")
     ax.set_yticks([])
     ax.set_xlabel("x (m)")
-    ax.legend(loc="upper left", fontsize=7, ncol=3, framealpha=0.9)
+    ax.legend(loc="upper left", ncol=2, framealpha=0.9)
     ax.set_ylim(0, 1.35)
     return fig
 
@@ -43,7 +45,7 @@ def plot_map(grid, ax=None, landmarks_true=None, landmarks_estimated=None, xlim=
     """The occupancy-count grid as a bar plot, with true (black) and extracted (orange) landmarks."""
     import matplotlib.pyplot as plt
 
-    fig, ax = (ax.figure, ax) if ax is not None else plt.subplots(figsize=(9, 2.5))
+    fig, ax = (ax.figure, ax) if ax is not None else plt.subplots(figsize=(MAX_FIGURE_WIDTH_IN, 2.8))
     nz = grid.counts > 0
     ax.bar(grid.centres[nz], grid.counts[nz], width=grid.resolution, color="C0", label=label)
     if landmarks_true is not None:
@@ -56,7 +58,7 @@ def plot_map(grid, ax=None, landmarks_true=None, landmarks_estimated=None, xlim=
         ax.set_xlim(*xlim)
     ax.set_xlabel("x (m)")
     ax.set_ylabel("returns per cell")
-    ax.legend(fontsize=7, loc="upper right")
+    ax.legend(loc="upper right")
     return fig
 
 
@@ -64,14 +66,14 @@ def plot_result(result, max_range: float | None = None):
     """Three panels: position over time (true, SLAM, dead reckoning), |error| over time, map vs true landmarks."""
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(3, 1, figsize=(9, 8), gridspec_kw={"height_ratios": [2, 1.4, 1.4]})
+    fig, axes = plt.subplots(3, 1, figsize=(MAX_FIGURE_WIDTH_IN, 7.5), gridspec_kw={"height_ratios": [2, 1.4, 1.4]})
     t = result.times
     ax = axes[0]
     ax.plot(t, result.true_positions, "k", lw=2, label="true")
     ax.plot(t, result.estimated, "C0", lw=1.2, label="particle SLAM (best particle)")
     ax.plot(t, result.dead_reckoned, "C3--", lw=1.2, label="dead reckoning (velocity only)")
     ax.set_ylabel("x (m)")
-    ax.legend(fontsize=8)
+    ax.legend()
     ax.set_title("position")
     ax = axes[1]
     floor = 1e-3  # log axis: errors below 1 mm drawn at 1 mm
@@ -81,7 +83,7 @@ def plot_result(result, max_range: float | None = None):
     ax.set_yscale("log")
     ax.set_ylabel("|error| (m, log)")
     ax.set_xlabel("t (s)")
-    ax.legend(fontsize=8)
+    ax.legend()
     lo = result.true_positions.min() - (max_range or 10.0)
     hi = result.true_positions.max() + (max_range or 10.0)
     plot_map(result.grid, axes[2], result.landmarks_true, result.landmarks_estimated, xlim=(lo, hi),
@@ -90,13 +92,15 @@ def plot_result(result, max_range: float | None = None):
     return fig
 
 
-def animate_run(result, n_frames: int = 60, figsize=(7, 3), interval: int = 100, dpi: int = 60,
+def animate_run(result, n_frames: int = 60, figsize=(MAX_FIGURE_WIDTH_IN, 4.2), interval: int = 100,
+                dpi: int = BOOK_DPI,
                 window: float = 0.5):
     """A ``FuncAnimation`` of the filter: particles (weighted), truth, estimate and the map growing.
 
     Uses ``result.particle_history``, ``weight_history`` and ``map_history`` (run with ``keep_history=True``),
     subsampled to ``n_frames`` frames; ``window`` is the half-width (m) of the particle panel around the truth,
-    ``dpi`` the resolution of the frames (keep it low: ``to_jshtml`` embeds every frame as a PNG). The caller
+    ``dpi`` the resolution of the frames (the book's, so that its fonts read at 10 pt or more; ``to_jshtml`` embeds
+    every frame as a PNG, so keep ``n_frames`` modest). The caller
     closes the figure (``plt.close(anim._fig)``) after rendering, e.g. with ``anim.to_jshtml()``.
     """
     import matplotlib.pyplot as plt
@@ -118,19 +122,17 @@ def animate_run(result, n_frames: int = 60, figsize=(7, 3), interval: int = 100,
     best_line = ax_p.axvline(0, color="C2", lw=1.2, label="best particle")
     dr_line = ax_p.axvline(0, color="C3", ls="--", lw=1.2, label="dead reckoning")
     ax_p.set_xlim(-window, window)
-    ax_p.set_ylim(0, 5)
-    ax_p.set_xlabel("position relative to truth (m)", fontsize=7)
-    ax_p.tick_params(labelsize=6)
-    ax_p.legend(fontsize=5, loc="upper left", ncol=2)
+    ax_p.set_ylim(0, 6.5)  # headroom for the legend above the cloud
+    ax_p.set_xlabel("position relative to truth (m)")
+    ax_p.legend(loc="upper left", ncol=2)
     (map_line,) = ax_m.plot(centres, np.zeros(centres.size), color="C0", lw=0.8, label="map counts")
     ax_m.vlines(result.landmarks_true, -0.08 * ymax, 0, color="k", lw=1, label="true landmarks")
     vehicle = ax_m.axvline(0, color="C3", lw=1, label="vehicle")
     ax_m.set_xlim(lo, hi)
     ax_m.set_ylim(-0.08 * ymax, ymax * 1.05)
-    ax_m.set_xlabel("x (m)", fontsize=7)
-    ax_m.tick_params(labelsize=6)
-    ax_m.legend(fontsize=5, loc="upper right", ncol=3)
-    title = fig.suptitle("", fontsize=7)
+    ax_m.set_xlabel("x (m)")
+    ax_m.legend(loc="upper right", ncol=3)
+    title = fig.suptitle("\n")  # two lines, as in draw(), so tight_layout leaves room
     fig.tight_layout()
 
     def draw(i):
@@ -143,7 +145,7 @@ def animate_run(result, n_frames: int = 60, figsize=(7, 3), interval: int = 100,
         map_line.set_ydata(result.map_history[k, cells])
         vehicle.set_xdata([x_true] * 2)
         title.set_text(f"frame {k}, t = {result.times[k]:.1f} s: best particle off by "
-                       f"{result.estimated[k] - x_true:+.3f} m, dead reckoning by "
+                       f"{result.estimated[k] - x_true:+.3f} m,\ndead reckoning by "
                        f"{result.dead_reckoned[k] - x_true:+.2f} m")
         return [cloud, best_line, dr_line, map_line, vehicle, title]
 

@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from slamlib.plotstyle import BOOK_DPI, MAX_FIGURE_WIDTH_IN
+
 __all__ = ["animate_run", "draw_world", "plot_errors", "plot_heading_lever", "plot_map", "plot_particles",
            "plot_trajectories", "plot_world"]
 
@@ -40,7 +42,7 @@ def plot_world(recording, frame: int | None = None, ax=None, rays: bool = True):
 
     from slamlib.sim2d.steps import transform_scan
 
-    fig, ax = (ax.figure, ax) if ax is not None else plt.subplots(figsize=(8, 5.5))
+    fig, ax = (ax.figure, ax) if ax is not None else plt.subplots(figsize=(MAX_FIGURE_WIDTH_IN, 4.8))
     draw_world(recording.world, ax)
     ax.plot(*recording.true_poses[:, :2].T, color="C0", lw=1, label="route (true path)")
     if frame is not None:
@@ -73,7 +75,7 @@ def plot_heading_lever(recording, frame: int, dtheta_deg: float = 2.0, dxy: floa
     rotated = transform_scan(pose + [0, 0, dth], q)
     side = np.array([-np.sin(pose[2]), np.cos(pose[2])]) * dxy
     shifted = truth + side
-    fig, (ax0, ax1) = plt.subplots(1, 2, figsize=(9, 3.8), gridspec_kw={"width_ratios": [1.4, 1]})
+    fig, (ax0, ax1) = plt.subplots(1, 2, figsize=(MAX_FIGURE_WIDTH_IN, 3.0), gridspec_kw={"width_ratios": [1.4, 1]})
     draw_world(recording.world, ax0, color="0.6", lw=0.8)
     ax0.plot(*truth.T, ".", color="k", ms=3, label="scan at the true pose")
     ax0.plot(*rotated.T, ".", color="C3", ms=3, label=f"heading off by {dtheta_deg:g} deg")
@@ -94,7 +96,7 @@ def plot_map(world_map, ax=None, world=None, title: str | None = None, window=No
     """The map as its ``kind`` scores it: saturated hit density (density grid) or the likelihood field ``F``."""
     import matplotlib.pyplot as plt
 
-    fig, ax = (ax.figure, ax) if ax is not None else plt.subplots(figsize=(8, 5.5))
+    fig, ax = (ax.figure, ax) if ax is not None else plt.subplots(figsize=(MAX_FIGURE_WIDTH_IN, 4.8))
     img = world_map.density() if world_map.kind == "density" else world_map.field
     im = ax.imshow(img, origin="lower", extent=world_map.extent, cmap="Greys", vmin=0, vmax=1,
                    interpolation="nearest")
@@ -138,7 +140,7 @@ def plot_trajectories(result, world=None, ax=None, label: str = "particle SLAM")
     """True path, SLAM estimate and dead reckoning in the plane."""
     import matplotlib.pyplot as plt
 
-    fig, ax = (ax.figure, ax) if ax is not None else plt.subplots(figsize=(8, 5.5))
+    fig, ax = (ax.figure, ax) if ax is not None else plt.subplots(figsize=(MAX_FIGURE_WIDTH_IN, 4.8))
     if world is not None:
         draw_world(world, ax, color="0.6", lw=0.8)
     ax.plot(*result.true_poses[:, :2].T, "k", lw=2.5, label="truth")
@@ -156,7 +158,7 @@ def plot_errors(results: dict, dead_reckoning=None):
     """Position error (log) and heading error over time for named results (and dead reckoning)."""
     import matplotlib.pyplot as plt
 
-    fig, (ax0, ax1) = plt.subplots(2, 1, figsize=(9, 4.8), sharex=True)
+    fig, (ax0, ax1) = plt.subplots(2, 1, figsize=(MAX_FIGURE_WIDTH_IN, 4.6), sharex=True)
     for i, (name, res) in enumerate(results.items()):
         ax0.plot(res.times, np.maximum(res.slam_error, 1e-3), color=f"C{i}", lw=1, label=name)
         ax1.plot(res.times, np.degrees(res.slam_heading_error), color=f"C{i}", lw=1, label=name)
@@ -174,12 +176,12 @@ def plot_errors(results: dict, dead_reckoning=None):
     return fig
 
 
-def animate_run(result, recording, n_frames: int = 40, figsize=(8, 3.6), dpi: int = 50, interval: int = 150,
-                window: float = 0.3):
+def animate_run(result, recording, n_frames: int = 40, figsize=(MAX_FIGURE_WIDTH_IN, 3.1), dpi: int = BOOK_DPI,
+                interval: int = 150, window: float = 0.3):
     """A ``FuncAnimation``: the paths and the current scan (placed by the estimate) over the world, and the
     particle cloud relative to the truth (``window`` metres half-width). Needs ``keep_history=True``; the caller
-    renders it (``anim.to_jshtml()``) and closes the figure (``plt.close(anim._fig)``). Keep ``dpi`` and
-    ``n_frames`` low: every frame is embedded as a PNG."""
+    renders it (``anim.to_jshtml()``) and closes the figure (``plt.close(anim._fig)``). Keep
+    ``n_frames`` low: every frame is embedded as a PNG (at the book's ``dpi``, so the fonts stay legible)."""
     import matplotlib.pyplot as plt
     from matplotlib.animation import FuncAnimation
 

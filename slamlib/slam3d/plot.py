@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from slamlib.plotstyle import BOOK_DPI, MAX_FIGURE_WIDTH_IN
+
 __all__ = ["plot_trajectories", "plot_map_topdown", "animate_map_building", "plot_error_over_distance",
            "plot_maps_side_by_side", "show_map_render", "draw_snapshot"]
 
@@ -46,7 +48,7 @@ def plot_trajectories(poses, dead_reckoning=None, ground_truth=None, map_points=
     ax.set_aspect("equal", adjustable="datalim")
     ax.set_xlabel("x (m, world = first IMU pose)")
     ax.set_ylabel("y (m)")
-    ax.legend(loc="best", fontsize=8)
+    ax.legend(loc="best", fontsize=10)
     ax.set_title(title or "Trajectory with and without SLAM")
     return fig
 
@@ -59,7 +61,7 @@ def plot_map_topdown(map_points, poses=None, ax=None, max_points: int = 200_000,
     import matplotlib.pyplot as plt
 
     if ax is None:
-        fig, ax = plt.subplots(figsize=(8, 7))
+        fig, ax = plt.subplots(figsize=(MAX_FIGURE_WIDTH_IN, 6.1))
     else:
         fig = ax.figure
     m = _subsample(np.asarray(map_points), max_points)
@@ -70,7 +72,7 @@ def plot_map_topdown(map_points, poses=None, ax=None, max_points: int = 200_000,
     fig.colorbar(sc, ax=ax, label="height z (m)", shrink=0.8)
     if poses is not None:
         ax.plot(poses[:, 0, 3], poses[:, 1, 3], "r-", lw=1.2, label="SLAM trajectory")
-        ax.legend(loc="best", fontsize=8)
+        ax.legend(loc="best", fontsize=10)
     ax.set_aspect("equal", adjustable="datalim")
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
@@ -93,7 +95,7 @@ def draw_snapshot(snapshots, j, poses, ground_truth, scatter, line, gt_line, max
 
 
 def animate_map_building(snapshots, poses, ground_truth=None, max_points: int = 15_000, interval: int = 200,
-                         figsize=(6, 5), dpi: int = 80):
+                         figsize=(6, 5), dpi: int = BOOK_DPI):
     """``FuncAnimation`` of the map growing: one frame per snapshot ``(position k, map points, pose)``.
 
     Each frame shows the map so far (top-down, coloured by height, at most ``max_points`` points), the SLAM
@@ -115,7 +117,7 @@ def animate_map_building(snapshots, poses, ground_truth=None, max_points: int = 
     sc = ax.scatter([], [], s=0.4, c=[], cmap="viridis", vmin=lo, vmax=hi, lw=0)
     (gt_line,) = ax.plot([], [], "k-", lw=1.0, label="ground truth")
     (line,) = ax.plot([], [], "r-", lw=1.5, label="SLAM")
-    ax.legend(loc="upper left", fontsize=7)
+    ax.legend(loc="upper left", fontsize=10)
 
     def update(j):
         k = draw_snapshot(snapshots, j, poses, ground_truth, sc, line, gt_line, max_points)
@@ -156,8 +158,8 @@ def plot_error_over_distance(poses, dead_reckoning=None, ground_truth=None, ax=N
     return fig
 
 
-def plot_maps_side_by_side(maps: dict, ground_truth=None, figsize=(9, 4.2), max_points: int = 80_000, zlim=None,
-                           window=None):
+def plot_maps_side_by_side(maps: dict, ground_truth=None, figsize=(MAX_FIGURE_WIDTH_IN, 3.3), max_points: int = 80_000,
+                           zlim=None, window=None):
     """Top-down maps of several runs on the same frames, one panel each, one shared height colour scale.
 
     ``maps``: ``{title: (map points (M, 3), SLAM poses (F, 4, 4))}``; ``ground_truth`` (F, 4, 4) is drawn in
@@ -193,7 +195,7 @@ def plot_maps_side_by_side(maps: dict, ground_truth=None, figsize=(9, 4.2), max_
     return fig
 
 
-def show_map_render(image, zlim, title=None, figsize=(9, 5.6), cmap: str = "viridis"):
+def show_map_render(image, zlim, title=None, figsize=(MAX_FIGURE_WIDTH_IN, 4.4), cmap: str = "viridis"):
     """Show a rendered map image (:func:`slamlib.slam3d.render.render_map_3d`) with its height colour bar (m)."""
     import matplotlib.pyplot as plt
     from matplotlib.cm import ScalarMappable

@@ -11,7 +11,12 @@ with Playwright driving Debian's Chromium; a page fails, with a message naming i
 - a broken internal link: an `a[href]` to a local file that is not in the build, or to `page.html#anchor`
   with no element of that id in the page;
 - a table left as raw pipes: a paragraph whose text has `| ... |` lines and a `---` rule row;
-- an animation (matplotlib `to_jshtml`) whose frame does not change within ~1 s of pressing play.
+- an animation (matplotlib `to_jshtml`) whose frame does not change within ~1 s of pressing play;
+- a figure or animation frame shrunk to fit the column below `MIN_FIGURE_SCALE` of its own size: the book draws
+  its fonts at 11 pt (10.5 pt ticks) at `slamlib.plotstyle.BOOK_DPI`, so they stay at >= 10 pt on the page only
+  if the image is shown at (nearly) its own size, on a desktop window of `VIEWPORT`;
+- an output image (not an animation) without a numbered caption: every figure is a myst-nb figure
+  (`mystnb.figure` cell metadata, a `<figure>` with a `<figcaption>`) that the prose can cite with `{numref}`.
 
 Environment: BOOK_HTML (default `_build/html`), CHROMIUM (default /usr/bin/chromium). The test runs only with
 BOOK_BROWSER_CHECK=1 (set by `make browser-check`, which installs Chromium and Playwright first), so `make test`
@@ -37,6 +42,10 @@ BUILD = Path(os.environ.get("BOOK_HTML", ROOT / "_build" / "html")).resolve()
 CHROMIUM = os.environ.get("CHROMIUM", "/usr/bin/chromium")
 REQUIRED = os.environ.get("BOOK_BROWSER_CHECK") == "1"
 PAGE_TIMEOUT_MS = 30_000
+#: A desktop browser window (CSS px); the book's text column is then about 690 px wide.
+VIEWPORT = {"width": 1280, "height": 900}
+#: Smallest displayed / natural width of a figure: 11 pt text then shows at >= 10 pt.
+MIN_FIGURE_SCALE = 10 / 11
 
 
 def _pages() -> list[str]:
@@ -152,6 +161,11 @@ _INSPECT_JS = """() => ({
   mathJaxLoaded: !!(window.MathJax && MathJax.version),
   mathRendered: document.querySelectorAll('mjx-container').length,
   animations: Array.from(document.querySelectorAll('img[id^="_anim_img"]')).map(i => i.id),
+  outputImages: Array.from(document.querySelectorAll('.cell_output img'))
+      .filter(i => i.naturalWidth > 0 && i.getClientRects().length > 0)   // loaded and not in a folded cell
+      .map(i => ({src: i.id || (i.getAttribute('src') || '').slice(0, 80), natural: i.naturalWidth,
+                  shown: i.getBoundingClientRect().width, animation: i.id.startsWith('_anim_img'),
+                  captioned: !!(i.closest('figure') && i.closest('figure').querySelector('figcaption'))})),
 })"""
 
 # Presses an animation's play button and reports whether its frame (the img src) changed within ~1 s.
@@ -177,7 +191,7 @@ def test_book_page(page_path, server, browser):
     if not PAGES:
         _missing(f"no built book at {BUILD} (run `make book` first)")
     problems: list[str] = []
-    context = browser.new_context()
+    context = browser.new_context(viewport=VIEWPORT)
     page = context.new_page()
     page.set_default_timeout(PAGE_TIMEOUT_MS)
 
@@ -212,6 +226,13 @@ def test_book_page(page_path, server, browser):
         problems += _raw_tables(info["paragraphs"])
         if info["mathNodes"] and not info["mathRendered"]:
             problems.append(f"{info['mathNodes']} math element(s) not rendered (MathJax loaded: {info['mathJaxLoaded']})")
+        for im in info["outputImages"]:
+            if im["shown"] < MIN_FIGURE_SCALE * im["natural"]:
+                problems.append(f"image {im['src']} is {im['natural']} px wide but shown at {im['shown']:.0f} px: "
+                                f"its fonts fall below 10 pt (draw it at most "
+                                f"{im['shown'] / MIN_FIGURE_SCALE / 100:.1f} in wide at 100 dpi)")
+            if not im["animation"] and not im["captioned"]:
+                problems.append(f"image {im['src']} has no numbered caption (give its cell mystnb.figure metadata)")
         for img_id in info["animations"]:
             why = page.evaluate(_ANIMATE_JS, img_id)
             if why:

@@ -333,3 +333,43 @@ def test_score_peaks_on_a_real_kitti_scan(kind):
         (t if axis < 3 else rpy)[:, axis % 3] = offs
         best = offs[np.argmax(cpu.score_particles(rpy_to_matrix(rpy), t, query, m.lookup()))]
         assert abs(best) <= (0.05 if axis < 3 else np.deg2rad(0.2)) + 1e-9, (kind, axis, best)
+
+
+def test_voxel_hash_statistics_after_merging_one_point():
+    """One point: its voxel's mean is the point and its inverse covariance ``(0 + min_sigma^2 I)^-1 = 400 I``;
+    the voxel's centre (0.25, 0.25, 0.25), where the trilinear score reads that voxel alone, is
+    ``d = (0.15, 0.05, -0.05)`` from the mean and costs ``-0.5 * 400 * |d|^2 = -5.5``, not the best possible 0."""
+    m = VoxelHashMap(voxel_size=0.5, capacity=2**6, min_sigma=0.05)
+    m.merge(np.array([[0.1, 0.2, 0.3]], np.float32))
+    assert len(m) == 1 and m.counts().tolist() == [1]
+    np.testing.assert_allclose(m.points(), [[0.1, 0.2, 0.3]], atol=1e-7)
+    lk = m.lookup()
+    s = int(np.flatnonzero(lk.keys != EMPTY_KEY)[0])
+    np.testing.assert_allclose(lk.icov[s], [400.0, 0.0, 0.0, 400.0, 0.0, 400.0], rtol=1e-5, atol=1e-3)
+    score = get_backend("numpy").score_particles(np.eye(3)[None], np.zeros((1, 3)),
+                                                 np.array([[0.25, 0.25, 0.25]], np.float32), lk)
+    assert score[0] == pytest.approx(-5.5, rel=1e-4)
+
+
+def test_voxel_hash_merge_in_pieces_equals_merge_at_once():
+    """Every voxel's statistics (not a sample of them) are the same whether the points come at once or in
+    pieces of uneven sizes, including single points (so the last voxel of each merge is refreshed)."""
+    rng = np.random.default_rng(5)
+    pts = _random_points(rng, 3000, scale=2.0)
+    a, b = VoxelHashMap(voxel_size=0.7, capacity=2**13), VoxelHashMap(voxel_size=0.7, capacity=2**13)
+    a.merge(pts)
+    for chunk in np.split(pts, [1, 2, 700, 701, 2999]):
+        b.merge(chunk)
+    la, lb = a.lookup(), b.lookup()
+    np.testing.assert_array_equal(la.keys, lb.keys)
+    np.testing.assert_array_equal(la.mean, lb.mean)
+    np.testing.assert_array_equal(la.icov, lb.icov)
+    np.testing.assert_array_equal(a.counts(), b.counts())
+    # and each is the numpy group-by over the whole array: every occupied voxel's mean
+    u, _ = axis_indices(pts, 1.0 / 0.7)
+    uniq, inv = np.unique(pack_keys(u), return_inverse=True)
+    occupied = np.flatnonzero(la.keys != EMPTY_KEY)
+    assert occupied.size == uniq.size
+    for s in occupied:
+        p = pts[inv == np.searchsorted(uniq, la.keys[s])].astype(np.float64)
+        np.testing.assert_allclose(la.mean[s], p.mean(axis=0), atol=2e-5)

@@ -211,3 +211,19 @@ def test_trajectory_metrics_summary_keys_by_path_length():
     m = trajectory_metrics(drifted, long_)
     # segments end at the first frame past their length (devkit rule), so slightly over 1 %
     assert 1.0 <= m["kitti_t_err_percent"] < 1.02 and abs(m["final_error_m"] - 2.99) < 1e-9
+
+
+def test_kitti_segment_ends_at_the_first_frame_strictly_beyond_the_length():
+    """The devkit's ``lastFrameFromSegmentLength``: first frame with ``d > d_f + L`` (not ``>=``), pinned where
+    the two differ: frames exactly 1 m apart, so ``d_f + L`` is itself a frame's distance."""
+    n = 30
+    gt = np.stack([make_pose(np.eye(3), [float(i), 0.0, 0.0]) for i in range(n)])
+    est = np.stack([make_pose(np.eye(3), [1.01 * i, 0.0, 0.0]) for i in range(n)])  # 1 % too long per step
+    r = kitti_odometry_error(est, gt, lengths=(5.0,), step=1)
+    np.testing.assert_array_equal(r.last - r.first, 6)  # d_l = d_f + 6 > d_f + 5; d_f + 5 itself is not beyond
+    np.testing.assert_array_equal(r.first, np.arange(n - 6))
+    # error over 6 frames (0.06 m) per 5 m: 1.2 %; the ">=" rule would give 0.05 / 5 = 1.0 %
+    assert r.t_err_percent == pytest.approx(1.2, rel=1e-9)
+    np.testing.assert_allclose(r.speed, 5.0 / 0.7)
+    t_ref, r_ref, n_ref = _devkit_literal(gt, est, lengths=(5,), step=1)
+    assert (r.t_err_percent, r.n_segments) == (pytest.approx(t_ref, rel=1e-12), n_ref)

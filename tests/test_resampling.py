@@ -226,3 +226,14 @@ def test_trailing_zero_weights_are_never_picked():
     rng = np.random.default_rng(0)
     for f in RNG_SAMPLERS:
         assert set(f(np.tile(w, 50), rng) % 4) <= {0, 1}
+
+
+def test_effective_sample_size_on_uneven_weights_is_one_over_sum_of_squares():
+    # 1 / sum w^2 pinned on weights where it differs from 1 / max w (2.0) and from the count of non-zeros (3)
+    assert effective_sample_size([0.5, 0.25, 0.25]) == pytest.approx(1 / 0.375, rel=1e-12)
+    assert effective_sample_size([2.0, 1.0, 1.0]) == pytest.approx(8 / 3, rel=1e-12)  # normalised first
+    w = np.array([0.4, 0.3, 0.2, 0.1])
+    assert effective_sample_size(w) == pytest.approx(1 / 0.3, rel=1e-12)
+    # the resampling decision follows it: ESS = 3.33 is above 0.8 * 4 = 3.2 (1 / max w = 2.5 would be below)
+    assert resample_indexes(np.log(w), np.random.default_rng(0), ess_fraction=0.8) is None
+    assert resample_indexes(np.log(w), np.random.default_rng(0), ess_fraction=0.85) is not None

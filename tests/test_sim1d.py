@@ -408,3 +408,22 @@ def test_sim1d_plots_and_animation(runs):
     html = anim.to_jshtml()
     plt.close(anim._fig)
     assert "<img" in html or "animation" in html.lower()
+
+
+def test_filter_weights_are_prior_times_likelihood_between_resamplings(world):
+    """Without resampling (``ess_fraction=0``: ESS < 0 never holds) the log-weights after frames 1 and 2 are
+    ``normalise(s_1 + s_2)``: the posterior is the prior weight times the new likelihood, not the likelihood alone."""
+    rec = simulate(world, n_frames=10, seed=6)
+    slam = ParticleSLAM1D(40, OccupancyGrid1D.empty(-30, 90, 0.05), 0.4, 0.07, np.random.default_rng(3),
+                          ess_fraction=0.0)
+    slam.step(rec.frames[0])  # maps the first scan at the origin; all particles still equal
+    info1 = slam.step(rec.frames[1])
+    info2 = slam.step(rec.frames[2])
+    assert not info1.resampled and not info2.resampled
+    assert np.ptp(info1.scores) > 1.0 and np.ptp(info2.scores) > 1.0  # the two frames' scores both matter
+    np.testing.assert_allclose(info1.log_weights, normalise_log_weights(info1.scores), atol=1e-9)
+    np.testing.assert_allclose(info2.log_weights, normalise_log_weights(info1.scores + info2.scores), atol=1e-9)
+    prior_times_likelihood = info1.weights * np.exp(info2.scores - info2.scores.max())
+    np.testing.assert_allclose(info2.weights, prior_times_likelihood / prior_times_likelihood.sum(), atol=1e-12)
+    np.testing.assert_allclose(slam.log_weights, info2.log_weights)
+    assert not np.allclose(info2.log_weights, normalise_log_weights(info2.scores), atol=1e-3)

@@ -121,10 +121,19 @@ def make_lut_functions(deco: Callable = _identity) -> dict:
 
     ``fmix32(h)``
         MurmurHash3 32-bit finaliser of ``h`` (uint64 holding a 32-bit word).
+    ``frame_key(step, seed)``
+        ``fmix32(step ^ fmix32(seed ^ SALT))``: the part of the hash shared by every thread of one frame.
+    ``thread_hash(thread, key)``
+        ``fmix32(thread ^ key)``: the 32-bit hash ``h`` of a thread, given its frame's ``key``.
     ``counter_hash(thread, step, seed)``
-        ``fmix32(thread ^ fmix32(step ^ fmix32(seed ^ SALT)))`` (inputs taken mod 2**32).
+        ``thread_hash(thread, frame_key(step, seed))`` = ``fmix32(thread ^ fmix32(step ^ fmix32(seed ^ SALT)))``
+        (inputs taken mod 2**32).
+    ``hash_index(h, k, perm, bits)``
+        ``perm[k, x] ^ y`` with ``x``, ``y`` the low and high ``bits`` bits of ``h`` (int64): component ``k``'s
+        table index. A kernel that needs all six components hashes once and calls this six times.
     ``lut_index(thread, step, seed, k, perm, bits)``
-        Table index (int64) of component ``k`` for ``thread`` at frame ``step`` (module docstring).
+        ``hash_index(counter_hash(thread, step, seed), k, perm, bits)``: table index (int64) of component ``k``
+        for ``thread`` at frame ``step`` (module docstring).
     ``lut_draw(thread, step, seed, k, normal, perm, bits)``
         ``normal[lut_index(...)]``.
     """
@@ -140,20 +149,33 @@ def make_lut_functions(deco: Callable = _identity) -> dict:
 
     fmix32 = deco(fmix32)
 
-    def counter_hash(thread, step, seed):
+    def frame_key(step, seed):
         inner = fmix32((np.uint64(seed) & _M32) ^ _SALT)
-        mid = fmix32((np.uint64(step) & _M32) ^ inner)
-        return fmix32((np.uint64(thread) & _M32) ^ mid)
+        return fmix32((np.uint64(step) & _M32) ^ inner)
+
+    frame_key = deco(frame_key)
+
+    def thread_hash(thread, key):
+        return fmix32((np.uint64(thread) & _M32) ^ key)
+
+    thread_hash = deco(thread_hash)
+
+    def counter_hash(thread, step, seed):
+        return thread_hash(thread, frame_key(step, seed))
 
     counter_hash = deco(counter_hash)
 
-    def lut_index(thread, step, seed, k, perm, bits):
-        h = counter_hash(thread, step, seed)
+    def hash_index(h, k, perm, bits):
         b = np.uint64(bits)
         mask = (_ONE << b) - _ONE
         x = h & mask
         y = (h >> (_S32 - b)) & mask
         return np.int64(np.uint64(perm[k, x]) ^ y)
+
+    hash_index = deco(hash_index)
+
+    def lut_index(thread, step, seed, k, perm, bits):
+        return hash_index(counter_hash(thread, step, seed), k, perm, bits)
 
     lut_index = deco(lut_index)
 
@@ -161,12 +183,14 @@ def make_lut_functions(deco: Callable = _identity) -> dict:
         return normal[lut_index(thread, step, seed, k, perm, bits)]
 
     lut_draw = deco(lut_draw)
-    return {"fmix32": fmix32, "counter_hash": counter_hash, "lut_index": lut_index, "lut_draw": lut_draw}
+    return {"fmix32": fmix32, "frame_key": frame_key, "thread_hash": thread_hash, "counter_hash": counter_hash,
+            "hash_index": hash_index, "lut_index": lut_index, "lut_draw": lut_draw}
 
 
 _NP = make_lut_functions()
 #: Vectorised numpy builds (accept arrays of thread indexes).
 fmix32 = _NP["fmix32"]
+frame_key = _NP["frame_key"]
 counter_hash = _NP["counter_hash"]
 lut_index = _NP["lut_index"]
 

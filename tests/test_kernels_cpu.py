@@ -98,6 +98,70 @@ def test_transform_points_cpu_equals_reference_and_geometry(N, seed):
     np.testing.assert_allclose(out_cpu, out_ref, atol=1e-4, rtol=1e-5)
 
 
+@pytest.mark.parametrize("N", [0, 1, 5, 16385, 40000])  # around and across TRANSFORM_CHUNK spans
+def test_transform_points_out_and_in_place_equal_the_allocating_call(N):
+    from slamlib.kernels import cpu
+
+    rng = np.random.default_rng(N)
+    T = geometry.make_pose(geometry.rpy_to_matrix(rng.uniform(-3, 3, 3)), rng.normal(0, 50, 3))
+    pts = rng.normal(0.0, 30.0, (N, 3)).astype(np.float32)
+    keep = pts.copy()
+    fresh = CPU.transform_points(T, pts)
+    np.testing.assert_allclose(fresh, REF.transform_points(T, pts), atol=1e-4, rtol=1e-5)
+    out = np.full_like(pts, np.nan)
+    assert CPU.transform_points(T, pts, out=out) is out
+    assert np.array_equal(out, fresh) and np.array_equal(pts, keep)  # the input is untouched
+    work = pts.copy()
+    assert CPU.transform_points(T, work, out=work) is work
+    assert np.array_equal(work, fresh)
+    ref_out = np.empty_like(pts)
+    assert REF.transform_points(T, pts, out=ref_out) is ref_out
+    assert np.array_equal(ref_out, REF.transform_points(T, pts))
+    if N > cpu.TRANSFORM_CHUNK:  # every span written, including the last partial one
+        assert np.isfinite(out).all()
+
+
+def test_transform_points_out_is_checked():
+    pts = np.ones((10, 3), np.float32)
+    with pytest.raises(ValueError, match="out"):
+        CPU.transform_points(np.eye(4), pts, out=np.empty((10, 3), np.float64))
+    with pytest.raises(ValueError, match="out"):
+        CPU.transform_points(np.eye(4), pts, out=np.empty((9, 3), np.float32))
+    with pytest.raises(ValueError, match="overlaps"):
+        big = np.ones((11, 3), np.float32)
+        CPU.transform_points(np.eye(4), big[:10], out=big[1:])
+
+
+@pytest.mark.parametrize("P, bits", [(1, 4), (13, 4), (16, 4), (17, 4), (3000, 4), (3000, 12)])
+def test_move_particles_with_lut_noise_is_the_same_math(P, bits):
+    """LUT noise drawn inside the kernel == the same draws passed as an array (bit for bit, both with and without
+    the per-call cos/sin tables: P above / below the table size 2**bits) == the reference; in place too."""
+    from slamlib.noise import LutNoise, make_tables
+
+    rng = np.random.default_rng(P + bits)
+    R, t = _particles(rng, P)
+    sigma = rng.uniform(0.0, 0.3, 6)
+    lut = LutNoise(make_tables(5, bits=bits), 9, 21)
+    args = ([0.02, -0.01, 0.3], [1.1, 0.2, -0.1])
+    R_f, t_f = CPU.move_particles(R, t, *args, lut, sigma)
+    R_a, t_a = CPU.move_particles(R, t, *args, lut.draw(P), sigma)
+    assert np.array_equal(R_f, R_a) and np.array_equal(t_f, t_a)
+    R_r, t_r = REF.move_particles(R, t, *args, lut, sigma)
+    np.testing.assert_allclose(R_f, R_r, atol=1e-12)
+    np.testing.assert_allclose(t_f, t_r, atol=1e-10)
+    assert not np.allclose(R_f, CPU.move_particles(R, t, *args, LutNoise(lut.tables, 10, 21), sigma)[0])
+    R_i, t_i = R.copy(), t.copy()
+    res = CPU.move_particles(R_i, t_i, *args, lut, sigma, out=(R_i, t_i))
+    assert res[0] is R_i and res[1] is t_i
+    assert np.array_equal(R_i, R_f) and np.array_equal(t_i, t_f)
+    R_j, t_j = R.copy(), t.copy()
+    CPU.move_particles(R_j, t_j, *args, lut.draw(P), sigma, out=(R_j, t_j))
+    assert np.array_equal(R_j, R_a) and np.array_equal(t_j, t_a)
+    R_o, t_o = np.empty_like(R), np.empty_like(t)
+    REF.move_particles(R, t, *args, lut, sigma, out=(R_o, t_o))
+    assert np.array_equal(R_o, R_r) and np.array_equal(t_o, t_r)
+
+
 def test_transform_points_rejects_bad_shapes():
     with pytest.raises(ValueError):
         CPU.transform_points(np.eye(3), np.zeros((4, 3), np.float32))

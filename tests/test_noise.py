@@ -114,3 +114,21 @@ def test_statistics_helpers_on_known_input():
     assert N.lag_correlation(x, 1) == pytest.approx(1.0)
     with pytest.raises(ValueError):
         N.lut_normal(N.make_tables(0, bits=8), 4, step=-1, seed=0)
+
+
+@settings(max_examples=40, deadline=None)
+@given(thread=st.integers(0, 2**32 - 1), step=st.integers(0, 2**32 - 1), seed=st.integers(0, 2**32 - 1))
+def test_hash_once_then_six_indexes_is_lut_index(thread, step, seed):
+    """The pieces a fused kernel uses (frame_key once per frame, thread_hash once per particle, hash_index per
+    component) give lut_index's values, in numpy and in Numba, and frame_key is the documented nesting."""
+    tables = N.make_tables(seed=3, bits=10)
+    nb = N.numba_functions()
+    key = N.frame_key(np.uint64(step), np.uint64(seed))
+    assert int(key) == int(N.fmix32(np.uint64(step) ^ N.fmix32(np.uint64(seed) ^ np.uint64(0x9E3779B9))))
+    assert int(nb["frame_key"](np.uint64(step), np.uint64(seed))) == int(key)
+    h = N._NP["thread_hash"](np.uint64(thread), key)
+    assert int(h) == int(N.counter_hash(np.uint64(thread), step, seed))
+    for k in range(6):
+        i = int(N._NP["hash_index"](h, k, tables.perm, tables.bits))
+        assert i == int(N.lut_index(np.uint64(thread), step, seed, k, tables.perm, tables.bits))
+        assert i == int(nb["hash_index"](nb["thread_hash"](np.uint64(thread), key), k, tables.perm, tables.bits))

@@ -6,7 +6,10 @@ Every backend provides the same four functions (CONTRIBUTING.md, "Backend interf
     -> ``(R_new, t_new)``: steps 5 + 6 fused, ``R_new = R_i dR N_i``,
     ``t_new = t_i + R_i dR (trans_delta + sigma[:3] * noise[i, :3])`` with ``dR = rpy_to_matrix(rpy_delta)``
     and ``N_i = rpy_to_matrix(sigma[3:] * noise[i, 3:])``.
-``transform_points(T (4,4), points (N,3) f4)`` -> ``(N,3) f4``: ``p' = R p + t``.
+``transform_points(T (4,4), points (N,3) f4, out=None)`` -> ``(N,3) f4``: ``p' = R p + t``; ``out`` receives the
+    result (``out=points``: in place) on the numpy and CPU backends.
+``noise`` of ``move_particles`` may also be a :class:`slamlib.noise.LutNoise` (the draws of ``noise.draw(P)``,
+    generated inside the kernel on CPU and CUDA), and the numpy and CPU backends take ``out=(R_out, t_out)``.
 ``score_particles(R (P,3,3) f8, t (P,3) f8, points_body (N,3) f4, lookup)`` -> ``(P,) f8`` log-likelihoods,
     fused transform + map lookup (see :mod:`slamlib.maps.base` for the lookup tuples and the per-point terms).
 ``systematic_resample(weights (P,), u0 in [0, 1))`` -> ``(P,) int64`` indexes (Kitagawa 1996; the filterpy

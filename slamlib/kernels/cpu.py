@@ -6,10 +6,14 @@ roll/pitch/yaw, motion update, point transform, NDT voxel term, hash / find-slot
 written here: it is the ``njit(inline="always")`` build of :func:`slamlib.kernels.device.make_point_functions`,
 the same source the CUDA backend compiles with ``cuda.jit(device=True)``. This module arranges the loops:
 
-* ``move_particles``: ``prange`` over particles.
-* ``transform_points``: ``prange`` over points, in float32 (like :func:`slamlib.geometry.transform_points`)
-  with ``fastmath`` (only contraction into FMAs and vectorisation; no NaN/inf assumptions matter for a linear
-  map), so it agrees with the other backends to float32 rounding, not bit for bit.
+* ``move_particles``: ``prange`` over blocks of ``PARTICLE_BLOCK`` particles (3x3 scratch allocated once per
+  block, not per particle); ``out=`` (in place with ``out=(R, t)``); with a :class:`slamlib.noise.LutNoise` the
+  draws are made inside the kernel (one counter hash per particle) from per-call tables of ``sigma * value``
+  and of ``cos``/``sin`` of the rotation draws, with the values of the unfused path bit for bit.
+* ``transform_points``: ``prange`` over spans of ``TRANSFORM_CHUNK`` points of the flat float32 array, unsigned
+  indexes so that LLVM vectorises the span's loop; float32 arithmetic (like
+  :func:`slamlib.geometry.transform_points`) with contraction into FMAs only (``fastmath={"contract"}``), so it
+  agrees with the other backends to float32 rounding, not bit for bit; ``out=`` (in place with ``out=points``).
 * ``score_particles`` is fused: each task takes a chunk of ``POINT_CHUNK`` scan points and a chunk of
   ``PARTICLE_CHUNK`` particles; for each point it loops over the particles (their copies of the point land in
   the same few voxels / cells, so map memory stays in cache), transforms in registers (float64) and looks up;
@@ -24,17 +28,21 @@ the same source the CUDA backend compiles with ``cuda.jit(device=True)``. This m
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numba import njit, prange
 
 from slamlib.kernels.device import make_point_functions
 from slamlib.maps.base import KIND_MORTON, KIND_VOXEL_HASH
+from slamlib.noise import N_COMPONENTS, LutNoise, frame_key, make_lut_functions
 
 # The shared math is inlined into the kernels below. Numba's on-disk cache (cache=True) is keyed on this file's
 # timestamp only, so after editing slamlib/kernels/device.py or slamlib/maps/codes.py clear it
 # (rm -rf "$NUMBA_CACHE_DIR", _cache/numba in the Makefile) or the cached kernels keep the old math.
 _F = make_point_functions(njit(inline="always"))
 _rpy_matrix = _F["rpy_matrix"]
+_rpy_matrix_cs = _F["rpy_matrix_cs"]
 _pose_times = _F["pose_times"]
 _compose_rotation = _F["compose_rotation"]
 _compose_translation = _F["compose_translation"]
@@ -47,6 +55,11 @@ _cell_block = _F["cell_block"]
 _cells_per_axis = _F["cells_per_axis"]
 _nearest_in_run = _F["nearest_in_run"]
 
+_L = make_lut_functions(njit(inline="always"))
+_frame_key = _L["frame_key"]
+_thread_hash = _L["thread_hash"]
+_hash_index = _L["hash_index"]
+
 #: Scan points per parallel task of ``score_particles``.
 POINT_CHUNK = 64
 #: Particles per parallel task of ``score_particles`` (inner loop: one point, consecutive particles).
@@ -54,16 +67,66 @@ PARTICLE_CHUNK = 64
 
 
 # --------------------------------------------------------------------------------------------- move particles
+#: Particles per parallel task of ``move_particles`` (each task allocates its 3x3 scratch matrices once).
+PARTICLE_BLOCK = 1024
+#: With LUT noise and more than ``LUT_TRIG_TABLE_RATIO * T`` particles (``T`` table entries), ``move_particles``
+#: tabulates ``cos``/``sin`` of the table's rotation draws once per call (6 T calls) instead of 6 calls per particle.
+LUT_TRIG_TABLE_RATIO = 1
+
+
 @njit(parallel=True, cache=True)
-def _move_nb(R, t, dR, trans_delta, noise, sigma, R_new, t_new):
-    for i in prange(R.shape[0]):
+def _move_nb(R, t, dR, trans_delta, noise, sigma, R_new, t_new, block):
+    P = R.shape[0]
+    for b in prange((P + block - 1) // block):
         N = np.empty((3, 3))
         A = np.empty((3, 3))
-        _rpy_matrix(sigma[3] * noise[i, 3], sigma[4] * noise[i, 4], sigma[5] * noise[i, 5], N)
-        _pose_times(R, i, dR, A)  # A = R_i dR
-        _compose_rotation(A, N, R_new, i)
-        _compose_translation(t, A, trans_delta[0] + sigma[0] * noise[i, 0], trans_delta[1] + sigma[1] * noise[i, 1],
-                             trans_delta[2] + sigma[2] * noise[i, 2], t_new, i)
+        for i in range(b * block, min(P, (b + 1) * block)):
+            _rpy_matrix(sigma[3] * noise[i, 3], sigma[4] * noise[i, 4], sigma[5] * noise[i, 5], N)
+            _pose_times(R, i, dR, A)  # A = R_i dR (read before R_new[i] is written: R_new may be R)
+            _compose_rotation(A, N, R_new, i)
+            _compose_translation(t, A, trans_delta[0] + sigma[0] * noise[i, 0],
+                                 trans_delta[1] + sigma[1] * noise[i, 1], trans_delta[2] + sigma[2] * noise[i, 2],
+                                 t_new, i)
+
+
+@njit(parallel=True, cache=True)
+def _lut_tables_nb(normal, sigma, step_tab, trig_tab, with_trig):
+    """The per-call tables of the fused LUT move: ``step_tab[k, j] = sigma[k] * normal[j]`` (k = 0, 1, 2) and, if
+    ``with_trig``, ``trig_tab[k, j, 0], trig_tab[k, j, 1] = cos, sin(sigma[3 + k] * normal[j])`` (side by side: one
+    cache line); the same float64 values the unfused kernel forms from ``noise = lut.draw(P)``."""
+    for j in prange(normal.shape[0]):
+        v = np.float64(normal[j])
+        for k in range(3):
+            step_tab[k, j] = sigma[k] * v
+            if with_trig:
+                a = sigma[3 + k] * v
+                trig_tab[k, j, 0] = math.cos(a)
+                trig_tab[k, j, 1] = math.sin(a)
+
+
+@njit(parallel=True, cache=True)
+def _move_lut_nb(R, t, dR, trans_delta, sigma, key, perm, bits, normal, step_tab, trig_tab, with_trig, R_new, t_new,
+                 block):
+    P = R.shape[0]
+    for b in prange((P + block - 1) // block):
+        N = np.empty((3, 3))
+        A = np.empty((3, 3))
+        for i in range(b * block, min(P, (b + 1) * block)):
+            h = _thread_hash(i, key)  # one hash per particle; the six table indexes come from it
+            i3 = _hash_index(h, 3, perm, bits)
+            i4 = _hash_index(h, 4, perm, bits)
+            i5 = _hash_index(h, 5, perm, bits)
+            if with_trig:
+                _rpy_matrix_cs(trig_tab[0, i3, 0], trig_tab[0, i3, 1], trig_tab[1, i4, 0], trig_tab[1, i4, 1],
+                               trig_tab[2, i5, 0], trig_tab[2, i5, 1], N)
+            else:
+                _rpy_matrix(sigma[3] * np.float64(normal[i3]), sigma[4] * np.float64(normal[i4]),
+                            sigma[5] * np.float64(normal[i5]), N)
+            _pose_times(R, i, dR, A)
+            _compose_rotation(A, N, R_new, i)
+            _compose_translation(t, A, trans_delta[0] + step_tab[0, _hash_index(h, 0, perm, bits)],
+                                 trans_delta[1] + step_tab[1, _hash_index(h, 1, perm, bits)],
+                                 trans_delta[2] + step_tab[2, _hash_index(h, 2, perm, bits)], t_new, i)
 
 
 def _check_particles(R, t):
@@ -74,39 +137,126 @@ def _check_particles(R, t):
     return R, t
 
 
-def move_particles(R, t, rpy_delta, trans_delta, noise, sigma):
-    """Steps 5 + 6 fused (see :func:`slamlib.kernels.reference.move_particles`), parallel over particles."""
+def _check_out(out, like, name):
+    """``out`` as a destination for an array shaped and typed like ``like``: C-contiguous, same dtype and shape."""
+    if not (isinstance(out, np.ndarray) and out.dtype == like.dtype and out.shape == like.shape
+            and out.flags.c_contiguous and out.flags.writeable):
+        raise ValueError(f"{name} must be a writeable C-contiguous {like.dtype} array of shape {like.shape}")
+    if out is not like and np.may_share_memory(out, like) and not _same_memory(out, like):
+        raise ValueError(f"{name} overlaps its input without being the same array (in place needs out=the input)")
+    return out
+
+
+def _same_memory(a, b):
+    return a.__array_interface__["data"][0] == b.__array_interface__["data"][0] and a.shape == b.shape
+
+
+def move_particles(R, t, rpy_delta, trans_delta, noise, sigma, out=None):
+    """Steps 5 + 6 fused (see :func:`slamlib.kernels.reference.move_particles`), parallel over particles.
+
+    ``noise`` is a ``(P, 6)`` standard-normal array, or a :class:`slamlib.noise.LutNoise`: then particle ``i``'s
+    draws are generated inside the kernel (``thread = i``; one counter hash per particle, six table reads),
+    the values of ``noise.draw(P)`` bit for bit, so no ``(P, 6)`` array is written or read. With more particles
+    than table entries, the cosines and sines of the table's rotation draws (``cos``, ``sin`` of
+    ``sigma[3 + k] * normal[j]``, 6 T calls) and the translation steps ``sigma[k] * normal[j]`` are tabulated
+    once per call, so the kernel calls no ``cos``/``sin`` per particle (the same float64 values: identical results).
+
+    ``out=(R_out (P, 3, 3) f8, t_out (P, 3) f8)`` receives the result (C-contiguous; ``out=(R, t)`` updates the
+    particles in place: particle ``i`` is read before it is written); returns ``(R_new, t_new)``.
+    """
     R, t = _check_particles(R, t)
-    noise = np.ascontiguousarray(noise, dtype=np.float64)
+    P = R.shape[0]
     sigma = np.ascontiguousarray(sigma, dtype=np.float64).reshape(6)
-    if noise.shape != (R.shape[0], 6):
-        raise ValueError(f"noise must have shape (P, 6) = ({R.shape[0]}, 6), got {noise.shape}")
     rpy = np.asarray(rpy_delta, dtype=np.float64).reshape(3)
+    trans = np.ascontiguousarray(trans_delta, dtype=np.float64).reshape(3)
     dR = np.empty((3, 3))
     _rpy_matrix(rpy[0], rpy[1], rpy[2], dR)
-    R_new = np.empty_like(R)
-    t_new = np.empty_like(t)
-    _move_nb(R, t, dR, np.asarray(trans_delta, dtype=np.float64).reshape(3), noise, sigma, R_new, t_new)
+    if out is None:
+        R_new, t_new = np.empty_like(R), np.empty_like(t)
+    else:
+        R_new, t_new = _check_out(out[0], R, "out[0]"), _check_out(out[1], t, "out[1]")
+    if isinstance(noise, LutNoise):
+        if noise.step < 0 or noise.seed < 0:
+            raise ValueError("LutNoise step and seed must be >= 0")
+        tables = noise.tables
+        T = tables.normal.shape[0]
+        if tables.perm.shape != (N_COMPONENTS, T) or T != 1 << tables.bits:
+            raise ValueError("LutNoise tables need normal (T,) and perm (6, T) with T = 2**bits")
+        with_trig = P > LUT_TRIG_TABLE_RATIO * T
+        step_tab = np.empty((3, T))
+        trig_tab = np.empty((3, T, 2) if with_trig else (3, 1, 2))
+        _lut_tables_nb(tables.normal, sigma, step_tab, trig_tab, with_trig)
+        key = np.uint64(frame_key(np.uint64(noise.step), np.uint64(noise.seed)))
+        _move_lut_nb(R, t, dR, trans, sigma, key, tables.perm, np.int64(tables.bits), tables.normal, step_tab,
+                     trig_tab, with_trig, R_new, t_new, PARTICLE_BLOCK)
+        return R_new, t_new
+    noise = np.ascontiguousarray(noise, dtype=np.float64)
+    if noise.shape != (P, 6):
+        raise ValueError(f"noise must have shape (P, 6) = ({P}, 6), got {noise.shape}")
+    _move_nb(R, t, dR, trans, noise, sigma, R_new, t_new, PARTICLE_BLOCK)
     return R_new, t_new
 
 
 # ------------------------------------------------------------------------------------------- transform points
-@njit(parallel=True, cache=True, fastmath=True)
-def _transform_nb(R, t, pts, out):
-    for j in prange(pts.shape[0]):
-        out[j, 0], out[j, 1], out[j, 2] = _world_point(R, t, 0, pts[j, 0], pts[j, 1], pts[j, 2])
+#: Points per parallel task of ``transform_points``: a contiguous span of ``3 * TRANSFORM_CHUNK`` floats whose
+#: loop LLVM vectorises (AVX2: 8 points per step, de-interleaved with shuffles).
+TRANSFORM_CHUNK = 1 << 14
+_U1 = np.uint64(1)
+_U2 = np.uint64(2)
+_U3 = np.uint64(3)
 
 
-def transform_points(T, points):
-    """``p' = R p + t`` for ``T`` (4, 4) and ``points`` (N, 3) float32 -> (N, 3) float32 (float32 arithmetic)."""
+@njit(parallel=True, cache=True, fastmath={"contract"})
+def _transform_nb(R, t, x, y, chunk):
+    """``y[3j:3j+3] = R[0] x[3j:3j+3] + t[0]`` over the flat float32 arrays ``x``, ``y`` (3N,). Unsigned indexes:
+    no negative-index wrap-around test, so the inner loop vectorises."""
+    n = x.shape[0] // 3
+    for c in prange((n + chunk - 1) // chunk):
+        for j in range(c * chunk, min(n, (c + 1) * chunk)):
+            k = _U3 * np.uint64(j)
+            wx, wy, wz = _world_point(R, t, 0, x[k], x[k + _U1], x[k + _U2])
+            y[k] = wx
+            y[k + _U1] = wy
+            y[k + _U2] = wz
+
+
+@njit(parallel=True, cache=True, fastmath={"contract"})
+def _transform_inplace_nb(R, t, x, chunk):
+    """:func:`_transform_nb` with ``y = x`` (one array: no aliasing check for LLVM to fail)."""
+    n = x.shape[0] // 3
+    for c in prange((n + chunk - 1) // chunk):
+        for j in range(c * chunk, min(n, (c + 1) * chunk)):
+            k = _U3 * np.uint64(j)
+            wx, wy, wz = _world_point(R, t, 0, x[k], x[k + _U1], x[k + _U2])
+            x[k] = wx
+            x[k + _U1] = wy
+            x[k + _U2] = wz
+
+
+def transform_points(T, points, out=None):
+    """``p' = R p + t`` for ``T`` (4, 4) and ``points`` (N, 3) float32 -> (N, 3) float32 (float32 arithmetic).
+
+    ``out`` (N, 3) float32, C-contiguous, receives the result and is returned (no allocation: a caller that
+    reuses a buffer pays no page faults); ``out=points`` transforms in place (when ``points`` is already a
+    C-contiguous float32 array). Parallel over spans of ``TRANSFORM_CHUNK`` points; the arithmetic is float32
+    with contraction into FMAs (agrees with the reference to float32 rounding, not bit for bit).
+    """
     T = np.asarray(T, dtype=np.float64)
     pts = np.ascontiguousarray(points, dtype=np.float32)
     if T.shape != (4, 4) or pts.ndim != 2 or pts.shape[1] != 3:
         raise ValueError(f"need T (4, 4) and points (N, 3), got {T.shape} and {pts.shape}")
-    out = np.empty_like(pts)
     # the pose as a batch of one particle: R (1, 3, 3), t (1, 3) float32
-    _transform_nb(np.ascontiguousarray(T[None, :3, :3], dtype=np.float32),
-                  np.ascontiguousarray(T[None, :3, 3], dtype=np.float32), pts, out)
+    R32 = np.ascontiguousarray(T[None, :3, :3], dtype=np.float32)
+    t32 = np.ascontiguousarray(T[None, :3, 3], dtype=np.float32)
+    if out is None:
+        out = np.empty_like(pts)
+    elif out is pts or (isinstance(out, np.ndarray) and out.shape == pts.shape and _same_memory(out, pts)):
+        _check_out(out, pts, "out")
+        _transform_inplace_nb(R32, t32, out.reshape(-1), TRANSFORM_CHUNK)
+        return out
+    else:
+        _check_out(out, pts, "out")
+    _transform_nb(R32, t32, pts.reshape(-1), out.reshape(-1), TRANSFORM_CHUNK)
     return out
 
 

@@ -53,6 +53,9 @@ def make_point_functions(deco: Callable = _identity) -> dict:
     ``rpy_matrix(r, p, y, out)``
         ``out = Rz(y) Ry(p) Rx(r)`` ((3, 3) float64 array; angles in radians), the ZYX (yaw-pitch-roll)
         convention of :func:`slamlib.geometry.rpy_to_matrix`.
+    ``rpy_matrix_cs(cr, sr, cp, sp, cy, sy, out)``
+        The same matrix from the cosines and sines of roll, pitch and yaw (``rpy_matrix`` calls it), for
+        kernels that read them from a per-frame table instead of calling ``cos``/``sin`` per particle.
     ``pose_times(R, i, M, A)``
         ``A = R[i] M`` for ``R`` (P, 3, 3) and ``M``, ``A`` (3, 3).
     ``compose_rotation(A, N, R_new, i)``
@@ -83,8 +86,7 @@ def make_point_functions(deco: Callable = _identity) -> dict:
     in_range, pack_key, find_slot = F["in_range"], F["pack_key"], F["find_slot"]
     morton, find_cell = F["morton"], F["find_cell"]
 
-    def rpy_matrix(r, p, y, out):
-        cr, sr, cp, sp, cy, sy = math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), math.sin(y)
+    def rpy_matrix_cs(cr, sr, cp, sp, cy, sy, out):
         out[0, 0] = cy * cp
         out[0, 1] = cy * sp * sr - sy * cr
         out[0, 2] = cy * sp * cr + sy * sr
@@ -94,6 +96,11 @@ def make_point_functions(deco: Callable = _identity) -> dict:
         out[2, 0] = -sp
         out[2, 1] = cp * sr
         out[2, 2] = cp * cr
+
+    rpy_matrix_cs = deco(rpy_matrix_cs)
+
+    def rpy_matrix(r, p, y, out):
+        rpy_matrix_cs(math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), math.sin(y), out)
 
     def pose_times(R, i, M, A):
         for a in range(3):
@@ -210,7 +217,7 @@ def make_point_functions(deco: Callable = _identity) -> dict:
         return best
 
     out = dict(F)
-    out.update({"rpy_matrix": deco(rpy_matrix), "pose_times": deco(pose_times),
+    out.update({"rpy_matrix": deco(rpy_matrix), "rpy_matrix_cs": rpy_matrix_cs, "pose_times": deco(pose_times),
                 "compose_rotation": deco(compose_rotation), "compose_translation": deco(compose_translation),
                 "world_point": deco(world_point), "voxel_term": deco(voxel_term), "cells_per_axis": cells_per_axis,
                 "cell_block": cell_block, "nearest_in_run": nearest_in_run, "morton_d2": deco(morton_d2)})

@@ -14,9 +14,10 @@ import numpy as np
 from slamlib import geometry
 from slamlib.maps.base import KIND_MORTON, KIND_VOXEL_HASH
 from slamlib.maps.codes import axis_indices, pack_keys
+from slamlib.noise import LutNoise
 
 
-def move_particles(R, t, rpy_delta, trans_delta, noise, sigma):
+def move_particles(R, t, rpy_delta, trans_delta, noise, sigma, out=None):
     """Steps 5 (offset by motion) and 6 (perturb with noise) for every particle.
 
     For particle ``i``: ``dR = rpy_to_matrix(rpy_delta)``, ``N_i = rpy_to_matrix(sigma[3:] * noise[i, 3:])``,
@@ -29,10 +30,14 @@ def move_particles(R, t, rpy_delta, trans_delta, noise, sigma):
         Particle poses ``T_world_body``.
     rpy_delta : (3,) radians, trans_delta : (3,) metres
         Body-frame motion since the last frame (e.g. from the IMU).
-    noise : (P, 6)
-        Standard normal draws: translation x, y, z then roll, pitch, yaw.
+    noise : (P, 6) or :class:`slamlib.noise.LutNoise`
+        Standard normal draws: translation x, y, z then roll, pitch, yaw; a ``LutNoise`` stands for
+        ``noise.draw(P)`` (particle ``i`` is thread ``i``).
     sigma : (6,)
         Their standard deviations (metres, radians).
+
+    out : (R_out, t_out), optional
+        Arrays that receive the result (may be ``(R, t)``: in place).
 
     Returns
     -------
@@ -40,19 +45,32 @@ def move_particles(R, t, rpy_delta, trans_delta, noise, sigma):
     """
     R = np.asarray(R, dtype=np.float64)
     t = np.asarray(t, dtype=np.float64)
+    if isinstance(noise, LutNoise):
+        noise = noise.draw(len(R))
     noise = np.asarray(noise, dtype=np.float64)
     sigma = np.asarray(sigma, dtype=np.float64)
     dR = geometry.rpy_to_matrix(np.asarray(rpy_delta, dtype=np.float64))
     N = geometry.rpy_to_matrix(sigma[3:] * noise[:, 3:])
     RdR = R @ dR
     step = np.asarray(trans_delta, dtype=np.float64) + sigma[:3] * noise[:, :3]
-    return RdR @ N, t + np.einsum("pij,pj->pi", RdR, step)
+    R_new, t_new = RdR @ N, t + np.einsum("pij,pj->pi", RdR, step)
+    if out is None:
+        return R_new, t_new
+    out[0][...] = R_new
+    out[1][...] = t_new
+    return out[0], out[1]
 
 
-def transform_points(T, points):
-    """``p' = R p + t`` for ``T`` (4, 4) and ``points`` (N, 3) float32 -> (N, 3) float32."""
-    return geometry.transform_points(np.asarray(T, dtype=np.float64),
-                                     np.asarray(points, dtype=np.float32)).astype(np.float32)
+def transform_points(T, points, out=None):
+    """``p' = R p + t`` for ``T`` (4, 4) and ``points`` (N, 3) float32 -> (N, 3) float32 (computed in float64,
+    rounded once). ``out`` (N, 3) float32 receives the result and is returned (``out=points``: in place)."""
+    res = geometry.transform_points(np.asarray(T, dtype=np.float64), np.asarray(points, dtype=np.float32))
+    if out is None:
+        return res.astype(np.float32)
+    if out.shape != res.shape or out.dtype != np.float32:
+        raise ValueError(f"out must be a float32 array of shape {res.shape}, got {out.dtype} {out.shape}")
+    out[...] = res
+    return out
 
 
 def _voxel_terms_at(world, keys_query, ok, lookup, stored, occupied):

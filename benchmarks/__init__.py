@@ -25,6 +25,8 @@ BENCHMARKS = {
     "slam3d": "benchmarks.slam3d",
     "synth": "benchmarks.synth",
     "peers": "benchmarks.peers",
+    "transform": "benchmarks.transform",
+    "particles": "benchmarks.particles",
 }
 
 

@@ -3,7 +3,9 @@
 Like the seed project's table (1e7 points: about 41 ms single-threaded CPU, 7 ms on a K40 kernel), for
 ``transform_points`` on 1e3..1e7 float32 points and ``move_particles`` (steps 5 + 6 fused) on 1e3..1e6
 particles, plus ``systematic_resample``. Medians of repeated runs (after a warm-up call that also compiles);
-rates are points (or particles) per second of the median.
+rates are points (or particles) per second of the median. The fuller studies: ``slamlib bench transform``
+(1e3..1e8 points, kernel and whole-program times beside the copy limit and the seed's table) and ``slamlib bench
+particles`` (particles/s with LUT noise fused into the kernel, and with numpy / Philox noise).
 """
 
 from __future__ import annotations

@@ -1,0 +1,88 @@
+"""``slamlib bench particles``: particle updates per second (steps 5 + 6: motion + noise) vs particle count.
+
+The seed project reports about 1.6e8 particles/s on its K40 (saturating from 1e6 particles). Here, on the CPU
+backend (``move_particles`` of :mod:`slamlib.kernels.cpu`, all Numba threads), for P = 1e3 .. 1e7 particles
+(``R (P, 3, 3)``, ``t (P, 3)`` float64), each round times back to back:
+
+``lut_fused``        LUT noise drawn inside the motion kernel (``noise=LutNoise(tables, step, seed)``; the default
+                     4096-entry tables), the particles updated in place (``out=(R, t)``): no ``(P, 6)`` array;
+``lut_fused_seed_tables``  the same with the seed's table size (256 entries: every table in L1);
+``lut_fused_alloc``  LUT fused, new output arrays per call (``out=None``: their pages fault in during the call);
+``lut_drawn``        the same LUT draws written to a ``(P, 6)`` array first (:func:`slamlib.noise.lut_normal_nb`),
+                     then moved (in place);
+``numpy_drawn``      ``np.random.Generator(PCG64).standard_normal((P, 6))`` then moved (in place);
+``philox_drawn``     ``np.random.Generator(Philox)`` (counter-based, like the GPU's Philox) then moved (in place).
+
+Rates are ``P / median`` (and ``P / best``) in particles per second, beside the seed's 1.6e8
+(``ratio_to_seed``). Bytes moved per particle: 96 read + 96 written (float64 pose), plus 48 + 48 for a drawn
+``(P, 6)`` noise array.
+"""
+
+from __future__ import annotations
+
+
+import os
+
+import numpy as np
+
+HELP = "particle updates/s (motion + LUT / Philox / numpy noise), 1e3..1e7 particles, beside the seed's 1.6e8/s"
+
+#: The seed's particle update rate on its K40, particles/s.
+SEED_PARTICLES_PER_S = 1.6e8
+#: Bytes of one particle's pose (R 3x3 + t 3, float64).
+POSE_BYTES = 96
+#: Noise spread (m, m, m, rad, rad, rad) and the motion increment of every timed call.
+SIGMA = (0.1, 0.05, 0.02, 0.002, 0.002, 0.01)
+RPY_DELTA = (0.0, 0.0, 0.05)
+TRANS_DELTA = (1.0, 0.0, 0.0)
+
+
+def run(quick: bool) -> dict:
+    import numba
+
+    from benchmarks.transform import _rounds
+    from slamlib import noise as N
+    from slamlib.geometry import rpy_to_matrix
+    from slamlib.kernels import get_backend
+
+    cpu = get_backend("cpu")
+    sizes = [10**k for k in range(3, 5 if quick else 8)]
+    tables = N.make_tables(0)
+    seed_tables = N.make_tables(0, bits=N.SEED_BITS)
+    sigma = np.asarray(SIGMA)
+    rows = []
+    load_before = os.getloadavg()
+    for P in sizes:
+        rng = np.random.default_rng(0)
+        R = np.ascontiguousarray(rpy_to_matrix(rng.normal(0.0, 0.1, (P, 3))))
+        t = rng.normal(0.0, 5.0, (P, 3))
+        pcg = np.random.Generator(np.random.PCG64(1))
+        philox = np.random.Generator(np.random.Philox(1))
+        lut = N.LutNoise(tables, 3, 7)
+        lut_seed = N.LutNoise(seed_tables, 3, 7)
+
+        def move(noise, out=(R, t)):
+            return cpu.move_particles(R, t, RPY_DELTA, TRANS_DELTA, noise, sigma, out=out)
+
+        fns = {"lut_fused": lambda: move(lut),
+               "lut_fused_seed_tables": lambda: move(lut_seed),
+               "lut_fused_alloc": lambda: move(lut, out=None),
+               "lut_drawn": lambda: move(N.lut_normal_nb(tables, P, 3, 7)),
+               "numpy_drawn": lambda: move(pcg.standard_normal((P, 6))),
+               "philox_drawn": lambda: move(philox.standard_normal((P, 6)))}
+        res = _rounds(fns, 3 if quick else (5 if P >= 10**7 else 9))
+        for name, st in res.items():
+            rate = P / st["median_s"]
+            rows.append({"variant": name, "particles": P, **st, "particles_per_s": rate,
+                         "best_particles_per_s": P / st["min_s"], "ratio_to_seed": rate / SEED_PARTICLES_PER_S,
+                         "best_ratio_to_seed": P / st["min_s"] / SEED_PARTICLES_PER_S,
+                         "noise_array": name.endswith("drawn"), "in_place": name != "lut_fused_alloc",
+                         "table_entries": (1 << seed_tables.bits) if name == "lut_fused_seed_tables"
+                         else ((1 << tables.bits) if name.startswith("lut") else None)})
+            print(f"P={P:>9d} {name:22s} {st['median_s'] * 1e3:10.3f} ms  {rate:.3g} particles/s "
+                  f"(best {P / st['min_s']:.3g}; seed {SEED_PARTICLES_PER_S:.2g})", flush=True)
+        del R, t, fns
+    return {"threads": int(numba.get_num_threads()), "seed_particles_per_s": SEED_PARTICLES_PER_S,
+            "pose_bytes": POSE_BYTES, "sigma": list(SIGMA),
+            "load_average_1min": {"start": load_before[0], "end": os.getloadavg()[0]},
+            "rows": rows}

@@ -27,6 +27,7 @@ BENCHMARKS = {
     "peers": "benchmarks.peers",
     "transform": "benchmarks.transform",
     "particles": "benchmarks.particles",
+    "scaling": "benchmarks.scaling",
 }
 
 

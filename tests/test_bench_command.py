@@ -12,7 +12,7 @@ from slamlib import paths
 from slamlib.cli import main
 from slamlib.commands.bench import load_benchmarks
 
-NAMES = ("kernels", "maps", "noise", "cuda", "slam3d", "synth", "peers", "transform", "particles")
+NAMES = ("kernels", "maps", "noise", "cuda", "slam3d", "synth", "peers", "transform", "particles", "scaling")
 
 
 def test_list_shows_every_benchmark_from_any_folder(tmp_path):

@@ -7,6 +7,7 @@ backend (``move_particles`` of :mod:`slamlib.kernels.cpu`, all Numba threads), f
 ``lut_fused``        LUT noise drawn inside the motion kernel (``noise=LutNoise(tables, step, seed)``; the default
                      4096-entry tables), the particles updated in place (``out=(R, t)``): no ``(P, 6)`` array;
 ``lut_fused_seed_tables``  the same with the seed's table size (256 entries: every table in L1);
+``lut_fused_1thread``  ``lut_fused`` with Numba on one thread (the per-core rate, whatever else runs);
 ``lut_fused_alloc``  LUT fused, new output arrays per call (``out=None``: their pages fault in during the call);
 ``lut_drawn``        the same LUT draws written to a ``(P, 6)`` array first (:func:`slamlib.noise.lut_normal_nb`),
                      then moved (in place);
@@ -40,7 +41,7 @@ TRANS_DELTA = (1.0, 0.0, 0.0)
 def run(quick: bool) -> dict:
     import numba
 
-    from benchmarks.transform import _rounds
+    from benchmarks.transform import _one_thread, _rounds
     from slamlib import noise as N
     from slamlib.geometry import rpy_to_matrix
     from slamlib.kernels import get_backend
@@ -66,17 +67,19 @@ def run(quick: bool) -> dict:
 
         fns = {"lut_fused": lambda: move(lut),
                "lut_fused_seed_tables": lambda: move(lut_seed),
+               "lut_fused_1thread": lambda: _one_thread(move, lut),
                "lut_fused_alloc": lambda: move(lut, out=None),
                "lut_drawn": lambda: move(N.lut_normal_nb(tables, P, 3, 7)),
                "numpy_drawn": lambda: move(pcg.standard_normal((P, 6))),
                "philox_drawn": lambda: move(philox.standard_normal((P, 6)))}
-        res = _rounds(fns, 3 if quick else (5 if P >= 10**7 else 9))
+        res = _rounds(fns, 3 if quick else (7 if P >= 10**7 else (15 if P >= 10**6 else 31)))
         for name, st in res.items():
             rate = P / st["median_s"]
             rows.append({"variant": name, "particles": P, **st, "particles_per_s": rate,
                          "best_particles_per_s": P / st["min_s"], "ratio_to_seed": rate / SEED_PARTICLES_PER_S,
                          "best_ratio_to_seed": P / st["min_s"] / SEED_PARTICLES_PER_S,
                          "noise_array": name.endswith("drawn"), "in_place": name != "lut_fused_alloc",
+                         "threads": 1 if name.endswith("1thread") else int(numba.get_num_threads()),
                          "table_entries": (1 << seed_tables.bits) if name == "lut_fused_seed_tables"
                          else ((1 << tables.bits) if name.startswith("lut") else None)})
             print(f"P={P:>9d} {name:22s} {st['median_s'] * 1e3:10.3f} ms  {rate:.3g} particles/s "

@@ -7,7 +7,8 @@ thread. This benchmark measures, for the numpy reference, the Numba CPU backend 
 * ``kernel_rows``: the kernel alone, in this process, after a warm-up call: median and best of ``repeat`` runs.
   Variants: ``alloc`` (``transform_points(T, pts)``: the output is a fresh ``np.empty``, whose pages fault in
   and are zeroed by the OS during the kernel, as a caller pays it), ``out`` (into a preallocated, already
-  touched buffer, ``out=``) and ``inplace`` (``out=pts``). Beside each row, the physical limit measured in the
+  touched buffer, ``out=``) and ``inplace`` (``out=pts``); for the CPU also ``out_1thread`` and
+  ``inplace_1thread`` (Numba on one thread, like ``numpy.copyto``: comparable even when another job holds a core). Beside each row, the physical limit measured in the
   same rounds: streaming the same bytes (``12 N`` read, ``12 N`` written) by ``numpy.copyto`` (memcpy, one
   thread) and by a Numba ``prange`` copy (all threads), into a touched buffer; ``ratio_to_copyto`` and
   ``ratio_to_fastest_copy`` are median / median (``best_ratio_*``: best / best). Every round times all rows of
@@ -61,6 +62,18 @@ def _numba_copy():
     return pcopy
 
 
+def _one_thread(fn, *args, **kwargs):
+    """``fn(*args, **kwargs)`` with Numba's parallel loops on one thread (the setting restored after)."""
+    import numba
+
+    n = numba.get_num_threads()
+    numba.set_num_threads(1)
+    try:
+        return fn(*args, **kwargs)
+    finally:
+        numba.set_num_threads(n)
+
+
 def _stats(times) -> dict:
     a = np.asarray(times)
     return {"median_s": float(np.median(a)), "min_s": float(a.min()), "max_s": float(a.max()), "repeat": int(a.size)}
@@ -102,6 +115,9 @@ def kernel_rows(sizes, repeat_for, backends) -> tuple[list, list]:
             if name != "numpy":
                 fns[(name, "out")] = lambda be=be: be.transform_points(T, pts, out=out)
                 fns[(name, "inplace")] = lambda be=be: be.transform_points(T, work, out=work)
+            if name == "cpu":  # one thread, like memcpy: a like-for-like pair even when another job holds a core
+                fns[(name, "out_1thread")] = lambda be=be: _one_thread(be.transform_points, T, pts, out=out)
+                fns[(name, "inplace_1thread")] = lambda be=be: _one_thread(be.transform_points, T, work, out=work)
         res = _rounds(fns, repeat_for(n))
         ct, pc = res[("copy", "numpy.copyto")], res[("copy", "numba_parallel_copy")]
         fastest_med = min(ct["median_s"], pc["median_s"])
@@ -220,7 +236,7 @@ def run(quick: bool) -> dict:
     backends = {"numpy": get_backend("numpy"), "cpu": get_backend("cpu")}
 
     def repeat_for(n):
-        return 3 if quick else (5 if n >= 10**8 else 9)
+        return 3 if quick else (7 if n >= 10**8 else (15 if n >= 10**7 else 31))
 
     load_before = os.getloadavg()
     krows, copies = kernel_rows(sizes, repeat_for, backends)

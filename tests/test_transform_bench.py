@@ -23,7 +23,8 @@ def test_transform_quick_writes_kernel_copy_program_and_gpu_rows(results):
     assert d["seed"]["whole_program_s"]["10000000"] == 0.374841 and d["seed"]["whole_program_s"]["100000000"] is None
     kinds = {(r["backend"], r["variant"], r["n"]) for r in d["kernel_rows"]}
     for n in sizes:
-        assert {("numpy", "alloc", n), ("cpu", "alloc", n), ("cpu", "out", n), ("cpu", "inplace", n)} <= kinds
+        assert {("numpy", "alloc", n), ("cpu", "alloc", n), ("cpu", "out", n), ("cpu", "inplace", n),
+                ("cpu", "out_1thread", n), ("cpu", "inplace_1thread", n)} <= kinds
         assert {r["method"] for r in d["copy_rows"] if r["n"] == n} == {"numpy.copyto", "numba_parallel_copy"}
     for r in d["kernel_rows"]:
         assert r["bytes_moved"] == 24 * r["n"] and 0 < r["min_s"] <= r["median_s"]
@@ -52,7 +53,8 @@ def test_particles_quick_writes_rates_beside_the_seed(results):
     assert main(["bench", "particles", "--quick"]) == 0
     d = json.loads((results / "particles-quick.json").read_text())
     assert d["seed_particles_per_s"] == 1.6e8
-    variants = {"lut_fused", "lut_fused_seed_tables", "lut_fused_alloc", "lut_drawn", "numpy_drawn", "philox_drawn"}
+    variants = {"lut_fused", "lut_fused_seed_tables", "lut_fused_1thread", "lut_fused_alloc", "lut_drawn",
+                "numpy_drawn", "philox_drawn"}
     for P in (1000, 10000):
         rows = {r["variant"]: r for r in d["rows"] if r["particles"] == P}
         assert set(rows) == variants

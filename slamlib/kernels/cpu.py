@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import math
 
+import numba
 import numpy as np
 from numba import njit, prange
 
@@ -129,6 +130,19 @@ def _move_lut_nb(R, t, dR, trans_delta, sigma, key, perm, bits, normal, step_tab
                                  trans_delta[2] + step_tab[2, _hash_index(h, 2, perm, bits)], t_new, i)
 
 
+def _launch(kernel, tasks, *args):
+    """``kernel(*args)`` with its ``prange`` on one thread when it has a single task: waking the pool's other
+    threads would cost more than the work (and on a busy machine, a scheduler time slice)."""
+    if tasks > 1:
+        return kernel(*args)
+    threads = numba.get_num_threads()
+    numba.set_num_threads(1)
+    try:
+        return kernel(*args)
+    finally:
+        numba.set_num_threads(threads)
+
+
 def _check_particles(R, t):
     R = np.ascontiguousarray(R, dtype=np.float64)
     t = np.ascontiguousarray(t, dtype=np.float64)
@@ -187,13 +201,13 @@ def move_particles(R, t, rpy_delta, trans_delta, noise, sigma, out=None):
         trig_tab = np.empty((3, T, 2) if with_trig else (3, 1, 2))
         _lut_tables_nb(tables.normal, sigma, step_tab, trig_tab, with_trig)
         key = np.uint64(frame_key(np.uint64(noise.step), np.uint64(noise.seed)))
-        _move_lut_nb(R, t, dR, trans, sigma, key, tables.perm, np.int64(tables.bits), tables.normal, step_tab,
-                     trig_tab, with_trig, R_new, t_new, PARTICLE_BLOCK)
+        _launch(_move_lut_nb, -(-P // PARTICLE_BLOCK), R, t, dR, trans, sigma, key, tables.perm,
+                np.int64(tables.bits), tables.normal, step_tab, trig_tab, with_trig, R_new, t_new, PARTICLE_BLOCK)
         return R_new, t_new
     noise = np.ascontiguousarray(noise, dtype=np.float64)
     if noise.shape != (P, 6):
         raise ValueError(f"noise must have shape (P, 6) = ({P}, 6), got {noise.shape}")
-    _move_nb(R, t, dR, trans, noise, sigma, R_new, t_new, PARTICLE_BLOCK)
+    _launch(_move_nb, -(-P // PARTICLE_BLOCK), R, t, dR, trans, noise, sigma, R_new, t_new, PARTICLE_BLOCK)
     return R_new, t_new
 
 
@@ -252,11 +266,12 @@ def transform_points(T, points, out=None):
         out = np.empty_like(pts)
     elif out is pts or (isinstance(out, np.ndarray) and out.shape == pts.shape and _same_memory(out, pts)):
         _check_out(out, pts, "out")
-        _transform_inplace_nb(R32, t32, out.reshape(-1), TRANSFORM_CHUNK)
+        _launch(_transform_inplace_nb, -(-len(pts) // TRANSFORM_CHUNK), R32, t32, out.reshape(-1), TRANSFORM_CHUNK)
         return out
     else:
         _check_out(out, pts, "out")
-    _transform_nb(R32, t32, pts.reshape(-1), out.reshape(-1), TRANSFORM_CHUNK)
+    _launch(_transform_nb, -(-len(pts) // TRANSFORM_CHUNK), R32, t32, pts.reshape(-1), out.reshape(-1),
+            TRANSFORM_CHUNK)
     return out
 
 

@@ -77,6 +77,14 @@ def test_transform_points_grid_stride():
     dev = kc.transform_points(T, kc.to_device(pts))
     assert kc.is_device_array(dev)
     np.testing.assert_allclose(kc.to_host(dev), got, atol=1e-5)
+    host_out = np.full_like(pts, np.nan)  # out= on the host, on the device, and in place on the device
+    assert kc.transform_points(T, pts, out=host_out, threads=16, max_blocks=3) is host_out
+    assert np.array_equal(host_out, got)
+    d = kc.to_device(pts)
+    assert kc.transform_points(T, d, out=d, threads=16, max_blocks=3) is d
+    assert np.array_equal(kc.to_host(d), got)
+    with pytest.raises(ValueError, match="out"):
+        kc.transform_points(T, pts, out=np.empty((299, 3), np.float32))
 
 
 @pytest.fixture(scope="module")

@@ -381,11 +381,12 @@ def lut_normal_device(noise: LutNoise, n: int, threads: int = THREADS):
     return out
 
 
-def transform_points(T, points, threads: int = THREADS, max_blocks: int = MAX_BLOCKS):
+def transform_points(T, points, out=None, threads: int = THREADS, max_blocks: int = MAX_BLOCKS):
     """``p' = R p + t`` for ``T`` (4, 4) and ``points`` (N, 3) float32 -> (N, 3) float32 (float32 arithmetic).
 
     One thread per point in a grid-stride loop of at most ``max_blocks`` blocks. Returns a device array when
-    ``points`` is one.
+    ``points`` is one. ``out`` (N, 3) float32, a device or host array, receives the result and is returned
+    (``out=points`` on the device: in place; each thread reads its point before writing it).
     """
     check_available()
     T = np.asarray(T, dtype=np.float64)
@@ -394,12 +395,18 @@ def transform_points(T, points, threads: int = THREADS, max_blocks: int = MAX_BL
     if T.shape != (4, 4) or pts.ndim != 2 or pts.shape[1] != 3:
         raise ValueError(f"need T (4, 4) and points (N, 3), got {T.shape} and {pts.shape}")
     pts_d = to_device(pts)
-    out = cuda.device_array(pts_d.shape, np.float32)
+    if out is not None and (out.shape != pts_d.shape or np.dtype(out.dtype) != np.float32):
+        raise ValueError(f"out must be a float32 array of shape {pts_d.shape}, got {out.dtype} {out.shape}")
+    res = out if out is not None and is_device_array(out) else cuda.device_array(pts_d.shape, np.float32)
     if pts_d.shape[0]:
         _transform_kernel[_blocks(pts_d.shape[0], threads, max_blocks), threads](  # the pose as a batch of one
             to_device(np.ascontiguousarray(T[None, :3, :3], dtype=np.float32)),
-            to_device(np.ascontiguousarray(T[None, :3, 3], dtype=np.float32)), pts_d, out)
-    return out if on_device else out.copy_to_host()
+            to_device(np.ascontiguousarray(T[None, :3, 3], dtype=np.float32)), pts_d, res)
+    if out is not None:
+        if not is_device_array(out):
+            res.copy_to_host(out)
+        return out
+    return res if on_device else res.copy_to_host()
 
 
 def score_particles(R, t, points, lookup, threads: int = SCORE_THREADS):

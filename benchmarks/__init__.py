@@ -22,6 +22,7 @@ BENCHMARKS = {
     "maps": "benchmarks.maps",
     "noise": "benchmarks.noise",
     "cuda": "benchmarks.cuda",
+    "cuda-static": "benchmarks.cuda_static",
     "slam3d": "benchmarks.slam3d",
     "synth": "benchmarks.synth",
     "peers": "benchmarks.peers",

@@ -82,8 +82,9 @@ def _dim(config) -> int:
 class _Recorder:
     """Stands in for a kernel: ``rec[grid, block](*args)`` notes the launch, then launches the real kernel."""
 
-    def __init__(self, kernel, name, threads, log, wrapper):
+    def __init__(self, kernel, name, threads, log, wrapper, launch=True):
         self.kernel, self.name, self.threads, self.log, self.wrapper = kernel, name, threads, log, wrapper
+        self.launch = launch
 
     def __getitem__(self, config):
         grid, block = config[0], config[1]
@@ -95,7 +96,8 @@ class _Recorder:
             self.log.append({"kernel": self.name, "threads": self.threads, "wrapper": self.wrapper[0],
                              "grid": _dim(grid), "block": _dim(block),
                              "args": [type_spec(typeof(a, Purpose.argument)) for a in args]})
-            return self.kernel[config](*args)
+            if self.launch:
+                self.kernel[config](*args)
 
         return launch
 
@@ -120,12 +122,15 @@ def module_kernels(kc) -> list[str]:
     return sorted(names)
 
 
-def capture_launches(block_sizes=None) -> list[dict]:
+def capture_launches(block_sizes=None, particles: int = 3, points: int = 5, launch: bool = True) -> list[dict]:
     """Run every host wrapper of :mod:`slamlib.kernels.cuda` on tiny inputs (in the simulator) and return one
     record per distinct launch: kernel name, ``threads`` (block size of the per-block-size kernels, else
     ``None``), launch ``grid`` / ``block`` and ``args`` (:func:`type_spec` of each argument), the wrapper.
 
     ``block_sizes``: the block sizes the per-block-size wrappers are run with (default: the module defaults).
+    ``particles`` / ``points``: the sizes passed to the wrappers (resampling gets ``max(particles, threads + 1)``
+    weights, so the block totals are scanned too). ``launch=False`` records the launches without running the
+    kernels (the grids of full-size calls, in no time; the outputs are then meaningless).
     """
     from numba import config as numba_config
 
@@ -143,22 +148,23 @@ def capture_launches(block_sizes=None) -> list[dict]:
     saved_block = kc._block_kernels
 
     def block_kernels(threads):
-        return tuple(_Recorder(k, n, int(threads), log, wrapper) for k, n in zip(saved_block(threads), BLOCK_KERNELS))
+        return tuple(_Recorder(k, n, int(threads), log, wrapper, launch)
+                     for k, n in zip(saved_block(threads), BLOCK_KERNELS))
 
     sizes = tuple(block_sizes) if block_sizes else (kc.SCORE_THREADS,)
     rng = np.random.default_rng(0)
-    P = 3
+    P = int(particles)
     R = np.stack([geometry.rpy_to_matrix(rng.normal(0, 0.1, 3)) for _ in range(P)])
     t = rng.normal(0, 1, (P, 3))
     sigma = np.full(6, 0.01)
-    pts = rng.normal(0, 2, (5, 3)).astype(np.float32)
+    pts = rng.normal(0, 2, (int(points), 3)).astype(np.float32)
     world = rng.normal(0, 2, (200, 3)).astype(np.float32)
     voxel, morton = VoxelHashMap(capacity=2**10), MortonBVHMap()
     voxel.merge(world)
     morton.merge(world)
     try:
         for name in saved:
-            setattr(kc, name, _Recorder(saved[name], name, None, log, wrapper))
+            setattr(kc, name, _Recorder(saved[name], name, None, log, wrapper, launch))
         kc._block_kernels = block_kernels
         wrapper[0] = "move_particles"
         kc.move_particles(R, t, [0, 0, 0.1], [1, 0, 0], rng.normal(size=(P, 6)), sigma)
@@ -172,7 +178,7 @@ def capture_launches(block_sizes=None) -> list[dict]:
             kc.score_particles(R, t, pts, voxel.lookup(), threads=threads)
             kc.score_particles(R, t, pts, morton.lookup(), threads=threads)
             wrapper[0] = "systematic_resample"  # more weights than threads: the block totals are scanned too
-            kc.systematic_resample(rng.random(threads + 1), 0.5, threads=threads)
+            kc.systematic_resample(rng.random(max(P, threads + 1)), 0.5, threads=threads)
     finally:
         for name, kernel in saved.items():
             setattr(kc, name, kernel)
@@ -315,6 +321,23 @@ def occupancy(registers: int, shared_bytes: int, block: int, gpu: str) -> dict:
             "occupancy": blocks * warps / g["max_warps_per_sm"]}
 
 
+def launch_fill(grid: int, block: int, occ: dict, gpu: str) -> dict:
+    """How much of ``gpu`` one launch of ``grid`` blocks of ``block`` threads can keep busy (theoretical).
+
+    ``blocks_per_sm``: the grid's blocks per SM when spread evenly (``grid / SMs``); ``busy_sms``: the fraction
+    of SMs that get a block at all; ``waves``: ``grid / (resident blocks per SM x SMs)`` (below 1: the card is not
+    filled, above 1: more than one round of blocks); ``warp_fraction``: resident warps per SM the launch can
+    provide, over the SM's maximum (at most the kernel's occupancy ``occ`` from :func:`occupancy`).
+    """
+    g = GPUS[gpu]
+    warps = -(-int(block) // 32)
+    resident = occ["blocks_per_sm"] * g["sms"]
+    per_sm = min(grid / g["sms"], occ["blocks_per_sm"])
+    return {"grid": int(grid), "sms": g["sms"], "blocks_per_sm": grid / g["sms"],
+            "busy_sms": min(grid, g["sms"]) / g["sms"], "waves": grid / resident,
+            "warp_fraction": per_sm * warps / g["max_warps_per_sm"]}
+
+
 # ------------------------------------------------------------------------------------------ orchestration
 def _env(simulator: bool) -> dict:
     env = {k: v for k, v in os.environ.items() if k not in ("NUMBA_ENABLE_CUDASIM", "SLAMLIB_REAL_CUDA")}
@@ -332,14 +355,23 @@ def _run_json(args: list[str], simulator: bool, stdin: str | None = None):
     return json.loads(proc.stdout)
 
 
-def static_report(ccs=DEFAULT_CCS, block_sizes=None) -> dict:
+def static_report(ccs=DEFAULT_CCS, block_sizes=None, fill_sizes: dict | None = None) -> dict:
     """Capture the launches (simulator subprocess), compile them for every ``cc`` (one clean subprocess per
     target, run side by side) and add the occupancy on the card of each target (:data:`GPUS`).
 
+    ``fill_sizes`` (``{"particles": P, "points": N}``): also record the grids the wrappers launch at these sizes
+    (kernels not run) and add each kernel's :func:`launch_fill` (``fill``) at them.
+
     Returns ``{"toolchain": ..., "launches": [...], "results": [...]}``; each result is a compiled launch
-    (:func:`compile_launch`) with ``gpu`` and ``occupancy`` when it compiled.
+    (:func:`compile_launch`) with ``gpu``, ``occupancy`` when it compiled, and ``fill`` when asked.
     """
-    launches = _run_json(["capture", *[f"--threads={t}" for t in (block_sizes or ())]], simulator=True)
+    threads_args = [f"--threads={t}" for t in (block_sizes or ())]
+    launches = _run_json(["capture", *threads_args], simulator=True)
+    grids = {}
+    if fill_sizes:
+        sized = _run_json(["capture", *threads_args, f"--particles={int(fill_sizes['particles'])}",
+                           f"--points={int(fill_sizes['points'])}", "--dry"], simulator=True)
+        grids = {(r["kernel"], r["threads"]): r["grid"] for r in sized}
     payload = json.dumps(launches)
     with ThreadPoolExecutor(len(ccs)) as pool:
         per_cc = list(pool.map(lambda cc: _run_json(["compile", f"--cc={cc[0]}{cc[1]}"], False, payload), ccs))
@@ -350,6 +382,9 @@ def static_report(ccs=DEFAULT_CCS, block_sizes=None) -> dict:
             rec["gpu"] = gpu
             if rec["ok"] and gpu:
                 rec["occupancy"] = occupancy(rec["registers"], rec["shared_bytes"], rec["block"], gpu)
+                grid = grids.get((rec["kernel"], rec["threads"]))
+                if grid is not None:
+                    rec["fill"] = launch_fill(grid, rec["block"], rec["occupancy"], gpu)
             results.append(rec)
     return {"toolchain": per_cc[0]["toolchain"], "launches": launches, "results": results}
 
@@ -373,9 +408,12 @@ def main(argv=None) -> int:
     parser.add_argument("command", choices=["capture", "compile"])
     parser.add_argument("--threads", type=int, action="append", help="block size of the per-block-size kernels")
     parser.add_argument("--cc", default="90", help="compute capability to compile for, e.g. 80 or 90")
+    parser.add_argument("--particles", type=int, default=3, help="capture: particles passed to the wrappers")
+    parser.add_argument("--points", type=int, default=5, help="capture: scan points passed to the wrappers")
+    parser.add_argument("--dry", action="store_true", help="capture: record the launches without running them")
     args = parser.parse_args(argv)
     if args.command == "capture":
-        json.dump(capture_launches(args.threads), sys.stdout)
+        json.dump(capture_launches(args.threads, args.particles, args.points, launch=not args.dry), sys.stdout)
         return 0
     reason = check_toolchain()
     if reason:

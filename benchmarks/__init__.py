@@ -22,7 +22,6 @@ BENCHMARKS = {
     "maps": "benchmarks.maps",
     "noise": "benchmarks.noise",
     "cuda": "benchmarks.cuda",
-    "cuda-static": "benchmarks.cuda_static",
     "slam3d": "benchmarks.slam3d",
     "synth": "benchmarks.synth",
     "peers": "benchmarks.peers",

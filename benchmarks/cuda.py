@@ -8,6 +8,9 @@ device (copies excluded), one launch untimed first (JIT compilation).
 
 Without a GPU there is nothing to measure: the benchmark exits non-zero saying so (it never reports
 simulator timings, which are ~10^6 times slower and meaningless), and no JSON is written.
+
+``slamlib bench cuda --static`` needs no GPU: every kernel compiled for A100 and H100, registers, shared memory,
+spills and theoretical occupancy (:mod:`benchmarks.cuda_static`; static analysis, no timing).
 """
 
 from __future__ import annotations
@@ -34,9 +37,16 @@ def _no_gpu_reason() -> str | None:
     return None
 
 
-def run(quick: bool = False, allow_simulator: bool = False, sizes: dict | None = None) -> dict:
+def run(quick: bool = False, allow_simulator: bool = False, sizes: dict | None = None, static: bool = False) -> dict:
     """Time the kernels; ``SystemExit`` (non-zero) when no GPU. ``allow_simulator`` / ``sizes`` exist only for
-    the smoke test of this code in the simulator (its numbers are then marked ``"simulator": true``)."""
+    the smoke test of this code in the simulator (its numbers are then marked ``"simulator": true``).
+
+    ``static=True`` (``slamlib bench cuda --static``): no GPU and no timing, the kernels' compiled resources and
+    theoretical occupancy instead (:func:`benchmarks.cuda_static.run_static`, ``results/cuda-static.json``)."""
+    if static:
+        from benchmarks.cuda_static import run_static
+
+        return run_static()
     reason = _no_gpu_reason()
     simulator = os.environ.get("NUMBA_ENABLE_CUDASIM") == "1"
     if reason is not None and not (allow_simulator and simulator):

@@ -1,4 +1,4 @@
-"""``slamlib bench cuda-static``: the CUDA kernels' resources and theoretical occupancy, by static analysis.
+"""``slamlib bench cuda --static``: the CUDA kernels' resources and theoretical occupancy, by static analysis.
 
 No GPU and no timing: every kernel of :mod:`slamlib.kernels.cuda` is compiled for sm_80 (A100) and sm_90 (H100)
 with the argument types its host wrapper really passes (:func:`slamlib.kernels.cuda_static.static_report`), and
@@ -14,19 +14,19 @@ any time. Rows: one per kernel, block size (``threads`` of the per-block-size ke
 
 from __future__ import annotations
 
-HELP = "CUDA kernels compiled for A100/H100 without a GPU: registers, shared memory, spills, occupancy (static)"
-
 #: Block sizes of the per-block-size kernels (scoring, scan) in the report.
 BLOCK_SIZES = (128, 256)
 
 
-def run(quick: bool = False) -> dict:
+def run_static() -> dict:
+    """The static report (see the module's docstring); ``SystemExit`` when the toolchain is missing or a kernel
+    does not compile."""
     from slamlib.kernels import cuda_static as cs
     from slamlib.slam3d.config import FilterConfig
 
     reason = cs.check_toolchain()
     if reason:
-        raise SystemExit(f"slamlib bench cuda-static: {reason}")
+        raise SystemExit(f"slamlib bench cuda --static: {reason}")
     defaults = FilterConfig()
     sizes = {"particles": int(defaults.particles), "points": int(defaults.scored_points)}
     report = cs.static_report(cs.DEFAULT_CCS, BLOCK_SIZES, fill_sizes=sizes)
@@ -45,7 +45,7 @@ def run(quick: bool = False) -> dict:
         rows.append(row)
     failed = [f"{r['kernel']} {r['arch']}" for r in rows if not r["ok"]]
     if failed:
-        raise SystemExit(f"slamlib bench cuda-static: kernels that do not compile: {', '.join(failed)}")
+        raise SystemExit(f"slamlib bench cuda --static: kernels that do not compile: {', '.join(failed)}")
     return {"static_analysis": True,
             "note": "static analysis (NVVM + ptxas via nvJitLink, no GPU): registers, memory and theoretical "
                     "occupancy from the documented per-SM limits; nothing here is a measured time",

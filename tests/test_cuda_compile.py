@@ -92,3 +92,27 @@ def test_type_specs_round_trip():
     for t in (types.Array(types.float32, 2, "C"), types.Array(types.int64, 1, "A"), types.int64, types.float64,
               types.boolean):
         assert cs.spec_type(cs.type_spec(t)) == t
+
+
+def test_committed_static_report_covers_every_kernel_on_both_cards():
+    """benchmarks/results/cuda-static.json (``slamlib bench cuda --static``), which the kernels chapter shows."""
+    from slamlib.paths import load_bench_result
+
+    result = load_bench_result("cuda-static")
+    assert result is not None and result["static_analysis"] is True
+    kernels = set(cs.module_kernels(kc)) | set(cs.BLOCK_KERNELS)
+    for gpu in cs.GPUS:
+        rows = [r for r in result["rows"] if r["gpu"] == gpu]
+        assert {r["kernel"] for r in rows} == kernels
+        assert all(r["ok"] and r["spill_stores_bytes"] == 0 and r["spill_loads_bytes"] == 0 for r in rows)
+        assert all(0 < r["occ_occupancy"] <= 1 for r in rows)
+
+
+def test_bench_static_is_refused_by_benchmarks_without_it(tmp_path):
+    import subprocess
+    import sys
+
+    res = subprocess.run([sys.executable, "-m", "slamlib.cli", "bench", "kernels", "--static", "--out",
+                          str(tmp_path / "x.json")], capture_output=True, text=True, timeout=300)
+    assert res.returncode == 2 and "no --static" in res.stderr
+    assert not (tmp_path / "x.json").exists()

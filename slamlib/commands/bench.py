@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import importlib
 import importlib.util
+import inspect
 import json
 import sys
 from pathlib import Path
@@ -28,6 +29,10 @@ def add_arguments(parser) -> None:
     parser.add_argument("name", nargs="?", help="benchmark to run; --list shows them")
     parser.add_argument("--list", action="store_true", help="list the benchmarks and exit")
     parser.add_argument("--quick", action="store_true", help="small sizes, for a smoke test")
+    parser.add_argument("--static", action="store_true",
+                        help="static analysis instead of timings, for the benchmarks that offer it (cuda: every "
+                             "kernel compiled for A100/H100 without a GPU; registers, spills, occupancy); "
+                             "writes NAME-static.json")
     parser.add_argument("--out", type=Path, default=None,
                         help="output JSON path (default NAME.json, NAME-quick.json with --quick, in the checkout's "
                              "benchmarks/results/ or $SLAMLIB_BENCH_RESULTS)")
@@ -78,9 +83,14 @@ def main(args) -> int:
         return 0
     module = load_benchmark(args.name)
     describe = importlib.import_module(f"{PACKAGE}.machine").describe
+    static = bool(getattr(args, "static", False))
+    if static and "static" not in inspect.signature(module.run).parameters:
+        print(f"slamlib bench: {args.name} offers no --static analysis", file=sys.stderr)
+        return 2
     result = {"benchmark": args.name, "quick": bool(args.quick), "machine": describe()}
-    result.update(module.run(quick=args.quick))
-    out = args.out or paths.bench_results_dir() / f"{args.name}{'-quick' if args.quick else ''}.json"
+    result.update(module.run(quick=args.quick, static=True) if static else module.run(quick=args.quick))
+    suffix = ("-static" if static else "") + ("-quick" if args.quick else "")
+    out = args.out or paths.bench_results_dir() / f"{args.name}{suffix}.json"
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(result, indent=2) + "\n")
     print(json.dumps(result, indent=2))

@@ -234,13 +234,13 @@ def _patch_current_device(cc) -> None:
     dispatcher.get_current_device = lambda: _Target
 
 
-def kernel_function(name: str, threads):
-    """The Python function of kernel ``name`` (``threads``: the block size of a per-block-size kernel)."""
+def kernel_dispatcher(name: str, threads):
+    """The ``cuda.jit`` kernel ``name`` (``threads``: the block size of a per-block-size kernel)."""
     from slamlib.kernels import cuda as kc
 
     if threads is None:
-        return getattr(kc, name).py_func
-    return kc._block_kernels(int(threads))[BLOCK_KERNELS.index(name)].py_func
+        return getattr(kc, name)
+    return kc._block_kernels(int(threads))[BLOCK_KERNELS.index(name)]
 
 
 def compile_launch(launch: dict, cc) -> dict:
@@ -254,9 +254,13 @@ def compile_launch(launch: dict, cc) -> dict:
     rec = dict(launch, cc=list(cc), ok=False, error=None)
     try:
         sig = tuple(spec_type(s) for s in launch["args"])
-        ptx, _ = cuda.compile_ptx(kernel_function(launch["kernel"], launch["threads"]), sig, cc=tuple(cc))
+        kernel = kernel_dispatcher(launch["kernel"], launch["threads"])
+        opts = kernel.targetoptions  # the kernel's own cuda.jit options, as a launch would compile it
+        ptx, _ = cuda.compile_ptx(kernel.py_func, sig, cc=tuple(cc), debug=opts.get("debug"),
+                                  lineinfo=opts.get("lineinfo", False), fastmath=opts.get("fastmath", False),
+                                  opt=opts.get("opt"), launch_bounds=opts.get("launch_bounds"))
         entry = re.search(r"\.entry\s+(\S+?)\s*\(", ptx).group(1)
-        log = link_log(ptx, cc)
+        log = link_log(ptx, cc, opts.get("max_registers"))
     except Exception as exc:  # noqa: BLE001 - every compile failure is reported, and fails the check
         rec["error"] = f"{type(exc).__name__}: {exc}"[:4000]
         return rec
@@ -264,11 +268,13 @@ def compile_launch(launch: dict, cc) -> dict:
     return rec
 
 
-def link_log(ptx: str, cc) -> str:
-    """nvJitLink's verbose log (ptxas' resource report) of assembling ``ptx`` for ``sm_XY``."""
+def link_log(ptx: str, cc, max_registers: int | None = None) -> str:
+    """nvJitLink's verbose log (ptxas' resource report) of assembling ``ptx`` for ``sm_XY`` (``max_registers``:
+    the kernel's ``cuda.jit(max_registers=...)``, ptxas' ``-maxrregcount``)."""
     from cuda.core import Linker, LinkerOptions, ObjectCode
 
-    linker = Linker(ObjectCode.from_ptx(ptx.encode()), options=LinkerOptions(arch=f"sm_{cc[0]}{cc[1]}", verbose=True))
+    options = LinkerOptions(arch=f"sm_{cc[0]}{cc[1]}", verbose=True, max_register_count=max_registers)
+    linker = Linker(ObjectCode.from_ptx(ptx.encode()), options=options)
     linker.link("cubin")
     return linker.get_info_log()
 

@@ -2,7 +2,9 @@
 
 Rows: ``move_particles`` with device LUT noise and with a noise array already on the device (the rotation +
 translation kernels), ``transform_points`` (grid-stride), fused ``score_particles`` on the synthetic street of
-:func:`slamlib.synth.street.street_scene` in the voxel-hash map, ``systematic_resample`` (scan + binary search),
+:func:`slamlib.synth.street.street_scene` in the voxel-hash map in both layouts (one block per particle; blocks
+over particle x point tiles, ``layout="tiles"``, which keeps more SMs busy at the default 300 particles),
+``systematic_resample`` (scan + binary search),
 and the LUT noise fill alone. Each is timed with ``cuda.synchronize()`` after the call, inputs already on the
 device (copies excluded), one launch untimed first (JIT compilation).
 
@@ -61,9 +63,9 @@ def run(quick: bool = False, allow_simulator: bool = False, sizes: dict | None =
     from slamlib.maps import VoxelHashMap
 
     if sizes is None:
-        sizes = ({"P": [1000, 10000], "N": [10000], "points": [10**6], "resample": [10**4, 10**6], "map": 100_000}
+        sizes = ({"P": [300, 1000, 10000], "N": [10000], "points": [10**6], "resample": [10**4, 10**6], "map": 100_000}
                  if quick else
-                 {"P": [1000, 10000, 100000], "N": [10000, 120000], "points": [10**6, 10**7],
+                 {"P": [300, 1000, 10000, 100000], "N": [1000, 10000, 120000], "points": [10**6, 10**7],
                   "resample": [10**3, 10**4, 10**6], "map": 400_000})
     repeat = 3 if (quick or simulator) else 7
     rng = np.random.default_rng(0)
@@ -102,8 +104,9 @@ def run(quick: bool = False, allow_simulator: bool = False, sizes: dict | None =
         t = kc.to_device(rng.normal(0, 0.3, (P, 3)))
         for n in sizes["N"]:
             pts = kc.to_device(world[rng.choice(len(world), n)])
-            timed("score_particles", P * n, lambda: kc.score_particles(R, t, pts, lookup_d), P=P, N=n,
-                  map="voxel_hash", unit="point lookups")
+            for layout in kc.SCORE_LAYOUTS:  # one block per particle, or particle x point tiles
+                timed("score_particles", P * n, lambda: kc.score_particles(R, t, pts, lookup_d, layout=layout),
+                      P=P, N=n, map="voxel_hash", layout=layout, unit="point lookups")
     for P in sizes["resample"]:
         w = kc.to_device(rng.random(P))
         timed("systematic_resample", P, lambda: kc.systematic_resample(w, 0.5))

@@ -21,8 +21,10 @@ def report():
 
 
 def test_every_kernel_is_launched_by_a_wrapper(report):
+    factories = {name for name, obj in vars(kc).items() if name.endswith("_kernels") and hasattr(obj, "cache_info")}
+    assert factories == set(cs.FACTORIES)  # a new per-block-size factory must be listed there
     kernels = set(cs.module_kernels(kc)) | set(cs.BLOCK_KERNELS)
-    assert len(kernels) >= 9
+    assert len(kernels) >= 12
     launched = {launch["kernel"] for launch in report["launches"]}
     assert launched == kernels, f"kernels no wrapper launched: {sorted(kernels - launched)}"
     sizes = {launch["threads"] for launch in report["launches"] if launch["kernel"] in cs.BLOCK_KERNELS}

@@ -35,7 +35,12 @@ Thread mapping
   the CPU's branch-and-bound, which needs a per-thread stack) and accumulate a private float64 sum; a tree
   reduction in shared memory (``log2(blockDim)`` halving rounds with ``syncthreads``) leaves the particle's
   score in ``s[0]``. Memory is ``O(P + N + map)``: the ``P x N`` transformed points
-  (``1000 x 120k x 12 B = 1.4 GB``) are never stored.
+  (``1000 x 120k x 12 B = 1.4 GB``) are never stored. With ``layout="tiles"`` the grid is
+  ``(P, ceil(N / tile_points))`` instead: block ``(i, k)`` sums particle ``i``'s points ``k * tile_points ..``
+  into ``partial[i, k]`` and a second kernel (one thread per particle) adds each row in order. At the default
+  300 particles one block per particle gives an H100's 132 SMs about two blocks each, below what they can hold
+  (``slamlib bench cuda --static``); tiles of :data:`TILE_POINTS` multiply the blocks by the number of tiles, at
+  the cost of a ``(P, tiles)`` float64 buffer and a second launch.
 * **systematic_resample** (step 11): an inclusive **scan** (Hillis & Steele 1986, per block in shared memory;
   block totals scanned recursively, then added back: Harris et al., GPU Gems 3 ch. 39) of the weights gives
   ``c``; thread ``i`` binary-searches the first ``j`` with ``(u0 + i) / P < c[j] / c[P-1]`` (``j = P - 1`` when
@@ -68,6 +73,10 @@ THREADS = 128
 SCORE_THREADS = 128
 #: Upper bound on blocks of the grid-stride point kernel.
 MAX_BLOCKS = 4096
+#: Points per block of the tiled scoring layout (``score_particles(..., layout="tiles")``).
+TILE_POINTS = 256
+#: Thread mappings of ``score_particles``: one block per particle, or blocks over particle x point tiles.
+SCORE_LAYOUTS = ("block", "tiles")
 
 UNAVAILABLE_MESSAGE = (
     "the CUDA backend needs an NVIDIA GPU with its driver and numba-cuda: install it with "
@@ -238,6 +247,16 @@ if cuda is not None:
         out[i] = lo
 
     @cuda.jit
+    def _sum_tiles_kernel(partial, out):
+        """``out[i] = sum_k partial[i, k]`` in order of ``k``: the second pass of the tiled scoring layout."""
+        i = cuda.grid(1)
+        if i < out.shape[0]:
+            acc = 0.0
+            for k in range(partial.shape[1]):
+                acc += partial[i, k]
+            out[i] = acc
+
+    @cuda.jit
     def _add_offsets_kernel(out, block_scan):
         i = cuda.grid(1)
         b = cuda.blockIdx.x
@@ -246,8 +265,8 @@ if cuda is not None:
 
 
 @lru_cache(maxsize=None)
-def _block_kernels(threads: int):
-    """The shared-memory kernels for a block size ``threads`` (a power of two; compiled once per size)."""
+def _block_sum_function(threads: int):
+    """The block-wide tree reduction for a block size ``threads`` (a power of two) as a device function."""
     if threads < 1 or threads & (threads - 1):
         raise ValueError(f"threads per block must be a power of two, got {threads}")
 
@@ -262,6 +281,14 @@ def _block_kernels(threads: int):
                 s[tid] += s[tid + half]
             cuda.syncthreads()
             half //= 2
+
+    return _block_sum
+
+
+@lru_cache(maxsize=None)
+def _block_kernels(threads: int):
+    """The shared-memory kernels for a block size ``threads`` (a power of two; compiled once per size)."""
+    _block_sum = _block_sum_function(threads)
 
     @cuda.jit
     def score_voxel(R, t, pts, keys, mean, icov, inv_h, log2_capacity, max_probe, m_max, out):
@@ -310,6 +337,43 @@ def _block_kernels(threads: int):
             block_sums[cuda.blockIdx.x] = s[tid]
 
     return score_voxel, score_morton, scan_block
+
+
+@lru_cache(maxsize=None)
+def _tile_kernels(threads: int):
+    """The scoring kernels of the tiled layout for a block size ``threads`` (a power of two): block ``(i, k)``
+    writes the sum over particle ``i``'s points ``k * tile .. (k + 1) * tile - 1`` to ``partial[i, k]``."""
+    _block_sum = _block_sum_function(threads)
+
+    @cuda.jit
+    def score_voxel_tiles(R, t, pts, keys, mean, icov, inv_h, log2_capacity, max_probe, m_max, tile, partial):
+        i = cuda.blockIdx.x  # particle
+        k = cuda.blockIdx.y  # tile of points
+        tid = cuda.threadIdx.x
+        s = cuda.shared.array(threads, np.float64)
+        acc = 0.0
+        for j in range(k * tile + tid, min((k + 1) * tile, pts.shape[0]), threads):
+            wx, wy, wz = _world_point(R, t, i, np.float64(pts[j, 0]), np.float64(pts[j, 1]), np.float64(pts[j, 2]))
+            acc += _voxel_term(wx, wy, wz, keys, mean, icov, inv_h, log2_capacity, max_probe, m_max)
+        _block_sum(s, tid, acc)
+        if tid == 0:
+            partial[i, k] = s[0]
+
+    @cuda.jit
+    def score_morton_tiles(R, t, pts, points, cell_codes, cell_start, quantum, cell_level, r2, scale, tile, partial):
+        i = cuda.blockIdx.x
+        k = cuda.blockIdx.y
+        tid = cuda.threadIdx.x
+        s = cuda.shared.array(threads, np.float64)
+        acc = 0.0
+        for j in range(k * tile + tid, min((k + 1) * tile, pts.shape[0]), threads):
+            wx, wy, wz = _world_point(R, t, i, np.float64(pts[j, 0]), np.float64(pts[j, 1]), np.float64(pts[j, 2]))
+            acc += scale * _morton_d2(wx, wy, wz, points, cell_codes, cell_start, quantum, cell_level, r2)
+        _block_sum(s, tid, acc)
+        if tid == 0:
+            partial[i, k] = s[0]
+
+    return score_voxel_tiles, score_morton_tiles
 
 
 # ------------------------------------------------------------------------------------------- host functions
@@ -409,8 +473,12 @@ def transform_points(T, points, out=None, threads: int = THREADS, max_blocks: in
     return res if on_device else res.copy_to_host()
 
 
-def score_particles(R, t, points, lookup, threads: int = SCORE_THREADS):
+def score_particles(R, t, points, lookup, threads: int = SCORE_THREADS, layout: str = "block",
+                    tile_points: int = TILE_POINTS):
     """Fused transform + map lookup log-likelihood (P,) float64, one block of ``threads`` per particle.
+
+    ``layout="tiles"``: blocks over particles x tiles of ``tile_points`` points, partial sums added by a second
+    kernel (more blocks for few particles; see the module's docstring). Same values up to summation order.
 
     ``lookup`` is a :class:`~slamlib.maps.base.VoxelHashLookup` or :class:`~slamlib.maps.base.MortonLookup`
     (numpy fields, or device fields from :func:`lookup_to_device`). A map's numpy lookup is uploaded once per map
@@ -422,10 +490,20 @@ def score_particles(R, t, points, lookup, threads: int = SCORE_THREADS):
     pts = points if is_device_array(points) else np.ascontiguousarray(points, dtype=np.float32)
     if pts.ndim != 2 or pts.shape[1] != 3:
         raise ValueError(f"points must have shape (N, 3), got {pts.shape}")
+    if layout not in SCORE_LAYOUTS:
+        raise ValueError(f"layout must be one of {SCORE_LAYOUTS}, got {layout!r}")
+    if int(tile_points) < 1:
+        raise ValueError(f"tile_points must be >= 1, got {tile_points}")
     pts_d = to_device(pts)
     P = R_d.shape[0]
     out = cuda.device_array(P, np.float64)
     score_voxel, score_morton, _ = _block_kernels(int(threads))
+    if layout == "tiles":
+        n_tiles = max(1, -(-pts_d.shape[0] // int(tile_points)))
+        partial = cuda.device_array((P, n_tiles), np.float64)
+        voxel_tiles, morton_tiles = _tile_kernels(int(threads))
+        score_voxel = _TileLaunch(voxel_tiles, n_tiles, int(tile_points), partial, out)
+        score_morton = _TileLaunch(morton_tiles, n_tiles, int(tile_points), partial, out)
     lk = lookup_to_device(lookup)  # uploads the map only when its version changed
     if lk.kind == KIND_VOXEL_HASH:
         if P:
@@ -443,6 +521,23 @@ def score_particles(R, t, points, lookup, threads: int = SCORE_THREADS):
     else:
         raise ValueError(f"unknown lookup kind {lookup.kind!r}")
     return out if on_device else out.copy_to_host()
+
+
+class _TileLaunch:
+    """``launch[P, threads](*args, out)`` of a per-particle scoring kernel, done by the tiled layout instead:
+    ``tile_kernel[(P, n_tiles), threads](*args, tile, partial)``, then the row sums of ``partial`` into ``out``."""
+
+    def __init__(self, tile_kernel, n_tiles, tile, partial, out):
+        self.kernel, self.n_tiles, self.tile, self.partial, self.out = tile_kernel, n_tiles, tile, partial, out
+
+    def __getitem__(self, config):
+        P, threads = config
+
+        def launch(*args):
+            self.kernel[(P, self.n_tiles), threads](*args[:-1], np.int64(self.tile), self.partial)
+            _sum_tiles_kernel[_blocks(P, THREADS), THREADS](self.partial, self.out)
+
+        return launch
 
 
 def inclusive_scan(x, threads: int = SCORE_THREADS):

@@ -102,9 +102,12 @@ class _Recorder:
         return launch
 
 
-#: Names of the module-level kernels of :mod:`slamlib.kernels.cuda` and of the per-block-size ones
-#: (:func:`slamlib.kernels.cuda._block_kernels`, in the order it returns them).
-BLOCK_KERNELS = ("score_voxel", "score_morton", "scan_block")
+#: The per-block-size kernels of :mod:`slamlib.kernels.cuda`: factory name -> the names of the kernels it returns,
+#: in order (:func:`slamlib.kernels.cuda._block_kernels`, :func:`slamlib.kernels.cuda._tile_kernels`).
+FACTORIES = {"_block_kernels": ("score_voxel", "score_morton", "scan_block"),
+             "_tile_kernels": ("score_voxel_tiles", "score_morton_tiles")}
+#: Names of every per-block-size kernel.
+BLOCK_KERNELS = tuple(name for names in FACTORIES.values() for name in names)
 
 
 def module_kernels(kc) -> list[str]:
@@ -145,11 +148,13 @@ def capture_launches(block_sizes=None, particles: int = 3, points: int = 5, laun
     log: list[dict] = []
     wrapper = ["?"]
     saved = {name: getattr(kc, name) for name in module_kernels(kc)}
-    saved_block = kc._block_kernels
+    saved_factories = {name: getattr(kc, name) for name in FACTORIES}
 
-    def block_kernels(threads):
-        return tuple(_Recorder(k, n, int(threads), log, wrapper, launch)
-                     for k, n in zip(saved_block(threads), BLOCK_KERNELS))
+    def recording(factory):
+        def kernels(threads):
+            return tuple(_Recorder(k, n, int(threads), log, wrapper, launch)
+                         for k, n in zip(saved_factories[factory](threads), FACTORIES[factory]))
+        return kernels
 
     sizes = tuple(block_sizes) if block_sizes else (kc.SCORE_THREADS,)
     rng = np.random.default_rng(0)
@@ -165,7 +170,8 @@ def capture_launches(block_sizes=None, particles: int = 3, points: int = 5, laun
     try:
         for name in saved:
             setattr(kc, name, _Recorder(saved[name], name, None, log, wrapper, launch))
-        kc._block_kernels = block_kernels
+        for factory in FACTORIES:
+            setattr(kc, factory, recording(factory))
         wrapper[0] = "move_particles"
         kc.move_particles(R, t, [0, 0, 0.1], [1, 0, 0], rng.normal(size=(P, 6)), sigma)
         kc.move_particles(R, t, [0, 0, 0.1], [1, 0, 0], LutNoise(make_tables(0, bits=4), 1, 2), sigma)
@@ -175,14 +181,16 @@ def capture_launches(block_sizes=None, particles: int = 3, points: int = 5, laun
         kc.transform_points(geometry.make_pose(R[0], t[0]), pts)
         for threads in sizes:
             wrapper[0] = "score_particles"
-            kc.score_particles(R, t, pts, voxel.lookup(), threads=threads)
-            kc.score_particles(R, t, pts, morton.lookup(), threads=threads)
+            for layout in kc.SCORE_LAYOUTS:
+                kc.score_particles(R, t, pts, voxel.lookup(), threads=threads, layout=layout)
+                kc.score_particles(R, t, pts, morton.lookup(), threads=threads, layout=layout)
             wrapper[0] = "systematic_resample"  # more weights than threads: the block totals are scanned too
             kc.systematic_resample(rng.random(max(P, threads + 1)), 0.5, threads=threads)
     finally:
         for name, kernel in saved.items():
             setattr(kc, name, kernel)
-        kc._block_kernels = saved_block
+        for factory, make in saved_factories.items():
+            setattr(kc, factory, make)
     unique, seen = [], set()
     for rec in log:
         key = json.dumps([rec["kernel"], rec["threads"], rec["args"]])
@@ -240,7 +248,8 @@ def kernel_dispatcher(name: str, threads):
 
     if threads is None:
         return getattr(kc, name)
-    return kc._block_kernels(int(threads))[BLOCK_KERNELS.index(name)]
+    factory = next(f for f, names in FACTORIES.items() if name in names)
+    return getattr(kc, factory)(int(threads))[FACTORIES[factory].index(name)]
 
 
 def compile_launch(launch: dict, cc) -> dict:

@@ -227,3 +227,145 @@ def test_kitti_segment_ends_at_the_first_frame_strictly_beyond_the_length():
     np.testing.assert_allclose(r.speed, 5.0 / 0.7)
     t_ref, r_ref, n_ref = _devkit_literal(gt, est, lengths=(5,), step=1)
     assert (r.t_err_percent, r.n_segments) == (pytest.approx(t_ref, rel=1e-12), n_ref)
+
+
+# ------------------------------------------------------------------ value tests closing mutation survivors
+def _drifting_pair(n=40, seed=8):
+    """Ground truth (random walk, non-trivial rotations) and an estimate with per-step noise, float64."""
+    rng = np.random.default_rng(seed)
+    gt = _random_trajectory(rng, n)
+    est = gt.copy()
+    for i in range(1, n):
+        noise = make_pose(Rotation.from_rotvec(rng.normal(scale=0.02, size=3)).as_matrix(),
+                          rng.normal(scale=0.05, size=3))
+        est[i] = est[i - 1] @ (np.linalg.inv(gt[i - 1]) @ gt[i]) @ noise
+    return est, gt
+
+
+def test_poses_as_3x4_rows_float32_and_bad_shapes():
+    est, gt = _drifting_pair()
+    ref = relative_pose_error(est, gt, delta=3)
+    r34 = relative_pose_error(est[:, :3], gt[:, :3], delta=3)  # KITTI files' (N, 3, 4) rows
+    np.testing.assert_array_equal(r34.trans_errors, ref.trans_errors)
+    np.testing.assert_array_equal(r34.rot_errors, ref.rot_errors)
+    k34 = kitti_odometry_error(est[:, :3], gt[:, :3], lengths=(5.0,), step=1)
+    assert k34.t_err_percent == kitti_odometry_error(est, gt, lengths=(5.0,), step=1).t_err_percent
+    # float32 input is computed in float64 (the float32 products would differ in the 7th digit)
+    e32, g32 = est.astype(np.float32), gt.astype(np.float32)
+    r32 = relative_pose_error(e32, g32, delta=3)
+    want = relative_pose_error(e32.astype(np.float64), g32.astype(np.float64), delta=3)
+    np.testing.assert_array_equal(r32.trans_errors, want.trans_errors)
+    np.testing.assert_array_equal(r32.rot_errors, want.rot_errors)
+    for bad in (np.zeros((4, 5, 5)), np.zeros((4, 4, 3)), np.zeros((4, 3, 5)), np.eye(4)):
+        with pytest.raises(ValueError, match=r"estimate must be \(N, 4, 4\) or \(N, 3, 4\) poses"):
+            relative_pose_error(bad, gt[:4])
+        with pytest.raises(ValueError, match="ground_truth must be"):
+            kitti_odometry_error(gt[:4], bad)
+        with pytest.raises(ValueError, match="estimate must be"):
+            kitti_odometry_error(bad, gt[:4])
+        with pytest.raises(ValueError, match="ground_truth must be"):
+            relative_pose_error(gt[:4], bad)
+
+
+def test_rotation_angle_clips_round_off_at_pi_and_computes_in_float64():
+    assert rotation_angle(np.diag([-1.0 - 1e-12, -1.0 - 1e-12, 1.0])) == np.pi  # cos just below -1
+    assert rotation_angle(np.diag([1.0 + 1e-12, 1.0, 1.0])) == 0.0
+    R = Rotation.from_rotvec([0.0, 0.0, 1e-4]).as_matrix().astype(np.float32)
+    assert rotation_angle(R) == np.arccos(0.5 * (np.trace(R.astype(np.float64)) - 1.0))
+
+
+def test_umeyama_defaults_reflections_and_degenerate_inputs():
+    rng = np.random.default_rng(2)
+    src = rng.normal(size=(20, 3))
+    R, t, s = umeyama_alignment(src, 2.0 * src)  # default: rigid, no scale
+    assert s == 1.0
+    np.testing.assert_allclose(R, np.eye(3), atol=1e-12)
+    # a mirror image: the best *rotation* (det +1), not the reflection diag(1, 1, -1)
+    R, t, s = umeyama_alignment(src, src * [1.0, 1.0, -1.0])
+    assert np.linalg.det(R) == pytest.approx(1.0)
+    C = (src * [1, 1, -1] - (src * [1, 1, -1]).mean(0)).T @ (src - src.mean(0))
+    U, D, Vt = np.linalg.svd(C)
+    np.testing.assert_allclose(R, U @ np.diag([1.0, 1.0, -1.0]) @ Vt, atol=1e-12)
+    # small spread (var_s < 1) still gets its scale; all points equal: scale 1 (no spread to scale)
+    small = 0.1 * src
+    R, t, s = umeyama_alignment(small, 3.0 * small + [1.0, 2.0, 3.0], with_scale=True)
+    assert s == pytest.approx(3.0) and np.allclose(t, [1.0, 2.0, 3.0])
+    R, t, s = umeyama_alignment(np.ones((4, 3)), np.ones((4, 3)) + [0.0, 0.0, 5.0], with_scale=True)
+    assert s == 1.0 and np.allclose(t, [0.0, 0.0, 5.0])
+    R, t, s = umeyama_alignment(src[:1], src[:1] + 1.0)  # one point: a translation
+    np.testing.assert_allclose(t, [1.0, 1.0, 1.0])
+    for a, b in ((src, src[:5]), (src[:, :2], src[:, :2]), (src[None], src[None])):
+        with pytest.raises(ValueError, match=r"src and dst must both be \(N, 3\)"):
+            umeyama_alignment(a, b)
+    with pytest.raises(ValueError, match="cannot align empty trajectories"):
+        umeyama_alignment(np.zeros((0, 3)), np.zeros((0, 3)))
+
+
+def test_rpe_values_defaults_units_and_errors():
+    est, gt = _drifting_pair()
+    n = len(gt)
+    r = relative_pose_error(est, gt)  # default: 1 frame apart
+    np.testing.assert_array_equal(r.first, np.arange(n - 1))
+    np.testing.assert_array_equal(r.last, np.arange(1, n))
+    E = np.linalg.inv(np.linalg.inv(est[:-1]) @ est[1:]) @ (np.linalg.inv(gt[:-1]) @ gt[1:])
+    te = np.linalg.norm(E[:, :3, 3], axis=1)
+    re = np.arccos(np.clip(0.5 * (np.trace(E[:, :3, :3], axis1=1, axis2=2) - 1), -1, 1))
+    np.testing.assert_allclose(r.trans_errors, te, rtol=1e-12)
+    np.testing.assert_allclose(r.rot_errors, re, rtol=1e-9)
+    assert r.trans_rmse == pytest.approx(np.sqrt(np.mean(te**2)), rel=1e-12)
+    assert r.rot_rmse == pytest.approx(np.sqrt(np.mean(re**2)), rel=1e-9)
+    assert r.trans_mean == pytest.approx(te.mean(), rel=1e-12)
+    assert r.rot_mean == pytest.approx(re.mean(), rel=1e-9)
+    assert relative_pose_error(est, gt, 2, "f").first.size == n - 2
+    by_m = [relative_pose_error(est, gt, 2.5, u) for u in ("m", "meters", "metres")]
+    for other in by_m[1:]:
+        np.testing.assert_array_equal(other.last, by_m[0].last)
+    assert relative_pose_error(est, gt, 0.5, "m").first.size == n - 1  # any delta > 0 m is allowed
+    with pytest.raises(ValueError, match="delta must be >= 1 frame"):
+        relative_pose_error(est, gt, 0)
+    with pytest.raises(ValueError, match="delta must be > 0 metres"):
+        relative_pose_error(est, gt, 0.0, "m")
+    with pytest.raises(ValueError, match="unit must be 'frames' or 'm', got 'km'"):
+        relative_pose_error(est, gt, 1, "km")
+    with pytest.raises(ValueError, match="no pose pair 41 frames apart in a trajectory of 40 poses"):
+        relative_pose_error(est, gt, n + 1)
+
+
+def test_inverse_choice_matters_on_non_orthonormal_rotations():
+    """General 4x4 inverses by default (the devkit's ``Matrix::inv``); ``[R^T, -R^T t]`` only when asked."""
+    est, gt = _drifting_pair()
+    skew = est.copy()
+    skew[:, :3, :3] *= 1.0 + 1e-3 * np.random.default_rng(0).random((len(est), 1, 1))  # not orthonormal
+    r = relative_pose_error(skew, gt, delta=2)
+    E = np.linalg.inv(np.linalg.inv(skew[:-2]) @ skew[2:]) @ (np.linalg.inv(gt[:-2]) @ gt[2:])
+    np.testing.assert_allclose(r.trans_errors, np.linalg.norm(E[:, :3, 3], axis=1), rtol=1e-12)
+    general = kitti_odometry_error(skew, gt, lengths=(5.0,), step=1)
+    rigid = kitti_odometry_error(skew, gt, lengths=(5.0,), step=1, rigid_inverse=True)
+    assert abs(general.t_err_percent - rigid.t_err_percent) > 1e-6 * general.t_err_percent
+    assert abs(general.r_err_deg_per_m - rigid.r_err_deg_per_m) > 1e-6 * general.r_err_deg_per_m
+    Er = _rigid_error(skew, gt, general.first, general.last)
+    np.testing.assert_allclose(rigid.t_err, np.linalg.norm(Er[:, :3, 3], axis=1) / 5.0, rtol=1e-12)
+
+
+def _rigid_error(est, gt, first, last):
+    def inv(T):
+        out = np.zeros_like(T)
+        Rt = np.swapaxes(T[:, :3, :3], 1, 2)
+        out[:, :3, :3] = Rt
+        out[:, :3, 3] = -np.einsum("nij,nj->ni", Rt, T[:, :3, 3])
+        out[:, 3, 3] = 1.0
+        return out
+    return inv(inv(est[first]) @ est[last]) @ (inv(gt[first]) @ gt[last])
+
+
+def test_kitti_segment_arrays_and_short_path_message():
+    est, gt = _drifting_pair()
+    r = kitti_odometry_error(est, gt, lengths=(5.0, 8.0), step=3)
+    E = np.linalg.inv(np.linalg.inv(est[r.first]) @ est[r.last]) @ (np.linalg.inv(gt[r.first]) @ gt[r.last])
+    np.testing.assert_allclose(r.t_err, np.linalg.norm(E[:, :3, 3], axis=1) / r.length, rtol=1e-12)
+    re = np.arccos(np.clip(0.5 * (np.trace(E[:, :3, :3], axis1=1, axis2=2) - 1), -1, 1))
+    np.testing.assert_allclose(r.r_err, re / r.length, rtol=1e-9)
+    T = np.tile(np.eye(4), (6, 1, 1))
+    T[:, 0, 3] = [0.0, 1.0, 2.0, 3.0, 4.0, 5.5]
+    with pytest.raises(ValueError, match=r"trajectory \(5.5 m\) is shorter than the shortest segment \(6 m\)"):
+        kitti_odometry_error(T, T, lengths=(6, 7))

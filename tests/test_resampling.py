@@ -237,3 +237,43 @@ def test_effective_sample_size_on_uneven_weights_is_one_over_sum_of_squares():
     # the resampling decision follows it: ESS = 3.33 is above 0.8 * 4 = 3.2 (1 / max w = 2.5 would be below)
     assert resample_indexes(np.log(w), np.random.default_rng(0), ess_fraction=0.8) is None
     assert resample_indexes(np.log(w), np.random.default_rng(0), ess_fraction=0.85) is not None
+
+
+def test_stratified_and_multinomial_pointers_by_value():
+    """Stratified: one uniform per stratum, ``u_k = (k + U_k) / P``; multinomial: ``u_k = U_k``; index = first
+    ``j`` with ``u_k < c_j`` (pinned against the draws of a same-seeded generator, not just their statistics)."""
+    w = np.array([0.1, 0.0, 0.35, 0.05, 0.5])
+    c = np.cumsum(w)
+    for seed in range(5):
+        u = np.random.default_rng(seed).random(w.size)
+        want = np.searchsorted(c, (np.arange(w.size) + u) / w.size, side="right")
+        np.testing.assert_array_equal(stratified_resample(w, np.random.default_rng(seed)), want)
+        np.testing.assert_array_equal(multinomial_resample(w, np.random.default_rng(seed)),
+                                      np.searchsorted(c, u, side="right"))
+
+
+def test_residual_draws_the_remainder_from_the_residual_weights():
+    """P = 2, w = (0.7, 0.3): one deterministic copy of particle 0, then one draw from the residuals
+    (0.4, 0.6) / 1, so the extra index is 1 exactly when the draw u >= 0.4 (from w itself it would need u >= 0.7)."""
+    seen = set()
+    for seed in range(30):
+        u = np.random.default_rng(seed).random()
+        idx = residual_resample([0.7, 0.3], np.random.default_rng(seed))
+        assert idx.dtype == np.int64
+        np.testing.assert_array_equal(idx, [0, int(u >= 0.4)])
+        seen.add((u >= 0.4, u >= 0.7))
+    assert (True, False) in seen  # a draw in [0.4, 0.7) was tried: it tells the two rules apart
+    np.testing.assert_array_equal(residual_resample([0.5, 0.5], np.random.default_rng(0)), [0, 1])  # no draw
+
+
+def test_resample_indexes_default_threshold_is_half_the_particles():
+    w = np.array([0.4, 0.3, 0.2, 0.1])  # ESS = 3.33 >= 0.5 * 4: no resampling by default
+    assert resample_indexes(np.log(w), np.random.default_rng(0)) is None
+    w = np.array([0.85, 0.05, 0.05, 0.05])  # ESS = 1.37 < 2
+    idx = resample_indexes(np.log(w), np.random.default_rng(0))
+    np.testing.assert_array_equal(idx, systematic_resample(w, np.random.default_rng(0).random()))
+
+
+def test_bad_rng_message_names_the_type_given():
+    with pytest.raises(TypeError, match="RandomState"):
+        multinomial_resample([0.5, 0.5], np.random.RandomState(0))

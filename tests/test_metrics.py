@@ -270,8 +270,9 @@ def test_poses_as_3x4_rows_float32_and_bad_shapes():
 def test_rotation_angle_clips_round_off_at_pi_and_computes_in_float64():
     assert rotation_angle(np.diag([-1.0 - 1e-12, -1.0 - 1e-12, 1.0])) == np.pi  # cos just below -1
     assert rotation_angle(np.diag([1.0 + 1e-12, 1.0, 1.0])) == 0.0
-    R = Rotation.from_rotvec([0.0, 0.0, 1e-4]).as_matrix().astype(np.float32)
-    assert rotation_angle(R) == np.arccos(0.5 * (np.trace(R.astype(np.float64)) - 1.0))
+    R = Rotation.from_rotvec([0.1, -0.2, 0.3]).as_matrix().astype(np.float32)
+    assert rotation_angle(R) == np.arccos(0.5 * (np.trace(R.astype(np.float64)) - 1.0))  # float64 sums
+    assert rotation_angle(R) != np.arccos(0.5 * (np.trace(R) - np.float32(1.0)))  # float32 would differ
 
 
 def test_umeyama_defaults_reflections_and_degenerate_inputs():
@@ -297,7 +298,7 @@ def test_umeyama_defaults_reflections_and_degenerate_inputs():
     for a, b in ((src, src[:5]), (src[:, :2], src[:, :2]), (src[None], src[None])):
         with pytest.raises(ValueError, match=r"src and dst must both be \(N, 3\)"):
             umeyama_alignment(a, b)
-    with pytest.raises(ValueError, match="cannot align empty trajectories"):
+    with pytest.raises(ValueError, match=r"^cannot align empty trajectories$"):
         umeyama_alignment(np.zeros((0, 3)), np.zeros((0, 3)))
 
 
@@ -321,9 +322,9 @@ def test_rpe_values_defaults_units_and_errors():
     for other in by_m[1:]:
         np.testing.assert_array_equal(other.last, by_m[0].last)
     assert relative_pose_error(est, gt, 0.5, "m").first.size == n - 1  # any delta > 0 m is allowed
-    with pytest.raises(ValueError, match="delta must be >= 1 frame"):
+    with pytest.raises(ValueError, match=r"^delta must be >= 1 frame$"):
         relative_pose_error(est, gt, 0)
-    with pytest.raises(ValueError, match="delta must be > 0 metres"):
+    with pytest.raises(ValueError, match=r"^delta must be > 0 metres$"):
         relative_pose_error(est, gt, 0.0, "m")
     with pytest.raises(ValueError, match="unit must be 'frames' or 'm', got 'km'"):
         relative_pose_error(est, gt, 1, "km")
@@ -369,3 +370,86 @@ def test_kitti_segment_arrays_and_short_path_message():
     T[:, 0, 3] = [0.0, 1.0, 2.0, 3.0, 4.0, 5.5]
     with pytest.raises(ValueError, match=r"trajectory \(5.5 m\) is shorter than the shortest segment \(6 m\)"):
         kitti_odometry_error(T, T, lengths=(6, 7))
+
+
+def test_umeyama_computes_in_float64():
+    rng = np.random.default_rng(3)
+    src = rng.normal(size=(30, 3)).astype(np.float32)
+    dst = (src @ Rotation.from_rotvec([0.2, 0.1, -0.3]).as_matrix().T * 1.5 + 0.7).astype(np.float32)
+    got = umeyama_alignment(src, dst, with_scale=True)
+    want = umeyama_alignment(src.astype(np.float64), dst.astype(np.float64), with_scale=True)
+    np.testing.assert_array_equal(got[0], want[0])
+    np.testing.assert_array_equal(got[1], want[1])
+    assert got[2] == want[2]
+
+
+def test_ate_inputs_values_alignment_modes_and_messages():
+    est, gt = _drifting_pair()
+    ref = absolute_trajectory_error(est, gt)
+    e = np.linalg.norm(gt[:, :3, 3] - est[:, :3, 3], axis=1)
+    assert (ref.rmse, ref.mean, ref.median, ref.max) == (pytest.approx(np.sqrt(np.mean(e**2)), rel=1e-12),
+                                                         pytest.approx(e.mean(), rel=1e-12),
+                                                         pytest.approx(np.median(e), rel=1e-12), e.max())
+    np.testing.assert_array_equal(ref.rotation, np.eye(3))
+    assert ref.scale == 1.0
+    for other in (absolute_trajectory_error(est[:, :3], gt[:, :3]), absolute_trajectory_error(est[:, :3, 3], gt)):
+        np.testing.assert_array_equal(other.errors, ref.errors)
+    p32 = est[:, :3, 3].astype(np.float32)
+    np.testing.assert_array_equal(absolute_trajectory_error(p32, gt).errors,
+                                  absolute_trajectory_error(p32.astype(np.float64), gt).errors)
+    # scaled and rotated estimate: sim3 recovers it exactly (scale 1/2), se3 cannot
+    Rw = Rotation.from_rotvec([0.0, 0.0, 0.4]).as_matrix()
+    pe = 0.5 * gt[:, :3, 3] @ Rw.T + [3.0, -1.0, 2.0]
+    sim3 = absolute_trajectory_error(pe, gt, align="sim3")
+    assert sim3.rmse < 1e-9 and sim3.scale == pytest.approx(2.0) and np.allclose(sim3.rotation, Rw.T)
+    se3 = absolute_trajectory_error(pe, gt, align="SE3")
+    assert se3.scale == 1.0 and se3.rmse > 0.1
+    assert absolute_trajectory_error(pe, gt, align=True).rmse == se3.rmse
+    assert absolute_trajectory_error(pe, gt, align="none").rmse == absolute_trajectory_error(pe, gt).rmse
+    one = absolute_trajectory_error(gt[:1], gt[:1] + 0.0)  # a single pose is fine
+    assert one.rmse == 0.0
+    with pytest.raises(ValueError, match=r"^empty trajectories$"):
+        absolute_trajectory_error(np.zeros((0, 3)), np.zeros((0, 3)))
+    with pytest.raises(ValueError, match=r"^estimate has 5 poses but ground truth has 4; associate them first$"):
+        absolute_trajectory_error(np.zeros((5, 3)), np.zeros((4, 3)))
+    for bad in (np.zeros((4, 5, 5)), np.zeros((4, 2)), np.zeros(3), np.zeros((4, 3, 3))):
+        with pytest.raises(ValueError, match=r"^estimate must be \(N, 4, 4\) poses or \(N, 3\) positions, got"):
+            absolute_trajectory_error(bad, np.zeros((4, 3)))
+        with pytest.raises(ValueError, match=r"^ground_truth must be \(N, 4, 4\) poses or \(N, 3\)"):
+            absolute_trajectory_error(np.zeros((4, 3)), bad)
+        with pytest.raises(ValueError, match=r"^poses must be \(N, 4, 4\) poses or \(N, 3\) positions"):
+            trajectory_distances(bad)
+
+
+def test_trajectory_distances_of_one_and_two_poses():
+    np.testing.assert_array_equal(trajectory_distances(np.zeros((1, 3))), [0.0])
+    np.testing.assert_array_equal(trajectory_distances(np.array([[0.0, 0, 0], [3.0, 4.0, 0]])), [0.0, 5.0])
+
+
+def test_trajectory_metrics_values_and_thresholds():
+    from slamlib.metrics import trajectory_metrics
+
+    est, gt = _drifting_pair(n=11)
+    m = trajectory_metrics(est, gt)
+    assert set(m) == {"ate_rmse_m", "ate_max_m", "final_error_m", "rpe_10f_trans_rmse_m", "rpe_10f_rot_rmse_deg"}
+    ate = absolute_trajectory_error(est, gt)
+    assert (m["ate_rmse_m"], m["ate_max_m"], m["final_error_m"]) == (ate.rmse, ate.max, ate.errors[-1])
+    rpe = relative_pose_error(est, gt, delta=10)
+    assert m["rpe_10f_trans_rmse_m"] == rpe.trans_rmse
+    assert m["rpe_10f_rot_rmse_deg"] == pytest.approx(np.degrees(rpe.rot_rmse), rel=1e-12) and rpe.rot_rmse > 0
+    assert set(trajectory_metrics(est[:10], gt[:10])) == {"ate_rmse_m", "ate_max_m", "final_error_m"}
+
+    def straight(xs):
+        T = np.tile(np.eye(4), (len(xs), 1, 1))
+        T[:, 0, 3] = xs
+        return T
+
+    exactly_100 = straight(np.linspace(0.0, 100.0, 201))
+    assert "kitti_t_err_percent" not in trajectory_metrics(exactly_100, exactly_100)  # longer than 100 m only
+    gt = straight(np.r_[np.linspace(0.0, 99.5, 200), 100.5])  # d[-2] = 99.5 m, d[-1] = 100.5 m
+    est = gt.copy()
+    est[:, 0, 3] *= 1.01
+    m = trajectory_metrics(est, gt)
+    k = kitti_odometry_error(est, gt)
+    assert (m["kitti_t_err_percent"], m["kitti_r_err_deg_per_m"], m["kitti_segments"]) == (
+        k.t_err_percent, k.r_err_deg_per_m, k.n_segments)

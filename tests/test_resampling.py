@@ -277,3 +277,39 @@ def test_resample_indexes_default_threshold_is_half_the_particles():
 def test_bad_rng_message_names_the_type_given():
     with pytest.raises(TypeError, match="RandomState"):
         multinomial_resample([0.5, 0.5], np.random.RandomState(0))
+
+
+def test_weight_checks_name_the_problem_exactly():
+    cases = [([], r"^weights is empty: need at least one particle$"),
+             ([0.5, np.inf], r"^weights contain inf at index 1; pass log-weights through weights_from_log_weights first$"),
+             ([0.0, -0.1, 0.5], r"^weights must be non-negative, got (np.float64\()?-0.1\)? at index 1$"),
+             ([0.0, 0.0], r"^weights sum to zero: every particle has zero weight$")]
+    for bad, message in cases:
+        with pytest.raises(ValueError, match=message):
+            effective_sample_size(np.asarray(bad, dtype=float))
+    with pytest.raises(ValueError, match=r"^all log_weights are -inf: every particle has zero likelihood"):
+        weights_from_log_weights([-np.inf, -np.inf])
+
+
+def test_weights_are_computed_in_float64_and_extremes_raise_no_warning():
+    import warnings
+
+    w32 = np.array([0.1, 0.2, 0.7], np.float32)
+    w64 = w32.astype(np.float64)
+    assert effective_sample_size(w32) == effective_sample_size(w64) == 1.0 / np.sum((w64 / w64.sum()) ** 2)
+    lw32 = np.log(w32)
+    assert weights_from_log_weights(lw32).dtype == np.float64
+    np.testing.assert_array_equal(weights_from_log_weights(lw32), weights_from_log_weights(lw32.astype(np.float64)))
+    np.testing.assert_array_equal(normalise_log_weights(lw32), normalise_log_weights(lw32.astype(np.float64)))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # -1e308 - 1e308 overflows to -inf: expected, silenced
+        np.testing.assert_array_equal(weights_from_log_weights([-1e308, 1e308]), [0.0, 1.0])
+        np.testing.assert_array_equal(normalise_log_weights([-1e308, 1e308]), [-np.inf, 0.0])
+
+
+def test_resample_indexes_threshold_is_strict_and_indexes_are_int64():
+    flat = uniform_log_weights(4)  # ESS = 4 exactly: not below 1.0 * 4
+    assert resample_indexes(flat, np.random.default_rng(0), ess_fraction=1.0) is None
+    idx = resample_indexes(flat, np.random.default_rng(0), ess_fraction=None,
+                           sampler=lambda w, u: np.arange(w.size, dtype=np.int32))
+    assert idx.dtype == np.int64

@@ -14,7 +14,7 @@ export NUMBA_CACHE_DIR ?= $(CURDIR)/_cache/numba
 SYSTEM_PACKAGES := libusb-1.0-0 libvulkan1 mesa-vulkan-drivers
 SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 
-.PHONY: all setup system-packages book test test-unit test-notebooks bench clean mathjax browser-check lab
+.PHONY: all setup system-packages book test test-unit test-notebooks bench clean mathjax browser-check lab mutate
 
 all: book
 
@@ -55,6 +55,22 @@ bench: setup
 lab: setup
 	@$(BIN)/python -c "import jupyterlab" 2>/dev/null || $(BIN)/python -m pip install -q -c requirements.lock jupyterlab
 	$(BIN)/jupyter lab notebooks/
+
+# Mutation testing of the core math (not in CI: slow). mutmut (installed on first use) works on a copy of slamlib/
+# and tests/ in _build/mutate, so the checkout is never mutated; config in pyproject.toml [tool.mutmut].
+# mutmut forks a worker per mutant: GNU OpenMP (Numba's default parallel layer here) aborts after fork, so the
+# workqueue layer is used. MUTANTS limits the run to mutant-name globs, e.g. make mutate MUTANTS='slamlib.resampling.* slamlib.metrics.*'.
+# Per-module scores: tests/mutation/score.py; report: tests/mutation/REPORT.md.
+MUTMUT_VERSION := 3.8.1
+MUTATE_DIR     := _build/mutate
+MUTANTS        ?=
+mutate: setup
+	@$(BIN)/python -c "import mutmut" 2>/dev/null || $(BIN)/python -m pip install -q -c requirements.lock mutmut==$(MUTMUT_VERSION)
+	rm -rf $(MUTATE_DIR) && mkdir -p $(MUTATE_DIR)
+	tar --exclude=__pycache__ -cf - slamlib tests pyproject.toml | tar -xf - -C $(MUTATE_DIR)
+	cd $(MUTATE_DIR) && NUMBA_CACHE_DIR=$(CURDIR)/$(MUTATE_DIR)/numba NUMBA_THREADING_LAYER=workqueue nice -n 19 $(CURDIR)/$(BIN)/mutmut run --max-children 2 $(MUTANTS)
+	cd $(MUTATE_DIR) && $(CURDIR)/$(BIN)/mutmut results --all true > results.txt && \
+	  $(CURDIR)/$(BIN)/python $(CURDIR)/tests/mutation/score.py results.txt
 
 # MathJax 3 served from the book's own _static (sphinx `mathjax_path` in _config.yml), so pages render math
 # offline: fetched once from the npm registry into book/_static/mathjax (git-ignored), only the files that

@@ -63,12 +63,15 @@ def _row(run, evaluate, **settings) -> dict:
 
 
 def run(quick: bool = False) -> dict:
+    import os
+
     import numba
 
     from slamlib.kitti import KittiRawDrive
     from slamlib.slam3d import SLAM3DConfig, evaluate, run_drive
     from slamlib.synth import default_drive
 
+    load_before = os.getloadavg()[0]
     basedir, date, drive_id = default_drive(progress=False)
     a, b = QUICK_FRAMES if quick else SWEEP_FRAMES
     drive = KittiRawDrive(basedir, date, drive_id, frames=range(a, b))
@@ -109,4 +112,6 @@ def run(quick: bool = False) -> dict:
         "points": points,
         "fit_ms_vs_points": _fit([r_["points"] for r_ in points], [r_["frame_ms_median"] for r_ in points]),
         "route": route,
+        # other jobs on the machine slow every row: the 1-minute load average before and after the run
+        "load_average_1min": {"start": load_before, "end": os.getloadavg()[0]},
     }

@@ -427,3 +427,52 @@ def test_filter_weights_are_prior_times_likelihood_between_resamplings(world):
     np.testing.assert_allclose(info2.weights, prior_times_likelihood / prior_times_likelihood.sum(), atol=1e-12)
     np.testing.assert_allclose(slam.log_weights, info2.log_weights)
     assert not np.allclose(info2.log_weights, normalise_log_weights(info2.scores), atol=1e-3)
+
+
+def test_step_scores_with_the_filter_settings_and_reports_mean_and_ess(world):
+    rec = simulate(world, n_frames=6, seed=6)
+    slam = ParticleSLAM1D(30, OccupancyGrid1D.empty(-30, 90, 0.05), 0.4, 0.13, np.random.default_rng(3),
+                          eps=0.2, ess_fraction=0.0)
+    slam.step(rec.frames[0])
+    before = slam.grid.copy()
+    info = slam.step(rec.frames[1])
+    want = score_particles(info.moved, read_scan(rec.frames[1]), before, 0.13, 0.2)
+    np.testing.assert_array_equal(info.scores, want)
+    assert not np.allclose(want, score_particles(info.moved, read_scan(rec.frames[1]), before, 0.05, 0.2))
+    assert info.mean == pytest.approx(float(np.dot(info.weights, info.moved)), rel=1e-12)
+    assert info.ess == pytest.approx(1.0 / np.sum(info.weights**2), rel=1e-12)
+    assert ParticleSLAM1D(5, before, 0.4, 0.13, np.random.default_rng(0)).ess_fraction == 0.5
+    with pytest.raises(TypeError, match=r"^rng must be a numpy.random.Generator$"):
+        ParticleSLAM1D(5, before, 0.4, 0.13, 0)
+
+
+def test_run_slam_1d_is_the_filter_loop_with_the_documented_defaults(world):
+    rec = simulate(world, n_frames=30, seed=4)
+    r = run_slam_1d(rec)  # 200 particles, seed 0, resolution 0.05, eps 0.05, ess_fraction 0.5, min count 5
+    s = rec.sensors
+    motion = 1.5 * max(s.velocity_noise, 0.05) + abs(s.velocity_bias)
+    sigma = max(float(np.hypot(s.range_noise, 0.05)), 2 * 0.05)
+    reach = np.abs(rec.measured_velocities).max() * rec.times[-1] + 1.0
+    grid = OccupancyGrid1D.empty(-reach - s.max_range, reach + s.max_range, 0.05)
+    slam = ParticleSLAM1D(200, grid, motion, sigma, np.random.default_rng(0), eps=0.05, ess_fraction=0.5)
+    infos = [slam.step(f) for f in rec.frames]
+    assert r.grid.origin == grid.origin and r.grid.counts.size == grid.counts.size
+    np.testing.assert_array_equal(r.grid.counts, slam.grid.counts)
+    np.testing.assert_array_equal(r.estimated, [i.estimate for i in infos])
+    np.testing.assert_array_equal(r.mean_estimated, [i.mean for i in infos])
+    np.testing.assert_array_equal(r.ess, [i.ess for i in infos])
+    assert r.resampled.dtype == bool and r.resampled.tolist() == [i.resampled for i in infos]
+    assert 0 < r.resampled.sum() < len(infos)  # the ESS rule decided, not "always" or "never"
+    assert r.particle_history.dtype == r.weight_history.dtype == np.float32 and r.map_history.dtype == np.int32
+    np.testing.assert_array_equal(r.particle_history, np.float32([i.moved for i in infos]))
+    np.testing.assert_array_equal(r.weight_history, np.float32([i.weights for i in infos]))
+    np.testing.assert_array_equal(r.map_history[-1], slam.grid.counts)
+    np.testing.assert_array_equal(r.landmarks_estimated, extract_landmarks(slam.grid, sigma, 5))
+    summary = r.summary()
+    assert summary["slam_final_error_m"] == abs(r.estimated[-1] - r.true_positions[-1])
+    assert summary["dead_reckoning_final_error_m"] == abs(r.dead_reckoned[-1] - r.true_positions[-1])
+    np.testing.assert_array_equal(r.observed_landmarks(), r.landmarks_true[r.landmark_returns >= 5])
+    assert r.landmark_errors().size == r.observed_landmarks().size
+    empty = run_slam_1d(rec, n_particles=10, keep_history=False, landmark_min_count=10**6)
+    assert empty.landmarks_estimated.size == 0
+    assert empty.landmark_errors().tolist() == [np.inf] * r.observed_landmarks().size

@@ -453,3 +453,8 @@ def test_trajectory_metrics_values_and_thresholds():
     k = kitti_odometry_error(est, gt)
     assert (m["kitti_t_err_percent"], m["kitti_r_err_deg_per_m"], m["kitti_segments"]) == (
         k.t_err_percent, k.r_err_deg_per_m, k.n_segments)
+
+
+def test_trajectory_distances_of_float32_positions_are_summed_in_float64():
+    p = np.cumsum(np.random.default_rng(1).normal(size=(500, 3)), axis=0).astype(np.float32) + 1000.0
+    np.testing.assert_array_equal(trajectory_distances(p), trajectory_distances(p.astype(np.float64)))

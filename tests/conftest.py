@@ -10,3 +10,23 @@ if os.environ.get("SLAMLIB_REAL_CUDA") != "1":
 import matplotlib  # noqa: E402
 
 matplotlib.use("Agg")
+
+
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def street_maps():
+    """A small street-like world (a blob and a flat slab, 3,000 float32 points) merged into both map kinds:
+    ``(world (M, 3) f4, [voxel_hash lookup, morton_bvh lookup])``, shared by the kernel tests."""
+    from slamlib.maps import MortonBVHMap, VoxelHashMap
+
+    rng = np.random.default_rng(5)
+    world = np.concatenate([rng.normal(0, 3, (1500, 3)), rng.uniform(-4, 4, (1500, 3)) * [1, 1, 0.02]])
+    world = world.astype(np.float32)
+    out = []
+    for m in (VoxelHashMap(voxel_size=1.0, capacity=2**12), MortonBVHMap(radius=0.5, sigma=0.2, quantum=0.01)):
+        m.merge(world)
+        out.append(m.lookup())
+    return world, out

@@ -7,27 +7,14 @@ import pytest
 from slamlib import geometry
 from slamlib.kernels import cuda as kc
 from slamlib.kernels import reference as ref
-from slamlib.maps import MortonBVHMap, VoxelHashMap
-
-
-@pytest.fixture(scope="module")
-def maps():
-    rng = np.random.default_rng(5)
-    world = np.concatenate([rng.normal(0, 3, (800, 3)), rng.uniform(-4, 4, (800, 3)) * [1, 1, 0.02]])
-    world = world.astype(np.float32)
-    out = []
-    for m in (VoxelHashMap(voxel_size=1.0, capacity=2**12), MortonBVHMap(radius=0.5, sigma=0.2, quantum=0.01)):
-        m.merge(world)
-        out.append(m.lookup())
-    return world, out
 
 
 @pytest.mark.parametrize("which", [0, 1], ids=["voxel_hash", "morton_bvh"])
 @pytest.mark.parametrize("n, tile_points", [(37, 8), (37, 37), (37, 100), (0, 8)])
-def test_tiled_scores_equal_the_reference(maps, which, n, tile_points):
+def test_tiled_scores_equal_the_reference(street_maps, which, n, tile_points):
     """Tiles that split the points unevenly (37 = 4 x 8 + 5), one tile of all of them, one tile larger than the
     scan, and no points at all."""
-    world, lookups = maps
+    world, lookups = street_maps
     rng = np.random.default_rng(7 + which)
     P = 3
     R = geometry.rpy_to_matrix(rng.normal(0, 0.05, (P, 3)))
@@ -42,8 +29,8 @@ def test_tiled_scores_equal_the_reference(maps, which, n, tile_points):
         assert np.ptp(got) > 0.1  # the particles are told apart
 
 
-def test_tiled_layout_keeps_device_arrays_on_the_device(maps):
-    world, lookups = maps
+def test_tiled_layout_keeps_device_arrays_on_the_device(street_maps):
+    world, lookups = street_maps
     rng = np.random.default_rng(9)
     R = geometry.rpy_to_matrix(rng.normal(0, 0.05, (2, 3)))
     t = rng.normal(0, 0.3, (2, 3))
@@ -54,8 +41,8 @@ def test_tiled_layout_keeps_device_arrays_on_the_device(maps):
     np.testing.assert_allclose(kc.to_host(dev), ref.score_particles(R, t, pts, lookups[0]), rtol=1e-9, atol=1e-9)
 
 
-def test_layout_and_tile_size_are_checked(maps):
-    world, lookups = maps
+def test_layout_and_tile_size_are_checked(street_maps):
+    world, lookups = street_maps
     R, t = np.eye(3)[None], np.zeros((1, 3))
     with pytest.raises(ValueError, match="layout"):
         kc.score_particles(R, t, world[:4], lookups[0], layout="rows")

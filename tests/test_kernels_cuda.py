@@ -87,21 +87,9 @@ def test_transform_points_grid_stride():
         kc.transform_points(T, pts, out=np.empty((299, 3), np.float32))
 
 
-@pytest.fixture(scope="module")
-def maps():
-    rng = np.random.default_rng(5)
-    world = np.concatenate([rng.normal(0, 3, (1500, 3)), rng.uniform(-4, 4, (1500, 3)) * [1, 1, 0.02]])
-    world = world.astype(np.float32)
-    out = []
-    for m in (VoxelHashMap(voxel_size=1.0, capacity=2**12), MortonBVHMap(radius=0.5, sigma=0.2, quantum=0.01)):
-        m.merge(world)
-        out.append(m.lookup())
-    return world, out
-
-
 @pytest.mark.parametrize("which", [0, 1], ids=["voxel_hash", "morton_bvh"])
-def test_score_particles_equals_reference_and_cpu(maps, which):
-    world, lookups = maps
+def test_score_particles_equals_reference_and_cpu(street_maps, which):
+    world, lookups = street_maps
     lookup = lookups[which]
     rng = np.random.default_rng(6 + which)
     P = 5

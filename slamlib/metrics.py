@@ -36,6 +36,7 @@ from slamlib.geometry import invert_pose
 
 __all__ = [
     "KITTI_LENGTHS",
+    "json_safe",
     "umeyama_alignment",
     "trajectory_distances",
     "rotation_angle",
@@ -325,3 +326,22 @@ def trajectory_metrics(estimate, ground_truth) -> dict:
         out.update(kitti_t_err_percent=k.t_err_percent, kitti_r_err_deg_per_m=k.r_err_deg_per_m,
                    kitti_segments=k.n_segments)
     return out
+
+
+def json_safe(obj):
+    """A copy of ``obj`` (nested dicts, lists, tuples, numbers) with every non-finite float (NaN, +-inf) replaced by
+    ``None``, and numpy scalars and arrays turned into Python numbers and lists, so that
+    ``json.dumps(json_safe(obj), allow_nan=False)`` always succeeds (JSON has no NaN: it is written ``null``)."""
+    if isinstance(obj, dict):
+        return {k: json_safe(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [json_safe(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return json_safe(obj.tolist())
+    if isinstance(obj, (bool, np.bool_)):
+        return bool(obj)
+    if isinstance(obj, (int, np.integer)):
+        return int(obj)
+    if isinstance(obj, (float, np.floating)):
+        return float(obj) if np.isfinite(obj) else None
+    return obj

@@ -70,7 +70,21 @@ def _drive_hint(basedir: Path, date: str | None, drive: str | None) -> str:
         return f"--date {date!r} not found in {basedir}; dates there: {', '.join(dates) or 'none'}"
     drives = sorted(p.name.split("_drive_")[1].split("_")[0] for p in (basedir / date).iterdir()
                     if p.is_dir() and "_drive_" in p.name)
+    if any(d == str(drive) or (d.isdigit() and str(drive).isdigit() and int(d) == int(drive)) for d in drives):
+        return ""  # the drive is there: the error is about its contents, which the message names
     return f"--drive {drive!r} not found in {basedir / date}; drives there: {', '.join(drives) or 'none'}"
+
+
+#: The ``slamlib run`` option of each setting name that appears in the configuration's ValueError messages.
+_OPTION_OF = {"particles": "--particles", "scored_points": "--points", "temperature": "--temperature",
+              "refine": "--refine", "seed": "--seed", "sigma": "--noise", "kind": "--map", "backend": "--backend"}
+
+
+def _option_error(exc: ValueError) -> str:
+    """``--option: message`` for a configuration ValueError (the option whose setting the message names first)."""
+    text = str(exc)
+    hits = [(text.find(k), opt) for k, opt in _OPTION_OF.items() if k in text]
+    return f"{min(hits)[1]}: {text}" if hits else text
 
 
 def main(args) -> int:
@@ -85,8 +99,16 @@ def main(args) -> int:
     given = [x is not None for x in (args.basedir, args.date, args.drive)]
     if any(given) and not all(given):
         raise SystemExit("slamlib run: give all of --basedir, --date and --drive, or none (synthetic default drive)")
-    if not args.noise >= 0:
-        raise SystemExit("slamlib run: --noise must be >= 0")
+    import math
+
+    if not (math.isfinite(args.noise) and args.noise >= 0):
+        raise SystemExit(f"slamlib run: --noise must be finite and >= 0, got {args.noise}")
+    from slamlib.slam3d.run import check_output_dir
+
+    try:
+        check_output_dir(args.out)
+    except ValueError as exc:
+        raise SystemExit(f"slamlib run: --out: {exc}") from None
     if args.video is not None:
         from slamlib.slam3d.video import check_video_path
 
@@ -102,7 +124,7 @@ def main(args) -> int:
                               seed=args.seed, refine=args.refine, temperature=args.temperature)
         cfg = replace(cfg, motion=cfg.motion.scaled(float(args.noise)))
     except ValueError as exc:
-        raise SystemExit(f"slamlib run: {exc}") from None
+        raise SystemExit(f"slamlib run: {_option_error(exc)}") from None
     if all(given):
         drive_id = int(args.drive) if str(args.drive).isdigit() else args.drive  # "5" and "0005" both work
         basedir, date, source = args.basedir, args.date, "kitti"
@@ -135,7 +157,7 @@ def main(args) -> int:
             run = run_drive(drive, cfg, progress=not args.no_progress)
     except BackendUnavailableError as exc:
         raise SystemExit(f"slamlib run: {exc}") from None
-    except DataFormatError as exc:
+    except (DataFormatError, ValueError) as exc:  # bad frame data (e.g. IMU values beyond physical limits)
         raise SystemExit(f"slamlib run: {exc}") from None
     files = save_run(run, args.out, map_format=args.map_format, plots=not args.no_plots,
                      extra={"source": source, "basedir": str(basedir), "date": date, "drive": str(drive_id)})
@@ -143,10 +165,15 @@ def main(args) -> int:
     info = json.loads(Path(files["metrics"]).read_text())
     if "metrics" in info:
         m = info["metrics"]
-        print(f"path {m['path_length_m']:.0f} m{'':8s}{'ATE RMSE (m)':>14s}{'KITTI t_err (%)':>17s}")
+        def num(x):  # metrics.json holds null for a non-finite number
+            return float("nan") if x is None else x
+
+        print(f"path {num(m['path_length_m']):.0f} m{'':8s}{'ATE RMSE (m)':>14s}{'KITTI t_err (%)':>17s}")
         for key, label in (("slam", "particle SLAM"), ("dead_reckoning", "dead reckoning")):
-            k = m[key].get("kitti_t_err_percent", float("nan"))
-            print(f"{label:22s}{m[key]['ate_rmse_m']:14.3f}{k:17.3f}")
+            k = num(m[key].get("kitti_t_err_percent"))
+            print(f"{label:22s}{num(m[key]['ate_rmse_m']):14.3f}{k:17.3f}")
+    if info.get("n_skipped_frames"):
+        print(f"warning: {info['warnings'][0]}")
     if args.video is not None:
         from slamlib.slam3d.video import write_map_video
 

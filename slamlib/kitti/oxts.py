@@ -43,6 +43,8 @@ from slamlib.errors import DataFormatError
 
 __all__ = [
     "OXTS_FIELDS",
+    "OXTS_RANGES",
+    "oxts_range_problem",
     "OxtsPacket",
     "read_oxts_packet",
     "parse_oxts_line",
@@ -59,6 +61,45 @@ OXTS_FIELDS: tuple[str, ...] = tuple(OxtsPacket._fields)
 N_INT_FIELDS = 5
 assert len(OXTS_FIELDS) == 30
 
+# Physical ranges checked at read time (:func:`check_oxts_ranges`). They are generous on purpose: they only catch
+# values no vehicle can produce, which would otherwise turn into NaN poses far downstream.
+#: Latitude limit (deg): the Mercator projection of the ground truth (``ln tan((90 + lat) / 2)``) diverges at the
+#: poles (lat -90 gives -inf, +90 overflows), so a latitude must lie strictly inside, here within 89 degrees.
+MAX_ABS_LATITUDE_DEG = 89.0
+#: Longitude limit (deg): WGS84 longitudes lie in [-180, 180].
+MAX_ABS_LONGITUDE_DEG = 180.0
+#: Altitude range (m): from below the Dead Sea shore and deep mines (-1 km) to above any airliner (20 km).
+MIN_ALTITUDE_M, MAX_ALTITUDE_M = -1_000.0, 20_000.0
+#: Orientation limit (rad) of roll, pitch and yaw: one full turn either way covers every wrapping convention.
+MAX_ABS_ANGLE_RAD = 2.0 * math.pi
+#: Speed limit (m/s) of vn, ve, vf, vl, vu: 150 m/s = 540 km/h, beyond any road vehicle.
+MAX_SPEED_MPS = 150.0
+#: Acceleration limit (m/s^2) of ax..au: 100 g, beyond a crash pulse.
+MAX_ACCELERATION_MPS2 = 1_000.0
+#: Angular-rate limit (rad/s) of wx..wu: 50 rad/s = 8 turns a second, beyond a spinning car.
+MAX_ANGULAR_RATE_RADPS = 50.0
+#: ``{field: (low, high)}``: the allowed closed range of every float field (accuracies only non-negative).
+OXTS_RANGES: dict[str, tuple[float, float]] = {
+    "lat": (-MAX_ABS_LATITUDE_DEG, MAX_ABS_LATITUDE_DEG),
+    "lon": (-MAX_ABS_LONGITUDE_DEG, MAX_ABS_LONGITUDE_DEG),
+    "alt": (MIN_ALTITUDE_M, MAX_ALTITUDE_M),
+    **{k: (-MAX_ABS_ANGLE_RAD, MAX_ABS_ANGLE_RAD) for k in ("roll", "pitch", "yaw")},
+    **{k: (-MAX_SPEED_MPS, MAX_SPEED_MPS) for k in ("vn", "ve", "vf", "vl", "vu")},
+    **{k: (-MAX_ACCELERATION_MPS2, MAX_ACCELERATION_MPS2) for k in ("ax", "ay", "az", "af", "al", "au")},
+    **{k: (-MAX_ANGULAR_RATE_RADPS, MAX_ANGULAR_RATE_RADPS) for k in ("wx", "wy", "wz", "wf", "wl", "wu")},
+    "pos_accuracy": (0.0, math.inf),
+    "vel_accuracy": (0.0, math.inf),
+}
+assert set(OXTS_RANGES) == set(OXTS_FIELDS[: len(OXTS_FIELDS) - N_INT_FIELDS])
+
+
+def oxts_range_problem(name: str, value: float) -> str | None:
+    """Why ``value`` is outside the physical range of OXTS field ``name`` (:data:`OXTS_RANGES`), or None."""
+    rng = OXTS_RANGES.get(name)
+    if rng is None or rng[0] <= value <= rng[1]:
+        return None
+    return f"OXTS field {name} = {value!r} is outside its physical range [{rng[0]:g}, {rng[1]:g}]"
+
 
 def parse_oxts_line(text: str, path: str | os.PathLike = "<string>", line: int | None = 1) -> OxtsPacket:
     """Parse one OXTS line of 30 numbers into an :class:`OxtsPacket` (floats, last five ``int``).
@@ -67,7 +108,9 @@ def parse_oxts_line(text: str, path: str | os.PathLike = "<string>", line: int |
     ------
     DataFormatError
         Wrong number of fields (KITTI has 30), a field that is not a number, a non-finite value
-        (nan / inf), or an integer field (navstat, numsats, posmode, velmode, orimode) with a fraction.
+        (nan / inf), an integer field (navstat, numsats, posmode, velmode, orimode) with a fraction, or a value
+        outside its physical range (:data:`OXTS_RANGES`: latitude within 89 degrees, longitude within 180,
+        speeds, accelerations and rates within generous vehicle limits).
     """
     parts = text.split()
     if len(parts) != len(OXTS_FIELDS):
@@ -86,6 +129,10 @@ def parse_oxts_line(text: str, path: str | os.PathLike = "<string>", line: int |
             if v != int(v):
                 raise DataFormatError(path, f"OXTS field {k + 1} ({name}) must be an integer, got {tok!r}", line)
             v = int(v)
+        else:
+            problem = oxts_range_problem(name, v)
+            if problem:
+                raise DataFormatError(path, f"field {k + 1}: {problem}", line)
         values.append(v)
     return OxtsPacket(*values)
 

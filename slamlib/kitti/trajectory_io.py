@@ -60,6 +60,10 @@ def _check_poses(poses) -> np.ndarray:
     T = np.asarray(poses, dtype=np.float64)
     if T.ndim != 3 or T.shape[1:] not in ((4, 4), (3, 4)):
         raise ValueError(f"poses must be (N, 4, 4) or (N, 3, 4), got {T.shape}")
+    bad = ~np.all(np.isfinite(T.reshape(T.shape[0], -1)), axis=1)
+    if bad.any():
+        raise ValueError(f"refusing to write a trajectory with non-finite (NaN / inf) poses: {int(bad.sum())} of "
+                         f"{T.shape[0]}, the first at index {int(np.argmax(bad))}")
     return T
 
 
@@ -88,7 +92,9 @@ def read_kitti_poses(path: str | os.PathLike, check_rotation: bool = False) -> n
 
 
 def write_kitti_poses(path: str | os.PathLike, poses) -> None:
-    """Write ``(N, 4, 4)`` (or ``(N, 3, 4)``) poses as a KITTI pose file, 12 numbers per line."""
+    """Write ``(N, 4, 4)`` (or ``(N, 3, 4)``) poses as a KITTI pose file, 12 numbers per line.
+
+    Raises ``ValueError`` (before opening the file) when a pose holds NaN or inf."""
     T = _check_poses(poses)
     with open(path, "w", encoding="ascii") as f:
         for P in T:
@@ -120,12 +126,15 @@ def read_tum(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
 def write_tum(path: str | os.PathLike, timestamps, poses, header: bool = False) -> None:
     """Write a TUM trajectory ``timestamp tx ty tz qx qy qz qw`` (quaternion from scipy, scalar last).
 
-    ``header=True`` writes a ``# timestamp tx ty tz qx qy qz qw`` comment first (evo skips it).
+    ``header=True`` writes a ``# timestamp tx ty tz qx qy qz qw`` comment first (evo skips it). Raises
+    ``ValueError`` (before opening the file) when a pose or a timestamp is NaN or inf.
     """
     T = _check_poses(poses)
     t = np.asarray(timestamps, dtype=np.float64).reshape(-1)
     if t.shape[0] != T.shape[0]:
         raise ValueError(f"{t.shape[0]} timestamps for {T.shape[0]} poses")
+    if not np.all(np.isfinite(t)):
+        raise ValueError("refusing to write a trajectory with non-finite (NaN / inf) timestamps")
     q = Rotation.from_matrix(T[:, :3, :3]).as_quat() if T.shape[0] else np.zeros((0, 4))
     with open(path, "w", encoding="ascii") as f:
         if header:
@@ -151,7 +160,10 @@ def read_times(path: str | os.PathLike, strictly_increasing: bool = False) -> np
 
 
 def write_times(path: str | os.PathLike, times) -> None:
-    """Write times in seconds, one per line (``repr`` precision)."""
+    """Write times in seconds, one per line (``repr`` precision); ``ValueError`` on NaN or inf."""
+    times = np.asarray(times, dtype=np.float64).reshape(-1)
+    if not np.all(np.isfinite(times)):
+        raise ValueError("refusing to write non-finite (NaN / inf) times")
     with open(path, "w", encoding="ascii") as f:
-        for v in np.asarray(times, dtype=np.float64).reshape(-1):
+        for v in times:
             f.write(repr(float(v)) + "\n")

@@ -23,6 +23,41 @@ MAP_KINDS = ("voxel_hash", "morton_bvh")
 OLD_MAP_NAMES = {"voxel": "voxel_hash", "bvh": "morton_bvh"}
 #: Hash-table slots of the default voxel map (2**19 = 524,288 voxels before it must grow; ~22 MiB).
 DEFAULT_VOXEL_CAPACITY = 2**19
+#: Most particles: the particle arrays take ~200 bytes each (pose, noise, weights, copies when resampling), so
+#: 10**7 particles already need ~2 GB; more would fail to allocate (10**9 asked for 67 GiB) or run for hours a frame.
+MAX_PARTICLES = 10_000_000
+#: Most scan points scored per particle per frame (a LIDAR scan has ~120k before down-sampling).
+MAX_SCORED_POINTS = 1_000_000
+#: Most point scores per frame, ``particles * scored_points`` (work per frame; 10**10 is minutes per frame on a GPU).
+MAX_POINT_SCORES = 10_000_000_000
+#: Most annealing rounds per frame (each one costs a whole scoring pass).
+MAX_REFINE = 100
+#: Map constructor parameters that must be finite and > 0 (:class:`slamlib.maps.VoxelHashMap`,
+#: :class:`slamlib.maps.MortonBVHMap`).
+POSITIVE_MAP_PARAMS = ("voxel_size", "capacity", "min_sigma", "m_max", "radius", "sigma", "quantum", "max_points")
+
+
+def _finite(name: str, value) -> float:
+    """``float(value)``, or ValueError naming ``name`` when it is not a finite number."""
+    try:
+        x = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a number, got {value!r}") from None
+    if not np.isfinite(x):
+        raise ValueError(f"{name} must be finite, got {value!r}")
+    return x
+
+
+def _integer(name: str, value, low: int, high: int | None = None) -> int:
+    """``int(value)`` within ``[low, high]``, or ValueError naming ``name`` and the allowed range."""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) and not (
+            isinstance(value, (float, np.floating)) and np.isfinite(value) and float(value).is_integer()):
+        raise ValueError(f"{name} must be an integer, got {value!r}")
+    v = int(value)
+    if v < low or (high is not None and v > high):
+        allowed = f">= {low}" if high is None else f"in [{low}, {high:,}]"
+        raise ValueError(f"{name} must be {allowed}, got {value!r}")
+    return v
 
 
 @dataclass(frozen=True)
@@ -43,10 +78,11 @@ class ScanConfig:
     downsample_voxel: float = 0.25
 
     def __post_init__(self):
-        if not 0 <= self.min_range < self.max_range:
+        _finite("min_range", self.min_range)
+        if not 0 <= self.min_range < self.max_range:  # max_range may be inf (no far crop), not NaN
             raise ValueError(f"need 0 <= min_range < max_range, got {self.min_range}, {self.max_range}")
-        if not self.downsample_voxel >= 0:
-            raise ValueError(f"downsample_voxel must be >= 0, got {self.downsample_voxel}")
+        if not _finite("downsample_voxel", self.downsample_voxel) >= 0:
+            raise ValueError(f"downsample_voxel must be >= 0 (0 = off), got {self.downsample_voxel}")
 
 
 @dataclass(frozen=True)
@@ -67,8 +103,8 @@ class MotionConfig:
     def __post_init__(self):
         for f in fields(self):
             v = np.asarray(getattr(self, f.name), dtype=np.float64)
-            if v.shape != (3,) or not np.all(v >= 0):
-                raise ValueError(f"{f.name} must be three non-negative numbers, got {getattr(self, f.name)!r}")
+            if v.shape != (3,) or not np.all(np.isfinite(v)) or not np.all(v >= 0):
+                raise ValueError(f"{f.name} must be three finite non-negative numbers, got {getattr(self, f.name)!r}")
             object.__setattr__(self, f.name, tuple(float(x) for x in v))
 
     def sigma(self, trans_delta, dt: float) -> np.ndarray:
@@ -116,6 +152,9 @@ class MapConfig:
         if int(self.prune_every) < 0 or not self.prune_radius > 0:
             raise ValueError(f"need prune_every >= 0 and prune_radius > 0, got {self.prune_every}, "
                              f"{self.prune_radius}")
+        for name, value in dict(self.params).items():
+            if name in POSITIVE_MAP_PARAMS and not _finite(name, value) > 0:
+                raise ValueError(f"map parameter {name} must be finite and > 0, got {value!r}")
 
     def make(self):
         """A fresh, empty map of this kind (:func:`slamlib.maps.make_map`)."""
@@ -160,12 +199,20 @@ class FilterConfig:
     def __post_init__(self):
         if int(self.particles) < 1 or int(self.scored_points) < 1:
             raise ValueError(f"particles and scored_points must be >= 1, got {self.particles}, {self.scored_points}")
-        if not self.temperature > 0:
-            raise ValueError(f"temperature must be > 0, got {self.temperature}")
+        p = _integer("particles", self.particles, 1, MAX_PARTICLES)
+        n = _integer("scored_points", self.scored_points, 1, MAX_SCORED_POINTS)
+        if p * n > MAX_POINT_SCORES:
+            raise ValueError(f"particles x scored_points = {p * n:,} point scores per frame is more than "
+                             f"{MAX_POINT_SCORES:,}; use fewer particles or points")
+        if not _finite("temperature", self.temperature) > 0:
+            raise ValueError(f"temperature must be finite and > 0, got {self.temperature}")
+        if not 0 <= _finite("ess_fraction", self.ess_fraction) <= 1:
+            raise ValueError(f"ess_fraction must be in [0, 1], got {self.ess_fraction}")
         if self.estimate not in ("best", "mean"):
             raise ValueError(f"estimate must be 'best' or 'mean', got {self.estimate!r}")
         if int(self.refine) < 0 or not 0 < self.refine_shrink <= 1:
             raise ValueError(f"need refine >= 0 and 0 < refine_shrink <= 1, got {self.refine}, {self.refine_shrink}")
+        _integer("refine", self.refine, 0, MAX_REFINE)
 
 
 _GROUPS = {"scan": ScanConfig, "motion": MotionConfig, "map": MapConfig, "filter": FilterConfig}
@@ -191,6 +238,9 @@ class SLAM3DConfig:
     filter: FilterConfig = field(default_factory=FilterConfig)
     backend: str = "cpu"
     seed: int = 0
+
+    def __post_init__(self):
+        _integer("seed", self.seed, 0)
 
     @classmethod
     def of(cls, **settings) -> "SLAM3DConfig":

@@ -25,6 +25,16 @@ likelihood's peak. ``refine = k`` adds ``k`` annealing rounds inside the frame (
 body motion capture by annealed particle filtering", CVPR 2000): resample by the current weights, perturb with the
 noise shrunk by ``refine_shrink``, score again. The result is still a particle filter (a sequence of
 importance-sampling / resampling stages on the same posterior), just with a sharper proposal.
+
+Degenerate frames
+-----------------
+A frame whose scan keeps fewer than :data:`MIN_SCAN_POINTS` points after step 2 (an empty or all-zero scan, every
+return outside ``[min_range, max_range]``) carries no usable evidence: scoring it would divide by zero points and
+fill the weights with NaN. Such a frame is **skipped for scoring**: steps 5 and 6 stand (the particles move and
+spread as usual), steps 7, 8 and 10 are skipped (weights unchanged, nothing merged), step 9's pose is the motion
+prediction ``T_prev @ [dR, dp]`` (the previous estimate moved by this frame's IMU increment), and step 11 is not
+run. ``n_skipped_frames`` counts these frames (``slamlib run`` writes it into ``metrics.json``). While the map is
+still empty (degenerate first frames) the first frame with enough points starts it at its predicted pose.
 """
 
 from __future__ import annotations
@@ -38,7 +48,12 @@ from slamlib.slam3d import steps
 from slamlib.slam3d.config import SLAM3DConfig
 from slamlib.slam3d.preprocess import sample_points
 
-__all__ = ["ParticleSLAM3D"]
+__all__ = ["ParticleSLAM3D", "MIN_SCAN_POINTS"]
+
+#: Fewest body-frame points (after step 2's crop and down-sampling) a frame needs to be scored and merged; below it
+#: the frame is skipped for scoring (module docstring, "Degenerate frames"). 10 points: far fewer than any real
+#: LIDAR scan (~100k points, ~20k after down-sampling), yet enough that one frame's score is not a single return.
+MIN_SCAN_POINTS = 10
 
 
 class ParticleSLAM3D:
@@ -61,6 +76,8 @@ class ParticleSLAM3D:
     poses : list of (4, 4) SLAM estimates ``T_world_body``, one per registered frame.
     dr_poses : list of (4, 4) dead-reckoning poses from the same IMU samples.
     n_resampled : number of frames in which step 11 resampled.
+    n_skipped_frames : number of frames skipped for scoring, with fewer than :data:`MIN_SCAN_POINTS` points
+        (module docstring, "Degenerate frames").
     archive : list of (K, 3) float32 points pruned from the map (``keep_pruned``); see :meth:`map_points`.
     imu_prev : ``(velocity (3,), angular_rate (3,))`` of the last registered frame (None before the first).
     last : dict with this frame's intermediate results (scores, sample, sigma, ...), for plots and tests.
@@ -77,6 +94,7 @@ class ParticleSLAM3D:
         self.poses: list[np.ndarray] = []
         self.dr_poses: list[np.ndarray] = []
         self.n_resampled = 0
+        self.n_skipped_frames = 0
         self.archive: list[np.ndarray] = []
         self.last: dict = {}
         self.imu_prev = None
@@ -85,7 +103,9 @@ class ParticleSLAM3D:
     def register_frame(self, frame) -> np.ndarray:
         """Run steps 2-11 on one frame (``.scan``, ``.velocity``, ``.angular_rate``, ``.dt``); return the pose.
 
-        The first frame only builds the map at the start pose. Returns ``T_world_body`` (4, 4).
+        The first frame only builds the map at the start pose. A frame with fewer than :data:`MIN_SCAN_POINTS`
+        points is skipped for scoring: steps 5 and 6 stand, the pose is
+        the motion prediction, and ``n_skipped_frames`` grows. Returns ``T_world_body`` (4, 4).
         """
         cfg, be, prev = self.config, self.backend, self.imu_prev
         points = steps.read_scan(frame, cfg.scan, self.T_body_velo)                                # 2
@@ -97,6 +117,8 @@ class ParticleSLAM3D:
         moved = steps.offset_by_motion(self.particles, imu, dt, prev, be, increment)               # 5
         sigma = cfg.motion.sigma(increment[1], dt)  # = steps.motion_noise_sigma(imu, dt, prev, cfg.motion)
         moved = steps.perturb_with_noise(moved, sigma, self.rng, backend=be)                       # 6
+        if len(points) < MIN_SCAN_POINTS or len(self.map) == 0:  # degenerate frame: no scoring, no merge
+            return self._skip(moved, imu, increment, points, sigma)
         sample = sample_points(points, cfg.filter.scored_points, self.rng)
         log_w = self._weigh(moved, self.log_weights, sample)                                       # 7 + 8
         moved, log_w = self._anneal(moved, log_w, sample, sigma)  # cfg.filter.refine rounds (none by default)
@@ -127,9 +149,24 @@ class ParticleSLAM3D:
 
     def _start(self, points, imu) -> np.ndarray:
         """The first frame: step 10 at the start pose, which is also the first pose of both trajectories."""
-        steps.merge_scan(self.map, self.T0, points, self.backend)
+        if len(points) >= MIN_SCAN_POINTS:
+            steps.merge_scan(self.map, self.T0, points, self.backend)
+        else:
+            self.n_skipped_frames += 1
         self._record(self.T0, imu, None, points)
         return self.poses[-1]
+
+    def _skip(self, moved, imu, increment, points, sigma) -> np.ndarray:
+        """A frame not scored: keep the moved particles and their weights; the pose is the motion prediction.
+        With enough points but no map yet (the earlier frames were degenerate) the scan starts the map there."""
+        self.particles = moved
+        pose = self.poses[-1] @ increment_matrix(*increment)
+        if len(points) >= MIN_SCAN_POINTS:  # the map is empty: start it, like the first frame
+            steps.merge_scan(self.map, pose, points, self.backend)
+        else:
+            self.n_skipped_frames += 1
+        self._record(pose, imu, increment, points, sample=points[:0], sigma=sigma, best=None)
+        return pose
 
     def _record(self, pose, imu, increment, points, **last) -> None:
         """Bookkeeping after step 10: the SLAM pose, the dead-reckoning twin (moved by this frame's IMU

@@ -21,7 +21,7 @@ from slamlib.geometry import invert_pose
 from slamlib.slam3d.config import SLAM3DConfig
 from slamlib.slam3d.pipeline import ParticleSLAM3D
 
-__all__ = ["SLAMRun", "run_drive", "evaluate", "parse_frames", "save_run"]
+__all__ = ["SLAMRun", "run_drive", "evaluate", "parse_frames", "save_run", "check_output_dir"]
 
 
 @dataclass
@@ -144,6 +144,28 @@ def evaluate(run: SLAMRun) -> dict:
     }
 
 
+def check_output_dir(out_dir) -> None:
+    """Raise ``ValueError`` unless ``out_dir`` can become the output folder: an existing folder, or a path whose
+    nearest existing parent is a writable folder. ``slamlib run`` calls it before the run, not after."""
+    import os
+    from pathlib import Path
+
+    out = Path(out_dir)
+    if out.exists():
+        if not out.is_dir():
+            raise ValueError(f"{out} exists and is not a folder")
+        if not os.access(out, os.W_OK):
+            raise ValueError(f"{out} is not writable")
+        return
+    parent = out.parent
+    while not parent.exists():
+        parent = parent.parent
+    if not parent.is_dir():
+        raise ValueError(f"cannot create {out}: {parent} is not a folder")
+    if not os.access(parent, os.W_OK):
+        raise ValueError(f"cannot create {out}: {parent} is not writable")
+
+
 def save_run(run: SLAMRun, out_dir, map_format: str = "ply", plots: bool = True, extra: dict | None = None) -> dict:
     """Write a run's results into ``out_dir`` and return ``{name: path}`` of the files written.
 
@@ -153,13 +175,16 @@ def save_run(run: SLAMRun, out_dir, map_format: str = "ply", plots: bool = True,
     * ``times.txt``: seconds since the first processed frame (KITTI odometry ``times.txt``);
     * ``map.ply`` or ``map.pcd`` (open3d): the map's points (voxel means or stored points, including the parts
       pruned on the way, :meth:`ParticleSLAM3D.map_points`), world frame;
-    * ``metrics.json``: frames/s, settings and, with ground truth, :func:`evaluate` (ATE, RPE, KITTI metric);
+    * ``metrics.json``: frames/s, settings, ``n_skipped_frames`` (frames skipped for scoring, with a ``warnings``
+      entry when there were any; :mod:`slamlib.slam3d.pipeline`) and, with ground truth, :func:`evaluate` (ATE,
+      RPE, KITTI metric). Always valid JSON: a non-finite number is written ``null`` (:func:`slamlib.metrics.json_safe`);
     * ``trajectory.png`` (with and without SLAM vs ground truth) and ``map_topdown.png`` (coloured by height).
     """
     import json
     from pathlib import Path
 
     from slamlib.kitti.trajectory_io import write_kitti_poses, write_times, write_tum
+    from slamlib.metrics import json_safe
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -188,12 +213,19 @@ def save_run(run: SLAMRun, out_dir, map_format: str = "ply", plots: bool = True,
     info = {"frames": int(len(run.poses)), "seconds": float(run.seconds), "fps": float(run.fps),
             "frame_indices": [int(run.frame_indices[0]), int(run.frame_indices[-1])] if len(run.poses) else [],
             "map_elements": int(len(run.slam.map)), "map_points_written": int(len(pts)), "config": run.slam.config.as_dict()}
+    skipped = int(getattr(run.slam, "n_skipped_frames", 0))
+    info["n_skipped_frames"] = skipped
+    if skipped:
+        from slamlib.slam3d.pipeline import MIN_SCAN_POINTS
+
+        info["warnings"] = [f"{skipped} of {len(run.poses)} frames had fewer than {MIN_SCAN_POINTS} scan points "
+                            f"after cropping: scoring skipped, the motion prediction stands"]
     if extra:
         info.update(extra)
     if run.ground_truth is not None:
         info["metrics"] = evaluate(run)
     files["metrics"] = out / "metrics.json"
-    files["metrics"].write_text(json.dumps(info, indent=2) + "\n")
+    files["metrics"].write_text(json.dumps(json_safe(info), indent=2, allow_nan=False) + "\n")
 
     if plots:
         import matplotlib

@@ -57,6 +57,7 @@ import numpy as np
 
 from slamlib.geometry import make_pose, rpy_to_matrix
 from slamlib.kernels import Backend, get_backend
+from slamlib.kitti.oxts import MAX_ANGULAR_RATE_RADPS, MAX_SPEED_MPS
 from slamlib.odometry import imu_increment
 from slamlib.resampling import normalise_log_weights, resample_indexes, uniform_log_weights
 from slamlib.slam3d.config import MotionConfig, ScanConfig
@@ -148,9 +149,20 @@ def read_scan(frame, scan_config: ScanConfig = ScanConfig(), T_body_velo=None) -
 
 def read_imu(frame) -> tuple[np.ndarray, np.ndarray]:
     """Step 3: ``imu = (velocity, angular_rate)``: body velocity ``(vf, vl, vu)`` m/s and rates ``(wf, wl, wu)``
-    rad/s, each (3,)."""
-    return (np.asarray(frame.velocity, dtype=np.float64).reshape(3),
-            np.asarray(frame.angular_rate, dtype=np.float64).reshape(3))
+    rad/s, each (3,).
+
+    Raises ``ValueError`` on a non-finite value or one beyond the OXTS physical limits
+    (:data:`slamlib.kitti.oxts.MAX_SPEED_MPS`, :data:`~slamlib.kitti.oxts.MAX_ANGULAR_RATE_RADPS`), which would
+    otherwise give NaN poses.
+    """
+    v = np.asarray(frame.velocity, dtype=np.float64).reshape(3)
+    w = np.asarray(frame.angular_rate, dtype=np.float64).reshape(3)
+    where = f" (frame {frame.index})" if hasattr(frame, "index") else ""
+    for name, x, limit, unit in (("velocity", v, MAX_SPEED_MPS, "m/s"), ("angular_rate", w, MAX_ANGULAR_RATE_RADPS,
+                                                                            "rad/s")):
+        if not np.all(np.isfinite(x)) or np.any(np.abs(x) > limit):
+            raise ValueError(f"IMU {name}{where} must be finite and within +-{limit:g} {unit}, got {x.tolist()}")
+    return v, w
 
 
 def read_timing(frame) -> float:

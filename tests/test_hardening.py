@@ -1,0 +1,271 @@
+"""Issue 13, hardening: degenerate frames, OXTS physical ranges, NaN-free outputs, option validation.
+
+Each test reproduces one finding of the issue (it failed before the fix)."""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+
+from slamlib.errors import DataFormatError
+from slamlib.kitti.sample import SAMPLE_DATE, SAMPLE_DRIVE, make_tiny_drive
+from slamlib.slam3d import ParticleSLAM3D, SLAM3DConfig
+from slamlib.slam3d.pipeline import MIN_SCAN_POINTS
+
+
+# ------------------------------------------------------------------------------------------ a tiny static world
+@dataclass
+class Frame:
+    scan: np.ndarray
+    velocity: np.ndarray
+    angular_rate: np.ndarray
+    dt: float
+    index: int = 0
+
+
+def _scan(rng, n=3000):
+    """Points on the walls of a 40 x 30 x 6 m box around the sensor (a static world seen from its centre)."""
+    u = rng.uniform(-1, 1, (n, 3)) * [20.0, 15.0, 3.0]
+    axis = rng.integers(0, 2, n)
+    u[np.arange(n), axis] = np.sign(u[np.arange(n), axis]) * np.array([20.0, 15.0])[axis]
+    return np.c_[u, np.full(n, 0.5)].astype(np.float32)
+
+
+def _frames(n=6, empty=(), seed=0):
+    rng = np.random.default_rng(seed)
+    out = []
+    for k in range(n):
+        scan = np.zeros((0, 4), np.float32) if k in empty else _scan(rng)
+        out.append(Frame(scan, np.array([1.0, 0.0, 0.0]), np.array([0.0, 0.0, 0.02]), 0.0 if k == 0 else 0.1, k))
+    return out
+
+
+def _slam(**kw):
+    base = dict(particles=30, scored_points=200, min_range=1.0, max_range=40.0, downsample_voxel=0.5,
+                params={"capacity": 2**12}, seed=1)
+    base.update(kw)
+    return ParticleSLAM3D(SLAM3DConfig.of(backend="numpy", **base))
+
+
+# ------------------------------------------------------------------------------------------ (a) degenerate frames
+@pytest.mark.parametrize("scan", ["empty", "zeros", "far", "few"])
+def test_degenerate_frame_skips_scoring_and_keeps_the_motion_prediction(scan):
+    frames = _frames()
+    n = {"empty": 0, "zeros": 500, "far": 500, "few": MIN_SCAN_POINTS - 1}[scan]
+    bad = {"empty": np.zeros((0, 4)), "zeros": np.zeros((n, 4)),
+           "far": np.c_[np.full((n, 3), 1e10), np.ones(n)],
+           "few": frames[3].scan[:n]}[scan]
+    frames[3].scan = bad.astype(np.float32)
+    slam = _slam()
+    for f in frames[:3]:
+        slam.register_frame(f)
+    before, map_size = slam.poses[-1].copy(), len(slam.map)
+    weights = slam.log_weights.copy()
+    pose = slam.register_frame(frames[3])
+    assert slam.n_skipped_frames == 1
+    assert len(slam.map) == map_size  # nothing merged
+    np.testing.assert_array_equal(slam.log_weights, weights)  # not scored
+    expected = before @ np.linalg.inv(slam.dr_poses[-2]) @ slam.dr_poses[-1]
+    np.testing.assert_allclose(pose, expected, atol=1e-9)  # the motion prediction (the dead-reckoning increment)
+    for f in frames[4:]:
+        slam.register_frame(f)
+    assert slam.n_skipped_frames == 1
+    assert np.all(np.isfinite(slam.trajectory)) and np.all(np.isfinite(slam.log_weights))
+
+
+def test_degenerate_first_frame_waits_for_a_scan_to_start_the_map():
+    slam = _slam()
+    for f in _frames(empty=(0, 1)):
+        slam.register_frame(f)
+    assert slam.n_skipped_frames == 2 and len(slam.map) > 0
+    assert np.all(np.isfinite(slam.trajectory))
+
+
+def test_min_range_above_max_range_is_refused():
+    with pytest.raises(ValueError, match="min_range < max_range"):
+        SLAM3DConfig.of(min_range=50.0, max_range=10.0)
+
+
+# ------------------------------------------------------------------------------------------ (b) IMU in register_frame
+@pytest.mark.parametrize("field,value", [("velocity", np.nan), ("velocity", np.inf), ("velocity", 1e300),
+                                         ("angular_rate", np.nan), ("angular_rate", -np.inf), ("angular_rate", 1e3)])
+def test_register_frame_rejects_non_finite_or_impossible_imu(field, value):
+    frames = _frames(n=3)
+    getattr(frames[2], field)[0] = value
+    slam = _slam()
+    slam.register_frame(frames[0])
+    slam.register_frame(frames[1])
+    with pytest.raises(ValueError, match=f"IMU {field} \\(frame 2\\) must be finite and within"):
+        slam.register_frame(frames[2])
+
+
+# ------------------------------------------------------------------------------------------ (b) OXTS ranges
+N = 4
+
+
+@pytest.fixture
+def drive_dir(tmp_path):
+    return make_tiny_drive(tmp_path, n_frames=N, point_stride=500)
+
+
+def _oxts(drive_dir, index):
+    return drive_dir / "oxts" / "data" / f"{index:010d}.txt"
+
+
+def _set_field(drive_dir, index, name, value):
+    from slamlib.kitti.oxts import OXTS_FIELDS
+
+    path = _oxts(drive_dir, index)
+    parts = path.read_text().split()
+    parts[OXTS_FIELDS.index(name)] = value
+    path.write_text(" ".join(parts) + "\n")
+
+
+def _read_all(drive_dir):
+    from slamlib.kitti import KittiRawDrive
+
+    return [f.T_w_imu for f in KittiRawDrive(drive_dir.parent.parent, SAMPLE_DATE, SAMPLE_DRIVE)]
+
+
+@pytest.mark.parametrize("name,value", [("lat", "91"), ("lat", "-90"), ("lat", "90"), ("lon", "1e308"),
+                                        ("lon", "-180.5"), ("alt", "1e9"), ("vf", "1e300"), ("vn", "-200"),
+                                        ("wz", "1e6"), ("ax", "5e4"), ("yaw", "100"), ("pos_accuracy", "-1")])
+def test_oxts_value_outside_its_physical_range_names_file_line_and_field(drive_dir, name, value):
+    _read_all(drive_dir)  # the drive is fine before
+    _set_field(drive_dir, 2, name, value)
+    with pytest.raises(DataFormatError) as info:
+        _read_all(drive_dir)
+    err = info.value
+    assert err.path.endswith("0000000002.txt") and err.line == 1
+    assert f"{name} = " in str(err) and "physical range" in str(err), str(err)
+
+
+def test_oxts_latitude_out_of_range_in_packet_0_fails_at_open(drive_dir):
+    from slamlib.kitti import KittiRawDrive
+
+    _set_field(drive_dir, 0, "lat", "91")
+    with pytest.raises(DataFormatError, match="0000000000.txt:1: .*lat = 91.0"):
+        KittiRawDrive(drive_dir.parent.parent, SAMPLE_DATE, SAMPLE_DRIVE)
+
+
+def test_real_oxts_sample_is_within_the_ranges():
+    from slamlib.kitti import read_oxts_packet
+    from slamlib.kitti.sample import sample_raw_paths
+
+    p = read_oxts_packet(sample_raw_paths()["oxts_packet"])
+    assert 48 < p.lat < 50
+
+
+# ------------------------------------------------------------------------------------------ (c) outputs
+def test_json_safe_turns_non_finite_numbers_into_null():
+    from slamlib.metrics import json_safe
+
+    obj = {"a": float("nan"), "b": [1.0, float("inf"), np.float32(-np.inf)], "c": {"d": np.float64(2.5)},
+           "e": np.int64(3), "f": (np.nan,), "g": np.array([1.0, np.nan]), "h": True, "i": "text"}
+    text = json.dumps(json_safe(obj), allow_nan=False)
+    assert json.loads(text) == {"a": None, "b": [1.0, None, None], "c": {"d": 2.5}, "e": 3, "f": [None],
+                                "g": [1.0, None], "h": True, "i": "text"}
+
+
+@pytest.mark.parametrize("writer", ["kitti", "tum", "times"])
+def test_trajectory_writers_refuse_nan(tmp_path, writer):
+    from slamlib.kitti.trajectory_io import write_kitti_poses, write_times, write_tum
+
+    T = np.tile(np.eye(4), (3, 1, 1))
+    T[1, 0, 3] = np.nan
+    path = tmp_path / "t.txt"
+    with pytest.raises(ValueError, match="non-finite"):
+        {"kitti": lambda: write_kitti_poses(path, T), "tum": lambda: write_tum(path, [0, 1, 2], T),
+         "times": lambda: write_times(path, [0.0, np.nan, 1.0])}[writer]()
+    assert not path.exists()
+
+
+# ------------------------------------------------------------------------------------------ (d) settings
+@pytest.mark.parametrize("kw,needle", [
+    (dict(temperature=0), "temperature"), (dict(temperature=-1), "temperature"),
+    (dict(temperature=math.nan), "temperature"), (dict(temperature=math.inf), "temperature"),
+    (dict(seed=-1), "seed"), (dict(particles=10**9), "particles"), (dict(refine=-1), "refine"),
+    (dict(refine=10**6), "refine"), (dict(ess_fraction=math.nan), "ess_fraction"),
+    (dict(ess_fraction=1.5), "ess_fraction"), (dict(params={"voxel_size": -1}), "voxel_size"),
+    (dict(params={"voxel_size": math.inf}), "voxel_size"), (dict(sigma_xyz_per_m=(-0.1, 0, 0)), "sigma_xyz_per_m"),
+    (dict(sigma_rpy_per_s=(math.nan, 0, 0)), "sigma_rpy_per_s"), (dict(sigma_xyz_per_s=(math.inf, 0, 0)),
+                                                                   "sigma_xyz_per_s"),
+    (dict(downsample_voxel=-1), "downsample_voxel"), (dict(min_range=math.nan), "min_range"),
+    (dict(particles=1_000_000, scored_points=1_000_000), "point scores"),
+])
+def test_config_rejects_out_of_range_settings(kw, needle):
+    with pytest.raises(ValueError, match=needle):
+        SLAM3DConfig.of(**kw)
+
+
+def test_motion_noise_scaled_by_inf_is_refused():
+    with pytest.raises(ValueError, match="finite"):
+        SLAM3DConfig().motion.scaled(math.inf)
+
+
+# ------------------------------------------------------------------------------------------ slamlib run
+@pytest.fixture
+def cli_drive(tmp_path):
+    d = make_tiny_drive(tmp_path / "kitti", n_frames=N, point_stride=50)
+    return ["run", "--basedir", str(d.parent.parent), "--date", SAMPLE_DATE, "--drive", SAMPLE_DRIVE,
+            "--no-progress", "--no-plots", "--particles", "10", "--points", "50"], d
+
+
+@pytest.mark.parametrize("option,value", [("--temperature", "0"), ("--temperature", "-1"),
+                                          ("--temperature", "nan"), ("--temperature", "inf"), ("--seed", "-1"),
+                                          ("--particles", "1000000000"), ("--refine", "-1"), ("--noise", "inf"),
+                                          ("--noise", "nan")])
+def test_slamlib_run_bad_option_is_one_line_naming_it(cli_drive, tmp_path, monkeypatch, option, value):
+    import slamlib.slam3d
+    from slamlib.cli import main
+
+    monkeypatch.setattr(slamlib.slam3d, "run_drive", lambda *a, **k: pytest.fail("the run started"))
+    args, _ = cli_drive
+    with pytest.raises(SystemExit) as exc:
+        main(args + [option, value, "--out", str(tmp_path / "o")])
+    msg = str(exc.value)
+    assert msg.startswith(f"slamlib run: {option}") and "\n" not in msg, msg
+
+
+def test_slamlib_run_out_at_an_existing_file_is_refused_before_the_run(cli_drive, tmp_path, monkeypatch):
+    import slamlib.slam3d
+    from slamlib.cli import main
+
+    monkeypatch.setattr(slamlib.slam3d, "run_drive", lambda *a, **k: pytest.fail("the run started"))
+    args, _ = cli_drive
+    f = tmp_path / "file.txt"
+    f.write_text("keep me\n")
+    with pytest.raises(SystemExit, match="--out: .*file.txt exists and is not a folder"):
+        main(args + ["--out", str(f)])
+    assert f.read_text() == "keep me\n"
+
+
+def test_slamlib_run_with_an_empty_scan_counts_it_and_writes_valid_json(cli_drive, tmp_path, capsys):
+    from slamlib.cli import main
+    from slamlib.kitti import read_kitti_poses
+
+    args, d = cli_drive
+    (d / "velodyne_points" / "data" / "0000000002.bin").write_bytes(b"")
+    out = tmp_path / "o"
+    assert main(args + ["--out", str(out)]) == 0
+    text = (out / "metrics.json").read_text()
+    info = json.loads(text, parse_constant=lambda c: pytest.fail(f"{c} in metrics.json"))
+    assert info["n_skipped_frames"] == 1 and "1 of 4 frames" in info["warnings"][0]
+    assert np.all(np.isfinite(read_kitti_poses(out / "slam_poses.txt")))
+    assert "warning: 1 of 4 frames" in capsys.readouterr().out
+
+
+def test_slamlib_run_bad_oxts_is_one_message_without_a_wrong_drive_hint(cli_drive, tmp_path):
+    from slamlib.cli import main
+
+    args, d = cli_drive
+    _set_field(d, 2, "lat", "91")
+    with pytest.raises(SystemExit) as exc:
+        main(args + ["--out", str(tmp_path / "o")])
+    msg = str(exc.value)
+    assert "0000000002.txt:1:" in msg and "lat = 91.0" in msg and "drives there" not in msg, msg
+    assert not (tmp_path / "o" / "metrics.json").exists()

@@ -484,4 +484,6 @@ def test_run_slam_1d_passes_its_settings_and_shows_no_progress_by_default(world,
     assert r.grid.resolution == 0.1 and r.resampled.all()  # ess_fraction=None: every frame
     assert r.particle_history is None and r.weight_history is None and r.map_history is None
     assert capsys.readouterr().err == ""  # no progress bar by default
+    wide = run_slam_1d(rec, n_particles=10, resolution=0.1, ess_fraction=None, keep_history=False, eps=0.5)
+    assert not np.array_equal(wide.mean_estimated, r.mean_estimated)  # eps reaches the filter's scores
     # (progress=True itself is not run here: a tqdm bar hangs in mutmut's forked workers; its text is cosmetic)

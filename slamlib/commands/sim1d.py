@@ -21,20 +21,64 @@ def add_arguments(parser) -> None:
     parser.add_argument("--progress", action="store_true", help="show a progress bar")
 
 
+#: Most particles and frames the command accepts: memory and time stay bounded (20,000 frames = 2,000 s of drive).
+MAX_PARTICLES = 1_000_000
+MAX_FRAMES = 20_000
+
+
+def check_plot_path(path: Path) -> None:
+    """ValueError unless ``path`` can take a figure: a format matplotlib writes, not a folder, and a parent that
+    exists or can be created under a writable folder. Checked before the run, not after it."""
+    import os
+
+    from matplotlib.figure import Figure
+
+    formats = Figure().canvas.get_supported_filetypes()
+    suffix = path.suffix.lower().lstrip(".")
+    if suffix not in formats:
+        raise ValueError(f"{path}: unknown figure format {path.suffix or '(none)'!r}; use one of "
+                         f"{', '.join('.' + k for k in sorted(formats))}")
+    if path.is_dir():
+        raise ValueError(f"{path} is a folder")
+    parent = path.parent
+    while not parent.exists():
+        parent = parent.parent
+    if not parent.is_dir() or not os.access(parent, os.W_OK):
+        raise ValueError(f"cannot write {path}: {parent} is not a writable folder")
+
+
 def main(args) -> int:
     import numpy as np
 
     from slamlib.sim1d import SensorModel1D, make_world, run_slam_1d, simulate
 
-    if args.particles < 1 or args.frames < 2:
-        raise SystemExit("slamlib sim1d: need --particles >= 1 and --frames >= 2")
+    import math
+
+    if not 1 <= args.particles <= MAX_PARTICLES:
+        raise SystemExit(f"slamlib sim1d: --particles must be in [1, {MAX_PARTICLES:,}], got {args.particles}")
+    if not 2 <= args.frames <= MAX_FRAMES:
+        raise SystemExit(f"slamlib sim1d: --frames must be in [2, {MAX_FRAMES:,}], got {args.frames}")
+    if args.seed < 0:
+        raise SystemExit(f"slamlib sim1d: --seed must be >= 0, got {args.seed}")
+    for option, value in (("--motion-noise", args.motion_noise), ("--sensor-noise", args.sensor_noise),
+                          ("--bias", args.bias)):
+        if not math.isfinite(value):
+            raise SystemExit(f"slamlib sim1d: {option} must be finite, got {value}")
     if args.motion_noise < 0 or args.sensor_noise <= 0:
         raise SystemExit("slamlib sim1d: need --motion-noise >= 0 and --sensor-noise > 0")
-    sensors = SensorModel1D(velocity_noise=args.motion_noise, range_noise=args.sensor_noise,
-                            velocity_bias=args.bias)
-    recording = simulate(make_world(seed=args.seed), n_frames=args.frames, seed=args.seed, sensors=sensors)
-    result = run_slam_1d(recording, n_particles=args.particles, seed=args.seed, progress=args.progress,
-                         keep_history=False)
+    if args.plot is not None:
+        try:
+            check_plot_path(args.plot)
+        except ValueError as exc:
+            raise SystemExit(f"slamlib sim1d: --plot: {exc}") from None
+    try:
+        sensors = SensorModel1D(velocity_noise=args.motion_noise, range_noise=args.sensor_noise,
+                                velocity_bias=args.bias)
+        recording = simulate(make_world(seed=args.seed), n_frames=args.frames, seed=args.seed, sensors=sensors)
+        result = run_slam_1d(recording, n_particles=args.particles, seed=args.seed, progress=args.progress,
+                             keep_history=False)
+    except ValueError as exc:
+        raise SystemExit(f"slamlib sim1d: {exc}") from None
     s = result.summary()
     lm = result.landmark_errors()
     print(f"1D particle SLAM: {args.particles} particles, {s['frames']} frames "
@@ -54,8 +98,12 @@ def main(args) -> int:
         from slamlib.sim1d.plot import plot_result
 
         fig = plot_result(result, recording.sensors.max_range)
-        args.plot.parent.mkdir(parents=True, exist_ok=True)
-        fig.savefig(args.plot, dpi=110)
-        plt.close(fig)
+        try:
+            args.plot.parent.mkdir(parents=True, exist_ok=True)
+            fig.savefig(args.plot, dpi=110)
+        except OSError as exc:
+            raise SystemExit(f"slamlib sim1d: --plot: could not write {args.plot}: {exc}") from None
+        finally:
+            plt.close(fig)
         print(f"wrote {args.plot}")
     return 0

@@ -92,6 +92,11 @@ class ParticleSLAM1D:
                  rng: np.random.Generator, eps: float = 0.05, ess_fraction: float | None = 0.5):
         if not isinstance(rng, np.random.Generator):
             raise TypeError("rng must be a numpy.random.Generator")
+        for name, value in (("motion_noise", motion_noise), ("likelihood_sigma", likelihood_sigma), ("eps", eps)):
+            if not (np.isfinite(value) and value >= 0):
+                raise ValueError(f"{name} must be finite and >= 0, got {value!r}")
+        if ess_fraction is not None and not 0 <= ess_fraction <= 1:
+            raise ValueError(f"ess_fraction must be in [0, 1] or None, got {ess_fraction!r}")
         self.particles, self.log_weights = initialise_particles(n_particles)                    # 1
         self.grid = grid
         self.motion_noise = float(motion_noise)
@@ -198,6 +203,13 @@ class SLAM1DResult:
         }
 
 
+#: Most map cells :func:`run_slam_1d` allocates: 4 million cells (100 km at 5 cm) keep memory (~100 MB with the
+#: likelihood field) and time per frame bounded; a huge velocity bias would otherwise ask for billions (a hang).
+MAX_GRID_CELLS = 4_000_000
+#: Most multiply-adds per frame of the likelihood field's blur (cells x kernel cells): ~1 s a frame in numpy.
+MAX_FIELD_WORK = 1e9
+
+
 def run_slam_1d(recording: Recording1D, n_particles: int = 200, seed: int = 0, motion_noise: float | None = None,
                 likelihood_sigma: float | None = None, resolution: float = 0.05, eps: float = 0.05,
                 ess_fraction: float | None = 0.5, keep_history: bool = True, landmark_min_count: int = 5,
@@ -215,7 +227,9 @@ def run_slam_1d(recording: Recording1D, n_particles: int = 200, seed: int = 0, m
     likelihood_sigma : float, optional
         Defaults to ``sqrt(sigma_r^2 + resolution^2)`` (at least 2 cells).
     resolution : float, map cell size (m). The map spans the landmark-free bounds ``[x_0 - D - R, x_0 + D + R]``
-        with ``D`` the distance that ``v_max`` covers in the run's duration and ``R`` the sensor range.
+        with ``D`` the distance that ``v_max`` covers in the run's duration and ``R`` the sensor range; ValueError
+        when that is more than :data:`MAX_GRID_CELLS` cells, or when the likelihood field's blur would cost more
+        than :data:`MAX_FIELD_WORK` operations a frame (a huge range noise on a large map).
     eps, ess_fraction : see :class:`ParticleSLAM1D`.
     keep_history : keep particles, weights and map counts of every frame (K x P and K x C).
     landmark_min_count : passed to :func:`~slamlib.sim1d.steps.extract_landmarks`.
@@ -228,7 +242,19 @@ def run_slam_1d(recording: Recording1D, n_particles: int = 200, seed: int = 0, m
         motion_noise = 1.5 * max(sensors.velocity_noise, 0.05) + abs(sensors.velocity_bias)
     if likelihood_sigma is None:
         likelihood_sigma = max(float(np.hypot(sensors.range_noise, resolution)), 2 * resolution)
+    if not (np.isfinite(resolution) and resolution > 0):
+        raise ValueError(f"resolution must be finite and > 0, got {resolution!r}")
     reach = np.abs(recording.measured_velocities).max() * recording.times[-1] + 1.0
+    cells = 2.0 * (reach + sensors.max_range) / resolution
+    if not cells <= MAX_GRID_CELLS:
+        raise ValueError(f"the map would need {cells:.3g} cells of {resolution:g} m to cover the +-{reach:.3g} m the "
+                         f"measured velocities (bias included) can reach in {recording.times[-1]:.3g} s, more than "
+                         f"{MAX_GRID_CELLS:,}; use a smaller velocity bias, fewer frames or a coarser resolution")
+    kernel = min(cells, 8.0 * likelihood_sigma / resolution)  # the blur's width in cells (at most the grid)
+    if not cells * kernel <= MAX_FIELD_WORK:
+        raise ValueError(f"a likelihood field {likelihood_sigma:.3g} m wide over {cells:.3g} cells of {resolution:g} m "
+                         f"costs {cells * kernel:.3g} operations per frame, more than {MAX_FIELD_WORK:.0e}; use a "
+                         f"smaller range noise or likelihood_sigma, or a coarser resolution")
     grid = OccupancyGrid1D.empty(-reach - sensors.max_range, reach + sensors.max_range, resolution)
     slam = ParticleSLAM1D(n_particles, grid, motion_noise, likelihood_sigma, np.random.default_rng(seed), eps=eps,
                           ess_fraction=ess_fraction)

@@ -109,10 +109,12 @@ class OccupancyGrid1D:
 
 def _gaussian_blur(counts: np.ndarray, sigma_cells: float) -> np.ndarray:
     """``sum_c n_c exp(-(i - c)^2 / (2 s^2))`` for every cell ``i`` (unnormalised kernel, peak 1), truncated at 4 s."""
-    half = max(1, int(np.ceil(4.0 * sigma_cells)))
+    # Offsets beyond the grid never reach another cell: truncating there is exact and bounds the work by C^2 whatever
+    # sigma is; the slice keeps the output (C,) (np.convolve "same" would return the longer of the two).
+    half = min(max(1, int(np.ceil(4.0 * sigma_cells))), counts.size - 1)
     k = np.arange(-half, half + 1, dtype=np.float64)
     kernel = np.exp(-0.5 * (k / sigma_cells) ** 2)
-    return np.convolve(counts.astype(np.float64), kernel, mode="same")
+    return np.convolve(counts.astype(np.float64), kernel)[half:half + counts.size]  # = mode "same" for 2 half < C
 
 
 def _running_max(values: np.ndarray, half: int) -> np.ndarray:
@@ -144,7 +146,7 @@ def likelihood_field(grid: OccupancyGrid1D, sigma: float, n_sat: float = 3.0) ->
         raise ValueError(f"n_sat must be positive, got {n_sat}")
     s_cells = sigma / grid.resolution
     blurred = _gaussian_blur(grid.counts, s_cells)
-    local_max = _running_max(blurred, max(1, int(np.ceil(3 * s_cells))))
+    local_max = _running_max(blurred, min(max(1, int(np.ceil(3 * s_cells))), grid.counts.size))  # same: exact
     return blurred / np.maximum(local_max, n_sat)
 
 

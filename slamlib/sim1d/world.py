@@ -28,7 +28,7 @@ All randomness comes from ``numpy.random.Generator`` objects built from explicit
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 
 import numpy as np
 
@@ -127,6 +127,11 @@ class VelocityProfile:
         return x
 
 
+#: Most spurious returns per scan (the Poisson mean of ``clutter_rate``): each costs memory and scoring time every
+#: frame; 1,000 is already 50 times the landmarks a scan sees.
+MAX_CLUTTER_RATE = 1000.0
+
+
 @dataclass(frozen=True)
 class SensorModel1D:
     """Sensor and timing parameters of the simulation (the filter may use them as a datasheet).
@@ -152,6 +157,13 @@ class SensorModel1D:
     clutter_rate: float = 0.2
 
     def __post_init__(self):
+        for f in fields(self):
+            v = getattr(self, f.name)
+            if not np.isfinite(v):
+                raise ValueError(f"{f.name} must be finite, got {v!r}")
+        if self.clutter_rate > MAX_CLUTTER_RATE:
+            raise ValueError(f"clutter_rate must be at most {MAX_CLUTTER_RATE:g} returns per scan, got "
+                             f"{self.clutter_rate!r}")
         if not self.period > 0 or not 0 <= self.jitter < 1:
             raise ValueError(f"need period > 0 and 0 <= jitter < 1, got {self.period}, {self.jitter}")
         if self.velocity_noise < 0 or self.range_noise < 0 or self.clutter_rate < 0:

@@ -21,11 +21,32 @@ def add_arguments(parser) -> None:
     parser.add_argument("--progress", action="store_true", help="show a progress bar")
 
 
+#: Option bounds that keep time and memory bounded (the world is a ~76 m loop: at 1 cm a grid is ~10 million cells).
+MAX_PARTICLES = 100_000
+MAX_LAPS = 50.0
+MIN_RESOLUTION_M, MAX_RESOLUTION_M = 0.01, 5.0
+MAX_BEAMS = 3600
+
+
 def main(args) -> int:
     from slamlib.sim2d import SensorModel2D, make_world, run_slam_2d, simulate
 
-    if args.particles < 1 or not args.laps > 0 or not args.resolution > 0 or args.beams < 1:
-        raise SystemExit("slamlib sim2d: need --particles >= 1, --laps > 0, --resolution > 0 and --beams >= 1")
+    from slamlib.commands.sim1d import check_plot_path
+
+    for option, value, low, high in (("--particles", args.particles, 1, MAX_PARTICLES),
+                                     ("--laps", args.laps, 0.0, MAX_LAPS),
+                                     ("--resolution", args.resolution, MIN_RESOLUTION_M, MAX_RESOLUTION_M),
+                                     ("--beams", args.beams, 1, MAX_BEAMS)):
+        if not (low <= value <= high) or (option == "--laps" and value == 0):
+            what = "in (0, " if option == "--laps" else f"in [{low:g}, "
+            raise SystemExit(f"slamlib sim2d: {option} must be {what}{high:g}], got {value}")
+    if args.seed < 0:
+        raise SystemExit(f"slamlib sim2d: --seed must be >= 0, got {args.seed}")
+    if args.plot is not None:
+        try:
+            check_plot_path(args.plot)
+        except ValueError as exc:
+            raise SystemExit(f"slamlib sim2d: --plot: {exc}") from None
     world = make_world(seed=args.seed)
     recording = simulate(world, laps=args.laps, seed=args.seed, sensors=SensorModel2D(n_beams=args.beams))
     kinds = ("density", "likelihood") if args.map == "both" else (args.map,)
@@ -51,8 +72,12 @@ def main(args) -> int:
         from slamlib.sim2d.plot import plot_trajectories
 
         fig = plot_trajectories(first, world, label=f"particle SLAM, {next(iter(results))}")
-        args.plot.parent.mkdir(parents=True, exist_ok=True)
-        fig.savefig(args.plot, dpi=110)
-        plt.close(fig)
+        try:
+            args.plot.parent.mkdir(parents=True, exist_ok=True)
+            fig.savefig(args.plot, dpi=110)
+        except OSError as exc:
+            raise SystemExit(f"slamlib sim2d: --plot: could not write {args.plot}: {exc}") from None
+        finally:
+            plt.close(fig)
         print(f"wrote {args.plot}")
     return 0

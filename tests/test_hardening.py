@@ -369,3 +369,14 @@ def test_sim2d_bad_option_is_refused_before_the_run(tmp_path, monkeypatch, optio
     with pytest.raises(SystemExit) as exc:
         main(["sim2d", option, value])
     assert str(exc.value).startswith(f"slamlib sim2d: {option}"), str(exc.value)
+
+
+@pytest.mark.parametrize("option,value", [("--columns", "1000000000"), ("--imu-noise", "1e300"),
+                                          ("--imu-noise", "nan")])
+def test_synth_bad_option_is_refused_before_writing(tmp_path, option, value):
+    from slamlib.cli import main
+
+    with pytest.raises(SystemExit) as exc:
+        main(["synth", "--out", str(tmp_path / "d"), "--frames", "0:4", option, value])
+    assert str(exc.value).startswith(f"slamlib synth: {option} must be"), str(exc.value)
+    assert not (tmp_path / "d").exists()

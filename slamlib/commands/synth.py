@@ -81,6 +81,13 @@ def parse_route_frames(text: str, route: str):
     return stop
 
 
+#: Most LIDAR columns per revolution (a real HDL-64E has ~2,000 at 10 Hz; 20,000 = 1.3 million points a scan).
+MAX_COLUMNS = 20_000
+#: Largest IMU noise scale: 100 times the realistic noise; far beyond it the packets leave the OXTS physical ranges
+#: that :func:`slamlib.kitti.oxts.parse_oxts_line` checks, and the drive could not be read back.
+MAX_IMU_NOISE = 100.0
+
+
 def _check_target(basedir: Path, date: str, drive: int) -> None:
     """Refuse to overwrite anything that is not ours: a non-synthetic drive folder, differing calibration files."""
     from slamlib.synth.writer import CALIB_FILES, MARKER, drive_dir
@@ -111,12 +118,14 @@ def main(args) -> int:
         dt.datetime.strptime(args.date, "%Y_%m_%d")
     except ValueError:
         _fail(f"--date must be a date written YYYY_MM_DD (e.g. 2011_09_26), got {args.date!r}")
-    if args.columns < 8:
-        _fail(f"--columns must be >= 8, got {args.columns}")
+    if not 8 <= args.columns <= MAX_COLUMNS:
+        _fail(f"--columns must be in [8, {MAX_COLUMNS:,}], got {args.columns}")
+    if not args.imu_noise <= MAX_IMU_NOISE:
+        _fail(f"--imu-noise must be a finite number in [0, {MAX_IMU_NOISE:g}], got {args.imu_noise}")
     try:
         noise = ImuNoise().scaled(args.imu_noise)
     except ValueError:
-        _fail(f"--imu-noise must be a finite number >= 0, got {args.imu_noise}")
+        _fail(f"--imu-noise must be a finite number in [0, {MAX_IMU_NOISE:g}], got {args.imu_noise}")
     if args.seed < 0:
         _fail(f"--seed must be >= 0, got {args.seed}")
     try:

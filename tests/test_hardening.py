@@ -380,3 +380,22 @@ def test_synth_bad_option_is_refused_before_writing(tmp_path, option, value):
         main(["synth", "--out", str(tmp_path / "d"), "--frames", "0:4", option, value])
     assert str(exc.value).startswith(f"slamlib synth: {option} must be"), str(exc.value)
     assert not (tmp_path / "d").exists()
+
+
+def test_slamlib_run_refuses_to_write_a_nan_trajectory_with_a_message(cli_drive, tmp_path, monkeypatch):
+    import slamlib.slam3d
+    from slamlib.cli import main
+
+    real = slamlib.slam3d.run_drive
+
+    def poisoned(*a, **k):
+        run = real(*a, **k)
+        run.poses[2, 0, 3] = np.nan  # what a filter bug would leave behind
+        return run
+
+    monkeypatch.setattr(slamlib.slam3d, "run_drive", poisoned)
+    args, _ = cli_drive
+    out = tmp_path / "o"
+    with pytest.raises(SystemExit, match="could not write the results into .*non-finite"):
+        main(args + ["--out", str(out)])
+    assert not (out / "slam_poses.txt").exists() and not (out / "metrics.json").exists()

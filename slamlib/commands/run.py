@@ -159,8 +159,11 @@ def main(args) -> int:
         raise SystemExit(f"slamlib run: {exc}") from None
     except (DataFormatError, ValueError) as exc:  # bad frame data (e.g. IMU values beyond physical limits)
         raise SystemExit(f"slamlib run: {exc}") from None
-    files = save_run(run, args.out, map_format=args.map_format, plots=not args.no_plots,
-                     extra={"source": source, "basedir": str(basedir), "date": date, "drive": str(drive_id)})
+    try:
+        files = save_run(run, args.out, map_format=args.map_format, plots=not args.no_plots,
+                         extra={"source": source, "basedir": str(basedir), "date": date, "drive": str(drive_id)})
+    except (ValueError, OSError) as exc:  # a non-finite pose refused by the writers, a full disk, ...
+        raise SystemExit(f"slamlib run: could not write the results into {args.out}: {exc}") from None
     print(f"{len(run.poses)} frames in {run.seconds:.1f} s: {run.fps:.1f} frames/s")
     info = json.loads(Path(files["metrics"]).read_text())
     if "metrics" in info:

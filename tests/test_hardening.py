@@ -399,3 +399,35 @@ def test_slamlib_run_refuses_to_write_a_nan_trajectory_with_a_message(cli_drive,
     with pytest.raises(SystemExit, match="could not write the results into .*non-finite"):
         main(args + ["--out", str(out)])
     assert not (out / "slam_poses.txt").exists() and not (out / "metrics.json").exists()
+
+
+# ------------------------------------------------------------------------------------------ no user file is lost
+def test_check_output_dir_keeps_user_files_unless_overwrite(tmp_path):
+    from slamlib.slam3d.run import check_output_dir
+
+    out = tmp_path / "o"
+    check_output_dir(out)  # a new folder
+    out.mkdir()
+    (out / "notes.txt").write_text("mine")
+    check_output_dir(out)  # other files are never touched
+    (out / "slam_poses.txt").write_text("mine")
+    with pytest.raises(ValueError, match="slam_poses.txt, not from an earlier slamlib run.*--overwrite"):
+        check_output_dir(out)
+    check_output_dir(out, overwrite=True)
+    (out / "metrics.json").write_text("{not json")
+    with pytest.raises(ValueError, match="--overwrite"):
+        check_output_dir(out)
+
+
+def test_slamlib_run_refuses_to_overwrite_user_files_but_replaces_its_own(cli_drive, tmp_path):
+    from slamlib.cli import main
+
+    args, _ = cli_drive
+    out = tmp_path / "o"
+    out.mkdir()
+    (out / "map.ply").write_text("my own map")
+    with pytest.raises(SystemExit, match="--out: .*map.ply.*--overwrite"):
+        main(args + ["--out", str(out)])
+    assert (out / "map.ply").read_text() == "my own map"
+    assert main(args + ["--out", str(out), "--overwrite"]) == 0
+    assert main(args + ["--out", str(out)]) == 0  # an earlier run's results are replaced without asking

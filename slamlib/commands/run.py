@@ -53,6 +53,9 @@ def add_arguments(parser) -> None:
                    help=f"compute backend (default {SLAM3DConfig.backend})")
     o = parser.add_argument_group("output")
     o.add_argument("--out", type=Path, default=Path("slam3d_run"), help="output folder (default ./slam3d_run)")
+    o.add_argument("--overwrite", action="store_true",
+                   help="replace result files (slam_poses.txt, map.ply, ...) already in --out that an earlier run "
+                        "did not write (an earlier run's results are always replaced)")
     o.add_argument("--map-format", choices=("ply", "pcd"), default="ply", help="map file format (default ply)")
     o.add_argument("--no-plots", action="store_true", help="do not write the PNG plots")
     o.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -106,7 +109,7 @@ def main(args) -> int:
     from slamlib.slam3d.run import check_output_dir
 
     try:
-        check_output_dir(args.out)
+        check_output_dir(args.out, overwrite=args.overwrite)
     except ValueError as exc:
         raise SystemExit(f"slamlib run: --out: {exc}") from None
     if args.video is not None:

@@ -21,7 +21,7 @@ from slamlib.geometry import invert_pose
 from slamlib.slam3d.config import SLAM3DConfig
 from slamlib.slam3d.pipeline import ParticleSLAM3D
 
-__all__ = ["SLAMRun", "run_drive", "evaluate", "parse_frames", "save_run", "check_output_dir"]
+__all__ = ["SLAMRun", "run_drive", "evaluate", "parse_frames", "save_run", "check_output_dir", "RUN_FILES"]
 
 
 @dataclass
@@ -144,9 +144,31 @@ def evaluate(run: SLAMRun) -> dict:
     }
 
 
-def check_output_dir(out_dir) -> None:
+#: The files :func:`save_run` may write into its folder (the ones :func:`check_output_dir` will not let it overwrite
+#: unless they come from an earlier run).
+RUN_FILES = tuple(f"{name}_{kind}.txt" for name in ("slam", "dead_reckoning", "ground_truth")
+                  for kind in ("poses", "tum")) + ("times.txt", "map.ply", "map.pcd", "metrics.json",
+                                                   "trajectory.png", "map_topdown.png")
+
+
+def _is_earlier_run(out) -> bool:
+    """Whether folder ``out`` holds the results of an earlier :func:`save_run`: its metrics.json reads as one."""
+    import json
+
+    try:
+        info = json.loads((out / "metrics.json").read_text())
+    except (OSError, ValueError):
+        return False
+    return isinstance(info, dict) and {"frames", "config", "map_elements"} <= set(info)
+
+
+def check_output_dir(out_dir, overwrite: bool = False) -> None:
     """Raise ``ValueError`` unless ``out_dir`` can become the output folder: an existing folder, or a path whose
-    nearest existing parent is a writable folder. ``slamlib run`` calls it before the run, not after."""
+    nearest existing parent is a writable folder. ``slamlib run`` calls it before the run, not after.
+
+    No user file is lost: when the folder already holds a file named like one of :data:`RUN_FILES` and it is not
+    the folder of an earlier run (a metrics.json written by :func:`save_run`), this refuses unless ``overwrite``.
+    """
     import os
     from pathlib import Path
 
@@ -156,6 +178,10 @@ def check_output_dir(out_dir) -> None:
             raise ValueError(f"{out} exists and is not a folder")
         if not os.access(out, os.W_OK):
             raise ValueError(f"{out} is not writable")
+        clash = [name for name in RUN_FILES if (out / name).exists()]
+        if clash and not overwrite and not _is_earlier_run(out):
+            raise ValueError(f"{out} holds {', '.join(clash)}, not from an earlier slamlib run; they would be "
+                             f"overwritten: choose another folder or pass --overwrite")
         return
     parent = out.parent
     while not parent.exists():

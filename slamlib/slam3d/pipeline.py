@@ -104,8 +104,9 @@ class ParticleSLAM3D:
         """Run steps 2-11 on one frame (``.scan``, ``.velocity``, ``.angular_rate``, ``.dt``); return the pose.
 
         The first frame only builds the map at the start pose. A frame with fewer than :data:`MIN_SCAN_POINTS`
-        points is skipped for scoring: steps 5 and 6 stand, the pose is
-        the motion prediction, and ``n_skipped_frames`` grows. Returns ``T_world_body`` (4, 4).
+        points is skipped for scoring: steps 5 and 6 stand, the pose is the motion prediction, and
+        ``n_skipped_frames`` grows (module docstring, "Degenerate frames"). Returns ``T_world_body`` (4, 4).
+        Raises ``ValueError`` for non-finite or physically impossible IMU values (:func:`~slamlib.slam3d.steps.read_imu`).
         """
         cfg, be, prev = self.config, self.backend, self.imu_prev
         points = steps.read_scan(frame, cfg.scan, self.T_body_velo)                                # 2

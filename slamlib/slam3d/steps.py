@@ -242,7 +242,10 @@ def transform_scan(particles, points, backend=DEFAULT_BACKEND) -> np.ndarray:
     be = _backend(backend)
     pts = np.ascontiguousarray(points, dtype=np.float32)
     if isinstance(particles, Particles3D):
-        return np.stack([be.transform_points(T, pts) for T in particles.poses()]).reshape(len(particles), -1, 3)
+        out = np.empty((len(particles), len(pts), 3), np.float32)
+        for i, T in enumerate(particles.poses()):  # each particle's scan straight into its slice: no stacking copy
+            be.transform_points(T, pts, out=out[i])
+        return out
     return be.transform_points(np.asarray(particles, dtype=np.float64), pts)
 
 

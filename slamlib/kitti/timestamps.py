@@ -28,6 +28,7 @@ __all__ = ["parse_timestamp_ns", "format_timestamp_ns", "read_timestamps_ns", "w
 
 _PATTERN = re.compile(r"^(\d{4})-(\d{2})-(\d{2}) (\d{2}):(\d{2}):(\d{2})\.(\d{9})$")
 _EPOCH = _dt.datetime(1970, 1, 1)
+_INT64_MIN, _INT64_MAX = -(2**63), 2**63 - 1
 _FORMAT_HINT = "expected 'YYYY-MM-DD HH:MM:SS.fffffffff' (KITTI raw format, 9 fractional digits)"
 
 
@@ -57,7 +58,11 @@ def parse_timestamp_ns(text: str, path: str | os.PathLike = "<string>", line: in
     except ValueError as exc:
         raise DataFormatError(path, f"bad timestamp {s!r}: {exc}", line) from None
     seconds = (whole - _EPOCH) // _dt.timedelta(seconds=1)
-    return seconds * 1_000_000_000 + int(frac)
+    ns = seconds * 1_000_000_000 + int(frac)
+    if not _INT64_MIN <= ns <= _INT64_MAX:
+        raise DataFormatError(path, f"bad timestamp {s!r}: outside the years 1678-2262 that int64 nanoseconds "
+                                    "since 1970 can hold", line)
+    return ns
 
 
 def format_timestamp_ns(ns: int) -> str:

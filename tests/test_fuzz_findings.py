@@ -24,3 +24,16 @@ def test_timestamps_at_the_int64_limits_still_parse():
     for ns in (-(2**63) + 10**9, 2**63 - 1):
         text = format_timestamp_ns(ns)
         assert parse_timestamp_ns(text) == ns
+
+
+@pytest.mark.parametrize("option,value", [("--points", "0"), ("--points", "-3"), ("--particles", "0"),
+                                          ("--points", "100000000")])
+def test_slamlib_run_count_error_names_the_option_given(tmp_path, monkeypatch, option, value):
+    import slamlib.slam3d
+    from slamlib.cli import main
+
+    monkeypatch.setattr(slamlib.slam3d, "run_drive", lambda *a, **k: pytest.fail("the run started"))
+    with pytest.raises(SystemExit) as exc:
+        main(["run", "--no-progress", option, value, "--out", str(tmp_path / "o")])
+    msg = str(exc.value)
+    assert msg.startswith("slamlib run: ") and option in msg.split(":")[1] and "\n" not in msg, msg

@@ -84,10 +84,11 @@ _OPTION_OF = {"particles": "--particles", "scored_points": "--points", "temperat
 
 
 def _option_error(exc: ValueError) -> str:
-    """``--option: message`` for a configuration ValueError (the option whose setting the message names first)."""
+    """``--option: message`` for a configuration ValueError (``--a, --b: message`` when it names several settings)."""
     text = str(exc)
-    hits = [(text.find(k), opt) for k, opt in _OPTION_OF.items() if k in text]
-    return f"{min(hits)[1]}: {text}" if hits else text
+    hits = sorted((text.find(k), opt) for k, opt in _OPTION_OF.items() if k in text)
+    options = list(dict.fromkeys(opt for _, opt in hits))  # every option the message is about, in its order
+    return f"{', '.join(options)}: {text}" if options else text
 
 
 def main(args) -> int:
@@ -104,6 +105,9 @@ def main(args) -> int:
         raise SystemExit("slamlib run: give all of --basedir, --date and --drive, or none (synthetic default drive)")
     import math
 
+    for option, value in (("--particles", args.particles), ("--points", args.points)):
+        if value < 1:
+            raise SystemExit(f"slamlib run: {option} must be >= 1, got {value}")
     if not (math.isfinite(args.noise) and args.noise >= 0):
         raise SystemExit(f"slamlib run: --noise must be finite and >= 0, got {args.noise}")
     from slamlib.slam3d.run import check_output_dir

@@ -43,3 +43,61 @@ def test_invert_pose_and_transform(r, p, y, x, yy, z):
     pts = np.random.default_rng(1).normal(size=(20, 3))
     back = transform_points(invert_pose(T), transform_points(T, pts))
     np.testing.assert_allclose(back, pts, atol=1e-9)
+
+
+# Value tests pinning the formulas (issue 15, mutation testing).
+
+def test_elementary_rotations_at_a_known_angle():
+    a = np.pi / 6
+    c, s = np.sqrt(3) / 2, 0.5
+    np.testing.assert_allclose(rot_x(a), [[1, 0, 0], [0, c, -s], [0, s, c]], atol=1e-15)
+    np.testing.assert_allclose(rot_y(a), [[c, 0, s], [0, 1, 0], [-s, 0, c]], atol=1e-15)
+    np.testing.assert_allclose(rot_z(a), [[c, -s, 0], [s, c, 0], [0, 0, 1]], atol=1e-15)
+
+
+def test_matrix_to_rpy_clips_rounding_beyond_plus_minus_one():
+    # R[2, 0] = -sin(pitch) one ulp beyond +-1 (rounding in a product of rotations) gives pitch -+pi/2, not NaN
+    for v, pitch in [(np.nextafter(1.0, 2.0), -np.pi / 2), (np.nextafter(-1.0, -2.0), np.pi / 2)]:
+        R = np.zeros((3, 3))
+        R[2, 0] = v
+        R[0, 0] = R[2, 2] = 1.0
+        rpy = matrix_to_rpy(R)
+        assert np.isfinite(rpy).all()
+        assert rpy[1] == pitch
+
+
+def test_matrix_to_rpy_batched_shape_and_values():
+    rpy = np.random.default_rng(2).uniform(-1, 1, size=(4, 5, 3))
+    out = matrix_to_rpy(rpy_to_matrix(rpy))
+    assert out.shape == (4, 5, 3)
+    np.testing.assert_allclose(out, rpy, atol=1e-12)
+
+
+def test_make_pose_and_invert_pose_values():
+    R = rot_z(np.pi / 2)
+    T = make_pose(R, [1.0, 2.0, 3.0])
+    np.testing.assert_array_equal(T[3], [0, 0, 0, 1])
+    np.testing.assert_array_equal(T[:3, 3], [1, 2, 3])
+    Ti = invert_pose(T)
+    np.testing.assert_allclose(Ti[:3, :3], R.T, atol=1e-15)
+    np.testing.assert_allclose(Ti[:3, 3], -R.T @ [1.0, 2.0, 3.0], atol=1e-15)  # (-2, 1, -3)
+    np.testing.assert_array_equal(Ti[3], [0, 0, 0, 1])
+    # batched: (2, 4, 4)
+    Tb = make_pose(np.stack([R, R.T]), [[1.0, 0, 0], [0, 1.0, 0]])
+    Tib = invert_pose(Tb)
+    assert Tib.shape == (2, 4, 4)
+    np.testing.assert_allclose(Tib[1], invert_pose(Tb[1]), atol=1e-15)
+    np.testing.assert_allclose(Tb @ Tib, np.broadcast_to(np.eye(4), (2, 4, 4)), atol=1e-15)
+
+
+def test_transform_points_values_and_dtype():
+    T = make_pose(rot_z(np.pi / 2), [10.0, 0.0, -1.0])
+    pts = np.array([[1.0, 0.0, 0.0], [0.0, 2.0, 3.0]])
+    # Rz(90) maps x -> y, y -> -x
+    np.testing.assert_allclose(transform_points(T, pts), [[10.0, 1.0, -1.0], [8.0, 0.0, 2.0]], atol=1e-12)
+    out32 = transform_points(T, pts.astype(np.float32))
+    assert out32.dtype == np.float32
+    np.testing.assert_allclose(out32, [[10.0, 1.0, -1.0], [8.0, 0.0, 2.0]], atol=1e-5)
+    outi = transform_points(T, np.array([[1, 0, 0], [0, 2, 3]]))  # integer points -> float64
+    assert outi.dtype == np.float64
+    np.testing.assert_allclose(outi, [[10.0, 1.0, -1.0], [8.0, 0.0, 2.0]], atol=1e-12)

@@ -64,3 +64,87 @@ def test_vectorised_equals_scalar_and_second_order(vals, dt):
     vb, wb = (a[0] + a[2]) / 2, (a[1] + a[3]) / 2
     half = Rotation.from_rotvec(wb * dt / 2).as_matrix() @ (vb * dt)
     assert np.linalg.norm(tr_s - half) <= 0.05 * (np.linalg.norm(wb) * dt) ** 2 * np.linalg.norm(vb) * dt + 1e-12
+
+
+# Value tests pinning the formulas (issue 15, mutation testing).
+from slamlib.odometry import _skew, so3_left_jacobian  # noqa: E402
+
+
+def _c1_c2(a):
+    """Reference coefficients of J, without cancellation: (1-cos a)/a^2 = sin(a/2)^2/(a^2/2); series for c2."""
+    c1 = 0.5 * (np.sinc(a / 2 / np.pi)) ** 2
+    c2 = (1 / 6 - a**2 / 120 + a**4 / 5040 - a**6 / 362880) if a < 1e-2 else (a - np.sin(a)) / a**3
+    return c1, c2
+
+
+def test_skew_is_the_cross_product():
+    v, u = np.array([0.3, -1.2, 2.5]), np.array([-0.7, 0.4, 1.1])
+    np.testing.assert_allclose(_skew(v) @ u, np.cross(v, u), atol=1e-15)
+    np.testing.assert_allclose(_skew(np.stack([v, u]))[1] @ v, np.cross(u, v), atol=1e-15)
+
+
+@pytest.mark.parametrize("a", [0.0, 1e-6, 5e-5, 9.9e-5, 2e-4, 1e-2, 0.5, 2.0, 3.0])
+def test_left_jacobian_coefficients(a):
+    # phi = (x, x, 0): J[0, 2] = c1 * x (K^2[0, 2] = 0) and J[0, 1] = c2 * x^2 (K[0, 1] = 0), so each
+    # coefficient is read off one entry to full relative precision.
+    x = a / np.sqrt(2)
+    J = so3_left_jacobian([x, x, 0.0])
+    c1, c2 = _c1_c2(a)
+    # above the series threshold the closed form itself loses ~1e-16 / a^2 to cancellation
+    rtol = 1e-13 if a < 1e-4 else max(1e-13, 1e-15 / a**2)
+    if a > 0:
+        assert J[0, 2] / x == pytest.approx(c1, rel=rtol, abs=0)
+        assert J[0, 1] / x**2 == pytest.approx(c2, rel=rtol, abs=0)
+    K = _skew(np.array([x, x, 0.0]))
+    np.testing.assert_allclose(J, np.eye(3) + c1 * K + c2 * K @ K, rtol=0, atol=1e-12)
+
+
+def test_left_jacobian_batched():
+    phi = np.array([[0.0, 0.0, 1e-5], [0.3, -0.2, 1.0]])
+    J = so3_left_jacobian(phi)
+    assert J.shape == (2, 3, 3)
+    for k in range(2):
+        np.testing.assert_allclose(J[k], so3_left_jacobian(phi[k]), atol=1e-15)
+
+
+def test_left_jacobian_is_the_mean_rotation():
+    # J(phi) = int_0^1 Exp(s phi) ds (Barfoot eq. 7.86), by Gauss-Legendre quadrature
+    phi = np.array([0.4, -0.9, 1.3])
+    s, w = np.polynomial.legendre.leggauss(30)
+    s, w = (s + 1) / 2, w / 2
+    ref = sum(wi * Rotation.from_rotvec(si * phi).as_matrix() for si, wi in zip(s, w))
+    np.testing.assert_allclose(so3_left_jacobian(phi), ref, atol=1e-13)
+
+
+def test_imu_increment_values_for_a_turn():
+    # constant v = (4, 0, 0), w = (0, 0, 0.5) for dt = 0.2: yaw 0.1, chord of the circle of radius 8
+    rpy, tr = imu_increment([4.0, 0, 0], [0, 0, 0.5], [4.0, 0, 0], [0, 0, 0.5], 0.2)
+    np.testing.assert_allclose(rpy, [0.0, 0.0, 0.1], atol=1e-15)
+    np.testing.assert_allclose(tr, [8.0 * np.sin(0.1), 8.0 * (1 - np.cos(0.1)), 0.0], rtol=1e-12, atol=1e-15)
+    # the mean of the two samples is used: (2, 0, 0)+(6, 0, 0) and (0,0,0)+(0,0,1)
+    rpy2, tr2 = imu_increment([2.0, 0, 0], [0, 0, 0.0], [6.0, 0, 0], [0, 0, 1.0], 0.2)
+    np.testing.assert_allclose(rpy2, rpy, atol=1e-15)
+    np.testing.assert_allclose(tr2, tr, atol=1e-15)
+
+
+def test_increment_matrix_values():
+    inc = increment_matrix([0.0, 0.0, np.pi / 2], [1.0, 2.0, 3.0])
+    np.testing.assert_allclose(inc, [[0, -1, 0, 1], [1, 0, 0, 2], [0, 0, 1, 3], [0, 0, 0, 1]], atol=1e-15)
+
+
+def test_dead_reckon_starts_at_T0_and_composes_on_its_right():
+    T0 = make_pose(rpy_to_matrix([0.1, -0.2, 0.7]), [5.0, -3.0, 1.0])
+    one = dead_reckon([[1.0, 0, 0]], [[0, 0, 0.1]], [0.1], T0=T0)
+    assert one.shape == (1, 4, 4)
+    np.testing.assert_array_equal(one[0], T0)
+    np.testing.assert_array_equal(dead_reckon([[1.0, 0, 0]], [[0, 0, 0.1]], [0.1])[0], np.eye(4))
+    rng = np.random.default_rng(3)
+    v, w, dts = rng.normal(size=(6, 3)), rng.normal(scale=0.3, size=(6, 3)), rng.uniform(0.05, 0.2, 6)
+    T = dead_reckon(v, w, dts, T0=T0)
+    T_id = dead_reckon(v, w, dts)
+    np.testing.assert_allclose(T, T0 @ T_id, atol=1e-12)
+    # two samples: one increment, dts[0] ignored
+    T2 = dead_reckon(v[:2], w[:2], [99.0, dts[1]])
+    rpy, tr = imu_increment(v[0], w[0], v[1], w[1], dts[1])
+    np.testing.assert_allclose(T2[1], increment_matrix(rpy, tr), atol=1e-15)
+    np.testing.assert_allclose(T_id[1], T2[1], atol=1e-15)

@@ -55,7 +55,7 @@ def add_arguments(parser) -> None:
     o.add_argument("--out", type=Path, default=Path("slam3d_run"), help="output folder (default ./slam3d_run)")
     o.add_argument("--overwrite", action="store_true",
                    help="replace result files (slam_poses.txt, map.ply, ...) already in --out that an earlier run "
-                        "did not write (an earlier run's results are always replaced)")
+                        "did not write (an earlier run's results are always replaced), and an existing --video file")
     o.add_argument("--map-format", choices=("ply", "pcd"), default="ply", help="map file format (default ply)")
     o.add_argument("--no-plots", action="store_true", help="do not write the PNG plots")
     o.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -120,7 +120,7 @@ def main(args) -> int:
         from slamlib.slam3d.video import check_video_path
 
         try:
-            check_video_path(args.video)
+            check_video_path(args.video, overwrite=args.overwrite)
         except (ValueError, ImportError) as exc:
             raise SystemExit(f"slamlib run: --video: {exc}") from None
     kind = OLD_MAP_NAMES.get(args.map_kind, args.map_kind)

@@ -19,16 +19,20 @@ __all__ = ["VIDEO_FORMATS", "check_video_path", "map_video_frames", "write_map_v
 VIDEO_FORMATS = {".mp4": "imageio-ffmpeg", ".gif": "pillow"}
 
 
-def check_video_path(path) -> str:
+def check_video_path(path, overwrite: bool = True) -> str:
     """The format (``".mp4"`` or ``".gif"``) of ``path``, checked before any work is done.
 
-    Raises ``ValueError`` for another extension and ``ImportError`` naming the package to install when the
-    writer's package is missing.
+    Raises ``ValueError`` for another extension, for a folder at ``path``, or (``overwrite=False``) for a file
+    already at ``path``, and ``ImportError`` naming the package to install when the writer's package is missing.
     """
     ext = Path(path).suffix.lower()
     if ext not in VIDEO_FORMATS:
         raise ValueError(f"cannot write a video to {str(path)!r}: the name must end in "
                          f"{' or '.join(VIDEO_FORMATS)}, not {ext or '(no extension)'!r}")
+    if Path(path).is_dir():
+        raise ValueError(f"cannot write a video to {str(path)!r}: it is a folder")
+    if not overwrite and Path(path).exists():
+        raise ValueError(f"{str(path)!r} exists; give --overwrite to replace it, or another name")
     try:
         if ext == ".mp4":
             import imageio_ffmpeg

@@ -132,3 +132,129 @@ def test_hash_once_then_six_indexes_is_lut_index(thread, step, seed):
         i = int(N._NP["hash_index"](h, k, tables.perm, tables.bits))
         assert i == int(N.lut_index(np.uint64(thread), step, seed, k, tables.perm, tables.bits))
         assert i == int(nb["hash_index"](nb["thread_hash"](np.uint64(thread), key), k, tables.perm, tables.bits))
+
+
+# Value tests pinning the formulas (issue 15, mutation testing).
+
+def _fmix32_ref(h):
+    """MurmurHash3's fmix32 on Python ints (Appleby)."""
+    h &= 0xFFFFFFFF
+    h ^= h >> 16
+    h = (h * 0x85EBCA6B) & 0xFFFFFFFF
+    h ^= h >> 13
+    h = (h * 0xC2B2AE35) & 0xFFFFFFFF
+    h ^= h >> 16
+    return h
+
+
+def _lut_index_ref(thread, step, seed, k, perm, bits):
+    key = _fmix32_ref((step & 0xFFFFFFFF) ^ _fmix32_ref((seed & 0xFFFFFFFF) ^ 0x9E3779B9))
+    h = _fmix32_ref((thread & 0xFFFFFFFF) ^ key)
+    mask = (1 << bits) - 1
+    return int(perm[k, h & mask]) ^ ((h >> (32 - bits)) & mask)
+
+
+def test_fresh_lut_functions_match_a_plain_integer_reference():
+    # make_lut_functions() is also run at import; calling it here tests a fresh build of every function
+    fns = N.make_lut_functions()
+    assert int(fns["fmix32"](np.uint64(1))) == _fmix32_ref(1) == 0x514E28B7
+    assert int(fns["fmix32"](np.uint64(0))) == 0
+    tables = N.make_tables(seed=11, bits=7)
+    rng = np.random.default_rng(4)
+    for thread, step, seed in rng.integers(0, 2**33, size=(30, 3)):  # beyond 2**32: inputs are taken mod 2**32
+        thread, step, seed = int(thread), int(step), int(seed)
+        key = fns["frame_key"](np.uint64(step), np.uint64(seed))
+        assert int(key) == _fmix32_ref((step & 0xFFFFFFFF) ^ _fmix32_ref((seed & 0xFFFFFFFF) ^ 0x9E3779B9))
+        h = fns["thread_hash"](np.uint64(thread), key)
+        assert int(h) == int(fns["counter_hash"](np.uint64(thread), np.uint64(step), np.uint64(seed)))
+        for k in range(6):
+            ref = _lut_index_ref(thread, step, seed, k, tables.perm, 7)
+            assert 0 <= ref < 128
+            assert int(fns["hash_index"](h, k, tables.perm, 7)) == ref
+            assert int(fns["lut_index"](np.uint64(thread), np.uint64(step), np.uint64(seed), k, tables.perm, 7)) == ref
+            assert fns["lut_draw"](np.uint64(thread), np.uint64(step), np.uint64(seed), k, tables.normal,
+                                   tables.perm, 7) == tables.normal[ref]
+
+
+def test_make_tables_values_and_bounds():
+    from scipy.stats import norm
+
+    t = N.make_tables(seed=5, bits=4)
+    q = norm.ppf((np.arange(16) + 0.5) / 16)
+    q = (q - q.mean()) / np.sqrt(np.mean((q - q.mean()) ** 2))
+    np.testing.assert_array_equal(t.normal, q.astype(np.float32))
+    assert t.normal.dtype == np.float32 and t.perm.dtype == np.int32 and t.bits == 4 and type(t.bits) is int
+    rng = np.random.default_rng(5)
+    np.testing.assert_array_equal(t.perm, [rng.permutation(16) for _ in range(6)])
+    d = N.make_tables(seed=5, bits=4, exact=False)
+    rng = np.random.default_rng(5)
+    np.testing.assert_array_equal(d.normal, rng.standard_normal(16).astype(np.float32))
+    np.testing.assert_array_equal(d.perm, [rng.permutation(16) for _ in range(6)])
+    assert N.make_tables(0, bits=1).normal.shape == (2,)
+    assert N.make_tables(0, bits=16).perm.shape == (6, 65536)
+    assert N.make_tables(0, bits=4.0).bits == 4
+    for bad in (0, 17, -1):
+        with pytest.raises(ValueError, match=rf"bits must be in \[1, 16\], got {bad}"):
+            N.make_tables(0, bits=bad)
+    assert N.make_tables(0).bits == N.DEFAULT_BITS == 12
+
+
+def test_lut_normal_rows_are_threads_from_start():
+    t = N.make_tables(seed=2, bits=6)
+    full = N.lut_normal(t, 12, step=4, seed=9)
+    assert full.shape == (12, 6) and full.dtype == np.float32
+    np.testing.assert_array_equal(N.lut_normal(t, 5, step=4, seed=9, start=3), full[3:8])
+    for i in (0, 7):
+        for k in range(6):
+            assert full[i, k] == t.normal[_lut_index_ref(i, 4, 9, k, t.perm, 6)]
+    assert N.lut_normal(t, 0, step=0, seed=0).shape == (0, 6)  # n = 0 is allowed
+    np.testing.assert_array_equal(N.LutNoise(t, 4, 9).draw(12), full)
+
+
+def test_check_rejects_negative_inputs_and_bad_tables():
+    t = N.make_tables(seed=2, bits=6)
+    for n, step, seed in [(-1, 0, 0), (1, -1, 0), (1, 0, -1)]:
+        with pytest.raises(ValueError, match=r"n, step and seed must be >= 0, got "):
+            N.lut_normal(t, n, step, seed)
+    N.lut_normal(t, 0, 0, 0)
+    with pytest.raises(ValueError, match=r"tables.perm must be \(6, T\)"):
+        N.lut_normal(N.NoiseTables(t.normal, t.perm[:5], 6), 1, 0, 0)
+    with pytest.raises(ValueError, match=r"tables.perm must be \(6, T\)"):
+        N.lut_normal(N.NoiseTables(t.normal[:-1], t.perm, 6), 1, 0, 0)
+    with pytest.raises(ValueError, match=r"tables.perm must be \(6, T\)"):
+        N.lut_normal(N.NoiseTables(t.normal, t.perm, 5), 1, 0, 0)
+
+
+def test_seed_variant_values_and_bounds():
+    t9 = N.make_tables(seed=2, bits=9)
+    s = N.seed_lut_normal(t9, 600, step=3, seed=1)
+    assert s.shape == (600, 6) and s.dtype == np.float32
+    for i in (0, 5, 300, 599):
+        for k in range(6):
+            assert s[i, k] == t9.normal[t9.perm[k, i & 0xFF]]
+    np.testing.assert_array_equal(N.seed_lut_normal(t9, 10), s[:10])  # step, seed ignored
+    N.seed_lut_normal(N.make_tables(0, bits=8), 3)
+    with pytest.raises(ValueError, match="at least 256 entries"):
+        N.seed_lut_normal(N.make_tables(0, bits=7), 3)
+
+
+def test_noise_statistics_and_lag_correlation_values():
+    from scipy import stats
+
+    x = np.array([[0.0, 1.0], [2.0, 3.0]])
+    s = N.noise_statistics(x)
+    assert s["n"] == 4 and type(s["n"]) is int
+    assert s["mean"] == 1.5 and s["var"] == 1.25
+    assert s["kurtosis"] == pytest.approx((2 * 1.5**4 + 2 * 0.5**4) / 4 / 1.25**2, rel=1e-15)
+    assert s["ks"] == stats.kstest(x.ravel(), "norm").statistic
+    assert N.noise_statistics([1, 2, 3, 4])["var"] == 1.25  # ints are read as float64
+    alt = np.array([1.0, 2.0, 1.0, 2.0, 1.0, 2.0])
+    assert N.lag_correlation(alt, 1) == pytest.approx(-1.0)
+    assert N.lag_correlation(alt, 2) == pytest.approx(1.0)
+    assert N.lag_correlation(alt) == pytest.approx(-1.0)  # lag 1 by default
+    y = np.random.default_rng(1).normal(size=(7, 5))
+    a, b = y[:-2].ravel(), y[2:].ravel()
+    assert N.lag_correlation(y, 2, axis=0) == pytest.approx(np.corrcoef(a, b)[0, 1], rel=1e-12)
+    a, b = y.T[:-1].ravel(), y.T[1:].ravel()  # axis 1 moved first, pooled over the rows
+    assert N.lag_correlation(y, 1, axis=1) == pytest.approx(np.corrcoef(a, b)[0, 1], rel=1e-12)
+    assert np.isnan(N.lag_correlation(np.ones(5), 1))  # no variance: NaN, not a division error

@@ -37,3 +37,17 @@ def test_slamlib_run_count_error_names_the_option_given(tmp_path, monkeypatch, o
         main(["run", "--no-progress", option, value, "--out", str(tmp_path / "o")])
     msg = str(exc.value)
     assert msg.startswith("slamlib run: ") and option in msg.split(":")[1] and "\n" not in msg, msg
+
+
+@pytest.mark.parametrize("frames", ["1", "0:1", "2:"])
+def test_slamlib_run_one_frame_selection_names_frames(tmp_path, monkeypatch, frames):
+    import slamlib.slam3d
+    from slamlib.cli import main
+    from slamlib.kitti.sample import SAMPLE_DATE, SAMPLE_DRIVE, make_tiny_drive
+
+    monkeypatch.setattr(slamlib.slam3d, "run_drive", lambda *a, **k: pytest.fail("the run started"))
+    d = make_tiny_drive(tmp_path / "k", n_frames=3, point_stride=500)
+    with pytest.raises(SystemExit) as exc:
+        main(["run", "--basedir", str(d.parent.parent), "--date", SAMPLE_DATE, "--drive", SAMPLE_DRIVE,
+              "--frames", frames, "--out", str(tmp_path / "o")])
+    assert str(exc.value).startswith(f"slamlib run: --frames {frames!r} selects 1 frame"), str(exc.value)

@@ -150,7 +150,10 @@ def main(args) -> int:
     except ValueError as exc:
         raise SystemExit(f"slamlib run: {exc}") from None
     if len(drive) < 2:
-        raise SystemExit("slamlib run: need at least 2 frames")
+        if args.frames is not None:
+            raise SystemExit(f"slamlib run: --frames {args.frames!r} selects {len(drive)} frame(s) of the drive; "
+                             "need at least 2")
+        raise SystemExit(f"slamlib run: the drive has {len(drive)} frame(s); need at least 2")
 
     print(f"slamlib run: {source}: {drive.path} frames {drive.frames[0]}..{drive.frames[-1]} ({len(drive)}), "
           f"{cfg.filter.particles} particles x {cfg.filter.scored_points} points, map {cfg.map.kind}, "

@@ -9,9 +9,10 @@ Examples::
 
 The drive goes to ``OUT/DATE/DATE_drive_NNNN_sync`` beside the real 2011_09_26 calibration files (copied into
 ``OUT/DATE``) and reads unmodified with ``pykitti.raw(OUT, DATE, "NNNN")`` or ``slamlib run --basedir OUT
---date DATE --drive NNNN``. A drive folder that already holds a synthetic drive is replaced; one that is not
-synthetic (no ``.slamlib_synth.json`` marker), or calibration files that differ from the ones written, are
-never overwritten.
+--date DATE --drive NNNN``. A drive folder that already holds a synthetic drive (complete, or interrupted: its
+``.slamlib_synth.partial.json``) has the generator's files replaced and keeps every other file (notes, a ``slamlib
+run --out DRIVE/out`` folder); a non-empty folder that is not synthetic (no ``.slamlib_synth.json`` marker), or
+calibration files that differ from the ones written, are never overwritten.
 """
 
 from __future__ import annotations
@@ -90,10 +91,12 @@ MAX_IMU_NOISE = 100.0
 
 def _check_target(basedir: Path, date: str, drive: int) -> None:
     """Refuse to overwrite anything that is not ours: a non-synthetic drive folder, differing calibration files."""
-    from slamlib.synth.writer import CALIB_FILES, MARKER, drive_dir
+    from slamlib.synth.writer import CALIB_FILES, MARKER, drive_dir, is_own_drive
 
     ddir = drive_dir(basedir, date, drive)
-    if ddir.exists() and not (ddir / MARKER).is_file():
+    if ddir.is_symlink() or (ddir.exists() and not ddir.is_dir()):
+        _fail(f"{ddir} exists and is not a folder; choose another --out, --date or --drive")
+    if ddir.is_dir() and not is_own_drive(ddir) and any(ddir.iterdir()):
         _fail(f"{ddir} exists and is not a slamlib synthetic drive (no {MARKER}); choose another --out, --date or "
               "--drive")
     from slamlib.paths import kitti_sample_dir

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import shutil
 from dataclasses import replace
 from pathlib import Path
 
@@ -23,8 +22,9 @@ from slamlib.synth.lidar import Hdl64, ray_directions, simulate_scan
 from slamlib.synth.oxts import ImuNoise, oxts_packets
 from slamlib.synth.routes import Route, get_route
 from slamlib.synth.scene import build_scene
-from slamlib.synth.writer import (SCAN_PERIOD, drive_dir, frame_timestamps_ns, read_marker, write_calib,
-                                  write_marker, write_oxts, write_scan, write_velodyne_timestamps)
+from slamlib.synth.writer import (MARKER, PARTIAL_MARKER, SCAN_PERIOD, check_calib, drive_dir, frame_timestamps_ns,
+                                  is_own_drive, own_files, read_marker, write_calib, write_marker, write_oxts,
+                                  write_scan, write_velodyne_timestamps)
 
 __all__ = ["GENERATOR_VERSION", "write_drive", "default_drive", "resolve_route", "DEFAULT_FRAMES"]
 
@@ -84,6 +84,11 @@ def write_drive(basedir, route="07", date: str = "2011_09_26", drive: int = 1, f
     progress : show a tqdm progress bar.
 
     Returns ``(Path(basedir), date, drive)``.
+
+    An existing drive folder is rewritten only if it is this generator's (complete or interrupted, see
+    :func:`slamlib.synth.writer.is_own_drive`) or empty: then only the generator's files are replaced
+    (:func:`slamlib.synth.writer.own_files`); the user's files in it stay. Raises ``FileExistsError``, before
+    writing anything, for another non-empty folder or for differing calibration files in ``basedir/DATE``.
     """
     from tqdm.auto import tqdm
     from slamlib.kitti.calib import load_T_velo_imu
@@ -92,8 +97,19 @@ def write_drive(basedir, route="07", date: str = "2011_09_26", drive: int = 1, f
     ss = np.random.SeedSequence(seed)
     rng_time, rng_imu, rng_scene, rng_lidar = (np.random.default_rng(s) for s in ss.spawn(4))
     ddir = drive_dir(basedir, date, drive)
-    if ddir.exists():
-        shutil.rmtree(ddir)
+    if ddir.is_symlink() or (ddir.exists() and not ddir.is_dir()):
+        raise FileExistsError(f"{ddir} exists and is not a folder; choose another basedir, date or drive")
+    if ddir.is_dir() and not is_own_drive(ddir) and any(ddir.iterdir()):
+        raise FileExistsError(f"{ddir} exists and is not a slamlib synthetic drive (no {MARKER}); choose another "
+                              "basedir, date or drive")
+    check_calib(basedir, date)
+    params = {"version": GENERATOR_VERSION, "route": r.name, "frames": n, "seed": seed,
+              "noise": noise.as_dict(), "lidar": lidar.as_dict(), "scans": scans}
+    ddir.mkdir(parents=True, exist_ok=True)
+    (ddir / PARTIAL_MARKER).write_text(json.dumps(params, indent=1, sort_keys=True), encoding="ascii")
+    for path in own_files(ddir):  # the last drive's files (complete or interrupted); the user's stay
+        if path.name != PARTIAL_MARKER:
+            path.unlink()
     date_dir = write_calib(basedir, date)
     ts = frame_timestamps_ns(n, date, rng_time)
     t_route = r.t0 + (ts["oxts"] - ts["oxts"][0]) * 1e-9
@@ -109,8 +125,8 @@ def write_drive(basedir, route="07", date: str = "2011_09_26", drive: int = 1, f
         T_w_velo = r.pose(t_route) @ invert_pose(T_velo_imu)
         for k in tqdm(range(n), desc=f"synth drive {drive:04d}", disable=not progress, unit="scan"):
             write_scan(ddir, k, simulate_scan(rc, scene.albedo, T_w_velo[k], rng_lidar, lidar, dirs))
-    write_marker(ddir, {"version": GENERATOR_VERSION, "route": r.name, "frames": n, "seed": seed,
-                        "noise": noise.as_dict(), "lidar": lidar.as_dict(), "scans": scans})
+    write_marker(ddir, params)
+    (ddir / PARTIAL_MARKER).unlink()
     return Path(basedir), date, drive
 
 

@@ -17,13 +17,17 @@ to ``timestamp + 51.6 ms``)::
 
 The vehicle state of frame ``k`` (OXTS packet and the scan's sensor pose) is the route at
 ``t_oxts[k] - t_oxts[0] + route_t0`` (so ``pykitti``'s ``T_w_velo`` is exactly the pose the scan was cast
-from). A completed drive gets a ``.slamlib_synth.json`` marker (parameters + generator version) written last.
+from). A drive being written holds ``.slamlib_synth.partial.json`` (written first, removed last); a completed
+drive gets a ``.slamlib_synth.json`` marker (parameters + generator version) written last. Either marker makes
+the folder the generator's own: rewriting it replaces only the files the generator writes (:func:`own_files`)
+and keeps everything else (notes, a ``slamlib run --out DRIVE/out`` folder).
 """
 
 from __future__ import annotations
 
 import datetime as _dt
 import json
+import re
 import shutil
 from pathlib import Path
 
@@ -33,11 +37,17 @@ from slamlib.kitti.oxts import format_oxts_packet
 from slamlib.kitti.timestamps import write_timestamps_ns
 from slamlib.paths import kitti_sample_dir
 
-__all__ = ["CALIB_FILES", "MARKER", "drive_dir", "write_calib", "frame_timestamps_ns", "write_oxts",
+__all__ = ["CALIB_FILES", "MARKER", "PARTIAL_MARKER", "drive_dir", "is_own_drive", "own_files", "check_calib", "write_calib", "frame_timestamps_ns", "write_oxts",
            "write_velodyne_timestamps", "write_scan", "SCAN_PERIOD"]
 
 CALIB_FILES = ("calib_imu_to_velo.txt", "calib_velo_to_cam.txt", "calib_cam_to_cam.txt")
 MARKER = ".slamlib_synth.json"
+#: Written before anything else of a drive and removed after :data:`MARKER`: an interrupted drive keeps it.
+PARTIAL_MARKER = ".slamlib_synth.partial.json"
+#: The files the generator writes in a drive folder (besides the frame files matched by :data:`_FRAME_FILES`).
+_FIXED_FILES = ("oxts/dataformat.txt", "oxts/timestamps.txt", "velodyne_points/timestamps.txt",
+                "velodyne_points/timestamps_start.txt", "velodyne_points/timestamps_end.txt")
+_FRAME_FILES = (("oxts/data", re.compile(r"\d{10}\.txt")), ("velodyne_points/data", re.compile(r"\d{10}\.bin")))
 SCAN_PERIOD = 0.10315
 _SAMPLE = kitti_sample_dir() / "raw" / "2011_09_26"
 
@@ -47,8 +57,38 @@ def drive_dir(basedir, date: str, drive: int) -> Path:
     return Path(basedir) / date / f"{date}_drive_{int(drive):04d}_sync"
 
 
+def is_own_drive(ddir) -> bool:
+    """Whether ``ddir`` holds a drive of this generator, complete (:data:`MARKER`) or interrupted
+    (:data:`PARTIAL_MARKER`)."""
+    return (Path(ddir) / MARKER).is_file() or (Path(ddir) / PARTIAL_MARKER).is_file()
+
+
+def own_files(ddir) -> list[Path]:
+    """The files of ``ddir`` that the generator writes: the markers, the OXTS and Velodyne timestamps, OXTS
+    ``dataformat.txt``, and the 10-digit frame files in ``oxts/data`` (``.txt``) and ``velodyne_points/data``
+    (``.bin``). Anything else in the folder is not the generator's."""
+    ddir = Path(ddir)
+    out = [ddir / name for name in (MARKER, PARTIAL_MARKER) + _FIXED_FILES]
+    for sub, pattern in _FRAME_FILES:
+        if (ddir / sub).is_dir():
+            out += sorted(p for p in (ddir / sub).iterdir() if pattern.fullmatch(p.name))
+    return [p for p in out if p.is_file() and not p.is_symlink()]
+
+
+def check_calib(basedir, date: str) -> None:
+    """Raise ``FileExistsError`` if a calibration file in ``basedir/DATE`` differs from the one written."""
+    for name in CALIB_FILES:
+        theirs = Path(basedir) / date / name
+        if theirs.is_file() and theirs.read_bytes() != (_SAMPLE / name).read_bytes():
+            raise FileExistsError(f"{theirs} exists and differs from the 2011_09_26 calibration the generator "
+                                  "writes; choose another basedir or date")
+
+
 def write_calib(basedir, date: str) -> Path:
-    """Copy the three real 2011_09_26 calibration files into ``basedir/DATE``; returns that folder."""
+    """Copy the three real 2011_09_26 calibration files into ``basedir/DATE``; returns that folder.
+
+    Raises ``FileExistsError`` (before writing anything) if one is already there and differs."""
+    check_calib(basedir, date)
     d = Path(basedir) / date
     d.mkdir(parents=True, exist_ok=True)
     for name in CALIB_FILES:

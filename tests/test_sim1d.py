@@ -487,3 +487,79 @@ def test_run_slam_1d_passes_its_settings_and_shows_no_progress_by_default(world,
     wide = run_slam_1d(rec, n_particles=10, resolution=0.1, ess_fraction=None, keep_history=False, eps=0.5)
     assert not np.array_equal(wide.mean_estimated, r.mean_estimated)  # eps reaches the filter's scores
     # (progress=True itself is not run here: a tqdm bar hangs in mutmut's forked workers; its text is cosmetic)
+
+
+# The filter's input checks and the map's size bounds, to the boundary (issue 15, mutation testing).
+
+def _filter_args(**kw):
+    args = dict(n_particles=5, grid=OccupancyGrid1D.empty(0, 1), motion_noise=0.1, likelihood_sigma=0.1,
+                rng=np.random.default_rng(0))
+    args.update(kw)
+    return args
+
+
+@pytest.mark.parametrize("name", ["motion_noise", "likelihood_sigma", "eps"])
+def test_particle_slam_1d_checks_each_setting_to_the_boundary(name):
+    slam = ParticleSLAM1D(**_filter_args(**{name: 0}))  # zero is allowed
+    assert getattr(slam, name) == 0.0 and type(getattr(slam, name)) is float
+    for bad in (-1e-12, np.nan, np.inf):
+        with pytest.raises(ValueError, match=rf"^{name} must be finite and >= 0, got {bad!r}$"):
+            ParticleSLAM1D(**_filter_args(**{name: bad}))
+
+
+def test_particle_slam_1d_checks_ess_fraction_and_rng():
+    for ok in (0, 1, 0.5, None):
+        assert ParticleSLAM1D(**_filter_args(ess_fraction=ok)).ess_fraction == ok
+    for bad in (-0.01, 1.01, np.nan):
+        with pytest.raises(ValueError, match=rf"^ess_fraction must be in \[0, 1\] or None, got {bad!r}$"):
+            ParticleSLAM1D(**_filter_args(ess_fraction=bad))
+    with pytest.raises(TypeError, match=r"^rng must be a numpy.random.Generator$"):
+        ParticleSLAM1D(**_filter_args(rng=np.random.RandomState(0)))
+
+
+def _cells_and_kernel(rec, resolution, sigma):
+    reach = np.abs(rec.measured_velocities).max() * rec.times[-1] + 1.0
+    cells = 2.0 * (reach + rec.sensors.max_range) / resolution
+    return reach, cells, min(cells, 8.0 * sigma / resolution)
+
+
+def test_run_slam_1d_checks_the_resolution(world):
+    rec = simulate(world, n_frames=3, seed=4)
+    for bad in (0.0, -0.1, np.nan, np.inf):
+        with pytest.raises(ValueError, match=rf"^resolution must be finite and > 0, got {bad!r}$"):
+            run_slam_1d(rec, n_particles=5, resolution=bad, keep_history=False)
+
+
+def test_run_slam_1d_grid_cap_is_inclusive_and_its_message_names_the_numbers(world, monkeypatch):
+    from slamlib.sim1d import filter as F
+
+    rec = simulate(world, n_frames=3, seed=4)
+    reach, cells, _ = _cells_and_kernel(rec, 0.1, 0.2)
+    monkeypatch.setattr(F, "MAX_GRID_CELLS", cells)  # exactly at the cap: allowed
+    r = run_slam_1d(rec, n_particles=5, resolution=0.1, likelihood_sigma=0.2, keep_history=False)
+    assert r.grid.origin == -reach - rec.sensors.max_range
+    monkeypatch.setattr(F, "MAX_GRID_CELLS", int(cells) - 1)
+    msg = (f"the map would need {cells:.3g} cells of 0.1 m to cover the +-{reach:.3g} m the measured velocities "
+           f"(bias included) can reach in {rec.times[-1]:.3g} s, more than {int(cells) - 1:,}; use a smaller "
+           f"velocity bias, fewer frames or a coarser resolution")
+    with pytest.raises(ValueError) as e:
+        run_slam_1d(rec, n_particles=5, resolution=0.1, likelihood_sigma=0.2, keep_history=False)
+    assert str(e.value) == msg
+
+
+def test_run_slam_1d_field_work_cap_is_inclusive_and_its_message_names_the_numbers(world, monkeypatch):
+    from slamlib.sim1d import filter as F
+
+    rec = simulate(world, n_frames=3, seed=4)
+    for sigma in (0.2, 1e6):  # blur narrower than the grid, and capped at the grid
+        _, cells, kernel = _cells_and_kernel(rec, 0.1, sigma)
+        assert kernel == (8.0 * sigma / 0.1 if sigma < 1 else cells)
+        monkeypatch.setattr(F, "MAX_FIELD_WORK", cells * kernel)  # exactly at the cap: allowed
+        run_slam_1d(rec, n_particles=5, resolution=0.1, likelihood_sigma=sigma, keep_history=False)
+        monkeypatch.setattr(F, "MAX_FIELD_WORK", cells * kernel * (1 - 1e-9))
+        msg = (f"a likelihood field {sigma:.3g} m wide over {cells:.3g} cells of 0.1 m costs {cells * kernel:.3g} "
+               f"operations per frame, more than {cells * kernel * (1 - 1e-9):.0e}; use a smaller range noise or "
+               f"likelihood_sigma, or a coarser resolution")
+        with pytest.raises(ValueError) as e:
+            run_slam_1d(rec, n_particles=5, resolution=0.1, likelihood_sigma=sigma, keep_history=False)
+        assert str(e.value) == msg

@@ -75,7 +75,7 @@ class _Copy:
 # ------------------------------------------------------------------------------------------ value strategies
 ODD_NUMBERS = ["0", "-0", "-1", "nan", "NaN", "-nan", "inf", "-inf", "1e308", "-1e308", "1e400", "1e-320",
                "99999999999999999999", "-99999999999999999999", "4294967296", "2147483648", "9223372036854775808"]
-ODD_TEXT = ["", " ", "abc", "1,5", "0x10", "1e", "--", "1.5.2", "\u00e9", "1_000", "+", "None"]
+ODD_TEXT = ["", " ", "abc", "1,5", "0x10", "1e", "-", "1.5.2", "\u00e9", "1_000", "+", "None"]
 
 odd_number_text = st.one_of(
     st.sampled_from(ODD_NUMBERS),
@@ -85,6 +85,9 @@ odd_number_text = st.one_of(
 )
 odd_text = st.one_of(odd_number_text, st.sampled_from(ODD_TEXT),
                      st.text(st.characters(codec="utf-8", exclude_characters="\x00"), max_size=8))
+#: ``--option=--`` is left out: Python 3.11's argparse hands the command ``[]`` (the xfail in
+#: tests/test_fuzz_findings.py records it).
+option_text = odd_text.filter(lambda v: v != "--")
 
 
 # ------------------------------------------------------------------------------------------ data corruptions
@@ -330,7 +333,7 @@ OPTIONS = {
 def cli_case(draw):
     command = draw(st.sampled_from(sorted(OPTIONS)))
     names = draw(st.lists(st.sampled_from(OPTIONS[command]), min_size=1, max_size=2, unique=True))
-    values = [draw(odd_text) for _ in names]
+    values = [draw(option_text) for _ in names]
     return command, list(zip(names, values))
 
 

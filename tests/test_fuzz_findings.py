@@ -51,3 +51,57 @@ def test_slamlib_run_one_frame_selection_names_frames(tmp_path, monkeypatch, fra
         main(["run", "--basedir", str(d.parent.parent), "--date", SAMPLE_DATE, "--drive", SAMPLE_DRIVE,
               "--frames", frames, "--out", str(tmp_path / "o")])
     assert str(exc.value).startswith(f"slamlib run: --frames {frames!r} selects 1 frame"), str(exc.value)
+
+
+def test_calibration_offset_farther_than_a_vehicle_is_a_data_format_error(tmp_path):
+    from slamlib.kitti.calib import read_rigid
+
+    path = tmp_path / "calib_imu_to_velo.txt"
+    path.write_text("R: 1 0 0 0 1 0 0 0 1\nT: -0.8 0.3 524348\n")
+    with pytest.raises(DataFormatError, match=r"calib_imu_to_velo.txt: calibration T .* farther than 100 m"):
+        read_rigid(path)
+    path.write_text("R: 1 0 0 0 1 0 0 0 1\nT: -0.8 0.3 -1.2\n")
+    assert read_rigid(path)[2, 3] == -1.2
+
+
+@pytest.mark.parametrize("fmt", ["ply", "pcd"])
+def test_slamlib_run_with_every_scan_empty_writes_an_empty_map(tmp_path, fmt):
+    import json
+
+    import open3d as o3d
+
+    from slamlib.cli import main
+    from slamlib.kitti.sample import SAMPLE_DATE, SAMPLE_DRIVE, make_tiny_drive
+
+    d = make_tiny_drive(tmp_path / "k", n_frames=3, point_stride=500)
+    for p in (d / "velodyne_points" / "data").iterdir():
+        p.write_bytes(b"")
+    out = tmp_path / "o"
+    assert main(["run", "--basedir", str(d.parent.parent), "--date", SAMPLE_DATE, "--drive", SAMPLE_DRIVE,
+                 "--no-progress", "--no-plots", "--particles", "8", "--points", "30", "--backend", "numpy",
+                 "--map-format", fmt, "--out", str(out)]) == 0
+    assert len(o3d.io.read_point_cloud(str(out / f"map.{fmt}")).points) == 0
+    info = json.loads((out / "metrics.json").read_text())
+    assert info["map_points_written"] == 0 and info["n_skipped_frames"] == 3
+
+
+def test_synth_frames_beyond_the_route_names_frames(tmp_path):
+    from slamlib.cli import main
+
+    with pytest.raises(SystemExit) as exc:
+        main(["synth", "--out", str(tmp_path / "s"), "--route", "straight", "--frames", "583", "--no-progress"])
+    assert str(exc.value).startswith("slamlib synth: --frames '583': route 'straight' spans at most"), str(exc.value)
+    assert not (tmp_path / "s").exists()
+
+
+@pytest.mark.xfail(strict=True, reason="slamlib/cli.py (not in this change's files): Python 3.11's argparse parses "
+                                       "'--drive=--' to [] and the command then fails with a TypeError; the fix is a "
+                                       "check in slamlib/cli.py main() that a typed option is not a list")
+@pytest.mark.parametrize("command,option", [("synth", "--drive"), ("sim2d", "--particles")])
+def test_option_equals_double_dash_is_a_one_line_error(tmp_path, command, option):
+    from slamlib.cli import main
+
+    argv = [command, f"{option}=--"] + (["--out", str(tmp_path / "s")] if command == "synth" else [])
+    with pytest.raises(SystemExit) as exc:
+        main(argv)
+    assert option in str(exc.value) or exc.value.code == 2

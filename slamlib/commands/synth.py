@@ -146,7 +146,7 @@ def main(args) -> int:
     try:
         route, n = resolve_route(args.route, frames)
     except ValueError as exc:
-        _fail(str(exc))
+        _fail(f"--frames {args.frames!r}: {exc}")
     if args.route in KITTI_ROUTES and frames[1] is not None and n < frames[1] - frames[0]:
         _fail(f"route {args.route} has key frames 0..{keys - 1}: --frames {args.frames!r} spans only {n} frames, "
               f"asked for {frames[1] - frames[0]}")

@@ -81,15 +81,24 @@ def read_calib_file(path: str | os.PathLike, required: dict[str, int] | None = N
     return data
 
 
+#: Largest sensor-to-sensor offset ``|T|`` (m) a rigid calibration may hold (KITTI's are ~1 m; a vehicle rig is
+#: a few metres).
+MAX_SENSOR_OFFSET = 100.0
+
+
 def read_rigid(path: str | os.PathLike) -> np.ndarray:
     """4x4 rigid transform ``[[R, T], [0, 1]]`` from a file with keys ``R`` (9, row-major) and ``T`` (3).
 
-    Raises DataFormatError also if ``R`` is not a rotation (``|R^T R - I| > 1e-3`` or ``det R < 0``).
+    Raises DataFormatError also if ``R`` is not a rotation (``|R^T R - I| > 1e-3`` or ``det R < 0``) or the
+    offset ``|T|`` is more than :data:`MAX_SENSOR_OFFSET`.
     """
     d = read_calib_file(path, {"R": 9, "T": 3})
     R = d["R"].reshape(3, 3)
     if np.abs(R.T @ R - np.eye(3)).max() > 1e-3 or np.linalg.det(R) < 0:
         raise DataFormatError(path, "calibration R is not a rotation matrix (R^T R != I or det R < 0)")
+    if np.linalg.norm(d["T"]) > MAX_SENSOR_OFFSET:
+        raise DataFormatError(path, f"calibration T = {d['T'].tolist()} m is farther than {MAX_SENSOR_OFFSET:g} m: "
+                                    "not an offset between two sensors of one vehicle")
     T = np.eye(4)
     T[:3, :3] = R
     T[:3, 3] = d["T"]

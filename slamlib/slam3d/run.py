@@ -146,6 +146,11 @@ def evaluate(run: SLAMRun) -> dict:
 
 #: The files :func:`save_run` may write into its folder (the ones :func:`check_output_dir` will not let it overwrite
 #: unless they come from an earlier run).
+#: A map file of no points (PLY and PCD headers), written when the map is empty.
+_EMPTY_MAP = {"ply": "ply\nformat ascii 1.0\nelement vertex 0\nproperty double x\nproperty double y\n"
+                     "property double z\nend_header\n",
+              "pcd": "# .PCD v0.7 - Point Cloud Data file format\nVERSION 0.7\nFIELDS x y z\nSIZE 8 8 8\nTYPE F F F\n"
+                     "COUNT 1 1 1\nWIDTH 0\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS 0\nDATA ascii\n"}
 RUN_FILES = tuple(f"{name}_{kind}.txt" for name in ("slam", "dead_reckoning", "ground_truth")
                   for kind in ("poses", "tum")) + ("times.txt", "map.ply", "map.pcd", "metrics.json",
                                                    "trajectory.png", "map_topdown.png")
@@ -231,10 +236,13 @@ def save_run(run: SLAMRun, out_dir, map_format: str = "ply", plots: bool = True,
     import open3d as o3d
 
     pts = run.slam.map_points()
-    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.asarray(pts, dtype=np.float64)))
     files["map"] = out / f"map.{map_format}"
-    if not o3d.io.write_point_cloud(str(files["map"]), pcd):
-        raise OSError(f"open3d could not write {files['map']}")
+    if len(pts) == 0:  # every scan degenerate: open3d writes no empty cloud, so an empty file in the same format
+        files["map"].write_text(_EMPTY_MAP[map_format], encoding="ascii")
+    else:
+        pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.asarray(pts, dtype=np.float64)))
+        if not o3d.io.write_point_cloud(str(files["map"]), pcd):
+            raise OSError(f"open3d could not write {files['map']}")
 
     info = {"frames": int(len(run.poses)), "seconds": float(run.seconds), "fps": float(run.fps),
             "frame_indices": [int(run.frame_indices[0]), int(run.frame_indices[-1])] if len(run.poses) else [],

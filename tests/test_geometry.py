@@ -101,3 +101,17 @@ def test_transform_points_values_and_dtype():
     outi = transform_points(T, np.array([[1, 0, 0], [0, 2, 3]]))  # integer points -> float64
     assert outi.dtype == np.float64
     np.testing.assert_allclose(outi, [[10.0, 1.0, -1.0], [8.0, 0.0, 2.0]], atol=1e-12)
+
+
+def test_float32_inputs_are_computed_in_float64():
+    # rotations and inverses are formed in float64 even from float32 angles, matrices or poses
+    rpy32 = np.float32([0.3, -1.1, 2.9])
+    R = rpy_to_matrix(rpy32)
+    assert R.dtype == np.float64
+    np.testing.assert_allclose(R, rpy_to_matrix(rpy32.astype(np.float64)), rtol=0, atol=1e-15)
+    R32 = R.astype(np.float32)
+    out = matrix_to_rpy(R32)
+    assert out.dtype == np.float64
+    np.testing.assert_allclose(out, matrix_to_rpy(R32.astype(np.float64)), rtol=0, atol=1e-15)
+    T32 = make_pose(R, [1000.1, -2000.3, 3.7]).astype(np.float32)
+    np.testing.assert_allclose(invert_pose(T32), invert_pose(T32.astype(np.float64)), rtol=0, atol=1e-12)

@@ -148,3 +148,15 @@ def test_dead_reckon_starts_at_T0_and_composes_on_its_right():
     rpy, tr = imu_increment(v[0], w[0], v[1], w[1], dts[1])
     np.testing.assert_allclose(T2[1], increment_matrix(rpy, tr), atol=1e-15)
     np.testing.assert_allclose(T_id[1], T2[1], atol=1e-15)
+
+
+def test_left_jacobian_float32_input_and_zero_without_warnings():
+    import warnings
+
+    phi32 = np.float32([0.3, -0.7, 1.9])
+    J = so3_left_jacobian(phi32)
+    assert J.dtype == np.float64
+    np.testing.assert_allclose(J, so3_left_jacobian(phi32.astype(np.float64)), rtol=0, atol=1e-15)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # the closed form is never evaluated at a = 0 (no 0/0)
+        np.testing.assert_array_equal(so3_left_jacobian(np.zeros((2, 3))), np.broadcast_to(np.eye(3), (2, 3, 3)))

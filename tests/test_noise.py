@@ -217,11 +217,12 @@ def test_check_rejects_negative_inputs_and_bad_tables():
         with pytest.raises(ValueError, match=r"n, step and seed must be >= 0, got "):
             N.lut_normal(t, n, step, seed)
     N.lut_normal(t, 0, 0, 0)
-    with pytest.raises(ValueError, match=r"tables.perm must be \(6, T\)"):
+    bad_tables = r"^tables.perm must be \(6, T\) and tables.normal \(T,\) with T = 2\*\*bits$"
+    with pytest.raises(ValueError, match=bad_tables):
         N.lut_normal(N.NoiseTables(t.normal, t.perm[:5], 6), 1, 0, 0)
-    with pytest.raises(ValueError, match=r"tables.perm must be \(6, T\)"):
+    with pytest.raises(ValueError, match=bad_tables):
         N.lut_normal(N.NoiseTables(t.normal[:-1], t.perm, 6), 1, 0, 0)
-    with pytest.raises(ValueError, match=r"tables.perm must be \(6, T\)"):
+    with pytest.raises(ValueError, match=bad_tables):
         N.lut_normal(N.NoiseTables(t.normal, t.perm, 5), 1, 0, 0)
 
 
@@ -234,7 +235,7 @@ def test_seed_variant_values_and_bounds():
             assert s[i, k] == t9.normal[t9.perm[k, i & 0xFF]]
     np.testing.assert_array_equal(N.seed_lut_normal(t9, 10), s[:10])  # step, seed ignored
     N.seed_lut_normal(N.make_tables(0, bits=8), 3)
-    with pytest.raises(ValueError, match="at least 256 entries"):
+    with pytest.raises(ValueError, match=(r"^the seed variant needs tables with at least 256 entries \(bits >= 8\)$")):
         N.seed_lut_normal(N.make_tables(0, bits=7), 3)
 
 
@@ -258,3 +259,20 @@ def test_noise_statistics_and_lag_correlation_values():
     a, b = y.T[:-1].ravel(), y.T[1:].ravel()  # axis 1 moved first, pooled over the rows
     assert N.lag_correlation(y, 1, axis=1) == pytest.approx(np.corrcoef(a, b)[0, 1], rel=1e-12)
     assert np.isnan(N.lag_correlation(np.ones(5), 1))  # no variance: NaN, not a division error
+
+
+def test_float32_and_degenerate_inputs_of_the_helpers():
+    import warnings
+
+    x32 = (1e4 + np.random.default_rng(6).normal(size=1001)).astype(np.float32)  # float32 sums would round
+    s32, s64 = N.noise_statistics(x32), N.noise_statistics(x32.astype(np.float64))
+    for key in ("mean", "var", "kurtosis"):
+        assert s32[key] == pytest.approx(s64[key], rel=1e-12, abs=0)
+    y32 = x32.reshape(7, 143)
+    assert N.lag_correlation(y32, 1, axis=1) == pytest.approx(N.lag_correlation(y32.astype(np.float64), 1, axis=1),
+                                                               rel=1e-12, abs=0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # zero variance: NaN without computing 0/0
+        assert np.isnan(N.lag_correlation(np.full(6, 2.0), 2))
+    t = N.make_tables(seed=2, bits=6)
+    assert N.lut_normal_nb(t, 5, step=1, seed=1).dtype == np.float32

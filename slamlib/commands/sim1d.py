@@ -26,6 +26,21 @@ MAX_PARTICLES = 1_000_000
 MAX_FRAMES = 20_000
 
 
+def save_plot(fig, path: Path, command: str) -> None:
+    """Write ``fig`` to ``path`` (its folder created) and close it; a write error exits with one line naming
+    ``--plot``. Shared by the ``sim1d`` and ``sim2d`` commands."""
+    import matplotlib.pyplot as plt
+
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fig.savefig(path, dpi=110)
+    except OSError as exc:
+        raise SystemExit(f"slamlib {command}: --plot: could not write {path}: {exc}") from None
+    finally:
+        plt.close(fig)
+    print(f"wrote {path}")
+
+
 def check_plot_path(path: Path) -> None:
     """ValueError unless ``path`` can take a figure: a format matplotlib writes, not a folder, and a parent that
     exists or can be created under a writable folder. Checked before the run, not after it."""
@@ -93,17 +108,8 @@ def main(args) -> int:
         import matplotlib
 
         matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
 
         from slamlib.sim1d.plot import plot_result
 
-        fig = plot_result(result, recording.sensors.max_range)
-        try:
-            args.plot.parent.mkdir(parents=True, exist_ok=True)
-            fig.savefig(args.plot, dpi=110)
-        except OSError as exc:
-            raise SystemExit(f"slamlib sim1d: --plot: could not write {args.plot}: {exc}") from None
-        finally:
-            plt.close(fig)
-        print(f"wrote {args.plot}")
+        save_plot(plot_result(result, recording.sensors.max_range), args.plot, "sim1d")
     return 0

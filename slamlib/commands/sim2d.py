@@ -31,7 +31,7 @@ MAX_BEAMS = 3600
 def main(args) -> int:
     from slamlib.sim2d import SensorModel2D, make_world, run_slam_2d, simulate
 
-    from slamlib.commands.sim1d import check_plot_path
+    from slamlib.commands.sim1d import check_plot_path, save_plot
 
     for option, value, low, high in (("--particles", args.particles, 1, MAX_PARTICLES),
                                      ("--laps", args.laps, 0.0, MAX_LAPS),
@@ -67,17 +67,9 @@ def main(args) -> int:
         import matplotlib
 
         matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
 
         from slamlib.sim2d.plot import plot_trajectories
 
-        fig = plot_trajectories(first, world, label=f"particle SLAM, {next(iter(results))}")
-        try:
-            args.plot.parent.mkdir(parents=True, exist_ok=True)
-            fig.savefig(args.plot, dpi=110)
-        except OSError as exc:
-            raise SystemExit(f"slamlib sim2d: --plot: could not write {args.plot}: {exc}") from None
-        finally:
-            plt.close(fig)
-        print(f"wrote {args.plot}")
+        save_plot(plot_trajectories(first, world, label=f"particle SLAM, {next(iter(results))}"), args.plot,
+                  "sim2d")
     return 0

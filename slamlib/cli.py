@@ -17,12 +17,23 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=f"slamlib {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="<command>")
+    parser.commands = {}  # name -> its sub-parser, for the checks in main()
     for name, module_name in COMMANDS.items():
         module = importlib.import_module(module_name)
         p = sub.add_parser(name, help=module.HELP, description=module.HELP)
         module.add_arguments(p)
         p.set_defaults(_main=module.main)
+        parser.commands[name] = p
     return parser
+
+
+def _check_single_values(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """Exit with argparse's usage error naming the option when a one-value option came back as a list: Python
+    3.11's argparse turns ``--option=--`` into ``[]``, which the commands would otherwise fail on with a
+    TypeError far from the command line."""
+    for action in parser._actions:
+        if action.option_strings and action.nargs is None and isinstance(getattr(args, action.dest, None), list):
+            parser.error(f"argument {'/'.join(action.option_strings)}: expected one value")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -31,6 +42,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.command is None:
         parser.print_help()
         return 0
+    _check_single_values(parser.commands[args.command], args)
     return int(args._main(args) or 0)
 
 

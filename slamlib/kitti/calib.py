@@ -12,6 +12,7 @@ Other lines (``calib_time: 25-May-2012 16:47:16``, ``S_00``, ...) are kept only 
 
 from __future__ import annotations
 
+import locale
 import os
 from pathlib import Path
 
@@ -20,7 +21,7 @@ import numpy as np
 from slamlib.errors import DataFormatError
 
 __all__ = ["IMU_TO_VELO", "VELO_TO_CAM", "CAM_TO_CAM", "REQUIRED_KEYS", "read_calib_file", "read_rigid",
-           "check_calibration", "load_T_velo_imu"]
+           "check_calibration", "check_calibration_for_pykitti", "load_T_velo_imu"]
 
 IMU_TO_VELO = "calib_imu_to_velo.txt"
 VELO_TO_CAM = "calib_velo_to_cam.txt"
@@ -105,14 +106,82 @@ def read_rigid(path: str | os.PathLike) -> np.ndarray:
     return T
 
 
+def _key_line(path: str | os.PathLike, key: str) -> int | None:
+    """1-based line of the last ``key:`` line of a calibration file (the one :func:`read_calib_file` keeps)."""
+    with open(path, "r", encoding="ascii", errors="replace") as f:
+        found = [i for i, text in enumerate(f.read().splitlines(), start=1)
+                 if ":" in text and text.split(":", 1)[0].strip() == key]
+    return found[-1] if found else None
+
+
+def check_cam_to_cam(path: str | os.PathLike) -> dict[str, np.ndarray]:
+    """Read ``calib_cam_to_cam.txt`` (:data:`REQUIRED_KEYS`) and check the values pykitti computes with.
+
+    Raises DataFormatError (file and line named) if a rectifying rotation ``R_rect_0k`` is not a rotation
+    (``|R^T R - I| > 1e-3`` or ``det R < 0``; pykitti inverts ``R_rect_00``) or a projection ``P_rect_0k`` has a
+    focal length ``P[0, 0] <= 0`` (pykitti divides by it).
+    """
+    d = read_calib_file(path, REQUIRED_KEYS[CAM_TO_CAM])
+    for k in range(4):
+        R = d[f"R_rect_0{k}"].reshape(3, 3)
+        if np.abs(R.T @ R - np.eye(3)).max() > 1e-3 or np.linalg.det(R) < 0:
+            raise DataFormatError(path, f"calibration R_rect_0{k} is not a rotation matrix (R^T R != I or det R < 0)",
+                                  _key_line(path, f"R_rect_0{k}"))
+        f_u = d[f"P_rect_0{k}"][0]
+        if not f_u > 0:
+            raise DataFormatError(path, f"calibration P_rect_0{k} has focal length P[0, 0] = {f_u:g}: it must be "
+                                        "positive", _key_line(path, f"P_rect_0{k}"))
+    return d
+
+
 def check_calibration(date_dir: str | os.PathLike) -> None:
-    """Check the three calibration files in ``basedir/DATE`` have every key :data:`REQUIRED_KEYS` lists."""
+    """Check the three calibration files in ``basedir/DATE`` have every key :data:`REQUIRED_KEYS` lists, the rigid
+    transforms are rigid (:func:`read_rigid`) and the camera values usable (:func:`check_cam_to_cam`)."""
     date_dir = Path(date_dir)
     for name, keys in REQUIRED_KEYS.items():
         if keys.keys() == {"R", "T"}:
             read_rigid(date_dir / name)
         else:
-            read_calib_file(date_dir / name, keys)
+            check_cam_to_cam(date_dir / name)
+
+
+def check_calibration_for_pykitti(date_dir: str | os.PathLike) -> None:
+    """Check that ``pykitti.raw`` reads the three calibration files as slamlib did (call after
+    :func:`check_calibration`).
+
+    pykitti reads each file in the locale's encoding (a byte it cannot decode raises), splits *every* line at its
+    first ``:`` (a blank line raises) and keeps the key unstripped (``' R_rect_00'`` is not ``'R_rect_00'``).
+
+    Raises
+    ------
+    DataFormatError
+        The first line pykitti would fail on, or a required key pykitti would not find (file and line named).
+    """
+    from pykitti.utils import read_calib_file as pykitti_read_calib_file
+
+    encoding = locale.getpreferredencoding(False)
+    for name, keys in REQUIRED_KEYS.items():
+        path = os.fspath(Path(date_dir) / name)
+        with open(path, "rb") as f:
+            raw = f.read()
+        try:
+            raw.decode(encoding)
+        except (UnicodeDecodeError, LookupError) as exc:
+            start = getattr(exc, "start", 0)
+            raise DataFormatError(path, f"byte {raw[start:start + 1]!r} is not {encoding} text: pykitti cannot read "
+                                        "the file (KITTI calibration files are ASCII)",
+                                  raw[:start].count(b"\n") + 1) from None
+        with open(path, "r", encoding=encoding) as f:
+            lines = f.readlines()
+        for i, text in enumerate(lines, start=1):
+            if ":" not in text:
+                raise DataFormatError(path, "line without ':' (a blank line too): pykitti reads every line as "
+                                            "'key: values'", i)
+        theirs = pykitti_read_calib_file(path)
+        for key in keys:
+            if key not in theirs:
+                raise DataFormatError(path, f"calibration key {key!r} has spaces around it: pykitti needs "
+                                            f"'{key}:' at the start of the line", _key_line(path, key))
 
 
 def load_T_velo_imu(date_dir: str | os.PathLike) -> np.ndarray:

@@ -47,6 +47,7 @@ __all__ = [
     "oxts_range_problem",
     "OxtsPacket",
     "read_oxts_packet",
+    "check_oxts_for_pykitti",
     "parse_oxts_line",
     "format_oxts_packet",
     "write_oxts_packet",
@@ -157,6 +158,24 @@ def read_oxts_packet(path: str | os.PathLike) -> OxtsPacket:
         raise DataFormatError(path, "OXTS packet file has more than one data line (expected exactly one)", data[1][0])
     line_no, text = data[0]
     return parse_oxts_line(text, path, line_no)
+
+
+def check_oxts_for_pykitti(path: str | os.PathLike) -> None:
+    """Check that ``pykitti.raw`` can read an OXTS packet file slamlib accepted: pykitti reads *every* line as a
+    packet, so a blank line (which slamlib skips) makes it raise.
+
+    Raises
+    ------
+    DataFormatError
+        The first blank line (file and 1-based line named).
+    """
+    path = os.fspath(path)
+    with open(path, "r", encoding="ascii", errors="replace") as f:
+        lines = f.readlines()
+    for i, text in enumerate(lines, start=1):
+        if not text.split():
+            raise DataFormatError(path, "blank line in an OXTS packet file: pykitti reads every line as a packet "
+                                        "(expected exactly one line of 30 numbers)", i)
 
 
 def format_oxts_packet(packet: OxtsPacket | Sequence[float]) -> str:

@@ -28,10 +28,10 @@ from typing import Iterator
 import numpy as np
 
 from slamlib.errors import DataFormatError
-from slamlib.kitti.calib import check_calibration, load_T_velo_imu
+from slamlib.kitti.calib import check_calibration, check_calibration_for_pykitti, load_T_velo_imu
 from slamlib.kitti.oxts import OXTS_FIELDS as _FIELDS
-from slamlib.kitti.oxts import OxtsPacket, poses_from_packets, read_oxts_packet
-from slamlib.kitti.timestamps import read_timestamps_ns
+from slamlib.kitti.oxts import OxtsPacket, check_oxts_for_pykitti, poses_from_packets, read_oxts_packet
+from slamlib.kitti.timestamps import check_timestamps_for_pykitti, read_timestamps_ns
 from slamlib.kitti.velodyne import read_velodyne_scan
 
 __all__ = ["Frame", "ImuArrays", "KittiRawDrive", "drive_folder_name"]
@@ -235,11 +235,20 @@ class KittiRawDrive:
         """A ``pykitti.raw`` over frame 0 only (its full camera calibration in ``.calib``), built on first use.
 
         pykitti reads every OXTS packet at construction without validation; slamlib validates first and
-        gives pykitti only frame 0, reading the other frames itself, lazily.
+        gives pykitti only frame 0, reading the other frames itself, lazily. What pykitti parses more strictly
+        than slamlib (blank lines, trailing spaces, the encoding, unstripped keys) is checked before, so a file
+        pykitti cannot read is a :class:`DataFormatError` naming it, not an error from inside pykitti.
         """
         if self._pykitti is None:
             import pykitti
 
+            check_calibration_for_pykitti(self.calib_dir)
+            check_timestamps_for_pykitti(self.path / "oxts" / "timestamps.txt")
+            first = min(e.name for e in os.scandir(self.oxts_dir) if e.name.endswith(".txt") and e.name[0] != ".")
+            if first != self.oxts_path(0).name:  # pykitti takes the first *.txt by name as frame 0
+                raise DataFormatError(self.oxts_dir / first, "pykitti would read this file as frame 0's OXTS packet "
+                                                             "(it sorts every *.txt in oxts/data): move it out")
+            check_oxts_for_pykitti(self.oxts_path(0))
             self._pykitti = pykitti.raw(str(self.basedir), self.date, self.drive, frames=[0], dataset=self.dataset)
         return self._pykitti
 

@@ -24,7 +24,8 @@ import numpy as np
 
 from slamlib.errors import DataFormatError
 
-__all__ = ["parse_timestamp_ns", "format_timestamp_ns", "read_timestamps_ns", "write_timestamps_ns"]
+__all__ = ["parse_timestamp_ns", "format_timestamp_ns", "read_timestamps_ns", "write_timestamps_ns",
+           "check_timestamps_for_pykitti"]
 
 _PATTERN = re.compile(r"^(\d{4})-(\d{2})-(\d{2}) (\d{2}):(\d{2}):(\d{2})\.(\d{9})$")
 _EPOCH = _dt.datetime(1970, 1, 1)
@@ -104,6 +105,30 @@ def read_timestamps_ns(path: str | os.PathLike, strictly_increasing: bool = True
                 i + 1,
             )
     return out
+
+
+def check_timestamps_for_pykitti(path: str | os.PathLike) -> None:
+    """Check that ``pykitti.raw`` can parse ``oxts/timestamps.txt`` (slamlib reads it first and allows more).
+
+    pykitti parses every line as ``datetime.strptime(line[:-4], '%Y-%m-%d %H:%M:%S.%f')``: it drops the newline and
+    the last three digits by position, so trailing spaces, a blank line (also at the end) or a line of another
+    length make it raise. This replays that parse line by line.
+
+    Raises
+    ------
+    DataFormatError
+        The first line pykitti could not parse (file and 1-based line named).
+    """
+    path = os.fspath(path)
+    with open(path, "r", encoding="ascii", errors="replace") as f:
+        lines = f.readlines()
+    for i, text in enumerate(lines, start=1):
+        try:
+            _dt.datetime.strptime(text[:-4], "%Y-%m-%d %H:%M:%S.%f")
+        except ValueError:
+            raise DataFormatError(
+                path, f"pykitti cannot parse timestamp line {text.rstrip(chr(10))!r}: it needs exactly "
+                      "'YYYY-MM-DD HH:MM:SS.fffffffff' on every line (no trailing spaces, no blank lines)", i) from None
 
 
 def write_timestamps_ns(path: str | os.PathLike, timestamps_ns: Iterable[int]) -> None:

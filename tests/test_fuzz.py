@@ -233,6 +233,65 @@ def calib_corruption(draw):
 corruption = st.one_of(oxts_corruption(), timestamp_corruption(), velodyne_corruption(), calib_corruption())
 
 
+# ------------------------------------------------------------------------------------------ missing and unread files
+#: Files and folders of the drive (relative to the drive folder) that a user can lose, and whether the drive still reads
+#: without them. ``oxts/dataformat.txt`` (the field names) is read by neither slamlib nor pykitti, and
+#: ``velodyne_points/timestamps.txt`` is optional (scan times are informational). ``velodyne_points/timestamps_start.txt``
+#: and ``timestamps_end.txt`` are not listed: slamlib (and pykitti) never read them, so they are not fuzzed.
+REQUIRED_PATHS = (["../" + name for name in CALIBS] + ["oxts/timestamps.txt", "oxts/data", "velodyne_points/data", "oxts",
+                  "velodyne_points", "."]
+                  + [f"oxts/data/{k:010d}.txt" for k in range(N_FRAMES)]
+                  + [f"velodyne_points/data/{k:010d}.bin" for k in range(N_FRAMES)])
+OPTIONAL_PATHS = ["oxts/dataformat.txt", "velodyne_points/timestamps.txt"]
+
+
+@st.composite
+def missing_file(draw):
+    rel = draw(st.sampled_from(REQUIRED_PATHS + OPTIONAL_PATHS))
+    kind = draw(st.sampled_from(["delete", "folder"]))  # gone, or a folder where the file was
+
+    def apply(drive: Path) -> Path:
+        path = (drive / rel).resolve()
+        if path.is_dir():
+            shutil.rmtree(path)
+        else:
+            path.unlink()
+        if kind == "folder":
+            path.mkdir()
+        return path
+
+    return f"missing {rel} ({kind})", apply, rel in OPTIONAL_PATHS
+
+
+@st.composite
+def dataformat_corruption(draw):
+    kind = draw(st.sampled_from(["empty", "garbage", "drop_line", "text"]))
+    line = draw(st.integers(0, 40))
+    value = draw(odd_text)
+
+    def apply(drive: Path) -> Path:
+        path = drive / "oxts" / "dataformat.txt"
+        lines = _lines(path)
+        if kind == "empty":
+            lines = []
+        elif kind == "drop_line":
+            del lines[line % len(lines)]
+        elif kind == "text":
+            lines[line % len(lines)] = value
+        if kind == "garbage":
+            path.write_bytes(bytes(range(256)) * (1 + line % 3))
+        else:
+            _write_lines(path, lines)
+        return path
+
+    return f"dataformat {kind} line {line} {value!r}", apply, True
+
+
+#: ``(what, apply, optional)``: ``optional`` True when the drive must still read (success is then the only outcome);
+#: otherwise the file is needed, and only an error naming it is right.
+unread_or_missing = st.one_of(missing_file(), dataformat_corruption())
+
+
 def _read_everything(base: Path) -> None:
     """Everything the readers give for a drive; every number they return must be finite."""
     from slamlib.kitti import KittiRawDrive
@@ -248,6 +307,9 @@ def _read_everything(base: Path) -> None:
     for name, value in vars(imu).items():
         if isinstance(value, np.ndarray) and value.dtype.kind == "f":
             assert np.all(np.isfinite(value)), f"non-finite imu_arrays().{name}"
+    # pykitti's camera calibration: slamlib checks what pykitti will read before pykitti reads it
+    for name, value in drive.calib._asdict().items():
+        assert np.all(np.isfinite(value)), f"non-finite calib.{name}"
 
 
 def _check_data_error(exc: BaseException, path: Path, what: str) -> None:
@@ -270,6 +332,25 @@ def test_fuzz_readers_give_finite_frames_or_a_data_format_error_naming_the_file(
             event("DataFormatError naming the file")
         except Exception as exc:  # noqa: BLE001 - the point of the test
             pytest.fail(f"{what}: foreign exception {type(exc).__name__}: {exc}")
+
+
+@_settings(12)
+@given(unread_or_missing)
+def test_fuzz_readers_missing_or_unread_files_read_or_name_the_file(pristine, case):
+    what, apply, optional = case
+    with _Copy(pristine) as c:
+        path = apply(c.drive)
+        try:
+            _read_everything(c.base)
+        except DataFormatError as exc:
+            assert not optional, f"{what}: the drive does not need this file, yet: {exc}"
+            _check_data_error(exc, path, what)
+            event("DataFormatError naming the file")
+        except Exception as exc:  # noqa: BLE001 - the point of the test
+            pytest.fail(f"{what}: foreign exception {type(exc).__name__}: {exc}")
+        else:
+            assert optional, f"{what}: read without a file the drive needs"
+            event("success")
 
 
 def _run_args(base: Path, out: Path) -> list[str]:
@@ -307,6 +388,33 @@ def test_fuzz_slamlib_run_on_corrupted_data_finishes_finite_or_names_the_file(pr
         except Exception as exc:  # noqa: BLE001
             pytest.fail(f"{what}: foreign exception {type(exc).__name__}: {exc}")
         else:
+            assert rc == 0
+            _check_outputs_finite(out, what)
+            event("success, finite outputs")
+
+
+@_settings(6)
+@given(unread_or_missing)
+def test_fuzz_slamlib_run_with_missing_or_unread_files_finishes_finite_or_names_the_file(pristine, case):
+    from slamlib.cli import main
+
+    what, apply, optional = case
+    with _Copy(pristine) as c:
+        path = apply(c.drive)
+        out = c.tmp / "out"
+        try:
+            rc = main(_run_args(c.base, out))
+        except SystemExit as exc:
+            msg = str(exc.code)
+            assert not optional, f"{what}: the run does not need this file, yet: {msg!r}"
+            assert msg.startswith("slamlib run: "), f"{what}: {msg!r}"
+            assert path.name in msg.splitlines()[0], f"{what}: message does not name {path.name}: {msg!r}"
+            assert len(msg.splitlines()) == 1 or msg.splitlines()[1].startswith("  hint: "), f"{what}: {msg!r}"
+            event("SystemExit naming the file")
+        except Exception as exc:  # noqa: BLE001
+            pytest.fail(f"{what}: foreign exception {type(exc).__name__}: {exc}")
+        else:
+            assert optional, f"{what}: ran without a file the drive needs"
             assert rc == 0
             _check_outputs_finite(out, what)
             event("success, finite outputs")

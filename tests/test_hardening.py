@@ -431,3 +431,58 @@ def test_slamlib_run_refuses_to_overwrite_user_files_but_replaces_its_own(cli_dr
     assert (out / "map.ply").read_text() == "my own map"
     assert main(args + ["--out", str(out), "--overwrite"]) == 0
     assert main(args + ["--out", str(out)]) == 0  # an earlier run's results are replaced without asking
+
+
+# ------------------------------------------------------------------------------------------ still open (re-run of the issue)
+# Re-running the issue's reproducers (item 3 of issue 13's hand-off) found these four still failing. Their fixes belong
+# in files outside the hardening slice (named in each reason); each is a strict xfail so the fix turns it into the test.
+@pytest.mark.xfail(strict=True, raises=NotADirectoryError,
+                   reason="slamlib/synth/drive.py write_drive: OUT/DATE a file -> NotADirectoryError from mkdir")
+def test_synth_out_whose_date_folder_is_a_file_is_one_line(tmp_path):
+    from slamlib.cli import main
+
+    (tmp_path / SAMPLE_DATE).write_text("a file\n")
+    with pytest.raises(SystemExit) as exc:
+        main(["synth", "--out", str(tmp_path), "--route", "straight", "--frames", "3", "--no-progress"])
+    assert str(exc.value).startswith("slamlib synth: ") and SAMPLE_DATE in str(exc.value)
+
+
+@pytest.mark.xfail(strict=True, raises=FileExistsError,
+                   reason="slamlib/slam3d/video.py check_video_path does not check that the parent folder can be made; "
+                          "write_map_video's mkdir raises after the whole run")
+def test_slamlib_run_video_under_a_file_is_refused_before_the_run(cli_drive, tmp_path):
+    from slamlib.cli import main
+
+    args, _ = cli_drive
+    (tmp_path / "a-file").write_text("mine\n")
+    with pytest.raises(SystemExit) as exc:
+        main(args + ["--out", str(tmp_path / "o"), "--video", str(tmp_path / "a-file" / "x.mp4")])
+    assert "--video" in str(exc.value) and not (tmp_path / "o").exists()
+
+
+@pytest.mark.xfail(strict=True, reason="slamlib/slam3d/run.py save_run leaves the earlier run's map.ply beside the new "
+                                       "map.pcd (issue 13 item 5: stale files of an earlier run)")
+def test_slamlib_run_again_with_another_map_format_drops_the_stale_map(cli_drive, tmp_path):
+    from slamlib.cli import main
+
+    args, _ = cli_drive
+    out = tmp_path / "o"
+    assert main(args + ["--out", str(out), "--map-format", "ply"]) == 0
+    assert main(args + ["--out", str(out), "--map-format", "pcd"]) == 0
+    assert (out / "map.pcd").is_file() and not (out / "map.ply").exists()
+
+
+@pytest.mark.xfail(strict=True, raises=(IndexError, ZeroDivisionError),
+                   reason="slamlib/resampling.py _check_weights divides by w.sum(), which overflows to inf for "
+                          "[1e308, 1e308] (divide by w.max() first); the backends' resamplers get it right")
+@pytest.mark.parametrize("name", ["systematic", "stratified", "multinomial", "residual", "ess"])
+def test_resampling_huge_finite_weights(name):
+    from slamlib import resampling as rs
+
+    w, rng = np.array([1e308, 1e308]), np.random.default_rng(0)
+    if name == "ess":
+        assert rs.effective_sample_size(w) == 2.0
+        return
+    fn = {"systematic": lambda: rs.systematic_resample(w, 0.3), "stratified": lambda: rs.stratified_resample(w, rng),
+          "multinomial": lambda: rs.multinomial_resample(w, rng), "residual": lambda: rs.residual_resample(w, rng)}
+    assert set(fn[name]().tolist()) <= {0, 1}

@@ -34,7 +34,7 @@ from scipy.spatial.transform import Rotation
 
 from slamlib.geometry import make_pose, matrix_to_rpy, rpy_to_matrix
 
-__all__ = ["imu_increment", "imu_increments", "increment_matrix", "dead_reckon", "so3_left_jacobian"]
+__all__ = ["imu_increment", "imu_increments", "increment_matrix", "dead_reckon", "so3_left_jacobian", "twist_between"]
 
 
 def _skew(v: np.ndarray) -> np.ndarray:
@@ -122,3 +122,21 @@ def dead_reckon(velocities, angular_rates, dts, T0=None) -> np.ndarray:
     for k in range(1, n):
         T[k] = T[k - 1] @ inc[k - 1]
     return T
+
+
+def twist_between(T_a, T_b, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """The constant body twist ``(v (3,) m/s, w (3,) rad/s)`` that moves pose ``T_a`` to ``T_b`` in ``dt`` seconds.
+
+    The inverse of the module's motion model with equal samples: with ``T_rel = inv(T_a) T_b = [R, p]``,
+    ``phi = Log(R)``, ``w = phi / dt`` and ``v = J(phi)^-1 p / dt`` (:func:`so3_left_jacobian`), so that
+    ``imu_increment(v, w, v, w, dt)`` gives back exactly ``T_rel``. This is the constant-velocity model of
+    LIDAR-only odometry (KISS-ICP, Vizzo et al., RA-L 2023, sec. III-A): the last estimated motion, held.
+    ``dt <= 0`` (or non-finite) gives zero twist: no motion is known yet.
+    """
+    dt = float(dt)
+    if not (np.isfinite(dt) and dt > 0):
+        return np.zeros(3), np.zeros(3)
+    T_rel = np.linalg.solve(np.asarray(T_a, dtype=np.float64), np.asarray(T_b, dtype=np.float64))
+    phi = Rotation.from_matrix(T_rel[:3, :3]).as_rotvec()
+    v = np.linalg.solve(so3_left_jacobian(phi), T_rel[:3, 3])
+    return v / dt, phi / dt

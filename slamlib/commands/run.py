@@ -6,6 +6,7 @@ Examples::
     slamlib run --full-default --out runs/full                       # the whole synthetic drive (~690 m)
     slamlib run --basedir ~/kitti --date 2011_09_26 --drive 0005 --frames 0:150 --particles 1000 --out runs/05
     slamlib run --out runs/default --video map.mp4                   # and a video of the map being built (.gif too)
+    slamlib run --odometry-dir ~/kitti/dataset --sequence 07 --out runs/07   # KITTI odometry layout, LIDAR-only
 
 Writes into ``--out``: the SLAM and dead-reckoning trajectories (KITTI and TUM formats), the ground truth,
 ``times.txt``, the map (PLY or PCD, open3d), ``metrics.json`` (ATE, RPE and the KITTI metric for SLAM and dead
@@ -17,14 +18,19 @@ from __future__ import annotations
 from pathlib import Path
 
 NAME = "run"
-HELP = "Run 3D particle SLAM on a KITTI raw drive (default: the synthetic drive); write trajectories, map, metrics."
+HELP = ("Run 3D particle SLAM on a KITTI raw drive or odometry sequence (default: the synthetic drive); write "
+        "trajectories, map, metrics.")
 
 
 def add_arguments(parser) -> None:
-    g = parser.add_argument_group("data (omit all three for the embedded synthetic default drive)")
+    g = parser.add_argument_group("data (omit them all for the embedded synthetic default drive)")
     g.add_argument("--basedir", type=Path, default=None, help="KITTI raw root folder holding DATE/")
     g.add_argument("--date", default=None, help="recording date, e.g. 2011_09_26")
     g.add_argument("--drive", default=None, help="drive number, e.g. 0005 or 5")
+    g.add_argument("--odometry-dir", type=Path, default=None, metavar="DIR",
+                   help="instead of a raw drive: a KITTI odometry folder holding sequences/NN (and poses/NN.txt); "
+                        "no IMU there, so the run is LIDAR-only")
+    g.add_argument("--sequence", default=None, metavar="NN", help="with --odometry-dir: the sequence, e.g. 07")
     g.add_argument("--full-default", action="store_true",
                    help="with no --basedir: the whole synthetic drive (~1,100 frames, ~690 m) instead of 300 frames")
     g.add_argument("--frames", default=None, metavar="A:B",
@@ -41,6 +47,9 @@ def add_arguments(parser) -> None:
                    metavar="{" + ",".join(MAP_KINDS) + "}",
                    help=f"map structure: hashed NDT voxels or exact points in a Morton BVH (default {MapConfig.kind}; "
                         f"the old names {' and '.join(OLD_MAP_NAMES)} still work)")
+    f.add_argument("--lidar-only", action="store_true",
+                   help="ignore the IMU: step 3 holds the filter's own last motion (constant velocity), as on data "
+                        "without an IMU (the odometry layout, where it is always on)")
     f.add_argument("--noise", type=float, default=1.0, metavar="SCALE",
                    help="scale of step 6's motion noise (all six sigmas; default 1.0 = the tuned defaults)")
     f.add_argument("--temperature", type=float, default=FilterConfig.temperature,
@@ -101,8 +110,14 @@ def main(args) -> int:
     from slamlib.slam3d.config import OLD_MAP_NAMES
 
     given = [x is not None for x in (args.basedir, args.date, args.drive)]
+    odometry = args.odometry_dir is not None or args.sequence is not None
     if any(given) and not all(given):
         raise SystemExit("slamlib run: give all of --basedir, --date and --drive, or none (synthetic default drive)")
+    if odometry and (args.odometry_dir is None or args.sequence is None):
+        raise SystemExit("slamlib run: give both --odometry-dir and --sequence")
+    if odometry and any(given):
+        raise SystemExit("slamlib run: give either a raw drive (--basedir, --date, --drive) or an odometry sequence "
+                         "(--odometry-dir, --sequence), not both")
     import math
 
     for option, value in (("--particles", args.particles), ("--points", args.points)):
@@ -129,10 +144,13 @@ def main(args) -> int:
     try:
         cfg = SLAM3DConfig.of(particles=args.particles, scored_points=args.points, kind=kind, backend=args.backend,
                               seed=args.seed, refine=args.refine, temperature=args.temperature)
-        cfg = replace(cfg, motion=cfg.motion.scaled(float(args.noise)))
+        cfg = replace(cfg, motion=replace(cfg.motion.scaled(float(args.noise)),
+                                          model="constant_velocity" if args.lidar_only or odometry else "imu"))
     except ValueError as exc:
         raise SystemExit(f"slamlib run: {_option_error(exc)}") from None
-    if all(given):
+    if odometry:
+        basedir, date, drive_id, source = args.odometry_dir, None, args.sequence, "kitti odometry"
+    elif all(given):
         drive_id = int(args.drive) if str(args.drive).isdigit() else args.drive  # "5" and "0005" both work
         basedir, date, source = args.basedir, args.date, "kitti"
     else:
@@ -141,9 +159,15 @@ def main(args) -> int:
         basedir, date, drive_id = default_drive(full=args.full_default, progress=not args.no_progress)
         source = "synthetic default drive" + (" (full)" if args.full_default else "")
     try:
-        probe = KittiRawDrive(basedir, date, drive_id)
-        sl = parse_frames(args.frames, probe.n_drive_frames)
-        drive = KittiRawDrive(basedir, date, drive_id, frames=sl)
+        if odometry:
+            from slamlib.kitti import KittiOdometrySequence
+
+            probe = KittiOdometrySequence(basedir, drive_id)
+            drive = KittiOdometrySequence(basedir, drive_id, frames=parse_frames(args.frames, probe.n_sequence_frames))
+        else:
+            probe = KittiRawDrive(basedir, date, drive_id)
+            sl = parse_frames(args.frames, probe.n_drive_frames)
+            drive = KittiRawDrive(basedir, date, drive_id, frames=sl)
     except DataFormatError as exc:
         hint = _drive_hint(Path(basedir), date, drive_id) if all(given) else ""
         raise SystemExit(f"slamlib run: {exc}" + (f"\n  hint: {hint}" if hint else "")) from None
@@ -157,7 +181,7 @@ def main(args) -> int:
 
     print(f"slamlib run: {source}: {drive.path} frames {drive.frames[0]}..{drive.frames[-1]} ({len(drive)}), "
           f"{cfg.filter.particles} particles x {cfg.filter.scored_points} points, map {cfg.map.kind}, "
-          f"backend {cfg.backend}")
+          f"backend {cfg.backend}" + (", LIDAR-only (constant velocity)" if cfg.motion.model != "imu" else ""))
     try:
         if args.video is not None:
             from slamlib.slam3d.video import snapshot_every_for
@@ -171,7 +195,8 @@ def main(args) -> int:
         raise SystemExit(f"slamlib run: {exc}") from None
     try:
         files = save_run(run, args.out, map_format=args.map_format, plots=not args.no_plots,
-                         extra={"source": source, "basedir": str(basedir), "date": date, "drive": str(drive_id)})
+                         extra={"source": source, "basedir": str(basedir), "date": date,
+                                ("sequence" if odometry else "drive"): str(drive_id)})
     except (ValueError, OSError) as exc:  # a non-finite pose refused by the writers, a full disk, ...
         raise SystemExit(f"slamlib run: could not write the results into {args.out}: {exc}") from None
     print(f"{len(run.poses)} frames in {run.seconds:.1f} s: {run.fps:.1f} frames/s")
@@ -183,6 +208,8 @@ def main(args) -> int:
 
         print(f"path {num(m['path_length_m']):.0f} m{'':8s}{'ATE RMSE (m)':>14s}{'KITTI t_err (%)':>17s}")
         for key, label in (("slam", "particle SLAM"), ("dead_reckoning", "dead reckoning")):
+            if key not in m:  # LIDAR-only: no dead reckoning
+                continue
             k = num(m[key].get("kitti_t_err_percent"))
             print(f"{label:22s}{num(m[key]['ate_rmse_m']):14.3f}{k:17.3f}")
     if info.get("n_skipped_frames"):

@@ -1,4 +1,4 @@
-"""Reading KITTI raw drives (pykitti underneath) with clear errors, and trajectory file formats.
+"""Reading KITTI raw drives and odometry sequences (pykitti underneath) with clear errors, and trajectory file formats.
 
 Public API
 ----------
@@ -26,6 +26,14 @@ Reader (:mod:`slamlib.kitti.raw`)::
                                     # acceleration as arrays, reads OXTS only
     drive.calib                     # pykitti's full calibration namedtuple (cameras too)
 
+Odometry layout (:mod:`slamlib.kitti.sequence`; no IMU, the body frame is the Velodyne's)::
+
+    seq = KittiOdometrySequence(basedir, "07", frames=range(0, 100))   # basedir/sequences/07, basedir/poses/07.txt
+    for f in seq:
+        f.index, f.time_s, f.dt, f.scan  # as above; f.velocity and f.angular_rate are None
+        f.T_w_body                      # (4, 4) ground truth of the Velodyne (None without poses/NN.txt)
+    seq.Tr                              # (4, 4) calib.txt Tr: p_cam0 = Tr p_velo
+
 Low-level readers/writers (also what :mod:`slamlib.synth` writes with): :func:`read_timestamps_ns`,
 :func:`write_timestamps_ns`, :func:`format_timestamp_ns`, :func:`read_oxts_packet`, :func:`write_oxts_packet`,
 :func:`read_velodyne_scan`, :func:`write_velodyne_scan`, :func:`read_calib_file`, :func:`load_T_velo_imu`,
@@ -50,6 +58,7 @@ from slamlib.kitti.oxts import (
     write_oxts_packet,
 )
 from slamlib.kitti.raw import Frame, ImuArrays, KittiRawDrive, drive_folder_name
+from slamlib.kitti.sequence import KittiOdometrySequence, OdometryFrame, sequence_name
 from slamlib.kitti.timestamps import format_timestamp_ns, parse_timestamp_ns, read_timestamps_ns, write_timestamps_ns
 from slamlib.kitti.trajectory_io import (
     read_kitti_poses,
@@ -62,7 +71,8 @@ from slamlib.kitti.trajectory_io import (
 from slamlib.kitti.velodyne import read_velodyne_scan, write_velodyne_scan
 
 __all__ = [
-    "KittiRawDrive", "Frame", "ImuArrays", "drive_folder_name",
+    "KittiRawDrive", "Frame", "ImuArrays", "drive_folder_name", "KittiOdometrySequence", "OdometryFrame",
+    "sequence_name",
     "OXTS_FIELDS", "OxtsPacket", "read_oxts_packet", "write_oxts_packet", "parse_oxts_line", "format_oxts_packet",
     "mercator_scale", "enu_pose_from_packet", "poses_from_packets",
     "read_timestamps_ns", "write_timestamps_ns", "parse_timestamp_ns", "format_timestamp_ns",

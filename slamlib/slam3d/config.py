@@ -14,7 +14,7 @@ from dataclasses import asdict, dataclass, field, fields, replace
 
 import numpy as np
 
-__all__ = ["ScanConfig", "MotionConfig", "MapConfig", "FilterConfig", "SLAM3DConfig", "MAP_KINDS",
+__all__ = ["MOTION_MODELS", "ScanConfig", "MotionConfig", "MapConfig", "FilterConfig", "SLAM3DConfig", "MAP_KINDS",
            "OLD_MAP_NAMES"]
 
 #: Map kinds (:func:`slamlib.maps.make_map`): hashed NDT voxels, exact points in a Morton-code BVH.
@@ -85,39 +85,78 @@ class ScanConfig:
             raise ValueError(f"downsample_voxel must be >= 0 (0 = off), got {self.downsample_voxel}")
 
 
+#: Step 3's motion sources: the IMU's velocities and rates, or the filter's own last estimated motion held
+#: (LIDAR-only; :func:`slamlib.slam3d.steps.read_imu`).
+MOTION_MODELS = ("imu", "constant_velocity")
+#: The :class:`MotionConfig` fields that are not per-axis spreads.
+_MOTION_SCALARS = ("model", "cv_start_rounds")
+
+
 @dataclass(frozen=True)
 class MotionConfig:
-    """Step 6: the spread of the motion noise per axis (body x, y, z, then roll, pitch, yaw).
+    """Steps 3, 5 and 6: where the motion comes from, and the spread of the motion noise per axis (body x, y, z,
+    then roll, pitch, yaw).
 
     ``sigma_xyz = sigma_xyz_per_m |dp| + sigma_xyz_per_s dt`` (metres) and
     ``sigma_rpy = sigma_rpy_per_m |dp| + sigma_rpy_per_s dt`` (radians), with ``|dp|`` the distance travelled in
     the frame: odometry errors grow with distance (scale errors, slip) and with time (biases), as the odometry
     motion model's ``alpha`` parameters (Thrun, Burgard & Fox 2005, table 5.5).
+
+    **LIDAR-only** (``model="constant_velocity"``, or any frame without IMU values): step 3 holds the last
+    estimated twist (:func:`slamlib.odometry.twist_between`), and its error over a frame is the change of velocity
+    in that frame, ``a dt`` over ``dt`` seconds, i.e. ``a dt^2`` in position (``alpha dt^2`` in angle). Step 6
+    adds ``cv_accel dt^2`` (m) and ``cv_angular_accel dt^2`` (rad) to the spreads above, with ``a`` and ``alpha``
+    the accelerations a car typically has between two scans: about 2 m/s^2 forward (braking, pulling away),
+    0.5 m/s^2 sideways and up, 0.5 rad/s^2 in yaw (entering a turn), 0.2 rad/s^2 in roll and pitch. At 10 Hz that is
+    2 cm and 0.29 deg: several times the IMU model's spread, which the particles must cover.
+
+    At the second frame LIDAR-only knows no motion yet: the spread is ``cv_start_speed dt`` (speeds a car may have
+    when the sequence starts: 15 m/s forward, 1 and 0.5 m/s sideways and up; 0.05, 0.05, 0.3 rad/s in roll, pitch,
+    yaw), narrowed by ``cv_start_rounds`` annealing rounds that halve it (:mod:`slamlib.slam3d.pipeline`).
     """
 
     sigma_xyz_per_m: tuple = (0.02, 0.02, 0.01)
     sigma_xyz_per_s: tuple = (0.05, 0.05, 0.05)
     sigma_rpy_per_m: tuple = (0.0005, 0.0005, 0.002)
     sigma_rpy_per_s: tuple = (0.002, 0.002, 0.005)
+    model: str = "imu"
+    cv_accel: tuple = (2.0, 0.5, 0.5)
+    cv_angular_accel: tuple = (0.2, 0.2, 0.5)
+    cv_start_speed: tuple = (15.0, 1.0, 0.5, 0.05, 0.05, 0.3)
+    cv_start_rounds: int = 8
 
     def __post_init__(self):
+        if self.model not in MOTION_MODELS:
+            raise ValueError(f"model must be one of {', '.join(MOTION_MODELS)}, got {self.model!r}")
+        _integer("cv_start_rounds", self.cv_start_rounds, 0, MAX_REFINE)
         for f in fields(self):
+            if f.name in _MOTION_SCALARS:
+                continue
             v = np.asarray(getattr(self, f.name), dtype=np.float64)
-            if v.shape != (3,) or not np.all(np.isfinite(v)) or not np.all(v >= 0):
-                raise ValueError(f"{f.name} must be three finite non-negative numbers, got {getattr(self, f.name)!r}")
+            size = 6 if f.name == "cv_start_speed" else 3
+            if v.shape != (size,) or not np.all(np.isfinite(v)) or not np.all(v >= 0):
+                raise ValueError(f"{f.name} must be {size} finite non-negative numbers, got {getattr(self, f.name)!r}")
             object.__setattr__(self, f.name, tuple(float(x) for x in v))
 
-    def sigma(self, trans_delta, dt: float) -> np.ndarray:
-        """Standard deviations ``(6,)`` for a frame that moved ``trans_delta`` (3,) metres in ``dt`` seconds."""
+    def sigma(self, trans_delta, dt: float, constant_velocity: bool = False, start: bool = False) -> np.ndarray:
+        """Standard deviations ``(6,)`` for a frame that moved ``trans_delta`` (3,) metres in ``dt`` seconds; with
+        ``constant_velocity`` (LIDAR-only) widened by ``cv_accel dt^2`` and ``cv_angular_accel dt^2``; ``start``
+        (LIDAR-only, no motion known yet) adds ``cv_start_speed dt``."""
         d, dt = float(np.linalg.norm(trans_delta)), float(dt)
         s = np.empty(6)
         s[:3] = np.asarray(self.sigma_xyz_per_m) * d + np.asarray(self.sigma_xyz_per_s) * dt
         s[3:] = np.asarray(self.sigma_rpy_per_m) * d + np.asarray(self.sigma_rpy_per_s) * dt
+        if constant_velocity:
+            s[:3] += np.asarray(self.cv_accel) * dt**2
+            s[3:] += np.asarray(self.cv_angular_accel) * dt**2
+        if start:
+            s += np.asarray(self.cv_start_speed) * dt
         return s
 
     def scaled(self, k: float) -> "MotionConfig":
-        """All six spreads multiplied by ``k`` (``slamlib run --noise``)."""
-        return MotionConfig(*(tuple(k * x for x in getattr(self, f.name)) for f in fields(self)))
+        """All spreads (and the LIDAR-only accelerations) multiplied by ``k`` (``slamlib run --noise``)."""
+        return replace(self, **{f.name: tuple(k * x for x in getattr(self, f.name)) for f in fields(self)
+                                if f.name not in _MOTION_SCALARS})
 
 
 @dataclass(frozen=True)

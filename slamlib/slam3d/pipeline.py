@@ -9,6 +9,18 @@ world is the body pose at the first registered frame (see :mod:`slamlib.slam3d.s
 Dead reckoning from the same IMU samples (the same :func:`slamlib.odometry.imu_increment` as step 5, without
 noise and without the scans) is kept alongside as the baseline: ``slam.dr_poses``.
 
+LIDAR-only (no IMU)
+-------------------
+Data without an IMU (the KITTI odometry layout, :class:`slamlib.kitti.KittiOdometrySequence`), or
+``MotionConfig.model = "constant_velocity"``, runs the same twelve steps with step 3 reading the filter's own last
+estimated motion instead of an IMU (:meth:`ParticleSLAM3D.own_motion`): the twist between its last two poses,
+held over the next ``dt`` -- the constant-velocity model of LIDAR odometry (KISS-ICP). Step 6 widens its spread by
+the accelerations that model cannot know (:class:`slamlib.slam3d.config.MotionConfig`). At the second frame no
+motion is known yet (the vehicle may already drive at 15 m/s): step 6 spreads the particles by the speeds a car
+may have (``cv_start_speed``) and ``cv_start_rounds`` annealing rounds, each halving the spread, find the motion
+(coarse to fine, below), scoring only the points above the road (:func:`above_ground`: the road's rings in a
+one-scan map would pull the search to zero motion). There is then no dead-reckoning twin (``dead_reckoning`` is None).
+
 Likelihood tempering
 --------------------
 The map score of a particle is a sum over ``N`` scan points of per-point log-likelihoods (:mod:`slamlib.maps.base`)
@@ -42,18 +54,42 @@ from __future__ import annotations
 import numpy as np
 
 from slamlib.kernels import get_backend
-from slamlib.odometry import increment_matrix
+from slamlib.odometry import increment_matrix, twist_between
 from slamlib.resampling import normalise_log_weights
 from slamlib.slam3d import steps
 from slamlib.slam3d.config import SLAM3DConfig
 from slamlib.slam3d.preprocess import sample_points
 
-__all__ = ["ParticleSLAM3D", "MIN_SCAN_POINTS"]
+__all__ = ["ParticleSLAM3D", "MIN_SCAN_POINTS", "above_ground"]
 
 #: Fewest body-frame points (after step 2's crop and down-sampling) a frame needs to be scored and merged; below it
 #: the frame is skipped for scoring (module docstring, "Degenerate frames"). 10 points: far fewer than any real
 #: LIDAR scan (~100k points, ~20k after down-sampling), yet enough that one frame's score is not a single return.
 MIN_SCAN_POINTS = 10
+
+
+#: Height above the lowest points of a scan (its 5th percentile of z, body frame) below which a point counts as
+#: ground for :func:`above_ground`: 0.3 m clears the road's own relief and the scatter of its returns.
+GROUND_BAND_M = 0.3
+#: The percentile of the scan's heights taken as the road surface (robust to a few returns from below it).
+GROUND_PERCENTILE = 5.0
+
+
+def above_ground(points) -> np.ndarray:
+    """The points of a body-frame scan ``(N, 3)`` more than :data:`GROUND_BAND_M` above its road surface (the
+    :data:`GROUND_PERCENTILE` of z); all of them if fewer than :data:`MIN_SCAN_POINTS` would remain.
+
+    Why: the road's returns lie on the LIDAR's rings, circles around the sensor. A map built from one scan holds
+    those rings, and a scan taken from nearly the same place matches them best with *no* motion: the "ring
+    artifact" that pulls a registration toward zero motion. LIDAR-only, the first motion is found without the
+    road (:mod:`slamlib.slam3d.pipeline`, "LIDAR-only"); later frames score every point, the map's road being
+    blurred by many scans by then.
+    """
+    pts = np.asarray(points)
+    if len(pts) < MIN_SCAN_POINTS:
+        return pts
+    keep = pts[pts[:, 2] > np.percentile(pts[:, 2], GROUND_PERCENTILE) + GROUND_BAND_M]
+    return keep if len(keep) >= MIN_SCAN_POINTS else pts
 
 
 class ParticleSLAM3D:
@@ -80,6 +116,10 @@ class ParticleSLAM3D:
         (module docstring, "Degenerate frames").
     archive : list of (K, 3) float32 points pruned from the map (``keep_pruned``); see :meth:`map_points`.
     imu_prev : ``(velocity (3,), angular_rate (3,))`` of the last registered frame (None before the first).
+    dts : list of each registered frame's ``dt`` (s).
+    lidar_only : whether step 3 holds the filter's own last motion (constant velocity, :meth:`own_motion`)
+        instead of reading an IMU: ``MotionConfig.model == "constant_velocity"``, or set at the first frame when
+        it has no IMU values (the KITTI odometry layout). LIDAR-only there is no dead-reckoning twin.
     last : dict with this frame's intermediate results (scores, sample, sigma, ...), for plots and tests.
     """
 
@@ -98,6 +138,8 @@ class ParticleSLAM3D:
         self.archive: list[np.ndarray] = []
         self.last: dict = {}
         self.imu_prev = None
+        self.dts: list[float] = []
+        self.lidar_only = self.config.motion.model == "constant_velocity"
 
     # ----------------------------------------------------------------------------------------- step 12
     def register_frame(self, frame) -> np.ndarray:
@@ -108,24 +150,28 @@ class ParticleSLAM3D:
         ``n_skipped_frames`` grows (module docstring, "Degenerate frames"). Returns ``T_world_body`` (4, 4).
         Raises ``ValueError`` for non-finite or physically impossible IMU values (:func:`~slamlib.slam3d.steps.read_imu`).
         """
-        cfg, be, prev = self.config, self.backend, self.imu_prev
+        cfg, be = self.config, self.backend
+        if self.imu_prev is None:  # first frame: LIDAR-only if asked to, or if the data has no IMU
+            self.lidar_only = cfg.motion.model == "constant_velocity" or getattr(frame, "velocity", None) is None
+        prev = None if self.lidar_only else self.imu_prev  # constant velocity: the twist is held over dt
         points = steps.read_scan(frame, cfg.scan, self.T_body_velo)                                # 2
-        imu = steps.read_imu(frame)                                                                # 3
+        imu = steps.read_imu(frame, self.own_motion() if self.lidar_only else None)                # 3
         dt = steps.read_timing(frame)                                                              # 4
-        if prev is None:  # first frame: the map starts at the start pose
-            return self._start(points, imu)
+        if self.imu_prev is None:  # first frame: the map starts at the start pose
+            return self._start(points, imu, dt)
         increment = steps.motion_increment(imu, dt, prev)  # once: steps 5 and 6 and the dead-reckoning twin
         moved = steps.offset_by_motion(self.particles, imu, dt, prev, be, increment)               # 5
-        sigma = cfg.motion.sigma(increment[1], dt)  # = steps.motion_noise_sigma(imu, dt, prev, cfg.motion)
+        start = self.lidar_only and len(self.poses) == 1  # no motion estimate yet: search widely
+        sigma = cfg.motion.sigma(increment[1], dt, self.lidar_only, start)  # = steps.motion_noise_sigma(...)
         moved = steps.perturb_with_noise(moved, sigma, self.rng, backend=be)                       # 6
         if len(points) < MIN_SCAN_POINTS or len(self.map) == 0:  # degenerate frame: no scoring, no merge
-            return self._skip(moved, imu, increment, points, sigma)
-        sample = sample_points(points, cfg.filter.scored_points, self.rng)
+            return self._skip(moved, imu, increment, points, dt, sigma)
+        sample = sample_points(above_ground(points) if start else points, cfg.filter.scored_points, self.rng)
         log_w = self._weigh(moved, self.log_weights, sample)                                       # 7 + 8
-        moved, log_w = self._anneal(moved, log_w, sample, sigma)  # cfg.filter.refine rounds (none by default)
+        moved, log_w = self._anneal(moved, log_w, sample, sigma, start)  # cfg.filter.refine rounds (none by default)
         pose, best = steps.pick_best_particle(moved, log_w, cfg.filter.estimate)                   # 9
         steps.merge_scan(self.map, pose, points, be)                                               # 10
-        self._record(pose, imu, increment, points, sample=sample, sigma=sigma, best=best)
+        self._record(pose, imu, increment, points, dt, sample=sample, sigma=sigma, best=best)
         self.particles, self.log_weights, resampled = steps.resample_particles(                    # 11
             moved, log_w, self.rng, cfg.filter.ess_fraction, be)
         self.n_resampled += int(resampled)
@@ -138,26 +184,39 @@ class ParticleSLAM3D:
         self.last["scores"] = scores
         return normalise_log_weights(log_w + scores / (len(sample) * self.config.filter.temperature))
 
-    def _anneal(self, particles, log_w, sample, sigma):
-        """``refine`` coarse-to-fine rounds: resample, perturb with the noise shrunk by ``refine_shrink``, weigh."""
+    def _anneal(self, particles, log_w, sample, sigma, start: bool = False):
+        """``refine`` coarse-to-fine rounds: resample, perturb with the noise shrunk by ``refine_shrink``, weigh.
+        ``start`` (LIDAR-only, the first frame that moves: its motion is unknown) first adds
+        ``MotionConfig.cv_start_rounds`` rounds that halve the wide start spread each time."""
         f = self.config.filter
-        for _ in range(f.refine):
+        shrinks = [f.refine_shrink] * f.refine
+        if start:
+            shrinks = [0.5**k for k in range(1, self.config.motion.cv_start_rounds + 1)] + shrinks
+        for shrink in shrinks:
             particles, log_w, resampled = steps.resample_particles(particles, log_w, self.rng, 1.0, self.backend)
             self.n_resampled += int(resampled)
-            particles = steps.perturb_with_noise(particles, sigma * f.refine_shrink, self.rng, backend=self.backend)
+            particles = steps.perturb_with_noise(particles, sigma * shrink, self.rng, backend=self.backend)
             log_w = self._weigh(particles, log_w, sample)
         return particles, log_w
 
-    def _start(self, points, imu) -> np.ndarray:
+    def own_motion(self) -> tuple[np.ndarray, np.ndarray]:
+        """LIDAR-only step 3: the twist ``(v, w)`` that took the last-but-one estimated pose to the last one in
+        that frame's ``dt`` (:func:`slamlib.odometry.twist_between`); zero before two frames (the vehicle is taken
+        to start at rest, as KISS-ICP does)."""
+        if len(self.poses) < 2:
+            return np.zeros(3), np.zeros(3)
+        return twist_between(self.poses[-2], self.poses[-1], self.dts[-1])
+
+    def _start(self, points, imu, dt) -> np.ndarray:
         """The first frame: step 10 at the start pose, which is also the first pose of both trajectories."""
         if len(points) >= MIN_SCAN_POINTS:
             steps.merge_scan(self.map, self.T0, points, self.backend)
         else:
             self.n_skipped_frames += 1
-        self._record(self.T0, imu, None, points)
+        self._record(self.T0, imu, None, points, dt)
         return self.poses[-1]
 
-    def _skip(self, moved, imu, increment, points, sigma) -> np.ndarray:
+    def _skip(self, moved, imu, increment, points, dt, sigma) -> np.ndarray:
         """A frame not scored: keep the moved particles and their weights; the pose is the motion prediction.
         With enough points but no map yet (the earlier frames were degenerate) the scan starts the map there."""
         self.particles = moved
@@ -166,15 +225,17 @@ class ParticleSLAM3D:
             steps.merge_scan(self.map, pose, points, self.backend)
         else:
             self.n_skipped_frames += 1
-        self._record(pose, imu, increment, points, sample=points[:0], sigma=sigma, best=None)
+        self._record(pose, imu, increment, points, dt, sample=points[:0], sigma=sigma, best=None)
         return pose
 
-    def _record(self, pose, imu, increment, points, **last) -> None:
-        """Bookkeeping after step 10: the SLAM pose, the dead-reckoning twin (moved by this frame's IMU
-        ``increment``, None on the first frame), the IMU sample, map pruning."""
-        T_dr = self.T0 if increment is None else self.dr_poses[-1] @ increment_matrix(*increment)
+    def _record(self, pose, imu, increment, points, dt, **last) -> None:
+        """Bookkeeping after step 10: the SLAM pose and its ``dt``, the dead-reckoning twin (moved by this frame's
+        IMU ``increment``, None on the first frame; none LIDAR-only), the IMU sample, map pruning."""
         self.poses.append(np.asarray(pose, dtype=np.float64))
-        self.dr_poses.append(np.asarray(T_dr, dtype=np.float64))
+        self.dts.append(float(dt))
+        if not self.lidar_only:
+            T_dr = self.T0 if increment is None else self.dr_poses[-1] @ increment_matrix(*increment)
+            self.dr_poses.append(np.asarray(T_dr, dtype=np.float64))
         self.imu_prev = imu
         self.last.update(points=points, **last)
         every = self.config.map.prune_every
@@ -202,6 +263,6 @@ class ParticleSLAM3D:
         return np.array(self.poses).reshape(-1, 4, 4)
 
     @property
-    def dead_reckoning(self) -> np.ndarray:
-        """Dead-reckoning poses (F, 4, 4) from the same IMU samples."""
-        return np.array(self.dr_poses).reshape(-1, 4, 4)
+    def dead_reckoning(self) -> np.ndarray | None:
+        """Dead-reckoning poses (F, 4, 4) from the same IMU samples; None LIDAR-only (no IMU to reckon with)."""
+        return None if self.lidar_only else np.array(self.dr_poses).reshape(-1, 4, 4)

@@ -30,7 +30,8 @@ class SLAMRun:
 
     Attributes
     ----------
-    poses, dead_reckoning : (F, 4, 4) SLAM and dead-reckoning ``T_world_body`` (world = first processed body pose).
+    poses, dead_reckoning : (F, 4, 4) SLAM and dead-reckoning ``T_world_body`` (world = first processed body pose);
+        ``dead_reckoning`` is None for a LIDAR-only run (no IMU).
     ground_truth : (F, 4, 4) or None
         Ground-truth body poses in the same world, when the frames have ``T_w_imu``.
     timestamps : (F,) seconds since the first processed frame.
@@ -42,7 +43,7 @@ class SLAMRun:
     """
 
     poses: np.ndarray
-    dead_reckoning: np.ndarray
+    dead_reckoning: np.ndarray | None
     ground_truth: np.ndarray | None
     timestamps: np.ndarray
     frame_indices: np.ndarray
@@ -86,9 +87,9 @@ def run_drive(frames, config: SLAM3DConfig | None = None, T_velo_imu=None, progr
 
     Parameters
     ----------
-    frames : iterable of frames (``.scan``, ``.velocity``, ``.angular_rate``, ``.dt``; optional ``.T_w_imu``,
-        ``.time_s``, ``.index``), e.g. a :class:`slamlib.kitti.KittiRawDrive` (its ``T_velo_imu`` is used when
-        ``T_velo_imu`` is not given).
+    frames : iterable of frames (``.scan``, ``.velocity``, ``.angular_rate``, ``.dt``; optional ground truth
+        ``.T_w_body`` or ``.T_w_imu``, ``.time_s``, ``.index``), e.g. a :class:`slamlib.kitti.KittiRawDrive` or a
+        :class:`slamlib.kitti.KittiOdometrySequence` (its ``T_velo_imu`` is used when ``T_velo_imu`` is not given).
     config : filter settings.
     progress : show a tqdm bar with frames/s.
     snapshot_every : keep a copy of the map points every that many frames (0: none), for animations.
@@ -108,7 +109,7 @@ def run_drive(frames, config: SLAM3DConfig | None = None, T_velo_imu=None, progr
         tf = time.perf_counter()
         pose = slam.register_frame(frame)
         frame_seconds.append(time.perf_counter() - tf)
-        gt.append(getattr(frame, "T_w_imu", None))
+        gt.append(getattr(frame, "T_w_body", getattr(frame, "T_w_imu", None)))  # odometry layout: T_w_body
         times.append(float(getattr(frame, "time_s", k * 0.1)))
         idx.append(int(getattr(frame, "index", k)))
         if snapshot_every and k % snapshot_every == 0:
@@ -128,20 +129,23 @@ def evaluate(run: SLAMRun) -> dict:
     """ATE (RMSE, m, no alignment: both start at the same pose), RPE over 10 frames, and the KITTI odometry
     metric (segments of 100..800 m; only for paths over 100 m) of the SLAM and dead-reckoning trajectories.
 
-    Returns ``{"slam": {...}, "dead_reckoning": {...}, "path_length_m", "frames", "fps"}``; raises ValueError
+    Returns ``{"slam": {...}, "dead_reckoning": {...}, "path_length_m", "frames", "fps"}`` (no
+    ``"dead_reckoning"`` for a LIDAR-only run); raises ValueError
     without ground truth.
     """
     from slamlib.metrics import trajectory_distances, trajectory_metrics
 
     if run.ground_truth is None:
         raise ValueError("this run has no ground truth (frames without T_w_imu)")
-    return {
+    out = {
         "frames": int(len(run.poses)),
         "path_length_m": float(trajectory_distances(run.ground_truth)[-1]),
         "fps": float(run.fps),
         "slam": trajectory_metrics(run.poses, run.ground_truth),
-        "dead_reckoning": trajectory_metrics(run.dead_reckoning, run.ground_truth),
     }
+    if run.dead_reckoning is not None:
+        out["dead_reckoning"] = trajectory_metrics(run.dead_reckoning, run.ground_truth)
+    return out
 
 
 #: The files :func:`save_run` may write into its folder (the ones :func:`check_output_dir` will not let it overwrite
@@ -201,7 +205,7 @@ def save_run(run: SLAMRun, out_dir, map_format: str = "ply", plots: bool = True,
     """Write a run's results into ``out_dir`` and return ``{name: path}`` of the files written.
 
     * ``slam_poses.txt`` / ``slam_tum.txt``: SLAM trajectory in KITTI (12 numbers per line) and TUM formats;
-    * ``dead_reckoning_poses.txt`` / ``dead_reckoning_tum.txt``: the IMU-only baseline;
+    * ``dead_reckoning_poses.txt`` / ``dead_reckoning_tum.txt``: the IMU-only baseline (not LIDAR-only);
     * ``ground_truth_poses.txt`` / ``ground_truth_tum.txt`` when the frames had ground truth;
     * ``times.txt``: seconds since the first processed frame (KITTI odometry ``times.txt``);
     * ``map.ply`` or ``map.pcd`` (open3d): the map's points (voxel means or stored points, including the parts
@@ -220,7 +224,9 @@ def save_run(run: SLAMRun, out_dir, map_format: str = "ply", plots: bool = True,
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     files = {}
-    trajs = {"slam": run.poses, "dead_reckoning": run.dead_reckoning}
+    trajs = {"slam": run.poses}
+    if run.dead_reckoning is not None:
+        trajs["dead_reckoning"] = run.dead_reckoning
     if run.ground_truth is not None:
         trajs["ground_truth"] = run.ground_truth
     for name, T in trajs.items():

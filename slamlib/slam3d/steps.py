@@ -16,7 +16,8 @@ The steps
 1. :func:`initialise_particles` -- ``P`` copies of the start pose (the map defines the world, so there is no
    uncertainty at frame 0), as :class:`Particles3D`, and uniform log-weights.
 2. :func:`read_scan` -- range crop, voxel down-sampling, Velodyne -> body frame.
-3. :func:`read_imu` -- body velocities ``(vf, vl, vu)`` m/s and angular rates ``(wf, wl, wu)`` rad/s.
+3. :func:`read_imu` -- body velocities ``(vf, vl, vu)`` m/s and angular rates ``(wf, wl, wu)`` rad/s; LIDAR-only
+   (no IMU), the filter's own last estimated twist held (constant velocity).
 4. :func:`read_timing` -- ``dt`` seconds since the previous frame.
 5. :func:`offset_by_motion` -- ``T_i <- T_i [dR, dp]`` with the IMU increment ``(dR, dp)`` over ``dt``
    (:func:`motion_increment`: the midpoint twist of the previous and this IMU sample, integrated on SE(3)).
@@ -147,17 +148,29 @@ def read_scan(frame, scan_config: ScanConfig = ScanConfig(), T_body_velo=None) -
     return np.ascontiguousarray(pts)
 
 
-def read_imu(frame) -> tuple[np.ndarray, np.ndarray]:
+def read_imu(frame, estimate=None) -> tuple[np.ndarray, np.ndarray]:
     """Step 3: ``imu = (velocity, angular_rate)``: body velocity ``(vf, vl, vu)`` m/s and rates ``(wf, wl, wu)``
     rad/s, each (3,).
 
+    LIDAR-only (a frame without IMU values -- ``frame.velocity is None``, as in the KITTI odometry layout -- or a
+    filter set to ``MotionConfig.model = "constant_velocity"``): the filter passes ``estimate``, its own last
+    estimated twist (:func:`slamlib.odometry.twist_between` of its last two poses; zero before it has two), and
+    that is returned instead of the frame's values: the constant-velocity model.
+
     Raises ``ValueError`` on a non-finite value or one beyond the OXTS physical limits
     (:data:`slamlib.kitti.oxts.MAX_SPEED_MPS`, :data:`~slamlib.kitti.oxts.MAX_ANGULAR_RATE_RADPS`), which would
-    otherwise give NaN poses.
+    otherwise give NaN poses, and on a frame without IMU values when no ``estimate`` is given.
     """
-    v = np.asarray(frame.velocity, dtype=np.float64).reshape(3)
-    w = np.asarray(frame.angular_rate, dtype=np.float64).reshape(3)
     where = f" (frame {frame.index})" if hasattr(frame, "index") else ""
+    if estimate is not None:
+        v, w = estimate
+        where += " (constant-velocity estimate)"
+    elif getattr(frame, "velocity", None) is None or getattr(frame, "angular_rate", None) is None:
+        raise ValueError(f"frame{where} has no IMU values: LIDAR-only step 3 needs the filter's own motion estimate")
+    else:
+        v, w = frame.velocity, frame.angular_rate
+    v = np.asarray(v, dtype=np.float64).reshape(3)
+    w = np.asarray(w, dtype=np.float64).reshape(3)
     for name, x, limit, unit in (("velocity", v, MAX_SPEED_MPS, "m/s"), ("angular_rate", w, MAX_ANGULAR_RATE_RADPS,
                                                                             "rad/s")):
         if not np.all(np.isfinite(x)) or np.any(np.abs(x) > limit):

@@ -22,11 +22,12 @@ from slamlib.synth.lidar import Hdl64, ray_directions, simulate_scan
 from slamlib.synth.oxts import ImuNoise, oxts_packets
 from slamlib.synth.routes import Route, get_route
 from slamlib.synth.scene import build_scene
-from slamlib.synth.writer import (MARKER, PARTIAL_MARKER, SCAN_PERIOD, check_calib, drive_dir, frame_timestamps_ns,
-                                  is_own_drive, own_files, read_marker, write_calib, write_marker, write_oxts,
+from slamlib.synth.writer import (_SAMPLE, MARKER, PARTIAL_MARKER, SCAN_PERIOD, check_calib, drive_dir,
+                                  frame_timestamps_ns, is_own_drive, own_files, own_sequence_files, read_marker,
+                                  write_calib, write_marker, write_odometry_calib, write_odometry_scan, write_oxts,
                                   write_scan, write_velodyne_timestamps)
 
-__all__ = ["GENERATOR_VERSION", "write_drive", "default_drive", "resolve_route", "DEFAULT_FRAMES"]
+__all__ = ["GENERATOR_VERSION", "write_drive", "write_sequence", "default_drive", "resolve_route", "DEFAULT_FRAMES"]
 
 #: Bump when the generator's output changes: cached drives of another version are regenerated.
 GENERATOR_VERSION = "synth-2"
@@ -90,26 +91,16 @@ def write_drive(basedir, route="07", date: str = "2011_09_26", drive: int = 1, f
     (:func:`slamlib.synth.writer.own_files`); the user's files in it stay. Raises ``FileExistsError``, before
     writing anything, for another non-empty folder or for differing calibration files in ``basedir/DATE``.
     """
-    from tqdm.auto import tqdm
     from slamlib.kitti.calib import load_T_velo_imu
 
     r, n = resolve_route(route, frames)
-    ss = np.random.SeedSequence(seed)
-    rng_time, rng_imu, rng_scene, rng_lidar = (np.random.default_rng(s) for s in ss.spawn(4))
+    rng_time, rng_imu, rng_scene, rng_lidar = _streams(seed)
     ddir = drive_dir(basedir, date, drive)
-    if ddir.is_symlink() or (ddir.exists() and not ddir.is_dir()):
-        raise FileExistsError(f"{ddir} exists and is not a folder; choose another basedir, date or drive")
-    if ddir.is_dir() and not is_own_drive(ddir) and any(ddir.iterdir()):
-        raise FileExistsError(f"{ddir} exists and is not a slamlib synthetic drive (no {MARKER}); choose another "
-                              "basedir, date or drive")
+    _check_own_folder(ddir, "basedir, date or drive")
     check_calib(basedir, date)
     params = {"version": GENERATOR_VERSION, "route": r.name, "frames": n, "seed": seed,
               "noise": noise.as_dict(), "lidar": lidar.as_dict(), "scans": scans}
-    ddir.mkdir(parents=True, exist_ok=True)
-    (ddir / PARTIAL_MARKER).write_text(json.dumps(params, indent=1, sort_keys=True), encoding="ascii")
-    for path in own_files(ddir):  # the last drive's files (complete or interrupted); the user's stay
-        if path.name != PARTIAL_MARKER:
-            path.unlink()
+    _begin(ddir, params, own_files(ddir))
     date_dir = write_calib(basedir, date)
     ts = frame_timestamps_ns(n, date, rng_time)
     t_route = r.t0 + (ts["oxts"] - ts["oxts"][0]) * 1e-9
@@ -117,17 +108,95 @@ def write_drive(basedir, route="07", date: str = "2011_09_26", drive: int = 1, f
     write_oxts(ddir, packets, ts["oxts"])
     write_velodyne_timestamps(ddir, ts)
     if scans:
-        T_velo_imu = load_T_velo_imu(date_dir)
-        dense_t = np.linspace(t_route[0], t_route[-1], max(2, int((t_route[-1] - t_route[0]) * 20) + 2))
-        scene = build_scene(r.position(dense_t), seed=int(rng_scene.integers(2**63)))
-        rc = scene.raycasting_scene()
-        dirs = ray_directions(lidar)
-        T_w_velo = r.pose(t_route) @ invert_pose(T_velo_imu)
-        for k in tqdm(range(n), desc=f"synth drive {drive:04d}", disable=not progress, unit="scan"):
-            write_scan(ddir, k, simulate_scan(rc, scene.albedo, T_w_velo[k], rng_lidar, lidar, dirs))
+        T_w_velo = r.pose(t_route) @ invert_pose(load_T_velo_imu(date_dir))
+        for k, scan in _cast_scans(r, t_route, T_w_velo, rng_scene, rng_lidar, lidar, progress,
+                                   f"synth drive {drive:04d}"):
+            write_scan(ddir, k, scan)
     write_marker(ddir, params)
     (ddir / PARTIAL_MARKER).unlink()
     return Path(basedir), date, drive
+
+
+def _streams(seed: int):
+    """The generator's four independent random streams (timestamps, IMU noise, scene, LIDAR noise) from ``seed``."""
+    return tuple(np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(4))
+
+
+def _check_own_folder(folder: Path, what: str) -> None:
+    """FileExistsError, before anything is written, unless ``folder`` is absent, empty or the generator's own."""
+    if folder.is_symlink() or (folder.exists() and not folder.is_dir()):
+        raise FileExistsError(f"{folder} exists and is not a folder; choose another {what}")
+    if folder.is_dir() and not is_own_drive(folder) and any(folder.iterdir()):
+        raise FileExistsError(f"{folder} exists and is not a slamlib synthetic drive (no {MARKER}); choose another "
+                              f"{what}")
+
+
+def _begin(folder: Path, params: dict, previous: list) -> None:
+    """Mark ``folder`` as being written (:data:`PARTIAL_MARKER`) and remove the previous run's ``previous`` files
+    (the generator's own, complete or interrupted; the user's files stay)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / PARTIAL_MARKER).write_text(json.dumps(params, indent=1, sort_keys=True), encoding="ascii")
+    for path in previous:
+        if path.name != PARTIAL_MARKER:
+            path.unlink()
+
+
+def _cast_scans(r: Route, t_route, T_w_velo, rng_scene, rng_lidar, lidar: Hdl64, progress: bool, desc: str):
+    """Yield ``(k, scan (N, 4) float32)`` for every frame: the town along the route, cast from ``T_w_velo[k]``."""
+    from tqdm.auto import tqdm
+
+    dense_t = np.linspace(t_route[0], t_route[-1], max(2, int((t_route[-1] - t_route[0]) * 20) + 2))
+    scene = build_scene(r.position(dense_t), seed=int(rng_scene.integers(2**63)))
+    rc = scene.raycasting_scene()
+    dirs = ray_directions(lidar)
+    for k in tqdm(range(len(t_route)), desc=desc, disable=not progress, unit="scan"):
+        yield k, simulate_scan(rc, scene.albedo, T_w_velo[k], rng_lidar, lidar, dirs)
+
+
+def write_sequence(basedir, route="07", sequence: int | str = 7, frames=DEFAULT_FRAMES, seed: int = 0,
+                   lidar: Hdl64 = Hdl64(), progress: bool = True) -> tuple[Path, str]:
+    """Write a synthetic drive in the KITTI **odometry** layout (:mod:`slamlib.kitti.sequence`): scans, ``calib.txt``,
+    ``times.txt`` and the ground truth ``poses/NN.txt`` -- no IMU, as the benchmark has none.
+
+    The scans, timing and poses are those :func:`write_drive` writes for the same ``route``, ``frames`` and
+    ``seed`` (the same random streams): ``times.txt`` holds the scans' mid-sweep times since the first, the
+    poses are the left camera's, ``P_k = Tr inv(T_w_velo_0) T_w_velo_k inv(Tr)``, with ``Tr`` the real 2011_09_26
+    Velodyne -> rectified left camera calibration (:func:`slamlib.synth.writer.odometry_calib`).
+
+    Returns ``(Path(basedir), "NN")``; the sequence folder is ``basedir/sequences/NN``. Rewrites only a folder of
+    this generator's (or an empty one), like :func:`write_drive`; ``basedir/poses/NN.txt`` is written only if
+    absent or written by the generator before (its sequence folder carries the marker).
+    """
+    from slamlib.kitti.calib import load_T_velo_imu
+    from slamlib.kitti.sequence import sequence_name
+    from slamlib.kitti.trajectory_io import write_kitti_poses, write_times
+
+    name = sequence_name(sequence)
+    r, n = resolve_route(route, frames)
+    rng_time, _, rng_scene, rng_lidar = _streams(seed)
+    sdir = Path(basedir) / "sequences" / name
+    poses_path = Path(basedir) / "poses" / f"{name}.txt"
+    _check_own_folder(sdir, "basedir or sequence")
+    if poses_path.exists() and not is_own_drive(sdir):
+        raise FileExistsError(f"{poses_path} exists and was not written by slamlib synth; choose another basedir "
+                              "or sequence")
+    params = {"version": GENERATOR_VERSION, "layout": "odometry", "route": r.name, "frames": n, "seed": seed,
+              "lidar": lidar.as_dict()}
+    _begin(sdir, params, own_sequence_files(sdir) + ([poses_path] if poses_path.is_file() else []))
+    ts = frame_timestamps_ns(n, "2011_09_26", rng_time)
+    t_route = r.t0 + (ts["oxts"] - ts["oxts"][0]) * 1e-9
+    T_w_velo = r.pose(t_route) @ invert_pose(load_T_velo_imu(_SAMPLE))
+    Tr = write_odometry_calib(sdir)
+    write_times(sdir / "times.txt", (ts["velo"] - ts["velo"][0]) * 1e-9)
+    poses_path.parent.mkdir(parents=True, exist_ok=True)
+    write_kitti_poses(poses_path, Tr @ (invert_pose(T_w_velo[0])[None] @ T_w_velo) @ invert_pose(Tr))
+    (sdir / "velodyne").mkdir(exist_ok=True)
+    for k, scan in _cast_scans(r, t_route, T_w_velo, rng_scene, rng_lidar, lidar, progress,
+                               f"synth sequence {name}"):
+        write_odometry_scan(sdir, k, scan)
+    write_marker(sdir, params)
+    (sdir / PARTIAL_MARKER).unlink()
+    return Path(basedir), name
 
 
 def default_drive(frames=DEFAULT_FRAMES, seed: int = 0, full: bool = False, route: str = "07",

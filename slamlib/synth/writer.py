@@ -37,8 +37,9 @@ from slamlib.kitti.oxts import format_oxts_packet
 from slamlib.kitti.timestamps import write_timestamps_ns
 from slamlib.paths import kitti_sample_dir
 
-__all__ = ["CALIB_FILES", "MARKER", "PARTIAL_MARKER", "drive_dir", "is_own_drive", "own_files", "check_calib", "write_calib", "frame_timestamps_ns", "write_oxts",
-           "write_velodyne_timestamps", "write_scan", "SCAN_PERIOD"]
+__all__ = ["CALIB_FILES", "MARKER", "PARTIAL_MARKER", "drive_dir", "is_own_drive", "own_files", "check_calib",
+           "write_calib", "frame_timestamps_ns", "write_oxts", "write_velodyne_timestamps", "write_scan", "SCAN_PERIOD",
+           "odometry_calib", "write_odometry_calib", "write_odometry_scan", "own_sequence_files"]
 
 CALIB_FILES = ("calib_imu_to_velo.txt", "calib_velo_to_cam.txt", "calib_cam_to_cam.txt")
 MARKER = ".slamlib_synth.json"
@@ -144,3 +145,48 @@ def read_marker(ddir: Path) -> dict | None:
         return json.loads(p.read_text(encoding="ascii"))
     except (OSError, ValueError):
         return None
+
+
+# ------------------------------------------------------------------------------------------ odometry layout
+#: The files the generator writes in an odometry sequence folder (besides ``velodyne/NNNNNN.bin``).
+_SEQUENCE_FILES = ("calib.txt", "times.txt")
+_SEQUENCE_SCAN = re.compile(r"\d{6}\.bin")
+
+
+def own_sequence_files(sdir) -> list[Path]:
+    """The files of an odometry sequence folder ``sdir`` that the generator writes: the markers, ``calib.txt``,
+    ``times.txt`` and the 6-digit ``velodyne/*.bin`` scans."""
+    sdir = Path(sdir)
+    out = [sdir / name for name in (MARKER, PARTIAL_MARKER) + _SEQUENCE_FILES]
+    if (sdir / "velodyne").is_dir():
+        out += sorted(p for p in (sdir / "velodyne").iterdir() if _SEQUENCE_SCAN.fullmatch(p.name))
+    return [p for p in out if p.is_file() and not p.is_symlink()]
+
+
+def odometry_calib() -> dict[str, np.ndarray]:
+    """An odometry ``calib.txt`` from the real 2011_09_26 raw calibration, as KITTI derived theirs:
+    ``P0..P3 = P_rect_00..P_rect_03`` (3x4) and ``Tr = R_rect_00 T_cam0unrect_velo`` (3x4: Velodyne -> rectified
+    left camera). Returns ``{key: (3, 4) float64}``."""
+    from slamlib.kitti.calib import CAM_TO_CAM, REQUIRED_KEYS, VELO_TO_CAM, read_calib_file, read_rigid
+
+    cam = read_calib_file(_SAMPLE / CAM_TO_CAM, REQUIRED_KEYS[CAM_TO_CAM])
+    R_rect = np.eye(4)
+    R_rect[:3, :3] = cam["R_rect_00"].reshape(3, 3)
+    out = {f"P{k}": cam[f"P_rect_0{k}"].reshape(3, 4) for k in range(4)}
+    out["Tr"] = (R_rect @ read_rigid(_SAMPLE / VELO_TO_CAM))[:3]
+    return out
+
+
+def write_odometry_calib(sdir) -> np.ndarray:
+    """Write ``sdir/calib.txt`` (:func:`odometry_calib`, KITTI's ``%e`` format); returns ``Tr`` as 4x4."""
+    calib = odometry_calib()
+    lines = [f"{key}: " + " ".join(f"{v:.12e}" for v in M.ravel()) for key, M in calib.items()]
+    (Path(sdir) / "calib.txt").write_text("\n".join(lines) + "\n", encoding="ascii")
+    Tr = np.eye(4)
+    Tr[:3] = calib["Tr"]
+    return Tr
+
+
+def write_odometry_scan(sdir, index: int, scan: np.ndarray) -> None:
+    """``sdir/velodyne/NNNNNN.bin``: ``scan (N, 4)`` as little-endian float32."""
+    np.ascontiguousarray(scan, dtype="<f4").tofile(Path(sdir) / "velodyne" / f"{index:06d}.bin")

@@ -60,15 +60,21 @@ lab: setup
 # and tests/ in _build/mutate, so the checkout is never mutated; config in pyproject.toml [tool.mutmut].
 # mutmut forks a worker per mutant: GNU OpenMP (Numba's default parallel layer here) aborts after fork, so the
 # workqueue layer is used. MUTANTS limits the run to mutant-name globs, e.g. make mutate MUTANTS='slamlib.resampling.* slamlib.metrics.*'.
+# Numba decorators are stripped from the copy (tests/mutation/strip_jit.py) and the tests run with NUMBA_DISABLE_JIT=1,
+# so jitted bodies are mutated and run as Python (prange = range). MUTATE_TESTS narrows the test selection of the
+# copy to the files that test the chosen modules, e.g. MUTATE_TESTS='tests/test_maps.py tests/test_kernels_cpu.py'.
 # Per-module scores: tests/mutation/score.py; report: tests/mutation/REPORT.md.
 MUTMUT_VERSION := 3.8.1
 MUTATE_DIR     := _build/mutate
 MUTANTS        ?=
+MUTATE_TESTS   ?=
 mutate: setup
 	@$(BIN)/python -c "import mutmut" 2>/dev/null || $(BIN)/python -m pip install -q -c requirements.lock mutmut==$(MUTMUT_VERSION)
 	rm -rf $(MUTATE_DIR) && mkdir -p $(MUTATE_DIR)
 	tar --exclude=__pycache__ -cf - slamlib tests pyproject.toml | tar -xf - -C $(MUTATE_DIR)
-	cd $(MUTATE_DIR) && NUMBA_CACHE_DIR=$(CURDIR)/$(MUTATE_DIR)/numba NUMBA_THREADING_LAYER=workqueue nice -n 19 $(CURDIR)/$(BIN)/mutmut run --max-children 2 $(MUTANTS)
+	$(BIN)/python tests/mutation/strip_jit.py $(MUTATE_DIR)
+	$(BIN)/python tests/mutation/select_tests.py $(MUTATE_DIR) $(MUTATE_TESTS)
+	cd $(MUTATE_DIR) && NUMBA_DISABLE_JIT=1 NUMBA_CACHE_DIR=$(CURDIR)/$(MUTATE_DIR)/numba NUMBA_THREADING_LAYER=workqueue nice -n 19 $(CURDIR)/$(BIN)/mutmut run --max-children 2 $(MUTANTS)
 	cd $(MUTATE_DIR) && $(CURDIR)/$(BIN)/mutmut results --all true > results.txt && \
 	  $(CURDIR)/$(BIN)/python $(CURDIR)/tests/mutation/score.py results.txt
 

@@ -1,0 +1,291 @@
+"""Value tests written for survivors of mutation testing (issue 15, tests/mutation/REPORT.md).
+
+Small and fast on purpose: ``make mutate`` runs the kernels as plain Python (``NUMBA_DISABLE_JIT=1``), and mutmut
+runs the fastest covering test first, so these kill most mutants of the Numba kernels and the maps in well under a
+second each. The Numba CPU backend is checked against the numpy reference (independent: sorted-key search, k-d tree)
+and against the definitions, on sizes that cross every chunk boundary of its loops.
+"""
+
+import numpy as np
+import pytest
+
+from slamlib import geometry
+from slamlib.kernels import cpu, get_backend, reference
+from slamlib.maps import MortonBVHMap, VoxelHashMap
+
+REF = get_backend("numpy")
+CPU = get_backend("cpu")
+
+
+def _world(rng, n=900):
+    """Points on the faces of two boxes and a slab, plus clutter, around the origin (float32, metres)."""
+    out = []
+    for c, size in (([1.0, 0.5, 0.0], [2.0, 1.0, 1.5]), ([-1.5, -1.0, 0.5], [1.0, 2.5, 1.0])):
+        p = rng.uniform(-0.5, 0.5, (n // 3, 3))
+        ax = rng.integers(0, 3, n // 3)
+        p[np.arange(n // 3), ax] = np.sign(p[np.arange(n // 3), ax]) * 0.5
+        out.append(np.asarray(c) + p * size)
+    out.append(rng.uniform(-3, 3, (n // 3, 3)) * [1, 1, 0.05])
+    return np.vstack(out).astype(np.float32)
+
+
+def _maps(rng):
+    world = _world(rng)
+    maps = [VoxelHashMap(voxel_size=0.5, capacity=2**11), MortonBVHMap(radius=0.3, sigma=0.15, dedup_level=2),
+            MortonBVHMap(radius=0.8, sigma=0.3, quantum=0.02, dedup_level=0)]
+    for m in maps:
+        m.merge(world)
+    return maps
+
+
+def _particles(rng, P, spread=0.05, shift=0.2):
+    R = geometry.rpy_to_matrix(rng.uniform(-np.pi, np.pi, (P, 3)) * spread)
+    t = rng.normal(0.0, shift, (P, 3))
+    return R, t
+
+
+@pytest.fixture(scope="module")
+def small_maps():
+    return _maps(np.random.default_rng(11))
+
+
+@pytest.mark.parametrize("chunks", [None, (5, 3, 4, 2)], ids=["default-chunks", "small-chunks"])
+def test_score_particles_cpu_equals_reference_across_chunks(small_maps, monkeypatch, chunks):
+    """Per-particle scores of the fused kernel == the reference, with point and particle counts that are not
+    multiples of the chunk sizes (several chunks each way, a partial last one), a small Morton leaf (the octree
+    descent runs) and a tiny cell cache (collisions), and with the default constants."""
+    if chunks:
+        for name, v in zip(("POINT_CHUNK", "PARTICLE_CHUNK", "MORTON_LEAF", "CELL_CACHE_BITS"), chunks):
+            monkeypatch.setattr(cpu, name, v)
+    rng = np.random.default_rng(12)
+    P, N = (7, 23) if chunks else (3, 70)
+    R, t = _particles(rng, P)
+    pts = np.vstack([rng.uniform(-3, 3, (N - 3, 3)),
+                     [[1.0, 1.0, 0.75], [20.0, 0.0, 0.0], [-2.0, -1.0, 0.0]]]).astype(np.float32)
+    for m in small_maps:
+        lk = m.lookup()
+        ref = REF.score_particles(R, t, pts, lk)
+        got = CPU.score_particles(R, t, pts, lk)
+        assert got.shape == (P,) and got.dtype == np.float64
+        np.testing.assert_allclose(got, ref, rtol=1e-9, atol=1e-9)
+        assert np.ptp(ref) > 1.0  # the particles are told apart: a mixed-up particle index shows
+
+
+def test_score_particles_per_point_terms_by_definition(small_maps):
+    """One particle at the identity, one point at a time: the CPU score is the reference's per-point term, and
+    for the Morton maps it is ``-0.5 min(d_nn, r)^2 / sigma^2`` by brute force; the sum over points adds up."""
+    rng = np.random.default_rng(13)
+    I, z = np.eye(3)[None], np.zeros((1, 3))
+    queries = np.vstack([rng.uniform(-3, 3, (25, 3)), _world(rng)[:15] + rng.normal(0, 0.05, (15, 3))])
+    queries = queries.astype(np.float32)
+    for m in small_maps:
+        lk = m.lookup()
+        terms = reference.point_terms(queries.astype(np.float64), lk)
+        got = np.array([CPU.score_particles(I, z, q[None], lk)[0] for q in queries])
+        np.testing.assert_allclose(got, terms, rtol=1e-9, atol=1e-9)
+        np.testing.assert_allclose(CPU.score_particles(I, z, queries, lk)[0], terms.sum(), rtol=1e-9)
+        if isinstance(m, MortonBVHMap):
+            stored = m.points().astype(np.float64)
+            d2 = np.min(np.sum((stored[None] - queries.astype(np.float64)[:, None]) ** 2, axis=2), axis=1)
+            np.testing.assert_allclose(got, -0.5 * np.minimum(d2, m.radius**2) / m.sigma**2, rtol=1e-9, atol=1e-12)
+            assert np.any(d2 < m.radius**2) and np.any(d2 > m.radius**2)
+
+
+def test_morton_nn_is_exact_with_warm_starts_and_a_small_leaf(small_maps):
+    """``morton_nn_nb`` returns ``(min(d_nn^2, best), index of that point)`` by brute force, cold and warm started
+    from another point, with leaves of 1, 4 and 64 points (deep and shallow descent)."""
+    m = small_maps[1]
+    lk = m.lookup()
+    stored = lk.points.astype(np.float64)
+    rng = np.random.default_rng(14)
+    queries = np.vstack([stored[rng.integers(0, len(stored), 20)] + rng.normal(0, 0.1, (20, 3)),
+                         rng.uniform(-3, 3, (20, 3))])
+    r2 = lk.radius**2
+    for leaf in (1, 4, 64):
+        stack = np.empty((8 * (lk.cell_level + 2), 6), np.int64)
+        cache_code = np.full(1 << 3, -1, np.int64)
+        cache_k = np.empty(1 << 3, np.int64)
+        for q in queries:
+            d2 = np.sum((stored - q) ** 2, axis=1)
+            j = int(np.argmin(d2))
+            args = (lk.codes, lk.points, lk.cell_codes, lk.cell_start, lk.cell_lo, lk.cell_hi, lk.quantum,
+                    lk.cell_level)
+            best, best_j = cpu.morton_nn_nb(*q, *args, r2, -1, stack, leaf, cache_code, cache_k, 3)
+            if d2[j] < r2:
+                assert best_j == j and best == pytest.approx(d2[j], rel=1e-12)
+            else:
+                assert best_j == -1 and best == r2
+            k = int(np.argsort(d2)[1])  # warm start from the second-nearest point, at its distance
+            if d2[k] < r2:
+                best, best_j = cpu.morton_nn_nb(*q, *args, d2[k], k, stack, leaf, cache_code, cache_k, 3)
+                assert best == pytest.approx(d2[j], rel=1e-12) and d2[best_j] == pytest.approx(best, rel=1e-12)
+
+
+def test_move_particles_cpu_equals_reference_on_two_blocks(monkeypatch):
+    """The particle loop in blocks: with a block of 4, 10 particles take three blocks (the last partial)."""
+    from slamlib.noise import LutNoise, make_tables
+
+    monkeypatch.setattr(cpu, "PARTICLE_BLOCK", 4)
+    rng = np.random.default_rng(15)
+    R, t = _particles(rng, 10, spread=0.3, shift=3.0)
+    sigma = rng.uniform(0.05, 0.3, 6)
+    args = ([0.02, -0.01, 0.3], [1.1, 0.2, -0.1])
+    noise = rng.normal(size=(10, 6))
+    for nz in (noise, LutNoise(make_tables(5, bits=2), 3, 4), LutNoise(make_tables(5, bits=6), 3, 4)):
+        R_c, t_c = CPU.move_particles(R, t, *args, nz, sigma)
+        R_r, t_r = REF.move_particles(R, t, *args, nz, sigma)
+        np.testing.assert_allclose(R_c, R_r, atol=1e-12)
+        np.testing.assert_allclose(t_c, t_r, atol=1e-12)
+
+
+def test_transform_points_cpu_in_spans(monkeypatch):
+    """The transform loop in spans: 11 points in spans of 4, allocating and in place, against float64 maths."""
+    monkeypatch.setattr(cpu, "TRANSFORM_CHUNK", 4)
+    rng = np.random.default_rng(16)
+    T = np.eye(4)
+    T[:3, :3] = geometry.rpy_to_matrix(np.array([0.3, -0.2, 1.1]))
+    T[:3, 3] = [1.0, -2.0, 0.5]
+    pts = rng.uniform(-5, 5, (11, 3)).astype(np.float32)
+    want = pts.astype(np.float64) @ T[:3, :3].T + T[:3, 3]
+    np.testing.assert_allclose(CPU.transform_points(T, pts), want, rtol=1e-5, atol=1e-5)
+    x = pts.copy()
+    assert CPU.transform_points(T, x, out=x) is x
+    np.testing.assert_allclose(x, want, rtol=1e-5, atol=1e-5)
+
+
+# ------------------------------------------------------------------------------------------------------- maps
+def _voxel_stats(m):
+    """``{key: (count, mean, icov)}`` of every occupied voxel of a VoxelHashMap."""
+    lk = m.lookup()
+    occ = np.flatnonzero(lk.keys != -1)
+    return {int(lk.keys[s]): (int(m._count[s]), lk.mean[s].copy(), lk.icov[s].copy()) for s in occ}
+
+
+def _probe_distances(lk):
+    """Linear-probe distance of every stored key from its home slot (the documented hash)."""
+    from slamlib.maps.codes import hash_slots
+
+    occ = np.flatnonzero(lk.keys != -1)
+    home = hash_slots(lk.keys[occ], lk.log2_capacity)
+    return (occ - home) % (1 << lk.log2_capacity)
+
+
+def test_voxel_hash_prune_keeps_exactly_the_near_voxels_with_their_statistics():
+    """``prune(c, r)`` keeps the voxels whose mean is within ``r`` of ``c`` (a mean at exactly ``r`` is kept), each
+    with its count, mean, inverse covariance and sums (merging more points later equals a map built from the kept
+    points); the rebuilt table (small: keys collide and probes wrap around) finds every key, and ``max_probe`` is
+    the longest probe of the new layout. Returns the number evicted; nothing to evict changes nothing."""
+    rng = np.random.default_rng(21)
+    centres = np.array([[x, y, 0.0] for x in range(-3, 4) for y in range(-3, 4)], np.float64)[:40] + 0.5
+    pts = np.vstack([c + rng.uniform(-0.4, 0.4, (5, 3)) * [1, 1, 0.5] for c in centres])
+    pts = np.vstack([pts, [[0.0, 4.0, 0.0]]]).astype(np.float32)  # alone in its voxel: mean at distance 4.0
+    m = VoxelHashMap(voxel_size=1.0, capacity=64, max_load=0.7)
+    m.merge(pts)
+    assert m.n_dropped == 0 and len(m) == 41
+    before = _voxel_stats(m)
+    version = m.version
+    assert m.prune([0.0, 0.0, 0.0], 100.0) == 0 and m.version == version and _voxel_stats(m).keys() == before.keys()
+    means = {k: v[1].astype(np.float64) for k, v in before.items()}
+    near = {k for k, mu in means.items() if np.sum(mu**2) <= 16.0}
+    assert any(np.sum(mu**2) == 16.0 for mu in means.values()) and 0 < len(near) < 41
+    evicted = m.prune(np.array([0.0, 0.0, 0.0]), 4.0)
+    assert evicted == 41 - len(near) and len(m) == len(near) and m.version != version
+    after = _voxel_stats(m)
+    assert after.keys() == near
+    for k in near:
+        assert after[k][0] == before[k][0]
+        np.testing.assert_array_equal(after[k][1], before[k][1])
+        np.testing.assert_array_equal(after[k][2], before[k][2])
+    lk = m.lookup()
+    for s in np.flatnonzero(lk.keys != -1):
+        assert _find(lk.keys, int(lk.keys[s]), lk.log2_capacity, lk.max_probe) == s
+    assert lk.max_probe == _probe_distances(lk).max() > 0
+    # the sums travelled too: more points into the kept voxels == a fresh map of all the kept points
+    keep_pts = np.array([p for p in pts if pack_key_of(p) in near], np.float32)
+    extra = (keep_pts[:7] + 0.01).astype(np.float32)
+    fresh = VoxelHashMap(voxel_size=1.0, capacity=64, max_load=0.7)
+    fresh.merge(np.vstack([keep_pts, extra]))
+    m.merge(extra)
+    got, want = _voxel_stats(m), _voxel_stats(fresh)
+    assert got.keys() == want.keys()
+    for k in want:
+        assert got[k][0] == want[k][0]
+        np.testing.assert_allclose(got[k][1], want[k][1], atol=1e-6)
+        np.testing.assert_allclose(got[k][2], want[k][2], rtol=1e-4, atol=1e-2)
+
+
+def pack_key_of(p, h=1.0):
+    from slamlib.maps.codes import axis_indices, pack_keys
+
+    u, ok = axis_indices(np.asarray(p, np.float64)[None], 1.0 / h)
+    return int(pack_keys(u)[0])
+
+
+def _find(keys, key, log2c, max_probe):
+    """The documented lookup in plain Python (``VoxelHashLookup``)."""
+    from slamlib.maps.base import HASH_MULTIPLIER
+
+    s = ((key * HASH_MULTIPLIER) % 2**64) >> (64 - log2c)
+    for _ in range(max_probe + 1):
+        if keys[s] == key:
+            return s
+        if keys[s] == -1:
+            return -1
+        s = (s + 1) % (1 << log2c)
+    return -1
+
+
+def test_morton_prune_keeps_exactly_the_points_within_the_radius():
+    """``prune(c, r)`` keeps the points within ``r`` of ``c`` (a point at exactly ``r`` is kept), and the map is then
+    the map built from those points alone (codes, points, cells, boxes); nothing to drop changes nothing."""
+    rng = np.random.default_rng(22)
+    pts = np.vstack([rng.uniform(-6, 6, (400, 3)), [[3.0, 4.0, 3.0], [1.0, 2.0, 2.0]]]).astype(np.float32)
+    m = MortonBVHMap(radius=0.3, dedup_level=0)
+    m.merge(pts)
+    version = m.version
+    assert m.prune([1.0, 2.0, 2.0], 100.0) == 0 and m.version == version and len(m) == 402
+    c = np.array([1.0, 2.0, 2.0])
+    d2 = np.sum((pts.astype(np.float64) - c) ** 2, axis=1)
+    keep = d2 <= 9.0
+    assert keep[-2] and d2[-2] == 9.0 and 0 < keep.sum() < 402
+    assert m.prune(c, 3.0) == 402 - keep.sum() and len(m) == keep.sum() and m.version != version
+    fresh = MortonBVHMap(radius=0.3, dedup_level=0)
+    fresh.merge(pts[keep])
+    a, b = m.lookup(), fresh.lookup()
+    for name in ("codes", "points", "cell_codes", "cell_start", "cell_lo", "cell_hi"):
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
+
+
+def test_make_map_by_name():
+    from slamlib.maps import make_map
+
+    assert type(make_map()) is VoxelHashMap
+    m = make_map("morton_bvh", radius=0.5, sigma=0.2)
+    assert type(m) is MortonBVHMap and (m.radius, m.sigma) == (0.5, 0.2)
+    assert make_map("voxel_hash", voxel_size=2.0).voxel_size == 2.0
+    with pytest.raises(ValueError, match=r"^unknown map kind 'octree'; choose one of voxel_hash, morton_bvh$"):
+        make_map("octree")
+
+
+def test_fresh_code_functions_follow_the_formulas():
+    """A fresh identity build of ``make_code_functions`` (the source of every build): ``axis_index``, ``in_range``
+    at its bounds, and ``find_slot`` on a hand-made table whose probe wraps around the end."""
+    from slamlib.maps.codes import make_code_functions
+
+    f = make_code_functions()
+    for x, inv_h in ((0.0, 2.0), (-0.1, 2.0), (3.7, 2.0), (-1e5, 10.0), (0.49999, 2.0)):
+        assert f["axis_index"](x, inv_h) == np.floor(x * inv_h) + 2**20
+    assert [bool(f["in_range"](np.int64(u))) for u in (-1, 0, 2**21 - 1, 2**21)] == [False, True, True, False]
+    log2c = 4
+    keys = np.full(16, -1, np.int64)
+    # three keys with the home slot 15: stored at 15, 0, 1 (linear probing wraps around)
+    homes = [k for k in range(1, 5000) if f["hash_slot"](np.int64(k), np.int64(log2c)) == 15][:3]
+    for slot, k in zip((15, 0, 1), homes):
+        keys[slot] = k
+    for slot, k in zip((15, 0, 1), homes):
+        assert f["find_slot"](keys, np.int64(k), np.int64(log2c), np.int64(2)) == slot
+    assert f["find_slot"](keys, np.int64(homes[2]), np.int64(log2c), np.int64(1)) == -1  # beyond max_probe
+    other = next(k for k in range(5000, 10000) if f["hash_slot"](np.int64(k), np.int64(log2c)) == 15)
+    assert f["find_slot"](keys, np.int64(other), np.int64(log2c), np.int64(5)) == -1  # stops at the empty slot 2
+    full = np.arange(16, dtype=np.int64) + 100  # a full table without the key: gives up after max_probe + 1
+    assert f["find_slot"](full, np.int64(7), np.int64(log2c), np.int64(15)) == -1

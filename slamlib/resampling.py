@@ -66,6 +66,9 @@ def _check_weights(weights) -> np.ndarray:
         i = int(np.flatnonzero(w < 0)[0])
         raise ValueError(f"weights must be non-negative, got {w[i]!r} at index {i}")
     total = w.sum()
+    if not np.isfinite(total):  # finite weights near 1e308 overflow their sum: divide by the largest first
+        w = w / w.max()
+        total = w.sum()
     if not total > 0:
         raise ValueError("weights sum to zero: every particle has zero weight")
     return w / total

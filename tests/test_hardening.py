@@ -433,11 +433,9 @@ def test_slamlib_run_refuses_to_overwrite_user_files_but_replaces_its_own(cli_dr
     assert main(args + ["--out", str(out)]) == 0  # an earlier run's results are replaced without asking
 
 
-# ------------------------------------------------------------------------------------------ still open (re-run of the issue)
-# Re-running the issue's reproducers (item 3 of issue 13's hand-off) found these four still failing. Their fixes belong
-# in files outside the hardening slice (named in each reason); each is a strict xfail so the fix turns it into the test.
-@pytest.mark.xfail(strict=True, raises=NotADirectoryError,
-                   reason="slamlib/synth/drive.py write_drive: OUT/DATE a file -> NotADirectoryError from mkdir")
+# ------------------------------------------------------------------------------------------ found by the re-run of the issue
+# Re-running the issue's reproducers found these four still failing; fixed in synth/drive.py and commands/synth.py,
+# slam3d/video.py (check_video_path), slam3d/run.py (save_run) and resampling.py (_check_weights).
 def test_synth_out_whose_date_folder_is_a_file_is_one_line(tmp_path):
     from slamlib.cli import main
 
@@ -447,9 +445,6 @@ def test_synth_out_whose_date_folder_is_a_file_is_one_line(tmp_path):
     assert str(exc.value).startswith("slamlib synth: ") and SAMPLE_DATE in str(exc.value)
 
 
-@pytest.mark.xfail(strict=True, raises=FileExistsError,
-                   reason="slamlib/slam3d/video.py check_video_path does not check that the parent folder can be made; "
-                          "write_map_video's mkdir raises after the whole run")
 def test_slamlib_run_video_under_a_file_is_refused_before_the_run(cli_drive, tmp_path):
     from slamlib.cli import main
 
@@ -460,8 +455,6 @@ def test_slamlib_run_video_under_a_file_is_refused_before_the_run(cli_drive, tmp
     assert "--video" in str(exc.value) and not (tmp_path / "o").exists()
 
 
-@pytest.mark.xfail(strict=True, reason="slamlib/slam3d/run.py save_run leaves the earlier run's map.ply beside the new "
-                                       "map.pcd (issue 13 item 5: stale files of an earlier run)")
 def test_slamlib_run_again_with_another_map_format_drops_the_stale_map(cli_drive, tmp_path):
     from slamlib.cli import main
 
@@ -472,9 +465,6 @@ def test_slamlib_run_again_with_another_map_format_drops_the_stale_map(cli_drive
     assert (out / "map.pcd").is_file() and not (out / "map.ply").exists()
 
 
-@pytest.mark.xfail(strict=True, raises=(IndexError, ZeroDivisionError),
-                   reason="slamlib/resampling.py _check_weights divides by w.sum(), which overflows to inf for "
-                          "[1e308, 1e308] (divide by w.max() first); the backends' resamplers get it right")
 @pytest.mark.parametrize("name", ["systematic", "stratified", "multinomial", "residual", "ess"])
 def test_resampling_huge_finite_weights(name):
     from slamlib import resampling as rs

@@ -94,6 +94,8 @@ def _check_target(basedir: Path, date: str, drive: int) -> None:
     from slamlib.synth.writer import CALIB_FILES, MARKER, drive_dir, is_own_drive
 
     ddir = drive_dir(basedir, date, drive)
+    if (basedir / date).exists() and not (basedir / date).is_dir():
+        _fail(f"{basedir / date} exists and is not a folder; choose another --out or --date")
     if ddir.is_symlink() or (ddir.exists() and not ddir.is_dir()):
         _fail(f"{ddir} exists and is not a folder; choose another --out, --date or --drive")
     if ddir.is_dir() and not is_own_drive(ddir) and any(ddir.iterdir()):

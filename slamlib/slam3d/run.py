@@ -214,6 +214,9 @@ def save_run(run: SLAMRun, out_dir, map_format: str = "ply", plots: bool = True,
       entry when there were any; :mod:`slamlib.slam3d.pipeline`) and, with ground truth, :func:`evaluate` (ATE,
       RPE, KITTI metric). Always valid JSON: a non-finite number is written ``null`` (:func:`slamlib.metrics.json_safe`);
     * ``trajectory.png`` (with and without SLAM vs ground truth) and ``map_topdown.png`` (coloured by height).
+
+    When ``out_dir`` holds an earlier run's results, its files of :data:`RUN_FILES` that this run does not write
+    (another map format, plots, dead reckoning) are removed, so that no stale result stands beside the new ones.
     """
     import json
     from pathlib import Path
@@ -222,6 +225,7 @@ def save_run(run: SLAMRun, out_dir, map_format: str = "ply", plots: bool = True,
     from slamlib.metrics import json_safe
 
     out = Path(out_dir)
+    earlier = out.is_dir() and _is_earlier_run(out)  # then its result files not rewritten now are stale: removed
     out.mkdir(parents=True, exist_ok=True)
     files = {}
     trajs = {"slam": run.poses}
@@ -283,4 +287,9 @@ def save_run(run: SLAMRun, out_dir, map_format: str = "ply", plots: bool = True,
         files["map_plot"] = out / "map_topdown.png"
         fig.savefig(files["map_plot"], dpi=120, bbox_inches="tight")
         plt.close(fig)
+    if earlier:  # e.g. an earlier map.ply beside this run's map.pcd, or dead-reckoning files beside a LIDAR-only run
+        written = {Path(p).name for p in files.values()}
+        for name in RUN_FILES:
+            if name not in written and (out / name).is_file():
+                (out / name).unlink()
     return files

@@ -33,6 +33,11 @@ def check_video_path(path, overwrite: bool = True) -> str:
         raise ValueError(f"cannot write a video to {str(path)!r}: it is a folder")
     if not overwrite and Path(path).exists():
         raise ValueError(f"{str(path)!r} exists; give --overwrite to replace it, or another name")
+    parent = Path(path).parent
+    while not parent.exists():  # the folders the writer will make: the nearest existing one must be a folder
+        parent = parent.parent
+    if not parent.is_dir():
+        raise ValueError(f"cannot write a video to {str(path)!r}: {str(parent)!r} is a file, not a folder")
     try:
         if ext == ".mp4":
             import imageio_ffmpeg

@@ -123,7 +123,11 @@ def _streams(seed: int):
 
 
 def _check_own_folder(folder: Path, what: str) -> None:
-    """FileExistsError, before anything is written, unless ``folder`` is absent, empty or the generator's own."""
+    """FileExistsError, before anything is written, unless ``folder`` is absent, empty or the generator's own
+    (and every existing folder above it is a folder)."""
+    for above in folder.parents:
+        if above.exists() and not above.is_dir():
+            raise FileExistsError(f"{above} exists and is not a folder; choose another {what}")
     if folder.is_symlink() or (folder.exists() and not folder.is_dir()):
         raise FileExistsError(f"{folder} exists and is not a folder; choose another {what}")
     if folder.is_dir() and not is_own_drive(folder) and any(folder.iterdir()):

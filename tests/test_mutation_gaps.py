@@ -173,23 +173,33 @@ def _probe_distances(lk):
 def test_voxel_hash_prune_keeps_exactly_the_near_voxels_with_their_statistics():
     """``prune(c, r)`` keeps the voxels whose mean is within ``r`` of ``c`` (a mean at exactly ``r`` is kept), each
     with its count, mean, inverse covariance and sums (merging more points later equals a map built from the kept
-    points); the rebuilt table (small: keys collide and probes wrap around) finds every key, and ``max_probe`` is
-    the longest probe of the new layout. Returns the number evicted; nothing to evict changes nothing."""
+    points); the rebuilt table (small: keys collide and probes wrap around the end) finds every key, ``max_probe``
+    is the longest probe of the new layout, the buffers keep their dtypes and ``n_dropped`` is unchanged. Returns the
+    number evicted; nothing to evict changes nothing; ``center`` may be any shape of 3 values."""
+    from slamlib.maps.codes import hash_slots, pack_keys
+
     rng = np.random.default_rng(21)
     centres = np.array([[x, y, 0.0] for x in range(-3, 4) for y in range(-3, 4)], np.float64)[:40] + 0.5
+    # three more near voxels whose home slots are the last ones (62, 63; found by search): reinserted after the
+    # grid's keys, one of them wraps around the end of the table
+    last = np.array([[-1, 0, 1], [0, 1, 2], [1, 2, -3]])
+    assert hash_slots(pack_keys(last + 2**20), 6).tolist() == [63, 62, 63]
+    centres = np.vstack([centres, last + [0.5, 0.5, 0.5]])
     pts = np.vstack([c + rng.uniform(-0.4, 0.4, (5, 3)) * [1, 1, 0.5] for c in centres])
-    pts = np.vstack([pts, [[0.0, 4.0, 0.0]]]).astype(np.float32)  # alone in its voxel: mean at distance 4.0
+    c0 = np.array([0.5, 0.5, 0.0])
+    pts = np.vstack([pts, [c0 + [0.0, 4.0, 0.0]]]).astype(np.float32)  # alone in its voxel: mean at distance 4.0
     m = VoxelHashMap(voxel_size=1.0, capacity=64, max_load=0.7)
     m.merge(pts)
-    assert m.n_dropped == 0 and len(m) == 41
+    assert m.n_dropped == 0 and len(m) == 44
     before = _voxel_stats(m)
     version = m.version
-    assert m.prune([0.0, 0.0, 0.0], 100.0) == 0 and m.version == version and _voxel_stats(m).keys() == before.keys()
+    assert m.prune(c0, 100.0) == 0 and m.version == version and _voxel_stats(m).keys() == before.keys()
     means = {k: v[1].astype(np.float64) for k, v in before.items()}
-    near = {k for k, mu in means.items() if np.sum(mu**2) <= 16.0}
-    assert any(np.sum(mu**2) == 16.0 for mu in means.values()) and 0 < len(near) < 41
-    evicted = m.prune(np.array([0.0, 0.0, 0.0]), 4.0)
-    assert evicted == 41 - len(near) and len(m) == len(near) and m.version != version
+    near = {k for k, mu in means.items() if np.sum((mu - c0) ** 2) <= 16.0}
+    assert any(np.sum((mu - c0) ** 2) == 16.0 for mu in means.values()) and 0 < len(near) < 44
+    assert {pack_key_of(p) for p in last + 0.5} <= near
+    evicted = m.prune(c0.reshape(3, 1), 4.0)  # a column is fine too
+    assert evicted == 44 - len(near) and len(m) == len(near) and m.version != version and m.n_dropped == 0
     after = _voxel_stats(m)
     assert after.keys() == near
     for k in near:
@@ -197,9 +207,13 @@ def test_voxel_hash_prune_keeps_exactly_the_near_voxels_with_their_statistics():
         np.testing.assert_array_equal(after[k][1], before[k][1])
         np.testing.assert_array_equal(after[k][2], before[k][2])
     lk = m.lookup()
+    assert (lk.keys.dtype, lk.mean.dtype, lk.icov.dtype, m.counts().dtype) == (np.int64, np.float32, np.float32,
+                                                                               np.int64)
     for s in np.flatnonzero(lk.keys != -1):
         assert _find(lk.keys, int(lk.keys[s]), lk.log2_capacity, lk.max_probe) == s
     assert lk.max_probe == _probe_distances(lk).max() > 0
+    occ = np.flatnonzero(lk.keys != -1)
+    assert np.any(hash_slots(lk.keys[occ], 6) > occ)  # a probe wrapped around the end
     # the sums travelled too: more points into the kept voxels == a fresh map of all the kept points
     keep_pts = np.array([p for p in pts if pack_key_of(p) in near], np.float32)
     extra = (keep_pts[:7] + 0.01).astype(np.float32)
@@ -212,6 +226,9 @@ def test_voxel_hash_prune_keeps_exactly_the_near_voxels_with_their_statistics():
         assert got[k][0] == want[k][0]
         np.testing.assert_allclose(got[k][1], want[k][1], atol=1e-6)
         np.testing.assert_allclose(got[k][2], want[k][2], rtol=1e-4, atol=1e-2)
+    # down to one voxel: no probe at all
+    assert m.prune(c0 + [0.0, 4.0, 0.0], 0.1) == len(near) - 1 and len(m) == 1
+    assert m.max_probe == 0 and m.lookup().max_probe == 0
 
 
 def pack_key_of(p, h=1.0):
@@ -248,7 +265,7 @@ def test_morton_prune_keeps_exactly_the_points_within_the_radius():
     d2 = np.sum((pts.astype(np.float64) - c) ** 2, axis=1)
     keep = d2 <= 9.0
     assert keep[-2] and d2[-2] == 9.0 and 0 < keep.sum() < 402
-    assert m.prune(c, 3.0) == 402 - keep.sum() and len(m) == keep.sum() and m.version != version
+    assert m.prune(c.reshape(3, 1), 3.0) == 402 - keep.sum() and len(m) == keep.sum() and m.version != version
     fresh = MortonBVHMap(radius=0.3, dedup_level=0)
     fresh.merge(pts[keep])
     a, b = m.lookup(), fresh.lookup()
@@ -289,3 +306,80 @@ def test_fresh_code_functions_follow_the_formulas():
     assert f["find_slot"](keys, np.int64(other), np.int64(log2c), np.int64(5)) == -1  # stops at the empty slot 2
     full = np.arange(16, dtype=np.int64) + 100  # a full table without the key: gives up after max_probe + 1
     assert f["find_slot"](full, np.int64(7), np.int64(log2c), np.int64(15)) == -1
+    assert f["part1by2"](np.int64(0b1011)) == 0b1000001001 and f["part1by2"](np.int64(2**21)) == 0  # masked to 21 bits
+
+
+def test_pack_keys_of_unsigned_or_narrow_indices():
+    """``pack_keys`` converts its indices to int64 first: uint64 or int32 input gives the same keys."""
+    from slamlib.maps.codes import pack_keys
+
+    u = np.array([[5, 2**20, 2**21 - 1], [0, 1, 2]])
+    want = u[:, 0] | u[:, 1] << 21 | u[:, 2] << 42
+    for dtype in (np.int64, np.uint64, np.uint32):
+        got = pack_keys(u.astype(dtype))
+        assert got.dtype == np.int64 and got.tolist() == want.tolist()
+
+
+def test_morton_map_of_one_point_and_pruned_to_nothing():
+    """One point: one cell, ``cell_start = [0, 1]``, its box the point. Pruned to nothing: the empty layout (shapes
+    (0,), (1,) = [0], (0, 3)) and every query costs ``-0.5 r^2 / sigma^2``."""
+    m = MortonBVHMap(radius=0.5, sigma=0.25)
+    p = np.array([[1.0, -2.0, 0.5]], np.float32)
+    m.merge(p)
+    lk = m.lookup()
+    assert lk.codes.shape == (1,) and lk.cell_codes.shape == (1,) and lk.cell_start.tolist() == [0, 1]
+    assert lk.cell_codes[0] == lk.codes[0] >> (3 * lk.cell_level)
+    np.testing.assert_array_equal(lk.cell_lo, p)
+    np.testing.assert_array_equal(lk.cell_hi, p)
+    q = np.array([[1.1, -2.0, 0.5], [3.0, 3.0, 3.0]], np.float32)
+    I, z = np.eye(3)[None], np.zeros((1, 3))
+    floor = -0.5 * 0.5**2 / 0.25**2
+    for backend in (REF, CPU):
+        np.testing.assert_allclose(backend.score_particles(I, z, q[:1], lk), -0.5 * 0.1**2 / 0.25**2, rtol=1e-5)
+    assert m.prune([0.0, 0.0, 0.0], 1.0) == 1 and len(m) == 0
+    lk = m.lookup()
+    assert lk.codes.shape == (0,) and lk.points.shape == (0, 3)
+    assert lk.cell_codes.shape == (0,) and lk.cell_codes.dtype == np.int64
+    assert lk.cell_start.tolist() == [0] and lk.cell_start.dtype == np.int64
+    assert lk.cell_lo.shape == lk.cell_hi.shape == (0, 3) and lk.cell_lo.dtype == lk.cell_hi.dtype == np.float32
+    for backend in (REF, CPU):
+        np.testing.assert_allclose(backend.score_particles(I, z, q, lk), 2 * floor)
+
+
+def test_morton_parameters_defaults_and_limits():
+    m = MortonBVHMap()
+    assert (m.radius, m.sigma, m.quantum, m.dedup_level, m.max_points) == (0.3, 0.1, 0.01, 3, 4_000_000)
+    msg = r"^radius, sigma, quantum, max_points must be > 0 and 0 <= dedup_level <= 20$"
+    for bad in ({"radius": 0.0}, {"sigma": 0.0}, {"quantum": 0.0}, {"max_points": 0}, {"dedup_level": -1},
+                {"dedup_level": 21}, {"radius": -1.0, "sigma": 1.0}):
+        with pytest.raises(ValueError, match=msg):
+            MortonBVHMap(**bad)
+    for ok in ({"dedup_level": 0}, {"dedup_level": 20}, {"max_points": 1}):
+        MortonBVHMap(**ok)
+    assert MortonBVHMap(radius=0.004, quantum=0.01).cell_level == 0  # 2 r < quantum: cells of one quantum
+    assert MortonBVHMap(radius=0.01 * 2**19, quantum=0.01).cell_level == 20
+    with pytest.raises(ValueError, match="radius too large for quantum"):
+        MortonBVHMap(radius=0.01 * 2**19 * 1.01, quantum=0.01)
+
+
+def test_morton_merge_counts_drops_and_dedups_against_the_map():
+    """Dropped points add up over merges (non-finite ones, and those beyond ``max_points``); merging the same
+    points again adds nothing (each, including the one with the highest code, is already there); points stay
+    float32; a bad shape names ``points_world``."""
+    rng = np.random.default_rng(23)
+    m = MortonBVHMap(max_points=10, dedup_level=0)
+    a = rng.uniform(-2, 2, (6, 3)).astype(np.float32)
+    m.merge(np.vstack([a, [[np.nan, 0, 0]]]))
+    assert len(m) == 6 and m.n_dropped == 1
+    m.merge(a)  # all already there
+    assert len(m) == 6 and m.n_dropped == 1
+    m.merge(rng.uniform(-2, 2, (6, 3)).astype(np.float32))
+    assert len(m) == 10 and m.n_dropped == 3
+    m.merge(np.array([[np.inf, 0, 0]], np.float32))
+    assert m.n_dropped == 4
+    assert m.lookup().points.dtype == np.float32
+    with pytest.raises(ValueError, match=r"^points_world must have shape \(N, 3\)"):
+        m.merge(np.zeros((3, 2)))
+    v = VoxelHashMap()
+    with pytest.raises(ValueError, match=r"^points_world must have shape \(N, 3\)"):
+        v.merge(np.zeros(3))

@@ -18,8 +18,6 @@ the full run adds the whole ~690 m route.
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 
 HELP = "KISS-ICP (LIDAR-only ICP odometry) beside slamlib's particle SLAM on the same drive: time per frame, ATE"
@@ -28,26 +26,12 @@ INSTALL_HINT = "slamlib bench peers needs KISS-ICP: pip install kiss-icp (or pip
 
 
 def _kiss_icp(drive) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Run KISS-ICP over ``drive``; return body poses ``(F, 4, 4)``, per-frame registration seconds ``(F,)`` and
-    points per scan ``(F,)``."""
-    from kiss_icp.config import load_config
-    from kiss_icp.kiss_icp import KissICP
+    """KISS-ICP over ``drive`` (:func:`slamlib.peers.kiss_icp_poses`, de-skewing off: the synthetic scans are cast
+    from one pose); body poses ``(F, 4, 4)``, per-frame registration seconds ``(F,)`` and points per scan ``(F,)``."""
+    from slamlib.peers import kiss_icp_poses
 
-    config = load_config(None)
-    config.data.deskew = False
-    odometry = KissICP(config)
-    T_velo_imu = drive.T_velo_imu
-    T_imu_velo = np.linalg.inv(T_velo_imu)
-    poses, seconds, n_points = [], [], []
-    no_times = np.zeros(0)
-    for frame in drive:
-        points = np.asarray(frame.scan[:, :3], dtype=np.float64)
-        n_points.append(len(points))
-        t0 = time.perf_counter()
-        odometry.register_frame(points, no_times)
-        seconds.append(time.perf_counter() - t0)
-        poses.append(T_imu_velo @ odometry.last_pose @ T_velo_imu)
-    return np.asarray(poses), np.asarray(seconds), np.asarray(n_points)
+    poses, seconds = kiss_icp_poses(drive, drive.T_velo_imu, deskew=False)
+    return poses, seconds, np.asarray([len(frame.scan) for frame in drive])
 
 
 def _compare(drive) -> dict:

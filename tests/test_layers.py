@@ -11,7 +11,7 @@ ROOT = Path(slamlib.__file__).parent
 LAYERS = {
     "cli": 5, "commands": 5,
     "slam3d": 3, "synth": 3, "noise_quality": 3,
-    "kernels": 2, "kitti": 2, "sim1d": 2, "sim2d": 2, "metrics": 2, "odometry": 2,
+    "kernels": 2, "kitti": 2, "sim1d": 2, "sim2d": 2, "metrics": 2, "odometry": 2, "peers": 2,
     "maps": 1, "noise": 1, "geometry": 1, "resampling": 1, "contract": 1, "errors": 1,
     "paths": 1, "data": 1, "plotstyle": 1, "__init__": 6, "__main__": 6,
 }

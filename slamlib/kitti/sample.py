@@ -20,7 +20,15 @@ from slamlib.kitti.timestamps import read_timestamps_ns, write_timestamps_ns
 from slamlib.kitti.velodyne import read_velodyne_scan, write_velodyne_scan
 from slamlib.paths import kitti_sample_dir
 
-__all__ = ["SAMPLE_DATE", "SAMPLE_DRIVE", "sample_raw_paths", "make_tiny_drive"]
+__all__ = ["SAMPLE_DATE", "SAMPLE_DRIVE", "sample_raw_paths", "make_tiny_drive", "REAL_SCANS", "real_scan_path",
+           "real_scan_frames", "NOMINAL_SCAN_PERIOD"]
+
+#: How many consecutive real Velodyne scans the package ships (``velodyne_sample/``: frames 0 and 9 as ``.bin``,
+#: 1-8 xz-compressed as ``.bin.xz``, ~0.64 MB each instead of 1.8 MB).
+REAL_SCANS = 10
+#: The HDL-64E's scan period measured on the real drive 0001 (median ``timestamps_end - timestamps_start``, s):
+#: the sample scans come without their timestamps, so they are given this nominal spacing.
+NOMINAL_SCAN_PERIOD = 0.10315
 
 SAMPLE_DATE = "2011_09_26"
 SAMPLE_DRIVE = "0001"
@@ -89,3 +97,25 @@ def make_tiny_drive(basedir: str | os.PathLike, n_frames: int = 5, point_stride:
     return drive_dir
 
 
+
+
+def real_scan_path(k: int) -> Path:
+    """The shipped real scan ``k`` (0..9): ``velodyne_sample/NNNNNNNNNN.bin`` or ``.bin.xz``."""
+    if not 0 <= int(k) < REAL_SCANS:
+        raise ValueError(f"the package ships real scans 0..{REAL_SCANS - 1}, asked for {k}")
+    base = kitti_sample_dir() / "velodyne_sample" / f"{int(k):010d}.bin"
+    return base if base.is_file() else base.with_name(base.name + ".xz")
+
+
+def real_scan_frames(frames=range(REAL_SCANS), period: float = NOMINAL_SCAN_PERIOD) -> list:
+    """The shipped real scans as LIDAR-only frames (:class:`slamlib.kitti.OdometryFrame`, no IMU, no ground
+    truth), ``period`` seconds apart (nominal: their timestamps are not shipped). For ``slamlib.slam3d.run_drive``.
+    """
+    from slamlib.kitti.sequence import OdometryFrame
+
+    out = []
+    for pos, k in enumerate(frames):
+        out.append(OdometryFrame(index=int(k), time_s=float(k) * period, dt=0.0 if pos == 0 else
+                                 float(k - frames[pos - 1]) * period, scan=read_velodyne_scan(real_scan_path(k)),
+                                 T_w_body=None, velodyne_path=real_scan_path(k)))
+    return out

@@ -20,7 +20,8 @@ POINT_BYTES = 16
 
 
 def read_velodyne_scan(path: str | os.PathLike) -> np.ndarray:
-    """Read a ``.bin`` scan into ``(N, 4)`` float32 ``x, y, z, reflectance`` (Velodyne frame, metres).
+    """Read a ``.bin`` scan into ``(N, 4)`` float32 ``x, y, z, reflectance`` (Velodyne frame, metres); a name
+    ending in ``.xz`` is an xz-compressed ``.bin`` (read with the standard library's :mod:`lzma`).
 
     Raises
     ------
@@ -31,12 +32,22 @@ def read_velodyne_scan(path: str | os.PathLike) -> np.ndarray:
     path = os.fspath(path)
     if not os.path.isfile(path):
         raise DataFormatError(path, "Velodyne scan file not found")
-    size = os.path.getsize(path)
+    if path.endswith(".xz"):  # an xz-compressed .bin (the package's real sample scans): the same bytes inside
+        import lzma
+
+        try:
+            with lzma.open(path) as f:
+                raw = f.read()
+        except (lzma.LZMAError, EOFError) as exc:
+            raise DataFormatError(path, f"not a readable xz file: {exc}") from None
+        size = len(raw)
+    else:
+        size = os.path.getsize(path)
     if size % POINT_BYTES:
         raise DataFormatError(
             path, f"Velodyne scan has {size} bytes, not a multiple of {POINT_BYTES} (4 float32 per point)"
         )
-    scan = np.fromfile(path, dtype="<f4").reshape(-1, 4)
+    scan = (np.frombuffer(raw, dtype="<f4") if path.endswith(".xz") else np.fromfile(path, dtype="<f4")).reshape(-1, 4)
     finite = np.isfinite(scan).all(axis=1)
     if not finite.all():
         bad = np.flatnonzero(~finite)

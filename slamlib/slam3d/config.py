@@ -225,6 +225,9 @@ class FilterConfig:
         Annealing rounds per frame (coarse to fine); 0 = plain particle filter.
     refine_shrink : float
         Noise scale factor per annealing round.
+    lidar_only_ground_share : float
+        LIDAR-only: the share of road points in step 8's sample (the rest stands above the road;
+        :func:`slamlib.slam3d.preprocess.thin_ground`). 1 keeps the scan's own mix.
     """
 
     particles: int = 300
@@ -234,6 +237,7 @@ class FilterConfig:
     estimate: str = "best"
     refine: int = 0
     refine_shrink: float = 0.4
+    lidar_only_ground_share: float = 0.1
 
     def __post_init__(self):
         if int(self.particles) < 1 or int(self.scored_points) < 1:
@@ -252,6 +256,8 @@ class FilterConfig:
         if int(self.refine) < 0 or not 0 < self.refine_shrink <= 1:
             raise ValueError(f"need refine >= 0 and 0 < refine_shrink <= 1, got {self.refine}, {self.refine_shrink}")
         _integer("refine", self.refine, 0, MAX_REFINE)
+        if not 0 <= _finite("lidar_only_ground_share", self.lidar_only_ground_share) <= 1:
+            raise ValueError(f"lidar_only_ground_share must be in [0, 1], got {self.lidar_only_ground_share}")
 
 
 _GROUPS = {"scan": ScanConfig, "motion": MotionConfig, "map": MapConfig, "filter": FilterConfig}

@@ -18,8 +18,9 @@ held over the next ``dt`` -- the constant-velocity model of LIDAR odometry (KISS
 the accelerations that model cannot know (:class:`slamlib.slam3d.config.MotionConfig`). At the second frame no
 motion is known yet (the vehicle may already drive at 15 m/s): step 6 spreads the particles by the speeds a car
 may have (``cv_start_speed``) and ``cv_start_rounds`` annealing rounds, each halving the spread, find the motion
-(coarse to fine, below), scoring only the points above the road (:func:`above_ground`: the road's rings in a
-one-scan map would pull the search to zero motion). There is then no dead-reckoning twin (``dead_reckoning`` is None).
+(coarse to fine, below). LIDAR-only, step 8 scores mostly what stands above the road
+(:func:`slamlib.slam3d.preprocess.thin_ground`, ``FilterConfig.lidar_only_ground_share``): the road's rings in the
+map would pull the estimate toward zero motion, a pull the IMU outweighs but the constant-velocity model does not. There is then no dead-reckoning twin (``dead_reckoning`` is None).
 
 Likelihood tempering
 --------------------
@@ -58,38 +59,14 @@ from slamlib.odometry import increment_matrix, twist_between
 from slamlib.resampling import normalise_log_weights
 from slamlib.slam3d import steps
 from slamlib.slam3d.config import SLAM3DConfig
-from slamlib.slam3d.preprocess import sample_points
+from slamlib.slam3d.preprocess import sample_points, thin_ground
 
-__all__ = ["ParticleSLAM3D", "MIN_SCAN_POINTS", "above_ground"]
+__all__ = ["ParticleSLAM3D", "MIN_SCAN_POINTS"]
 
 #: Fewest body-frame points (after step 2's crop and down-sampling) a frame needs to be scored and merged; below it
 #: the frame is skipped for scoring (module docstring, "Degenerate frames"). 10 points: far fewer than any real
 #: LIDAR scan (~100k points, ~20k after down-sampling), yet enough that one frame's score is not a single return.
 MIN_SCAN_POINTS = 10
-
-
-#: Height above the lowest points of a scan (its 5th percentile of z, body frame) below which a point counts as
-#: ground for :func:`above_ground`: 0.3 m clears the road's own relief and the scatter of its returns.
-GROUND_BAND_M = 0.3
-#: The percentile of the scan's heights taken as the road surface (robust to a few returns from below it).
-GROUND_PERCENTILE = 5.0
-
-
-def above_ground(points) -> np.ndarray:
-    """The points of a body-frame scan ``(N, 3)`` more than :data:`GROUND_BAND_M` above its road surface (the
-    :data:`GROUND_PERCENTILE` of z); all of them if fewer than :data:`MIN_SCAN_POINTS` would remain.
-
-    Why: the road's returns lie on the LIDAR's rings, circles around the sensor. A map built from one scan holds
-    those rings, and a scan taken from nearly the same place matches them best with *no* motion: the "ring
-    artifact" that pulls a registration toward zero motion. LIDAR-only, the first motion is found without the
-    road (:mod:`slamlib.slam3d.pipeline`, "LIDAR-only"); later frames score every point, the map's road being
-    blurred by many scans by then.
-    """
-    pts = np.asarray(points)
-    if len(pts) < MIN_SCAN_POINTS:
-        return pts
-    keep = pts[pts[:, 2] > np.percentile(pts[:, 2], GROUND_PERCENTILE) + GROUND_BAND_M]
-    return keep if len(keep) >= MIN_SCAN_POINTS else pts
 
 
 class ParticleSLAM3D:
@@ -166,7 +143,8 @@ class ParticleSLAM3D:
         moved = steps.perturb_with_noise(moved, sigma, self.rng, backend=be)                       # 6
         if len(points) < MIN_SCAN_POINTS or len(self.map) == 0:  # degenerate frame: no scoring, no merge
             return self._skip(moved, imu, increment, points, dt, sigma)
-        sample = sample_points(above_ground(points) if start else points, cfg.filter.scored_points, self.rng)
+        pool = thin_ground(points, cfg.filter.lidar_only_ground_share, self.rng) if self.lidar_only else points
+        sample = sample_points(pool, cfg.filter.scored_points, self.rng)
         log_w = self._weigh(moved, self.log_weights, sample)                                       # 7 + 8
         moved, log_w = self._anneal(moved, log_w, sample, sigma, start)  # cfg.filter.refine rounds (none by default)
         pose, best = steps.pick_best_particle(moved, log_w, cfg.filter.estimate)                   # 9

@@ -211,3 +211,21 @@ def test_cli_odometry_options_go_together(odo, tmp_path):
     r = _run("--odometry-dir", str(odo), "--sequence", "7", "--basedir", str(odo), "--date", "x", "--drive", "1",
              "--out", str(tmp_path / "o"))
     assert r.returncode == 1 and "not both" in r.stderr
+
+
+def test_synth_command_writes_the_odometry_layout(tmp_path):
+    from slamlib.cli import main
+
+    assert main(["synth", "--out", str(tmp_path), "--layout", "odometry", "--route", "07", "--frames", "0:6",
+                 "--columns", "300", "--no-progress"]) == 0
+    seq = KittiOdometrySequence(tmp_path, 7)
+    assert len(seq) == 6 and seq.ground_truth.shape == (6, 4, 4)
+    with pytest.raises(SystemExit, match="--no-scans does not go with --layout odometry"):
+        main(["synth", "--out", str(tmp_path), "--layout", "odometry", "--no-scans"])
+    with pytest.raises(SystemExit, match="--sequence goes with --layout odometry"):
+        main(["synth", "--out", str(tmp_path), "--sequence", "3"])
+    (tmp_path / "sequences" / "02").mkdir()
+    (tmp_path / "sequences" / "02" / "mine.txt").write_text("x")
+    with pytest.raises(SystemExit, match="not a slamlib synthetic drive"):
+        main(["synth", "--out", str(tmp_path), "--layout", "odometry", "--route", "loop", "--frames", "3",
+              "--sequence", "2", "--no-progress"])

@@ -6,6 +6,7 @@ Examples::
     slamlib synth --out data/synth --route 00 --frames 1000:1600 --drive 2 --seed 4
     slamlib synth --out data/synth --route loop --frames 200 --imu-noise 0      # exact IMU fields
     slamlib synth --out data/synth --no-scans                        # OXTS + timestamps only (seconds)
+    slamlib synth --out data/odometry --layout odometry --route 07 --frames 0:    # odometry layout, sequence 07
 
 The drive goes to ``OUT/DATE/DATE_drive_NNNN_sync`` beside the real 2011_09_26 calibration files (copied into
 ``OUT/DATE``) and reads unmodified with ``pykitti.raw(OUT, DATE, "NNNN")`` or ``slamlib run --basedir OUT
@@ -48,6 +49,12 @@ def add_arguments(parser) -> None:
                              "small test drives)")
     parser.add_argument("--imu-noise", type=float, default=1.0, metavar="SCALE",
                         help="multiply every IMU noise, bias and scale error by SCALE (default 1; 0 = exact fields)")
+    parser.add_argument("--layout", choices=("raw", "odometry"), default="raw",
+                        help="raw: a KITTI raw drive (OXTS + scans; default); odometry: a KITTI odometry sequence "
+                             "OUT/sequences/NN (scans, calib.txt, times.txt) with ground truth OUT/poses/NN.txt and no "
+                             "IMU, for slamlib run --odometry-dir OUT --sequence NN (LIDAR-only)")
+    parser.add_argument("--sequence", type=int, default=None, metavar="NN",
+                        help="with --layout odometry: the sequence number 0..99 (default: the route's, e.g. 07, or 0)")
     parser.add_argument("--no-scans", action="store_true",
                         help="write OXTS packets and timestamps only (no Velodyne scans; slamlib run needs scans)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -155,6 +162,10 @@ def main(args) -> int:
     basedir = args.out
     if basedir.exists() and not basedir.is_dir():
         _fail(f"--out {basedir} exists and is not a folder")
+    if args.layout == "odometry":
+        return _write_sequence(args, basedir, frames, n)
+    if args.sequence is not None:
+        _fail("--sequence goes with --layout odometry")
     _check_target(basedir, args.date, args.drive)
 
     frames_text = (f"key frames {frames[0]}:{'' if frames[1] is None else frames[1]}" if args.route in KITTI_ROUTES
@@ -177,4 +188,30 @@ def main(args) -> int:
               "scans)")
     else:
         print(f"  slamlib run --basedir {basedir} --date {args.date} --drive {drive}")
+    return 0
+
+
+def _write_sequence(args, basedir: Path, frames, n: int) -> int:
+    """``--layout odometry``: :func:`slamlib.synth.write_sequence` (no IMU: --imu-noise and --no-scans do not apply)."""
+    import time
+
+    from slamlib.synth import Hdl64, write_sequence
+
+    if args.no_scans:
+        _fail("--no-scans does not go with --layout odometry: an odometry sequence is its scans")
+    sequence = args.sequence if args.sequence is not None else (int(args.route) if args.route in KITTI_ROUTES else 0)
+    if not 0 <= sequence <= 99:
+        _fail(f"--sequence must be in 0..99, got {sequence}")
+    print(f"slamlib synth: route {args.route} -> {n} frames, seed {args.seed}, {args.columns} LIDAR columns, "
+          f"KITTI odometry layout, sequence {sequence:02d}")
+    t0 = time.perf_counter()
+    try:
+        write_sequence(basedir, args.route, sequence, frames=frames, seed=args.seed, lidar=Hdl64(columns=args.columns),
+                       progress=not args.no_progress)
+    except FileExistsError as exc:
+        _fail(f"{exc}")
+    print(f"wrote {n} frames in {time.perf_counter() - t0:.1f} s to {basedir / 'sequences' / f'{sequence:02d}'}")
+    print("read it with:")
+    print(f"  pykitti.odometry({str(basedir)!r}, {f'{sequence:02d}'!r})")
+    print(f"  slamlib run --odometry-dir {basedir} --sequence {sequence:02d}")
     return 0

@@ -383,3 +383,77 @@ def test_morton_merge_counts_drops_and_dedups_against_the_map():
     v = VoxelHashMap()
     with pytest.raises(ValueError, match=r"^points_world must have shape \(N, 3\)"):
         v.merge(np.zeros(3))
+
+
+@pytest.mark.parametrize("kind", [VoxelHashMap, MortonBVHMap])
+def test_lookup_carries_the_map_version(kind):
+    """The lookup's ``version`` is the map's stamp (the CUDA backend re-uses its device copy while it is equal):
+    non-zero, new after each merge."""
+    m = kind()
+    v0 = m.lookup().version
+    assert v0 == m.version != 0
+    m.merge(np.ones((2, 3), np.float32))
+    assert m.lookup().version == m.version not in (0, v0)
+
+
+def test_voxel_hash_merge_drops_out_of_range_points_and_counts_them():
+    """Non-finite points and points outside the +-2**20-voxel range on any one axis are dropped and counted (over
+    merges); points far out but in range (1000 voxels up) are merged; with a tiny voxel the overflow guard drops a
+    point whose index would not fit in int64. Slots that no point reached keep their zeros (no statistics
+    refreshed from an empty slot)."""
+    m = VoxelHashMap(voxel_size=1.0, capacity=2**10)
+    out = 1.5 * 2**20  # index + 2**20 beyond 21 bits
+    bad = np.array([[np.nan, 0, 0], [0, np.inf, 0], [out, 0, 0], [0, -out, 0], [0, 0, out]], np.float32)
+    m.merge(bad)
+    assert len(m) == 0 and m.n_dropped == 5
+    lk = m.lookup()
+    assert not lk.mean.any() and not lk.icov.any()
+    good = np.array([[0.5, 0.5, 1000.5], [1000.5, 0.5, 0.5], [0.5, -1000.5, 0.5], [0.2, 0.3, 0.4]], np.float32)
+    m.merge(np.vstack([bad[:2], good]))
+    assert len(m) == 4 and m.n_dropped == 7
+    np.testing.assert_allclose(np.sort(m.points(), axis=0), np.sort(good, axis=0))
+    lk = m.lookup()
+    empty = lk.keys == -1
+    assert not lk.mean[empty].any() and not lk.icov[empty].any() and np.isfinite(lk.icov).all()
+    tiny = VoxelHashMap(voxel_size=1e-10, capacity=2**4)
+    tiny.merge(np.array([[1e9, 0, 0], [0, 0, -1e9], [0, 0, 0]], np.float32))
+    assert len(tiny) == 1 and tiny.n_dropped == 2
+
+
+def test_voxel_hash_max_probe_is_the_longest_probe():
+    """``max_probe`` is the longest linear-probe distance of any stored key: 0 for one voxel, and exactly the
+    layout's longest after many colliding inserts (lookups give up after ``max_probe + 1`` slots)."""
+    m = VoxelHashMap(voxel_size=1.0, capacity=16)
+    m.merge(np.array([[0.5, 0.5, 0.5], [0.6, 0.5, 0.5]], np.float32))
+    assert m.max_probe == 0 == m.lookup().max_probe
+    rng = np.random.default_rng(24)
+    m = VoxelHashMap(voxel_size=1.0, capacity=64, max_load=0.7)
+    m.merge(rng.uniform(-4, 4, (300, 3)).astype(np.float32))
+    lk = m.lookup()
+    assert len(m) == 44 and lk.max_probe == _probe_distances(lk).max() >= 2
+
+
+def test_voxel_hash_parameters_defaults_and_limits():
+    m = VoxelHashMap()
+    assert (m.voxel_size, m.capacity, m.max_load, m.min_sigma, m.m_max) == (0.5, 2**18, 0.75, 0.05, 16.0)
+    assert m.max_voxels == int(0.75 * 2**18) and m.log2_capacity == 18
+    for cap in (8, 24, 15, 2**10 + 2):
+        with pytest.raises(ValueError, match=rf"^capacity must be a power of two >= 16, got {cap}$"):
+            VoxelHashMap(capacity=cap)
+    assert VoxelHashMap(capacity=16).capacity == 16
+    msg = r"^voxel_size, min_sigma, m_max must be > 0 and 0 < max_load < 1$"
+    for bad in ({"voxel_size": 0.0}, {"max_load": 0.0}, {"max_load": 1.0}, {"max_load": 1.5}, {"min_sigma": 0.0},
+                {"m_max": 0.0}):
+        with pytest.raises(ValueError, match=msg):
+            VoxelHashMap(capacity=16, **bad)
+
+
+def test_as_points_names_the_argument_and_converts():
+    from slamlib.maps.base import as_points
+
+    with pytest.raises(ValueError, match=r"^points must have shape \(N, 3\), got \(3,\)$"):
+        as_points(np.zeros(3))
+    with pytest.raises(ValueError, match=r"^scan must have shape \(N, 3\), got \(2, 4\)$"):
+        as_points(np.zeros((2, 4)), "scan")
+    a = as_points(np.arange(12, dtype=np.float64).reshape(3, 4)[:, :3])
+    assert a.dtype == np.float32 and a.flags.c_contiguous and a.tolist() == [[0, 1, 2], [4, 5, 6], [8, 9, 10]]

@@ -28,6 +28,7 @@ BENCHMARKS = {
     "transform": "benchmarks.transform",
     "particles": "benchmarks.particles",
     "scaling": "benchmarks.scaling",
+    "lidar_only": "benchmarks.lidar_only",
 }
 
 

@@ -12,7 +12,8 @@ from slamlib import paths
 from slamlib.cli import main
 from slamlib.commands.bench import load_benchmarks
 
-NAMES = ("kernels", "maps", "noise", "cuda", "slam3d", "synth", "peers", "transform", "particles", "scaling")
+NAMES = ("kernels", "maps", "noise", "cuda", "slam3d", "synth", "peers", "transform", "particles", "scaling",
+         "lidar_only")
 
 
 def test_list_shows_every_benchmark_from_any_folder(tmp_path):

@@ -20,7 +20,8 @@ motion is known yet (the vehicle may already drive at 15 m/s): step 6 spreads th
 may have (``cv_start_speed``) and ``cv_start_rounds`` annealing rounds, each halving the spread, find the motion
 (coarse to fine, below). LIDAR-only, step 8 scores mostly what stands above the road
 (:func:`slamlib.slam3d.preprocess.thin_ground`, ``FilterConfig.lidar_only_ground_share``): the road's rings in the
-map would pull the estimate toward zero motion, a pull the IMU outweighs but the constant-velocity model does not. There is then no dead-reckoning twin (``dead_reckoning`` is None).
+map would pull the estimate toward zero motion, a pull the IMU outweighs but the constant-velocity model does not.
+There is then no dead-reckoning twin (``dead_reckoning`` is None).
 
 Likelihood tempering
 --------------------

@@ -62,7 +62,7 @@ from slamlib.kitti.oxts import MAX_ANGULAR_RATE_RADPS, MAX_SPEED_MPS
 from slamlib.odometry import imu_increment
 from slamlib.resampling import normalise_log_weights, resample_indexes, uniform_log_weights
 from slamlib.slam3d.config import MotionConfig, ScanConfig
-from slamlib.slam3d.preprocess import crop_range, voxel_downsample
+from slamlib.slam3d.preprocess import crop_and_downsample
 
 __all__ = [
     "Particles3D", "initialise_particles", "read_scan", "read_imu", "read_timing", "motion_increment",
@@ -140,7 +140,7 @@ def read_scan(frame, scan_config: ScanConfig = ScanConfig(), T_body_velo=None) -
     if scan.ndim != 2 or scan.shape[1] not in (3, 4):
         raise ValueError(f"scan must have shape (N, 3) or (N, 4), got {scan.shape}")
     c = scan_config
-    pts = voxel_downsample(crop_range(scan[:, :3], c.min_range, c.max_range), c.downsample_voxel)
+    pts = crop_and_downsample(scan[:, :3], c.min_range, c.max_range, c.downsample_voxel)  # one O(N) pass
     pts = np.asarray(pts, dtype=np.float32)
     if T_body_velo is not None:
         T = np.asarray(T_body_velo, dtype=np.float64)

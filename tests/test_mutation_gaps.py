@@ -358,7 +358,7 @@ def test_morton_parameters_defaults_and_limits():
         MortonBVHMap(**ok)
     assert MortonBVHMap(radius=0.004, quantum=0.01).cell_level == 0  # 2 r < quantum: cells of one quantum
     assert MortonBVHMap(radius=0.01 * 2**19, quantum=0.01).cell_level == 20
-    with pytest.raises(ValueError, match="radius too large for quantum"):
+    with pytest.raises(ValueError, match=r"^radius too large for quantum: cells would exceed the 21-bit range$"):
         MortonBVHMap(radius=0.01 * 2**19 * 1.01, quantum=0.01)
 
 
@@ -416,8 +416,8 @@ def test_voxel_hash_merge_drops_out_of_range_points_and_counts_them():
     empty = lk.keys == -1
     assert not lk.mean[empty].any() and not lk.icov[empty].any() and np.isfinite(lk.icov).all()
     tiny = VoxelHashMap(voxel_size=1e-10, capacity=2**4)
-    tiny.merge(np.array([[1e9, 0, 0], [0, 0, -1e9], [0, 0, 0]], np.float32))
-    assert len(tiny) == 1 and tiny.n_dropped == 2
+    tiny.merge(np.array([[1e9, 0, 0], [0, 1e9, 0], [0, 0, -1e9], [0, 0, 0]], np.float32))
+    assert len(tiny) == 1 and tiny.n_dropped == 3
 
 
 def test_voxel_hash_max_probe_is_the_longest_probe():
@@ -457,3 +457,49 @@ def test_as_points_names_the_argument_and_converts():
         as_points(np.zeros((2, 4)), "scan")
     a = as_points(np.arange(12, dtype=np.float64).reshape(3, 4)[:, :3])
     assert a.dtype == np.float32 and a.flags.c_contiguous and a.tolist() == [[0, 1, 2], [4, 5, 6], [8, 9, 10]]
+
+
+def test_axis_indices_in_float64_at_the_range_ends():
+    """``axis_indices``: float32 points are offset in float64 (``70.1f * 10`` is 700.99998..., index 700, while a
+    float32 product rounds to 701); int64 result; the valid range is exactly ``[-2**20, 2**20)`` voxels."""
+    from slamlib.maps.codes import axis_indices
+
+    u, ok = axis_indices(np.array([[70.1, 27.3, -91.9]], np.float32), 10.0)
+    assert u.dtype == np.int64 and ok.tolist() == [True]
+    assert (u[0] - 2**20).tolist() == [700, 272, -920]
+    h = 0.5
+    pts = np.array([[-(2**20) * h, 0, 0], [(2**20 - 1) * h, 0, 0], [0, -(2**20) * h - h, 0], [0, 0, 2**20 * h],
+                    [np.nan, 0, 0]])
+    u, ok = axis_indices(pts, 1.0 / h)
+    assert ok.tolist() == [True, True, False, False, False]
+    assert u[0, 0] == 0 and u[1, 0] == 2**21 - 1
+
+
+def test_voxel_in_slot_zero_is_refreshed():
+    """The voxel whose home slot is 0 gets its statistics like any other (the refresh loop includes slot 0)."""
+    from slamlib.maps.codes import hash_slots, pack_keys
+
+    r = np.arange(-4, 5)
+    u = np.stack(np.meshgrid(r, r, r, indexing="ij"), -1).reshape(-1, 3)
+    home0 = u[hash_slots(pack_keys(u + 2**20), 4) == 0][0]
+    p = (home0 + [0.2, 0.3, 0.4]).astype(np.float32)[None]
+    m = VoxelHashMap(voxel_size=1.0, capacity=16, min_sigma=0.05, m_max=0.5)  # m_max may be below 1
+    m.merge(p)
+    lk = m.lookup()
+    assert lk.keys[0] != -1 and lk.voxel_size == 1.0 and lk.m_max == 0.5
+    np.testing.assert_allclose(lk.mean[0], p[0], atol=1e-6)
+    np.testing.assert_allclose(lk.icov[0], [400, 0, 0, 400, 0, 400], rtol=1e-5, atol=1e-3)
+    assert m.counts().dtype == np.int64 and m.counts().tolist() == [1]
+
+
+def test_fresh_morton_map_layout():
+    """Before any merge the lookup is the empty layout with the documented dtypes (and scores the floor)."""
+    lk = MortonBVHMap(radius=0.5, sigma=0.25).lookup()
+    assert (lk.codes.shape, lk.codes.dtype) == ((0,), np.int64)
+    assert (lk.points.shape, lk.points.dtype) == ((0, 3), np.float32)
+    assert (lk.cell_codes.shape, lk.cell_codes.dtype) == ((0,), np.int64)
+    assert lk.cell_start.tolist() == [0] and lk.cell_start.dtype == np.int64
+    for box in (lk.cell_lo, lk.cell_hi):
+        assert (box.shape, box.dtype) == ((0, 3), np.float32)
+    I, z = np.eye(3)[None], np.zeros((1, 3))
+    np.testing.assert_allclose(CPU.score_particles(I, z, np.zeros((3, 3), np.float32), lk), -1.5 * 0.5**2 / 0.25**2)

@@ -33,7 +33,7 @@ system-packages:
 $(VENV)/.installed: pyproject.toml requirements.lock
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
-	$(BIN)/python -m pip install -q -c requirements.lock -e ".[test,book,cudacompile,peers]"
+	$(BIN)/python -m pip install -q -c requirements.lock -e ".[test,book,cudacompile,peers,sweep]"
 	touch $@
 
 # Build the book: executes every notebook (on the embedded default data) and writes HTML under _build/html.

@@ -11,4 +11,5 @@ COMMANDS = {
     "sim2d": "slamlib.commands.sim2d",
     "run": "slamlib.commands.run",
     "synth": "slamlib.commands.synth",
+    "sweep": "slamlib.commands.sweep",
 }

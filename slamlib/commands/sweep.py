@@ -1,0 +1,142 @@
+"""``slamlib sweep``: SLAM and KISS-ICP over routes x seeds x settings on a Dask cluster, into one tidy table.
+
+Examples::
+
+    slamlib sweep --out sweeps/quick                                   # route 07 key frames 0:150, seeds 0 and 1
+    slamlib sweep --out sweeps/all --routes 00,05,07 --frames 0: --seeds 0,1       # the whole routes
+    slamlib sweep --out sweeps/lidar --layouts odometry --particles 300,1000      # LIDAR-only, two settings
+    slamlib sweep --out sweeps/x --scheduler tcp://10.0.0.5:8786                  # on an existing Dask cluster
+
+Writes ``OUT/sweep.csv`` (one row per run: route, frames, seed, layout, method, settings, path length, KITTI
+translational and rotational error, ATE RMSE, dead reckoning's KITTI error, frames/s, seconds) and
+``OUT/sweep.png`` (KITTI error per route and method). Drives are generated once into ``--data`` and reused.
+See :mod:`slamlib.slam3d.sweep`.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+NAME = "sweep"
+HELP = "Run SLAM (and KISS-ICP) over routes x seeds x settings as Dask tasks; write one table (CSV) and a plot."
+
+ROUTES = ("straight", "loop", "00", "05", "07")  # slamlib.commands.synth.ROUTES
+OUT_FILES = ("sweep.csv", "sweep.png")
+
+
+def add_arguments(parser) -> None:
+    parser.add_argument("--out", type=Path, required=True, help="output folder for sweep.csv and sweep.png")
+    parser.add_argument("--overwrite", action="store_true", help="replace sweep.csv / sweep.png already in --out")
+    parser.add_argument("--routes", default="07", help="comma-separated routes: 00, 05, 07, straight, loop (default 07)")
+    parser.add_argument("--frames", default="0:150", metavar="A:B",
+                        help="KITTI routes: key frames A:B (A: to the end); straight / loop: N or 0:N (default 0:150)")
+    parser.add_argument("--seeds", default="0,1", help="comma-separated seeds: one synthetic drive and filter seed each "
+                                                       "(default 0,1)")
+    parser.add_argument("--layouts", default="raw", help="comma-separated: raw (LIDAR + IMU), odometry (LIDAR only) "
+                                                         "(default raw)")
+    parser.add_argument("--methods", default="slamlib,kiss_icp", help="comma-separated: slamlib, kiss_icp "
+                                                                      "(default both)")
+    parser.add_argument("--particles", default=None, help="comma-separated particle counts, one slamlib setting "
+                                                          "each (default: the filter's default)")
+    parser.add_argument("--data", type=Path, default=None,
+                        help="folder for the generated drives, reused by later sweeps (default: the cache, "
+                             "$SLAMLIB_CACHE/sweep)")
+    parser.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                        help="address of an existing Dask scheduler (default: a local cluster on this machine)")
+    parser.add_argument("--workers", type=int, default=None,
+                        help="worker processes of the local cluster (default: one per core)")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def _fail(message: str):
+    raise SystemExit(f"slamlib sweep: {message}")
+
+
+def _list(text: str, option: str, allowed=None, kind=str) -> list:
+    items = [x.strip() for x in str(text).split(",") if x.strip()]
+    if not items:
+        _fail(f"{option} needs at least one value, got {text!r}")
+    try:
+        items = [kind(x) for x in items]
+    except ValueError:
+        _fail(f"{option} must be comma-separated {kind.__name__} values, got {text!r}")
+    if allowed is not None:
+        bad = [x for x in items if x not in allowed]
+        if bad:
+            _fail(f"{option}: {', '.join(map(str, bad))} not one of {', '.join(allowed)}")
+    return items
+
+
+def main(args) -> int:
+    from slamlib.commands.synth import parse_route_frames
+
+    routes = _list(args.routes, "--routes", ROUTES)
+    seeds = _list(args.seeds, "--seeds", kind=int)
+    if any(s < 0 for s in seeds):
+        _fail(f"--seeds must be >= 0, got {args.seeds!r}")
+    layouts = _list(args.layouts, "--layouts", ("raw", "odometry"))
+    methods = _list(args.methods, "--methods", ("slamlib", "kiss_icp"))
+    settings = [{}]
+    if args.particles is not None:
+        counts = _list(args.particles, "--particles", kind=int)
+        from slamlib.slam3d.config import MAX_PARTICLES
+
+        if any(not 1 <= p <= MAX_PARTICLES for p in counts):
+            _fail(f"--particles must be in [1, {MAX_PARTICLES:,}], got {args.particles!r}")
+        settings = [{"particles": p} for p in counts]
+    if args.workers is not None and args.workers < 1:
+        _fail(f"--workers must be >= 1, got {args.workers}")
+    frames = set()
+    for route in routes:
+        try:
+            f = parse_route_frames(args.frames, route)
+        except ValueError as exc:
+            _fail(str(exc))
+        frames.add((f[0], f[1]) if isinstance(f, tuple) else (0, f))
+    if len(frames) != 1:
+        _fail("--frames must mean the same for every route: use A:B for KITTI routes and straight / loop alike")
+    (frames,) = frames
+    out = args.out
+    if out.exists() and not out.is_dir():
+        _fail(f"--out {out} exists and is not a folder")
+    clash = [n for n in OUT_FILES if (out / n).exists()]
+    if clash and not args.overwrite:
+        _fail(f"--out {out} holds {', '.join(clash)}: pass --overwrite to replace, or choose another folder")
+    if "kiss_icp" in methods:
+        from slamlib.peers import INSTALL_HINT, kiss_icp_available
+
+        if not kiss_icp_available():
+            _fail(INSTALL_HINT + " (or --methods slamlib)")
+    try:
+        import distributed  # noqa: F401
+    except ImportError:
+        _fail("slamlib sweep needs Dask: pip install 'dask[distributed]' (or pip install -e '.[sweep]')")
+
+    from slamlib.paths import cache_dir
+    from slamlib.slam3d.sweep import plot_sweep, run_sweep, sweep_tasks, write_table
+
+    tasks = sweep_tasks(routes, seeds, layouts, methods, settings, frames)
+    data = args.data if args.data is not None else cache_dir() / "sweep"
+    print(f"slamlib sweep: {len(tasks)} runs ({', '.join(routes)} x seeds {', '.join(map(str, seeds))} x "
+          f"{', '.join(layouts)} x {', '.join(methods)}), drives in {data}, "
+          f"scheduler {args.scheduler or 'local cluster'}")
+    try:
+        rows = run_sweep(tasks, data, scheduler=args.scheduler, workers=args.workers, progress=not args.no_progress)
+    except (OSError, TimeoutError) as exc:
+        _fail(f"could not reach or run the Dask cluster: {exc}")
+    out.mkdir(parents=True, exist_ok=True)
+    write_table(rows, out / "sweep.csv")
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig = plot_sweep(rows)
+    fig.savefig(out / "sweep.png", dpi=100, bbox_inches="tight")
+    plt.close(fig)
+    print(f"{'route':>8s} {'seed':>4s} {'layout':>8s} {'method':>9s} {'settings':>18s} {'t_err %':>8s} {'ATE m':>7s}")
+    for r in rows:
+        print(f"{r['route']:>8s} {r['seed']:4d} {r['layout']:>8s} {r['method']:>9s} {r['settings']:>18s} "
+              f"{r['kitti_t_err_percent']:8.3f} {r['ate_rmse_m']:7.3f}")
+    print(f"wrote {out / 'sweep.csv'} and {out / 'sweep.png'}")
+    return 0

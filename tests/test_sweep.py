@@ -1,0 +1,85 @@
+"""Issue 11, item 6: ``slamlib sweep`` runs SLAM and KISS-ICP over routes x seeds x settings as Dask tasks."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from slamlib.slam3d.sweep import COLUMNS, SweepTask, read_table, run_sweep, sweep_tasks, write_table
+
+
+def test_tasks_are_the_cross_product_with_kiss_icp_once_per_drive():
+    tasks = sweep_tasks(["07", "loop"], [0, 1], ["raw", "odometry"], ["slamlib", "kiss_icp"],
+                        [{"particles": 100}, {"particles": 300}], (0, 50))
+    assert len(tasks) == 2 * 2 * 2 * (2 + 1)
+    assert len({t.drive_key() for t in tasks}) == 8
+    assert sum(t.method == "kiss_icp" for t in tasks) == 8 and all(t.settings == {} for t in tasks
+                                                                      if t.method == "kiss_icp")
+    with pytest.raises(ValueError, match="layout must be one of"):
+        sweep_tasks(["07"], [0], ["bag"])
+    with pytest.raises(ValueError, match="method must be one of"):
+        sweep_tasks(["07"], [0], ["raw"], ["orb_slam"])
+
+
+@pytest.fixture(scope="module")
+def cluster():
+    from distributed import LocalCluster
+
+    c = LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None)
+    yield c
+    c.close()
+
+
+def test_sweep_on_a_dask_cluster_writes_one_tidy_row_per_run(cluster, tmp_path):
+    tasks = sweep_tasks(["loop"], [0, 1], ["raw", "odometry"], ["slamlib", "kiss_icp"], [{"particles": 40}], (0, 6))
+    rows = run_sweep(tasks, tmp_path / "data", scheduler=cluster.scheduler_address, progress=False)
+    assert len(rows) == len(tasks) == 8
+    assert len(list((tmp_path / "data").iterdir())) == 4  # one drive per (seed, layout), generated once
+    for task, row in zip(tasks, rows):
+        assert tuple(row) == COLUMNS
+        assert (row["seed"], row["layout"], row["method"]) == (task.seed, task.layout, task.method)
+        assert row["frames"] == 6 and math.isfinite(row["ate_rmse_m"]) and row["fps"] > 0
+        assert math.isnan(row["kitti_t_err_percent"])  # a 6-frame drive is far shorter than 100 m
+        assert math.isnan(row["dead_reckoning_kitti_t_err_percent"])
+        assert row["settings"] == ('{"particles": 40}' if task.method == "slamlib" else "")
+    # the same seed gives the same drive: slamlib's result on it does not depend on which worker ran it
+    again = run_sweep(tasks[:1], tmp_path / "data", scheduler=cluster.scheduler_address, progress=False)
+    assert again[0]["ate_rmse_m"] == rows[0]["ate_rmse_m"]
+    path = write_table(rows, tmp_path / "sweep.csv")
+    back = read_table(path)
+    assert [r["method"] for r in back] == [r["method"] for r in rows]
+    np.testing.assert_allclose([r["ate_rmse_m"] for r in back], [r["ate_rmse_m"] for r in rows], rtol=1e-12)
+
+
+def test_a_failing_task_names_itself(cluster, tmp_path):
+    bad = [SweepTask("07", (0, 1), 0, "raw", "slamlib", {"particles": 0})]
+    with pytest.raises(RuntimeError, match=r"sweep task SweepTask\(route='07'.*failed"):
+        run_sweep(bad, tmp_path, scheduler=cluster.scheduler_address, progress=False)
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--routes", "99"], "--routes: 99 not one of"),
+    (["--seeds", "a"], "--seeds must be comma-separated int"),
+    (["--seeds", "-1"], "--seeds must be >= 0"),
+    (["--layouts", "bag"], "--layouts: bag not one of"),
+    (["--particles", "0"], "--particles must be in"),
+    (["--workers", "0"], "--workers must be >= 1"),
+    (["--routes", "07,loop", "--frames", "5:9"], "always starts at its beginning"),
+])
+def test_sweep_options_are_checked_before_any_work(tmp_path, argv, message):
+    from slamlib.cli import main
+
+    with pytest.raises(SystemExit, match=message):
+        main(["sweep", "--out", str(tmp_path / "o")] + argv)
+    assert not (tmp_path / "o").exists()
+
+
+def test_sweep_refuses_to_overwrite_its_table(tmp_path):
+    from slamlib.cli import main
+
+    (tmp_path / "sweep.csv").write_text("mine\n")
+    with pytest.raises(SystemExit, match="holds sweep.csv: pass --overwrite"):
+        main(["sweep", "--out", str(tmp_path)])
+    assert (tmp_path / "sweep.csv").read_text() == "mine\n"

@@ -65,7 +65,8 @@ def _check_weights(weights) -> np.ndarray:
     if (w < 0).any():
         i = int(np.flatnonzero(w < 0)[0])
         raise ValueError(f"weights must be non-negative, got {w[i]!r} at index {i}")
-    total = w.sum()
+    with np.errstate(over="ignore"):  # an overflowing sum is handled just below
+        total = w.sum()
     if not np.isfinite(total):  # finite weights near 1e308 overflow their sum: divide by the largest first
         w = w / w.max()
         total = w.sum()

@@ -172,11 +172,12 @@ def _is_earlier_run(out) -> bool:
 
 
 def check_output_dir(out_dir, overwrite: bool = False) -> None:
-    """Raise ``ValueError`` unless ``out_dir`` can become the output folder: an existing folder, or a path whose
-    nearest existing parent is a writable folder. ``slamlib run`` calls it before the run, not after.
+    """Raise ``ValueError`` unless ``out_dir`` can become the output folder: a new folder under a writable one, an
+    empty folder, or the folder of an earlier run (its ``metrics.json`` written by :func:`save_run`). ``slamlib
+    run`` calls it before the run, not after.
 
-    No user file is lost: when the folder already holds a file named like one of :data:`RUN_FILES` and it is not
-    the folder of an earlier run (a metrics.json written by :func:`save_run`), this refuses unless ``overwrite``.
+    No user file is lost: a non-empty folder that is not an earlier run's is refused unless ``overwrite``; then
+    only the files named like :data:`RUN_FILES` are replaced and every other file stays.
     """
     import os
     from pathlib import Path
@@ -187,10 +188,18 @@ def check_output_dir(out_dir, overwrite: bool = False) -> None:
             raise ValueError(f"{out} exists and is not a folder")
         if not os.access(out, os.W_OK):
             raise ValueError(f"{out} is not writable")
-        clash = [name for name in RUN_FILES if (out / name).exists()]
-        if clash and not overwrite and not _is_earlier_run(out):
+        if overwrite or _is_earlier_run(out):
+            return
+        theirs = sorted(p.name for p in out.iterdir())
+        clash = [name for name in RUN_FILES if name in theirs]
+        if clash:
             raise ValueError(f"{out} holds {', '.join(clash)}, not from an earlier slamlib run; they would be "
                              f"overwritten: choose another folder or pass --overwrite")
+        if theirs:
+            shown = ", ".join(theirs[:3]) + (f" and {len(theirs) - 3} more" if len(theirs) > 3 else "")
+            raise ValueError(f"{out} is not empty ({shown}) and is not an earlier slamlib run's folder: choose a new "
+                             f"or empty folder, or pass --overwrite (files named like the results are replaced, "
+                             f"the others kept)")
         return
     parent = out.parent
     while not parent.exists():
@@ -215,18 +224,53 @@ def save_run(run: SLAMRun, out_dir, map_format: str = "ply", plots: bool = True,
       RPE, KITTI metric). Always valid JSON: a non-finite number is written ``null`` (:func:`slamlib.metrics.json_safe`);
     * ``trajectory.png`` (with and without SLAM vs ground truth) and ``map_topdown.png`` (coloured by height).
 
-    When ``out_dir`` holds an earlier run's results, its files of :data:`RUN_FILES` that this run does not write
-    (another map format, plots, dead reckoning) are removed, so that no stale result stands beside the new ones.
+    The files are written into a temporary folder beside ``out_dir`` first (``.NAME.XXXX.partial``): a new
+    ``out_dir`` is that folder renamed into place at the end, an existing one gets each finished file by an atomic
+    ``os.replace``; a run that fails while writing leaves ``out_dir`` as it was. When ``out_dir`` holds an earlier
+    run's results, its files of :data:`RUN_FILES` that this run does not write (another map format, plots, dead
+    reckoning) are removed, so that no stale result stands beside the new ones.
     """
+    import os
+    import shutil
+    import tempfile
+    from pathlib import Path
+
+    final = Path(out_dir)
+    earlier = final.is_dir() and _is_earlier_run(final)  # then its result files not rewritten now are stale: removed
+    final.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{final.name}.", suffix=".partial", dir=final.parent))
+    umask = os.umask(0)
+    os.umask(umask)
+    os.chmod(tmp, 0o777 & ~umask)  # mkdtemp makes it private (0700); the results folder gets the usual mode
+    try:
+        files = _write_results(run, tmp, map_format, plots, extra)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    if not final.exists():  # a new folder: the complete results appear at once
+        os.rename(tmp, final)
+    else:  # an existing folder: each file replaced whole (os.replace), never half written
+        for path in sorted(tmp.iterdir()):
+            os.replace(path, final / path.name)
+        tmp.rmdir()
+    files = {key: final / Path(path).name for key, path in files.items()}
+    if earlier:  # e.g. an earlier map.ply beside this run's map.pcd, or dead-reckoning files beside a LIDAR-only run
+        written = {path.name for path in files.values()}
+        for name in RUN_FILES:
+            if name not in written and (final / name).is_file():
+                (final / name).unlink()
+    return files
+
+
+def _write_results(run: SLAMRun, out, map_format: str, plots: bool, extra: dict | None) -> dict:
+    """Every result file of :func:`save_run` written into the existing folder ``out``; returns ``{name: path}``."""
     import json
     from pathlib import Path
 
     from slamlib.kitti.trajectory_io import write_kitti_poses, write_times, write_tum
     from slamlib.metrics import json_safe
 
-    out = Path(out_dir)
-    earlier = out.is_dir() and _is_earlier_run(out)  # then its result files not rewritten now are stale: removed
-    out.mkdir(parents=True, exist_ok=True)
+    out = Path(out)
     files = {}
     trajs = {"slam": run.poses}
     if run.dead_reckoning is not None:
@@ -287,9 +331,4 @@ def save_run(run: SLAMRun, out_dir, map_format: str = "ply", plots: bool = True,
         files["map_plot"] = out / "map_topdown.png"
         fig.savefig(files["map_plot"], dpi=120, bbox_inches="tight")
         plt.close(fig)
-    if earlier:  # e.g. an earlier map.ply beside this run's map.pcd, or dead-reckoning files beside a LIDAR-only run
-        written = {Path(p).name for p in files.values()}
-        for name in RUN_FILES:
-            if name not in written and (out / name).is_file():
-                (out / name).unlink()
     return files

@@ -503,3 +503,43 @@ def test_fresh_morton_map_layout():
         assert (box.shape, box.dtype) == ((0, 3), np.float32)
     I, z = np.eye(3)[None], np.zeros((1, 3))
     np.testing.assert_allclose(CPU.score_particles(I, z, np.zeros((3, 3), np.float32), lk), -1.5 * 0.5**2 / 0.25**2)
+
+
+# ---------------------------------------------------------------------------------------------------- kernels
+@pytest.mark.parametrize("backend", [REF, CPU], ids=["numpy", "cpu"])
+def test_systematic_resample_checks_and_messages(backend):
+    """Each bad input alone is refused with the documented message (infinite weights, 2-D weights, empty, negative,
+    zero sum, ``u0`` outside [0, 1)); the result is int64."""
+    msg = r"^weights must be a non-empty 1-D array of finite non-negative numbers with positive sum$"
+    for w in ([np.inf, 1.0], [[0.5, 0.5], [0.5, 0.5]], [], [1.0, -0.5], [0.0, 0.0], [np.nan, 1.0]):
+        with pytest.raises(ValueError, match=msg):
+            backend.systematic_resample(np.asarray(w, float), 0.5)
+    for u0 in (1.0, -0.1):
+        with pytest.raises(ValueError, match=rf"^u0 must be in \[0, 1\), got {u0}$"):
+            backend.systematic_resample(np.ones(3), u0)
+    idx = backend.systematic_resample([1, 0, 3], 0.0)
+    assert idx.dtype == np.int64 and idx.tolist() == [0, 2, 2]
+
+
+def test_reference_scores_every_voxel_and_rounds_points_to_float32():
+    """The reference's sorted-key search finds every stored voxel, the one with the largest key too (per-point
+    terms at each voxel's mean == the CPU kernel's); float64 points are scored as their float32 values."""
+    rng = np.random.default_rng(25)
+    m = VoxelHashMap(voxel_size=1.0, capacity=64)
+    m.merge((rng.integers(-3, 3, (6, 3)) + rng.uniform(0.3, 0.7, (30, 6, 3))).reshape(-1, 3).astype(np.float32))
+    lk = m.lookup()
+    occ = np.flatnonzero(lk.keys != -1)
+    q = lk.mean[occ]
+    I, z = np.eye(3)[None], np.zeros((1, 3))
+    ref = np.array([REF.score_particles(I, z, p[None], lk)[0] for p in q])
+    cpu_ = np.array([CPU.score_particles(I, z, p[None], lk)[0] for p in q])
+    np.testing.assert_allclose(ref, cpu_, rtol=1e-9, atol=1e-9)
+    assert np.all(ref > -0.5 * lk.m_max)
+    p64 = rng.uniform(-3, 3, (40, 3))
+    R, t = _particles(rng, 3)
+    for backend in (REF, CPU):
+        for mm in (m, MortonBVHMap(radius=0.5)):
+            if isinstance(mm, MortonBVHMap):
+                mm.merge(q)
+            np.testing.assert_array_equal(backend.score_particles(R, t, p64, mm.lookup()),
+                                          backend.score_particles(R, t, p64.astype(np.float32), mm.lookup()))

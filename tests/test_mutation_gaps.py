@@ -543,3 +543,48 @@ def test_reference_scores_every_voxel_and_rounds_points_to_float32():
                 mm.merge(q)
             np.testing.assert_array_equal(backend.score_particles(R, t, p64, mm.lookup()),
                                           backend.score_particles(R, t, p64.astype(np.float32), mm.lookup()))
+
+
+def test_reference_at_the_far_corner_of_the_key_range():
+    """The voxel with packed key 0 (index -2**20 on every axis) is a stored voxel like any other, and points whose
+    interpolation corners leave the key range are scored without error: the reference equals the CPU kernel."""
+    h = 0.001
+    corner = np.float32(-(2**20) * h + 0.0004)
+    m = VoxelHashMap(voxel_size=h, capacity=16, min_sigma=0.001)
+    m.merge(np.array([[corner, corner, corner], [corner + 0.0001, corner, corner]], np.float32))
+    lk = m.lookup()
+    assert 0 in lk.keys.tolist()
+    q = np.array([[corner, corner, corner], [corner + 0.0002, corner + 0.0001, corner], [1e4, 0, 0]], np.float32)
+    I, z = np.eye(3)[None], np.zeros((1, 3))
+    ref = np.array([REF.score_particles(I, z, p[None], lk)[0] for p in q])
+    np.testing.assert_allclose(ref, [CPU.score_particles(I, z, p[None], lk)[0] for p in q], rtol=1e-9, atol=1e-9)
+    assert ref[0] > -0.5 * lk.m_max and ref[2] == -0.5 * lk.m_max
+
+
+def test_point_terms_work_in_float64_and_name_an_unknown_kind(small_maps):
+    rng = np.random.default_rng(26)
+    w = rng.uniform(-3, 3, (30, 3)).astype(np.float32)
+    for m in small_maps:
+        np.testing.assert_array_equal(reference.point_terms(w, m.lookup()),
+                                      reference.point_terms(w.astype(np.float64), m.lookup()))
+    bad = small_maps[0].lookup()._replace(kind=7)
+    for fn in (lambda: reference.point_terms(w, bad), lambda: CPU.score_particles(np.eye(3)[None], np.zeros((1, 3)),
+                                                                                   w, bad)):
+        with pytest.raises(ValueError, match=r"^unknown lookup kind 7$"):
+            fn()
+
+
+def test_out_may_be_another_view_of_the_input():
+    """``out=`` given as a different view object of the same memory counts as in place (not as an overlap)."""
+    rng = np.random.default_rng(27)
+    T = np.eye(4)
+    T[:3, 3] = [1.0, 2.0, 3.0]
+    x = rng.uniform(-1, 1, (5, 3)).astype(np.float32)
+    want = x + np.float32([1, 2, 3])
+    assert np.shares_memory(CPU.transform_points(T, x, out=x.view()), x)
+    np.testing.assert_allclose(x, want, rtol=1e-6)
+    R, t = _particles(rng, 4)
+    R_ref, t_ref = CPU.move_particles(R, t, [0.1, 0, 0], [1, 0, 0], np.zeros((4, 6)), np.zeros(6))
+    CPU.move_particles(R, t, [0.1, 0, 0], [1, 0, 0], np.zeros((4, 6)), np.zeros(6), out=(R.view(), t.view()))
+    np.testing.assert_array_equal(R, R_ref)
+    np.testing.assert_array_equal(t, t_ref)

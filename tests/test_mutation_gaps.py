@@ -588,3 +588,20 @@ def test_out_may_be_another_view_of_the_input():
     CPU.move_particles(R, t, [0.1, 0, 0], [1, 0, 0], np.zeros((4, 6)), np.zeros(6), out=(R.view(), t.view()))
     np.testing.assert_array_equal(R, R_ref)
     np.testing.assert_array_equal(t, t_ref)
+
+
+def test_reference_transform_points_dtype_and_out_checks():
+    """float64 points are transformed as their float32 values; the result is float32; ``out`` must be a float32
+    array of the result's shape (each condition alone), with the documented message."""
+    rng = np.random.default_rng(28)
+    T = np.eye(4)
+    T[:3, :3] = geometry.rpy_to_matrix(np.array([0.3, -0.2, 1.1]))
+    T[:3, 3] = [100.3, -20.7, 3.1]
+    p64 = rng.uniform(-50, 50, (20, 3))
+    got = REF.transform_points(T, p64)
+    assert got.dtype == np.float32
+    np.testing.assert_array_equal(got, REF.transform_points(T, p64.astype(np.float32)))
+    with pytest.raises(ValueError, match=r"^out must be a float32 array of shape \(20, 3\), got float64 \(20, 3\)$"):
+        REF.transform_points(T, p64, out=np.empty((20, 3)))
+    with pytest.raises(ValueError, match=r"^out must be a float32 array of shape \(20, 3\), got float32 \(19, 3\)$"):
+        REF.transform_points(T, p64, out=np.empty((19, 3), np.float32))

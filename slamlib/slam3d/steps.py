@@ -62,10 +62,10 @@ from slamlib.kitti.oxts import MAX_ANGULAR_RATE_RADPS, MAX_SPEED_MPS
 from slamlib.odometry import imu_increment
 from slamlib.resampling import normalise_log_weights, resample_indexes, uniform_log_weights
 from slamlib.slam3d.config import MotionConfig, ScanConfig
-from slamlib.slam3d.preprocess import crop_and_downsample
+from slamlib.slam3d.preprocess import crop_and_downsample, deskew, sweep_times
 
 __all__ = [
-    "Particles3D", "initialise_particles", "read_scan", "read_imu", "read_timing", "motion_increment",
+    "Particles3D", "initialise_particles", "read_scan", "deskew_scan", "read_imu", "read_timing", "motion_increment",
     "motion_noise_sigma", "offset_by_motion", "perturb_with_noise", "transform_scan", "score_particles",
     "pick_best_particle", "merge_scan", "resample_particles", "weighted_mean_pose", "project_to_rotation",
 ]
@@ -146,6 +146,24 @@ def read_scan(frame, scan_config: ScanConfig = ScanConfig(), T_body_velo=None) -
         T = np.asarray(T_body_velo, dtype=np.float64)
         pts = (pts.astype(np.float64) @ T[:3, :3].T + T[:3, 3]).astype(np.float32)
     return np.ascontiguousarray(pts)
+
+
+def deskew_scan(points, imu, scan_config: ScanConfig = ScanConfig(), T_body_velo=None) -> np.ndarray:
+    """Step 2's motion compensation, once step 3 has the motion: body-frame ``points (N, 3)`` of a scan taken over
+    a sweep, each moved to where it was at the scan's timestamp for the body twist ``imu = (velocity,
+    angular_rate)`` (:func:`slamlib.slam3d.preprocess.deskew`). Each point's firing time comes from its azimuth
+    in the Velodyne frame (:func:`~slamlib.slam3d.preprocess.sweep_times`, ``scan_config.sweep_period``; the
+    points are taken back there with ``inv(T_body_velo)`` for it). Returns ``(N, 3)`` float32.
+    """
+    pts = np.asarray(points, dtype=np.float32)
+    if len(pts) == 0:
+        return pts
+    velo = pts
+    if T_body_velo is not None:
+        T = np.linalg.inv(np.asarray(T_body_velo, dtype=np.float64))
+        velo = pts.astype(np.float64) @ T[:3, :3].T + T[:3, 3]
+    times = sweep_times(velo, scan_config.sweep_period)
+    return np.ascontiguousarray(deskew(pts, imu[0], imu[1], times))
 
 
 def read_imu(frame, estimate=None) -> tuple[np.ndarray, np.ndarray]:

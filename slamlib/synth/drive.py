@@ -69,7 +69,7 @@ def resolve_route(route, frames=None) -> tuple[Route, int]:
 
 def write_drive(basedir, route="07", date: str = "2011_09_26", drive: int = 1, frames=DEFAULT_FRAMES,
                 seed: int = 0, noise: ImuNoise = ImuNoise(), lidar: Hdl64 = Hdl64(), scans: bool = True,
-                progress: bool = True) -> tuple[Path, str, int]:
+                progress: bool = True, distortion: bool = False) -> tuple[Path, str, int]:
     """Write a synthetic drive under ``basedir`` in the KITTI raw layout (see :mod:`slamlib.synth.writer`).
 
     Parameters
@@ -83,6 +83,10 @@ def write_drive(basedir, route="07", date: str = "2011_09_26", drive: int = 1, f
     scans : write Velodyne scans (``False``: OXTS + timestamps only, empty ``velodyne_points/data``; the
         drive then still loads in ``pykitti.raw`` for OXTS but has no scans).
     progress : show a tqdm progress bar.
+    distortion : cast each scan column by column along the sweep, as a real HDL-64E (KITTI's timing:
+        :mod:`slamlib.synth.lidar`), centred on the scan's timestamp; off: every scan from one pose, the
+        pose at its OXTS timestamp. The OXTS ground truth stays at the OXTS timestamps, 11-21 ms after the
+        scans' (as in KITTI raw data).
 
     Returns ``(Path(basedir), date, drive)``.
 
@@ -100,6 +104,8 @@ def write_drive(basedir, route="07", date: str = "2011_09_26", drive: int = 1, f
     check_calib(basedir, date)
     params = {"version": GENERATOR_VERSION, "route": r.name, "frames": n, "seed": seed,
               "noise": noise.as_dict(), "lidar": lidar.as_dict(), "scans": scans}
+    if distortion:
+        params["distortion"] = True
     _begin(ddir, params, own_files(ddir))
     date_dir = write_calib(basedir, date)
     ts = frame_timestamps_ns(n, date, rng_time)
@@ -108,9 +114,11 @@ def write_drive(basedir, route="07", date: str = "2011_09_26", drive: int = 1, f
     write_oxts(ddir, packets, ts["oxts"])
     write_velodyne_timestamps(ddir, ts)
     if scans:
-        T_w_velo = r.pose(t_route) @ invert_pose(load_T_velo_imu(date_dir))
+        T_imu_velo = invert_pose(load_T_velo_imu(date_dir))
+        T_w_velo = r.pose(t_route) @ T_imu_velo
+        t_sweep = r.t0 + (ts["velo"] - ts["oxts"][0]) * 1e-9 if distortion else None
         for k, scan in _cast_scans(r, t_route, T_w_velo, rng_scene, rng_lidar, lidar, progress,
-                                   f"synth drive {drive:04d}"):
+                                   f"synth drive {drive:04d}", t_sweep, T_imu_velo):
             write_scan(ddir, k, scan)
     write_marker(ddir, params)
     (ddir / PARTIAL_MARKER).unlink()
@@ -145,25 +153,36 @@ def _begin(folder: Path, params: dict, previous: list) -> None:
             path.unlink()
 
 
-def _cast_scans(r: Route, t_route, T_w_velo, rng_scene, rng_lidar, lidar: Hdl64, progress: bool, desc: str):
-    """Yield ``(k, scan (N, 4) float32)`` for every frame: the town along the route, cast from ``T_w_velo[k]``."""
+def _cast_scans(r: Route, t_route, T_w_velo, rng_scene, rng_lidar, lidar: Hdl64, progress: bool, desc: str,
+                t_sweep=None, T_imu_velo=None):
+    """Yield ``(k, scan (N, 4) float32)`` for every frame: the town along the route, cast from ``T_w_velo[k]``, or,
+    with ``t_sweep`` (each frame's mid-sweep time on the route, s), column by column from the Velodyne pose
+    ``r.pose(t) @ T_imu_velo`` at each column's firing time (:func:`slamlib.synth.lidar.column_time_offsets`)."""
     from tqdm.auto import tqdm
+
+    from slamlib.synth.lidar import column_time_offsets
 
     dense_t = np.linspace(t_route[0], t_route[-1], max(2, int((t_route[-1] - t_route[0]) * 20) + 2))
     scene = build_scene(r.position(dense_t), seed=int(rng_scene.integers(2**63)))
     rc = scene.raycasting_scene()
     dirs = ray_directions(lidar)
+    offsets = column_time_offsets(lidar)
     for k in tqdm(range(len(t_route)), desc=desc, disable=not progress, unit="scan"):
-        yield k, simulate_scan(rc, scene.albedo, T_w_velo[k], rng_lidar, lidar, dirs)
+        columns = None
+        if t_sweep is not None:
+            t = np.clip(t_sweep[k] + offsets, r.t0, r.t1)
+            columns = r.pose(t) @ T_imu_velo
+        yield k, simulate_scan(rc, scene.albedo, T_w_velo[k], rng_lidar, lidar, dirs, column_poses=columns)
 
 
 def write_sequence(basedir, route="07", sequence: int | str = 7, frames=DEFAULT_FRAMES, seed: int = 0,
-                   lidar: Hdl64 = Hdl64(), progress: bool = True) -> tuple[Path, str]:
+                   lidar: Hdl64 = Hdl64(), progress: bool = True, distortion: bool = False) -> tuple[Path, str]:
     """Write a synthetic drive in the KITTI **odometry** layout (:mod:`slamlib.kitti.sequence`): scans, ``calib.txt``,
     ``times.txt`` and the ground truth ``poses/NN.txt`` -- no IMU, as the benchmark has none.
 
     The scans, timing and poses are those :func:`write_drive` writes for the same ``route``, ``frames`` and
-    ``seed`` (the same random streams): ``times.txt`` holds the scans' mid-sweep times since the first, the
+    ``seed`` (the same random streams; ``distortion`` as there, the ground truth then at the mid-sweep instants,
+    as KITTI's odometry poses are the scans'): ``times.txt`` holds the scans' mid-sweep times since the first, the
     poses are the left camera's, ``P_k = Tr inv(T_w_velo_0) T_w_velo_k inv(Tr)``, with ``Tr`` the real 2011_09_26
     Velodyne -> rectified left camera calibration (:func:`slamlib.synth.writer.odometry_calib`).
 
@@ -186,17 +205,23 @@ def write_sequence(basedir, route="07", sequence: int | str = 7, frames=DEFAULT_
                               "or sequence")
     params = {"version": GENERATOR_VERSION, "layout": "odometry", "route": r.name, "frames": n, "seed": seed,
               "lidar": lidar.as_dict()}
+    if distortion:
+        params["distortion"] = True
     _begin(sdir, params, own_sequence_files(sdir) + ([poses_path] if poses_path.is_file() else []))
     ts = frame_timestamps_ns(n, "2011_09_26", rng_time)
     t_route = r.t0 + (ts["oxts"] - ts["oxts"][0]) * 1e-9
-    T_w_velo = r.pose(t_route) @ invert_pose(load_T_velo_imu(_SAMPLE))
+    T_imu_velo = invert_pose(load_T_velo_imu(_SAMPLE))
+    T_w_velo = r.pose(t_route) @ T_imu_velo
+    t_sweep = r.t0 + (ts["velo"] - ts["oxts"][0]) * 1e-9 if distortion else None
+    if distortion:  # the odometry ground truth is the scan's pose: its mid-sweep instant, not the OXTS one
+        T_w_velo = r.pose(t_sweep) @ T_imu_velo
     Tr = write_odometry_calib(sdir)
     write_times(sdir / "times.txt", (ts["velo"] - ts["velo"][0]) * 1e-9)
     poses_path.parent.mkdir(parents=True, exist_ok=True)
     write_kitti_poses(poses_path, Tr @ (invert_pose(T_w_velo[0])[None] @ T_w_velo) @ invert_pose(Tr))
     (sdir / "velodyne").mkdir(exist_ok=True)
     for k, scan in _cast_scans(r, t_route, T_w_velo, rng_scene, rng_lidar, lidar, progress,
-                               f"synth sequence {name}"):
+                               f"synth sequence {name}", t_sweep, T_imu_velo):
         write_odometry_scan(sdir, k, scan)
     write_marker(sdir, params)
     (sdir / PARTIAL_MARKER).unlink()

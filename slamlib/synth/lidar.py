@@ -25,9 +25,14 @@ Measurement model for a ray hitting a surface at range ``r`` with unit normal ``
 * reflectance ``clip(rho * (0.3 + 0.7 |n . d|) * exp(-r / 200) + sigma_refl * N(0, 1), 0, 0.99)`` (Lambertian
   falloff with incidence, slight range attenuation).
 
-All rays of one scan are cast from the sensor pose at a single instant: **motion distortion is not
-modelled** (a real HDL-64E sweeps the 360 deg over 0.1 s, so at 10 m/s the end of a sweep is ~1 m from its
-start; KITTI's raw "sync" scans are not de-skewed either). The scan is the pose at the OXTS timestamp.
+Sweep timing (``column_poses``): a real HDL-64E turns once in 0.1 s, so at 10 m/s the end of a sweep is ~1 m from
+its start, and KITTI's raw "sync" scans are not de-skewed. Measured on the shipped real scans: the sweep
+starts behind the car at azimuth ``+pi``, turns clockwise seen from above (azimuth decreasing), faces forward at
+the frame's timestamp (mid-sweep) and ends behind at ``-pi``, so the column at azimuth ``a`` (``atan2(y, x)``) fires
+:func:`column_time_offsets` ``= -a / (2 pi) * period`` seconds after the timestamp. Given one sensor pose per
+column, each column is cast from its own pose and stored in the sensor frame of that instant (``r' d``, as the
+real sensor does): the scan is distorted exactly like a real one. Without them every ray is cast from one pose
+(no distortion; the pose at the OXTS timestamp).
 
 Reference: Velodyne HDL-64E S2 user's manual (2008); Geiger et al., IJRR 2013, sec. 2.
 """
@@ -38,7 +43,11 @@ from dataclasses import dataclass, asdict
 
 import numpy as np
 
-__all__ = ["Hdl64", "hdl64_elevations", "ray_directions", "simulate_scan", "EGO_BOX"]
+__all__ = ["Hdl64", "hdl64_elevations", "ray_directions", "ray_columns", "column_time_offsets", "simulate_scan",
+           "EGO_BOX", "SCAN_PERIOD_S"]
+
+#: The HDL-64E's sweep period on KITTI (s): the median ``timestamps_end - timestamps_start`` of raw drive 0001.
+SCAN_PERIOD_S = 0.10315
 
 #: Ego-vehicle box in the Velodyne frame, ``((xmin, ymin, zmin), (xmax, ymax, zmax))`` m: the roof ~0.6 m below
 #: the sensor, extending 1.6 m behind it (Geiger et al. IJRR 2013, Fig. 3). An effective occluder, not the car's
@@ -99,25 +108,57 @@ def ray_directions(model: Hdl64 = Hdl64()) -> np.ndarray:
     return d.astype(np.float32)
 
 
+def ray_columns(model: Hdl64 = Hdl64()) -> np.ndarray:
+    """The azimuth column ``(M,)`` int64 of each ray of :func:`ray_directions` (same order, same occlusion)."""
+    e = hdl64_elevations()[:: model.beam_stride]
+    cols = np.broadcast_to(np.arange(model.columns), (len(e), model.columns)).reshape(-1)
+    if model.ego_occlusion:
+        a = 2 * np.pi * np.arange(model.columns) / model.columns
+        ce, se = np.cos(e)[:, None], np.sin(e)[:, None]
+        d = np.stack([ce * np.cos(a)[None], ce * np.sin(a)[None], np.broadcast_to(se, (len(e), len(a)))], axis=-1)
+        cols = cols[~_hits_box(d.reshape(-1, 3), EGO_BOX)]
+    return cols.astype(np.int64)
+
+
+def column_time_offsets(model: Hdl64 = Hdl64(), period: float = SCAN_PERIOD_S) -> np.ndarray:
+    """Firing time of each azimuth column relative to the frame's (mid-sweep) timestamp, ``(columns,)`` seconds:
+    ``-a / (2 pi) * period`` with ``a`` the column's azimuth in ``(-pi, pi]`` (module docstring: the sweep runs
+    from ``+pi`` at ``-period / 2`` through forward at 0 to ``-pi`` at ``+period / 2``)."""
+    a = 2 * np.pi * np.arange(model.columns) / model.columns
+    a = np.where(a > np.pi, a - 2 * np.pi, a)
+    return -a / (2 * np.pi) * period
+
+
 def simulate_scan(raycasting_scene, albedo: np.ndarray, T_w_velo: np.ndarray, rng: np.random.Generator,
-                  model: Hdl64 = Hdl64(), directions: np.ndarray | None = None) -> np.ndarray:
+                  model: Hdl64 = Hdl64(), directions: np.ndarray | None = None,
+                  column_poses: np.ndarray | None = None) -> np.ndarray:
     """One scan ``(N, 4)`` float32 ``x, y, z, reflectance`` in the Velodyne frame.
 
     Parameters
     ----------
     raycasting_scene : ``open3d.t.geometry.RaycastingScene`` of the town (``Scene.raycasting_scene()``).
     albedo : (F,) per-triangle albedo of that scene.
-    T_w_velo : (4, 4) Velodyne pose in the world frame.
+    T_w_velo : (4, 4) Velodyne pose in the world frame (used when ``column_poses`` is None).
     rng : noise source (dropouts, range and reflectance noise).
     model : sensor parameters; ``directions`` optionally the precomputed :func:`ray_directions` of it.
+    column_poses : (columns, 4, 4), optional
+        The Velodyne pose at each azimuth column's firing time (:func:`column_time_offsets`): the sweep is
+        distorted as a real one; each point is stored in the sensor frame of its own column's instant.
     """
     import open3d as o3d
     d = ray_directions(model) if directions is None else directions
-    R = np.asarray(T_w_velo[:3, :3], dtype=np.float32)
-    o = np.asarray(T_w_velo[:3, 3], dtype=np.float32)
     rays = np.empty((len(d), 6), dtype=np.float32)
-    rays[:, :3] = o
-    rays[:, 3:] = d @ R.T
+    if column_poses is None:
+        R = np.asarray(T_w_velo[:3, :3], dtype=np.float32)
+        rays[:, :3] = np.asarray(T_w_velo[:3, 3], dtype=np.float32)
+        rays[:, 3:] = d @ R.T
+    else:
+        cols = ray_columns(model)
+        if len(cols) != len(d) or len(column_poses) != model.columns:
+            raise ValueError(f"column_poses must be ({model.columns}, 4, 4) for the model's own ray directions")
+        P = np.asarray(column_poses, dtype=np.float64)[cols]
+        rays[:, :3] = P[:, :3, 3]
+        rays[:, 3:] = np.einsum("nij,nj->ni", P[:, :3, :3], d.astype(np.float64))
     ans = raycasting_scene.cast_rays(o3d.core.Tensor(rays))
     r = ans["t_hit"].numpy()
     hit = np.isfinite(r) & (r <= model.max_range) & (r >= model.min_range)

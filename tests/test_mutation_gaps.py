@@ -605,3 +605,22 @@ def test_reference_transform_points_dtype_and_out_checks():
         REF.transform_points(T, p64, out=np.empty((20, 3)))
     with pytest.raises(ValueError, match=r"^out must be a float32 array of shape \(20, 3\), got float32 \(19, 3\)$"):
         REF.transform_points(T, p64, out=np.empty((19, 3), np.float32))
+
+
+@pytest.mark.parametrize("quantum, leaf", [(0.1, 1), (0.05, 4)])
+def test_morton_nn_exact_on_coarse_quanta(quantum, leaf):
+    """With coarse quanta (a node's gap of one quantum is 5-10 cm) and deep descent, queries a centimetre from
+    stored points still find the true nearest one: the node holding the query is never pruned."""
+    rng = np.random.default_rng(29)
+    m = MortonBVHMap(radius=0.3, sigma=0.1, quantum=quantum, dedup_level=0)
+    m.merge(rng.uniform(-1, 1, (3000, 3)).astype(np.float32))
+    lk = m.lookup()
+    stored = lk.points.astype(np.float64)
+    stack = np.empty((8 * (lk.cell_level + 2), 6), np.int64)
+    cache_code, cache_k = np.full(8, -1, np.int64), np.empty(8, np.int64)
+    for q in stored[rng.integers(0, len(stored), 60)] + rng.normal(0, 0.01, (60, 3)):
+        d2 = np.sum((stored - q) ** 2, axis=1)
+        best, best_j = cpu.morton_nn_nb(*q, lk.codes, lk.points, lk.cell_codes, lk.cell_start, lk.cell_lo,
+                                        lk.cell_hi, lk.quantum, lk.cell_level, lk.radius**2, -1, stack, leaf,
+                                        cache_code, cache_k, 3)
+        assert best_j == int(np.argmin(d2)) and best == pytest.approx(d2.min(), rel=1e-12)

@@ -624,3 +624,20 @@ def test_morton_nn_exact_on_coarse_quanta(quantum, leaf):
                                         lk.cell_hi, lk.quantum, lk.cell_level, lk.radius**2, -1, stack, leaf,
                                         cache_code, cache_k, 3)
         assert best_j == int(np.argmin(d2)) and best == pytest.approx(d2.min(), rel=1e-12)
+
+
+def test_cpu_transform_points_dtype_and_messages():
+    """float64 points give a float32 result (the points are converted first); bad shapes and a bad ``out`` are
+    refused with the documented messages, naming ``out``."""
+    T = np.eye(4)
+    T[:3, 3] = [1.0, 2.0, 3.0]
+    p64 = np.arange(12, dtype=np.float64).reshape(4, 3) * 0.1
+    got = CPU.transform_points(T, p64)
+    assert got.dtype == np.float32
+    np.testing.assert_array_equal(got, CPU.transform_points(T, p64.astype(np.float32)))
+    with pytest.raises(ValueError, match=r"^need T \(4, 4\) and points \(N, 3\), got \(3, 3\) and \(4, 3\)$"):
+        CPU.transform_points(np.eye(3), p64)
+    pts = p64.astype(np.float32)
+    for out in (np.empty((4, 3)), pts[::-1]):
+        with pytest.raises(ValueError, match=r"^out must be a writeable C-contiguous float32 array of shape \(4, 3\)$"):
+            CPU.transform_points(T, pts, out=out)

@@ -91,6 +91,14 @@ def test_score_particles_per_point_terms_by_definition(small_maps):
             assert np.any(d2 < m.radius**2) and np.any(d2 > m.radius**2)
 
 
+def _garbage_stack(cell_level):
+    """``morton_nn_nb``'s scratch stack filled with an entry it must never read: a node that covers everything
+    (level 62) holding the run ``[10**6, 10**6 + 1)`` past the end of the points (read as Python: IndexError)."""
+    stack = np.empty((8 * (cell_level + 2), 6), np.int64)
+    stack[:] = [10**6, 10**6 + 1, 62, 0, 0, 0]
+    return stack
+
+
 def test_morton_nn_is_exact_with_warm_starts_and_a_small_leaf(small_maps):
     """``morton_nn_nb`` returns ``(min(d_nn^2, best), index of that point)`` by brute force, cold and warm started
     from another point, with leaves of 1, 4 and 64 points (deep and shallow descent)."""
@@ -102,7 +110,7 @@ def test_morton_nn_is_exact_with_warm_starts_and_a_small_leaf(small_maps):
                          rng.uniform(-3, 3, (20, 3))])
     r2 = lk.radius**2
     for leaf in (1, 4, 64):
-        stack = np.empty((8 * (lk.cell_level + 2), 6), np.int64)
+        stack = _garbage_stack(lk.cell_level)
         cache_code = np.full(1 << 3, -1, np.int64)
         cache_k = np.empty(1 << 3, np.int64)
         for q in queries:
@@ -616,7 +624,7 @@ def test_morton_nn_exact_on_coarse_quanta(quantum, leaf):
     m.merge(rng.uniform(-1, 1, (3000, 3)).astype(np.float32))
     lk = m.lookup()
     stored = lk.points.astype(np.float64)
-    stack = np.empty((8 * (lk.cell_level + 2), 6), np.int64)
+    stack = _garbage_stack(lk.cell_level)
     cache_code, cache_k = np.full(8, -1, np.int64), np.empty(8, np.int64)
     for q in stored[rng.integers(0, len(stored), 60)] + rng.normal(0, 0.01, (60, 3)):
         d2 = np.sum((stored - q) ** 2, axis=1)

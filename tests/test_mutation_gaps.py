@@ -6,6 +6,8 @@ second each. The Numba CPU backend is checked against the numpy reference (indep
 and against the definitions, on sizes that cross every chunk boundary of its loops.
 """
 
+import re
+
 import numpy as np
 import pytest
 
@@ -649,3 +651,38 @@ def test_cpu_transform_points_dtype_and_messages():
     for out in (np.empty((4, 3)), pts[::-1]):
         with pytest.raises(ValueError, match=r"^out must be a writeable C-contiguous float32 array of shape \(4, 3\)$"):
             CPU.transform_points(T, pts, out=out)
+
+
+def test_cpu_move_and_score_refuse_bad_input_with_messages():
+    """Each check of the CPU backend alone, with its message: particle shapes, ``out`` arrays (named), LUT noise
+    step / seed (0 allowed) and tables, the noise shape, scan point shapes."""
+    from slamlib.noise import LutNoise, make_tables
+
+    rng = np.random.default_rng(30)
+    R, t = _particles(rng, 4)
+    args = ([0.0, 0.0, 0.1], [1.0, 0.0, 0.0])
+    noise, sigma = np.zeros((4, 6)), np.full(6, 0.1)
+    with pytest.raises(ValueError, match=r"^particles need R \(P, 3, 3\) and t \(P, 3\), got \(4, 3, 3\) and \(3, 3\)$"):
+        CPU.move_particles(R, t[:3], *args, noise, sigma)
+    with pytest.raises(ValueError, match=r"^particles need R \(P, 3, 3\) and t \(P, 3\), got \(4, 3, 2\) and \(4, 3\)$"):
+        CPU.move_particles(R[:, :, :2], t, *args, noise, sigma)
+    with pytest.raises(ValueError, match=r"^out\[0\] must be a writeable C-contiguous float64 array of shape \(4, 3, 3\)$"):
+        CPU.move_particles(R, t, *args, noise, sigma, out=(R.astype(np.float32), t.copy()))
+    with pytest.raises(ValueError, match=r"^out\[1\] must be a writeable C-contiguous float64 array of shape \(4, 3\)$"):
+        CPU.move_particles(R, t, *args, noise, sigma, out=(R.copy(), t[:, :2].copy()))
+    tables = make_tables(5, bits=4)
+    for step, seed in ((-1, 0), (0, -1)):
+        with pytest.raises(ValueError, match=r"^LutNoise step and seed must be >= 0$"):
+            CPU.move_particles(R, t, *args, LutNoise(tables, step, seed), sigma)
+    CPU.move_particles(R, t, *args, LutNoise(tables, 0, 0), sigma)
+    bad = LutNoise(tables._replace(perm=tables.perm[:, :8]), 1, 1)
+    with pytest.raises(ValueError, match=r"^LutNoise tables need normal \(T,\) and perm \(6, T\) with T = 2\*\*bits$"):
+        CPU.move_particles(R, t, *args, bad, sigma)
+    with pytest.raises(ValueError, match=r"^noise must have shape \(P, 6\) = \(4, 6\), got \(4, 5\)$"):
+        CPU.move_particles(R, t, *args, noise[:, :5], sigma)
+    lk = VoxelHashMap(capacity=16).lookup()
+    for pts in (np.zeros(3, np.float32), np.zeros((4, 2), np.float32)):
+        with pytest.raises(ValueError, match=rf"^points must have shape \(N, 3\), got {re.escape(str(pts.shape))}$"):
+            CPU.score_particles(R, t, pts, lk)
+    with pytest.raises(ValueError, match=r"^particles need R"):
+        CPU.score_particles(R, t[:3], np.zeros((2, 3), np.float32), lk)

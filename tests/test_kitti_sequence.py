@@ -229,3 +229,28 @@ def test_synth_command_writes_the_odometry_layout(tmp_path):
     with pytest.raises(SystemExit, match="not a slamlib synthetic drive"):
         main(["synth", "--out", str(tmp_path), "--layout", "odometry", "--route", "loop", "--frames", "3",
               "--sequence", "2", "--no-progress"])
+
+
+def test_own_motion_window_and_damping():
+    """LIDAR-only step 3 holds the twist over the last cv_window frames, times cv_damping per component."""
+    from slamlib.slam3d.pipeline import ParticleSLAM3D
+
+    slam = ParticleSLAM3D(SLAM3DConfig.of(model="constant_velocity", cv_window=2,
+                                          cv_damping=(1, 1, 0.5, 0, 0, 1)))
+    assert all(np.all(x == 0) for x in slam.own_motion())  # nothing known yet: at rest
+    steps_ = [make_pose(rpy_to_matrix(np.array([0.0, 0.0, 0.1 * k])), np.array([1.0 * k, 0.0, 0.2 * k]))
+              for k in range(3)]
+    slam.poses, slam.dts = steps_[:2], [0.0, 0.1]
+    v1, w1 = slam.own_motion()  # one frame known: the window shrinks to it
+    v_ref, w_ref = twist_between(steps_[0], steps_[1], 0.1)
+    np.testing.assert_allclose(v1, v_ref * [1, 1, 0.5])
+    np.testing.assert_allclose(w1, w_ref * [0, 0, 1])
+    slam.poses, slam.dts = steps_, [0.0, 0.1, 0.1]
+    v2, w2 = slam.own_motion()
+    v_ref, w_ref = twist_between(steps_[0], steps_[2], 0.2)
+    np.testing.assert_allclose(v2, v_ref * [1, 1, 0.5])
+    np.testing.assert_allclose(w2, w_ref * [0, 0, 1])
+    with pytest.raises(ValueError, match="cv_damping must be 6 numbers in"):
+        SLAM3DConfig.of(cv_damping=(1, 1, 1, 1, 1, 2))
+    with pytest.raises(ValueError, match="cv_window must be in"):
+        SLAM3DConfig.of(cv_window=0)

@@ -181,12 +181,17 @@ class ParticleSLAM3D:
         return particles, log_w
 
     def own_motion(self) -> tuple[np.ndarray, np.ndarray]:
-        """LIDAR-only step 3: the twist ``(v, w)`` that took the last-but-one estimated pose to the last one in
-        that frame's ``dt`` (:func:`slamlib.odometry.twist_between`); zero before two frames (the vehicle is taken
-        to start at rest, as KISS-ICP does)."""
+        """LIDAR-only step 3: the twist ``(v, w)`` that took the estimated pose ``k = min(cv_window, F - 1)`` frames
+        back to the last one in their time (:func:`slamlib.odometry.twist_between`), times ``cv_damping``
+        (:class:`~slamlib.slam3d.config.MotionConfig`); zero before two frames (the vehicle is taken to start at
+        rest, as KISS-ICP does)."""
         if len(self.poses) < 2:
             return np.zeros(3), np.zeros(3)
-        return twist_between(self.poses[-2], self.poses[-1], self.dts[-1])
+        m = self.config.motion
+        k = min(m.cv_window, len(self.poses) - 1)
+        v, w = twist_between(self.poses[-1 - k], self.poses[-1], sum(self.dts[-k:]))
+        damping = np.asarray(m.cv_damping)
+        return v * damping[:3], w * damping[3:]
 
     def _start(self, points, imu, dt) -> np.ndarray:
         """The first frame: step 10 at the start pose, which is also the first pose of both trajectories."""

@@ -686,3 +686,10 @@ def test_cpu_move_and_score_refuse_bad_input_with_messages():
             CPU.score_particles(R, t, pts, lk)
     with pytest.raises(ValueError, match=r"^particles need R"):
         CPU.score_particles(R, t[:3], np.zeros((2, 3), np.float32), lk)
+
+
+def test_cpu_transform_in_place_refuses_a_read_only_array():
+    x = np.ones((4, 3), np.float32)
+    x.setflags(write=False)
+    with pytest.raises(ValueError, match=r"^out must be a writeable C-contiguous float32 array of shape \(4, 3\)$"):
+        CPU.transform_points(np.eye(4), x, out=x)

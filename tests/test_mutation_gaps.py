@@ -693,3 +693,11 @@ def test_cpu_transform_in_place_refuses_a_read_only_array():
     x.setflags(write=False)
     with pytest.raises(ValueError, match=r"^out must be a writeable C-contiguous float32 array of shape \(4, 3\)$"):
         CPU.transform_points(np.eye(4), x, out=x)
+
+
+def test_reference_move_particles_returns_the_out_arrays():
+    rng = np.random.default_rng(31)
+    R, t = _particles(rng, 3)
+    R_o, t_o = np.empty_like(R), np.empty_like(t)
+    res = REF.move_particles(R, t, [0.1, 0, 0], [1, 0, 0], np.zeros((3, 6)), np.zeros(6), out=(R_o, t_o))
+    assert res[0] is R_o and res[1] is t_o

@@ -701,3 +701,33 @@ def test_reference_move_particles_returns_the_out_arrays():
     R_o, t_o = np.empty_like(R), np.empty_like(t)
     res = REF.move_particles(R, t, [0.1, 0, 0], [1, 0, 0], np.zeros((3, 6)), np.zeros(6), out=(R_o, t_o))
     assert res[0] is R_o and res[1] is t_o
+
+
+def test_morton_search_at_the_low_corner_of_the_range():
+    """Points in the first cells of the 21-bit range (-10,485.76 m at 1 cm quanta): the query's 2x2x2 block includes
+    cells at index -1 (skipped) and 0 on each axis, and the ones at 0 are searched: exact nearest neighbours."""
+    rng = np.random.default_rng(32)
+    lo = -(2**20) * 0.01
+    pts = (lo + rng.uniform(0.0, 0.5, (300, 3))).astype(np.float32)
+    m = MortonBVHMap(radius=0.3, sigma=0.1, quantum=0.01, dedup_level=0)
+    m.merge(pts)
+    lk = m.lookup()
+    assert len(m) > 200 and np.any(lk.cell_codes == 0)
+    stored = lk.points.astype(np.float64)
+    I = np.eye(3)[None]
+    for q in stored[:40] + rng.normal(0, 0.02, (40, 3)):
+        d2 = min(np.min(np.sum((stored - q) ** 2, axis=1)), 0.3**2)
+        got = CPU.score_particles(I, q[None], np.zeros((1, 3), np.float32), lk)[0]
+        assert got == pytest.approx(-0.5 * d2 / 0.1**2, rel=1e-9, abs=1e-12)
+
+
+def test_morton_warm_start_from_the_last_stored_point():
+    """Two particles at the same pose and a scan point whose nearest neighbour is the last stored point (in Morton
+    order): the second particle warm-starts from that point alone and both score the same."""
+    rng = np.random.default_rng(33)
+    m = MortonBVHMap(radius=0.3, sigma=0.1, dedup_level=0)
+    m.merge(rng.uniform(-1, 1, (200, 3)).astype(np.float32))
+    last = m.lookup().points[-1]
+    R, t = np.repeat(np.eye(3)[None], 2, axis=0), np.zeros((2, 3))
+    s = CPU.score_particles(R, t, (last + 0.001).astype(np.float32)[None], m.lookup())
+    assert s[0] == s[1] == pytest.approx(-0.5 * 3e-6 / 0.01, rel=1e-3)

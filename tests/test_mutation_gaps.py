@@ -765,3 +765,16 @@ def test_sim1d_steps_checks_and_edge_values():
     lw3 = np.log([0.8, 0.1, 0.1])
     assert steps.resample_particles(p, lw3, np.random.default_rng(5))[2] is False
     assert steps.resample_particles(p, lw3, np.random.default_rng(5), ess_fraction=0.6)[2] is True
+
+
+def test_reference_transform_is_float64_arithmetic_rounded_once():
+    """The numpy reference of transform_points: float32 points, float64 arithmetic, one rounding to float32
+    (float32 arithmetic differs by an ulp on about half the coordinates of a typical pose)."""
+    from slamlib.geometry import make_pose, rpy_to_matrix
+    from slamlib.kernels import reference
+
+    rng = np.random.default_rng(11)
+    pts = rng.uniform(-80, 80, (10_000, 3)).astype(np.float32)
+    T = make_pose(rpy_to_matrix(np.array([0.01, -0.02, 1.3])), np.array([123.4, -56.7, 1.9]))
+    exact = (pts.astype(np.float64) @ T[:3, :3].T + T[:3, 3]).astype(np.float32)
+    np.testing.assert_array_equal(reference.transform_points(T, pts), exact)

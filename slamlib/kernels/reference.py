@@ -64,7 +64,8 @@ def move_particles(R, t, rpy_delta, trans_delta, noise, sigma, out=None):
 def transform_points(T, points, out=None):
     """``p' = R p + t`` for ``T`` (4, 4) and ``points`` (N, 3) float32 -> (N, 3) float32 (computed in float64,
     rounded once). ``out`` (N, 3) float32 receives the result and is returned (``out=points``: in place)."""
-    res = geometry.transform_points(np.asarray(T, dtype=np.float64), np.asarray(points, dtype=np.float32))
+    pts = np.asarray(points, dtype=np.float32).astype(np.float64)  # float32 inputs, float64 arithmetic
+    res = geometry.transform_points(np.asarray(T, dtype=np.float64), pts)
     if out is None:
         return res.astype(np.float32)
     if out.shape != res.shape or out.dtype != np.float32:

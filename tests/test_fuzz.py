@@ -318,39 +318,34 @@ def _check_data_error(exc: BaseException, path: Path, what: str) -> None:
     assert path.name in msg, f"{what}: message does not name {path.name}: {msg!r}"
 
 
-@_settings(80)
-@given(corruption)
-def test_fuzz_readers_give_finite_frames_or_a_data_format_error_naming_the_file(pristine, case):
-    what, apply = case
-    with _Copy(pristine) as c:
-        path = apply(c.drive)
-        try:
-            _read_everything(c.base)
-            event("success")
-        except DataFormatError as exc:
-            _check_data_error(exc, path, what)
-            event("DataFormatError naming the file")
-        except Exception as exc:  # noqa: BLE001 - the point of the test
-            pytest.fail(f"{what}: foreign exception {type(exc).__name__}: {exc}")
-
-
-@_settings(12)
-@given(unread_or_missing)
-def test_fuzz_readers_missing_or_unread_files_read_or_name_the_file(pristine, case):
-    what, apply, optional = case
+def _read_case(pristine, what: str, apply, optional: bool | None = None) -> None:
+    """Read a corrupted copy: finite frames or a one-line DataFormatError naming the file, nothing else.
+    ``optional``: None, either outcome; True, the file is not needed (must read); False, it is (must fail)."""
     with _Copy(pristine) as c:
         path = apply(c.drive)
         try:
             _read_everything(c.base)
         except DataFormatError as exc:
-            assert not optional, f"{what}: the drive does not need this file, yet: {exc}"
+            assert optional is not True, f"{what}: the drive does not need this file, yet: {exc}"
             _check_data_error(exc, path, what)
             event("DataFormatError naming the file")
         except Exception as exc:  # noqa: BLE001 - the point of the test
             pytest.fail(f"{what}: foreign exception {type(exc).__name__}: {exc}")
         else:
-            assert optional, f"{what}: read without a file the drive needs"
+            assert optional is not False, f"{what}: read without a file the drive needs"
             event("success")
+
+
+@_settings(80)
+@given(corruption)
+def test_fuzz_readers_give_finite_frames_or_a_data_format_error_naming_the_file(pristine, case):
+    _read_case(pristine, *case)
+
+
+@_settings(12)
+@given(unread_or_missing)
+def test_fuzz_readers_missing_or_unread_files_read_or_name_the_file(pristine, case):
+    _read_case(pristine, *case)
 
 
 def _run_args(base: Path, out: Path) -> list[str]:
@@ -368,12 +363,11 @@ def _check_outputs_finite(out: Path, what: str) -> None:
             assert np.all(np.isfinite(read_kitti_poses(out / name))), f"{what}: non-finite {name}"
 
 
-@_settings(25)
-@given(corruption)
-def test_fuzz_slamlib_run_on_corrupted_data_finishes_finite_or_names_the_file(pristine, case):
+def _run_case(pristine, what: str, apply, optional: bool | None = None) -> None:
+    """``slamlib run`` on a corrupted copy: exit 0 with finite outputs, or a one-line SystemExit naming the file
+    (a hint line may follow). ``optional`` as in :func:`_read_case`."""
     from slamlib.cli import main
 
-    what, apply = case
     with _Copy(pristine) as c:
         path = apply(c.drive)
         out = c.tmp / "out"
@@ -381,6 +375,7 @@ def test_fuzz_slamlib_run_on_corrupted_data_finishes_finite_or_names_the_file(pr
             rc = main(_run_args(c.base, out))
         except SystemExit as exc:
             msg = str(exc.code)
+            assert optional is not True, f"{what}: the run does not need this file, yet: {msg!r}"
             assert msg.startswith("slamlib run: "), f"{what}: {msg!r}"
             assert path.name in msg.splitlines()[0], f"{what}: message does not name {path.name}: {msg!r}"
             assert len(msg.splitlines()) == 1 or msg.splitlines()[1].startswith("  hint: "), f"{what}: {msg!r}"
@@ -388,36 +383,22 @@ def test_fuzz_slamlib_run_on_corrupted_data_finishes_finite_or_names_the_file(pr
         except Exception as exc:  # noqa: BLE001
             pytest.fail(f"{what}: foreign exception {type(exc).__name__}: {exc}")
         else:
+            assert optional is not False, f"{what}: ran without a file the drive needs"
             assert rc == 0
             _check_outputs_finite(out, what)
             event("success, finite outputs")
+
+
+@_settings(25)
+@given(corruption)
+def test_fuzz_slamlib_run_on_corrupted_data_finishes_finite_or_names_the_file(pristine, case):
+    _run_case(pristine, *case)
 
 
 @_settings(6)
 @given(unread_or_missing)
 def test_fuzz_slamlib_run_with_missing_or_unread_files_finishes_finite_or_names_the_file(pristine, case):
-    from slamlib.cli import main
-
-    what, apply, optional = case
-    with _Copy(pristine) as c:
-        path = apply(c.drive)
-        out = c.tmp / "out"
-        try:
-            rc = main(_run_args(c.base, out))
-        except SystemExit as exc:
-            msg = str(exc.code)
-            assert not optional, f"{what}: the run does not need this file, yet: {msg!r}"
-            assert msg.startswith("slamlib run: "), f"{what}: {msg!r}"
-            assert path.name in msg.splitlines()[0], f"{what}: message does not name {path.name}: {msg!r}"
-            assert len(msg.splitlines()) == 1 or msg.splitlines()[1].startswith("  hint: "), f"{what}: {msg!r}"
-            event("SystemExit naming the file")
-        except Exception as exc:  # noqa: BLE001
-            pytest.fail(f"{what}: foreign exception {type(exc).__name__}: {exc}")
-        else:
-            assert optional, f"{what}: ran without a file the drive needs"
-            assert rc == 0
-            _check_outputs_finite(out, what)
-            event("success, finite outputs")
+    _run_case(pristine, *case)
 
 
 # ------------------------------------------------------------------------------------------ CLI options

@@ -20,7 +20,7 @@ import numpy as np
 
 from slamlib.errors import DataFormatError
 
-__all__ = ["IMU_TO_VELO", "VELO_TO_CAM", "CAM_TO_CAM", "REQUIRED_KEYS", "read_calib_file", "read_rigid",
+__all__ = ["IMU_TO_VELO", "VELO_TO_CAM", "CAM_TO_CAM", "REQUIRED_KEYS", "read_calib_file", "read_rigid", "rigid_transform",
            "check_calibration", "check_calibration_for_pykitti", "load_T_velo_imu"]
 
 IMU_TO_VELO = "calib_imu_to_velo.txt"
@@ -94,15 +94,26 @@ def read_rigid(path: str | os.PathLike) -> np.ndarray:
     offset ``|T|`` is more than :data:`MAX_SENSOR_OFFSET`.
     """
     d = read_calib_file(path, {"R": 9, "T": 3})
-    R = d["R"].reshape(3, 3)
-    if np.abs(R.T @ R - np.eye(3)).max() > 1e-3 or np.linalg.det(R) < 0:
-        raise DataFormatError(path, "calibration R is not a rotation matrix (R^T R != I or det R < 0)")
-    if np.linalg.norm(d["T"]) > MAX_SENSOR_OFFSET:
-        raise DataFormatError(path, f"calibration T = {d['T'].tolist()} m is farther than {MAX_SENSOR_OFFSET:g} m: "
-                                    "not an offset between two sensors of one vehicle")
+    return rigid_transform(path, d["R"].reshape(3, 3), d["T"])
+
+
+#: Most a rigid calibration's rotation block may differ from a rotation, ``max |R^T R - I|``.
+ROTATION_TOLERANCE = 1e-3
+
+
+def rigid_transform(path, R, t, rotation_name: str = "R", offset_name: str = "T") -> np.ndarray:
+    """4x4 ``[[R, t], [0, 1]]`` read from calibration file ``path``, or DataFormatError naming it when ``R`` is not a
+    rotation (``|R^T R - I| > ROTATION_TOLERANCE`` or ``det R < 0``) or ``|t|`` is more than
+    :data:`MAX_SENSOR_OFFSET`; the messages call them ``rotation_name`` and ``offset_name``."""
+    R, t = np.asarray(R, dtype=np.float64), np.asarray(t, dtype=np.float64)
+    if np.abs(R.T @ R - np.eye(3)).max() > ROTATION_TOLERANCE or np.linalg.det(R) < 0:
+        raise DataFormatError(path, f"calibration {rotation_name} is not a rotation matrix (R^T R != I or det R < 0)")
+    if np.linalg.norm(t) > MAX_SENSOR_OFFSET:
+        raise DataFormatError(path, f"calibration {offset_name} = {t.tolist()} m is farther than {MAX_SENSOR_OFFSET:g} "
+                                    "m: not an offset between two sensors of one vehicle")
     T = np.eye(4)
     T[:3, :3] = R
-    T[:3, 3] = d["T"]
+    T[:3, 3] = t
     return T
 
 

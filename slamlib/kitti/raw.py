@@ -110,6 +110,21 @@ class ImuArrays:
     acceleration: np.ndarray
 
 
+def check_numbered_files(folder: Path, ext: str, n: int, what: str, against: str, digits: int = 10) -> None:
+    """DataFormatError naming ``folder`` unless it holds ``0..n-1`` as zero-padded ``digits``-digit names ending in
+    ``ext`` (KITTI raw: 10 digits; odometry scans: 6). ``what`` names the files, ``against`` what counts them."""
+    if not folder.is_dir():
+        raise DataFormatError(folder, f"folder of {what} not found (needed for {n} frames)")
+    names = {e.name for e in os.scandir(folder) if e.name.endswith(ext)}
+    missing = [i for i in range(n) if f"{i:0{digits}d}{ext}" not in names]
+    if missing:
+        raise DataFormatError(
+            folder,
+            f"fewer {what} than the {n} {against}: {len(missing)} of {n} missing "
+            f"(first: {missing[0]:0{digits}d}{ext}; files are numbered {0:0{digits}d}{ext} upwards)",
+        )
+
+
 def _normalise_frames(frames, n: int) -> np.ndarray:
     if frames is None:
         return np.arange(n, dtype=np.int64)
@@ -210,16 +225,7 @@ class KittiRawDrive:
     # ------------------------------------------------------------------ files
     @staticmethod
     def _check_files(folder: Path, ext: str, n: int, what: str, against: str) -> None:
-        if not folder.is_dir():
-            raise DataFormatError(folder, f"folder of {what} not found (needed for {n} frames)")
-        names = {e.name for e in os.scandir(folder) if e.name.endswith(ext)}
-        missing = [i for i in range(n) if f"{i:010d}{ext}" not in names]
-        if missing:
-            raise DataFormatError(
-                folder,
-                f"fewer {what} than the {n} {against}: {len(missing)} of {n} missing "
-                f"(first: {missing[0]:010d}{ext}; files are numbered 0000000000{ext} upwards)",
-            )
+        check_numbered_files(folder, ext, n, what, against)
 
     def oxts_path(self, index: int) -> Path:
         """``oxts/data/NNNNNNNNNN.txt`` of drive frame ``index``."""

@@ -26,7 +26,6 @@ suite", CVPR 2012 (the odometry devkit's ``readme.txt`` describes these files).
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterator
@@ -34,7 +33,7 @@ from typing import Iterator
 import numpy as np
 
 from slamlib.errors import DataFormatError
-from slamlib.kitti.calib import MAX_SENSOR_OFFSET, read_calib_file
+from slamlib.kitti.calib import read_calib_file, rigid_transform
 from slamlib.kitti.trajectory_io import read_kitti_poses, read_times
 from slamlib.kitti.velodyne import read_velodyne_scan
 
@@ -44,8 +43,6 @@ __all__ = ["OdometryFrame", "KittiOdometrySequence", "sequence_name", "CALIB_KEY
 CALIB_KEYS = {"P0": 12, "P1": 12, "P2": 12, "P3": 12, "Tr": 12}
 #: Digits of the odometry scan file names (``000000.bin``), against 10 in the raw layout.
 SCAN_DIGITS = 6
-#: Most a rotation block may differ from a rotation, ``max |R^T R - I|`` (KITTI prints ~1e-9 digits).
-ROTATION_TOLERANCE = 1e-3
 
 
 def sequence_name(sequence: str | int) -> str:
@@ -89,19 +86,6 @@ class OdometryFrame:
     angular_rate: None = None
 
 
-def _rigid_3x4(path, values: np.ndarray, key: str) -> np.ndarray:
-    """4x4 ``[[R, t], [0, 1]]`` from 12 row-major numbers; DataFormatError unless ``R`` is a rotation."""
-    T = np.eye(4)
-    T[:3, :4] = values.reshape(3, 4)
-    R = T[:3, :3]
-    if np.abs(R.T @ R - np.eye(3)).max() > ROTATION_TOLERANCE or np.linalg.det(R) < 0:
-        raise DataFormatError(path, f"calibration {key} is not a rigid transform (its 3x3 block is not a rotation)")
-    if np.linalg.norm(T[:3, 3]) > MAX_SENSOR_OFFSET:
-        raise DataFormatError(path, f"calibration {key} offset {T[:3, 3].tolist()} m is farther than "
-                                    f"{MAX_SENSOR_OFFSET:g} m: not two sensors of one vehicle")
-    return T
-
-
 class KittiOdometrySequence:
     """A KITTI odometry sequence, read lazily frame by frame with validation and clear errors.
 
@@ -135,7 +119,7 @@ class KittiOdometrySequence:
     """
 
     def __init__(self, basedir, sequence: str | int, frames=None, poses=None, progress: bool = False):
-        from slamlib.kitti.raw import _normalise_frames
+        from slamlib.kitti.raw import _normalise_frames, check_numbered_files
 
         self.basedir = Path(basedir)
         self.sequence = sequence_name(sequence)
@@ -148,7 +132,8 @@ class KittiOdometrySequence:
                                              f"basedir/sequences/NN); sequences there: {', '.join(found) or 'none'}")
         calib = read_calib_file(self.path / "calib.txt", {"Tr": CALIB_KEYS["Tr"]})
         self.calib = calib
-        self.Tr = _rigid_3x4(self.path / "calib.txt", calib["Tr"], "Tr")
+        Tr = calib["Tr"].reshape(3, 4)
+        self.Tr = rigid_transform(self.path / "calib.txt", Tr[:, :3], Tr[:, 3], "Tr's 3x3 block", "Tr's offset")
         self.T_velo_imu = np.eye(4)
         times_path = self.path / "times.txt"
         if not times_path.is_file():
@@ -159,7 +144,7 @@ class KittiOdometrySequence:
         if n == 0:
             raise DataFormatError(times_path, "holds no times: the sequence has no frames")
         self.velo_dir = self.path / "velodyne"
-        self._check_scans(n)
+        check_numbered_files(self.velo_dir, ".bin", n, "Velodyne scans", "times in times.txt", SCAN_DIGITS)
         self.poses_path = Path(poses) if poses is not None else self.basedir / "poses" / f"{self.sequence}.txt"
         if poses is None and not self.poses_path.is_file():
             self.poses_path, self.ground_truth = None, None
@@ -171,17 +156,6 @@ class KittiOdometrySequence:
             Tr_inv = np.linalg.inv(self.Tr)
             self.ground_truth = Tr_inv[None] @ P[:n] @ self.Tr[None]
         self.frames = _normalise_frames(frames, n)
-
-    def _check_scans(self, n: int) -> None:
-        if not self.velo_dir.is_dir():
-            raise DataFormatError(self.velo_dir, f"folder of Velodyne scans not found (needed for the {n} frames "
-                                                 "of times.txt)")
-        names = {e.name for e in os.scandir(self.velo_dir) if e.name.endswith(".bin")}
-        missing = [i for i in range(n) if f"{i:0{SCAN_DIGITS}d}.bin" not in names]
-        if missing:
-            raise DataFormatError(self.velo_dir, f"fewer Velodyne scans than the {n} times in times.txt: "
-                                                 f"{len(missing)} missing (first: {missing[0]:0{SCAN_DIGITS}d}.bin; "
-                                                 f"files are numbered {0:0{SCAN_DIGITS}d}.bin upwards)")
 
     def velodyne_path(self, index: int) -> Path:
         """``velodyne/NNNNNN.bin`` of frame ``index``."""

@@ -236,13 +236,15 @@ def offset_by_motion(particles: Particles3D, imu, dt: float, previous_imu=None,
     return Particles3D(R, t)
 
 
-def motion_noise_sigma(imu, dt: float, previous_imu=None, motion_config: MotionConfig = MotionConfig()) -> np.ndarray:
+def motion_noise_sigma(imu, dt: float, previous_imu=None, motion_config: MotionConfig = MotionConfig(),
+                       constant_velocity: bool = False, start: bool = False) -> np.ndarray:
     """Standard deviations ``(6,)`` of step 6's noise for this frame: translation x, y, z (m), roll, pitch, yaw (rad).
 
-    ``motion_config.sigma(dp, dt)`` (:class:`~slamlib.slam3d.config.MotionConfig`) with ``dp`` the translation
-    of :func:`motion_increment`: the spread grows with the distance travelled and with time.
+    ``motion_config.sigma(dp, dt, constant_velocity, start)`` (:class:`~slamlib.slam3d.config.MotionConfig`) with
+    ``dp`` the translation of :func:`motion_increment`: the spread grows with the distance travelled and with time,
+    and LIDAR-only (``constant_velocity``; ``start``: no motion known yet) with what that model cannot know.
     """
-    return motion_config.sigma(motion_increment(imu, dt, previous_imu)[1], dt)
+    return motion_config.sigma(motion_increment(imu, dt, previous_imu)[1], dt, constant_velocity, start)
 
 
 # ------------------------------------------------------------------------------------------------ step 6

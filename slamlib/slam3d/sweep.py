@@ -87,15 +87,14 @@ def drive_task(task: SweepTask, data_dir) -> str:
     from slamlib.synth.writer import drive_dir, read_marker
 
     base = Path(data_dir) / task.drive_key()
-    frames = task.frames if task.route in ("00", "05", "07") else (task.frames[1] if task.frames[1] else None)
     if task.layout == "raw":
         marker = read_marker(drive_dir(base, "2011_09_26", 1))
         if marker is None or marker.get("version") != GENERATOR_VERSION:
-            write_drive(base, task.route, frames=frames, seed=task.seed, progress=False)
+            write_drive(base, task.route, frames=task.frames, seed=task.seed, progress=False)
     else:
         marker = read_marker(base / "sequences" / "00")
         if marker is None or marker.get("version") != GENERATOR_VERSION:
-            write_sequence(base, task.route, 0, frames=frames, seed=task.seed, progress=False)
+            write_sequence(base, task.route, 0, frames=task.frames, seed=task.seed, progress=False)
     return str(base)
 
 

@@ -160,19 +160,18 @@ def _cast_scans(r: Route, t_route, T_w_velo, rng_scene, rng_lidar, lidar: Hdl64,
     ``r.pose(t) @ T_imu_velo`` at each column's firing time (:func:`slamlib.synth.lidar.column_time_offsets`)."""
     from tqdm.auto import tqdm
 
-    from slamlib.synth.lidar import column_time_offsets
+    from slamlib.synth.lidar import column_time_offsets, ray_columns
 
     dense_t = np.linspace(t_route[0], t_route[-1], max(2, int((t_route[-1] - t_route[0]) * 20) + 2))
     scene = build_scene(r.position(dense_t), seed=int(rng_scene.integers(2**63)))
     rc = scene.raycasting_scene()
     dirs = ray_directions(lidar)
     offsets = column_time_offsets(lidar)
+    cols = ray_columns(lidar) if t_sweep is not None else None
     for k in tqdm(range(len(t_route)), desc=desc, disable=not progress, unit="scan"):
-        columns = None
-        if t_sweep is not None:
-            t = np.clip(t_sweep[k] + offsets, r.t0, r.t1)
-            columns = r.pose(t) @ T_imu_velo
-        yield k, simulate_scan(rc, scene.albedo, T_w_velo[k], rng_lidar, lidar, dirs, column_poses=columns)
+        poses = None if t_sweep is None else r.pose(np.clip(t_sweep[k] + offsets, r.t0, r.t1)) @ T_imu_velo
+        yield k, simulate_scan(rc, scene.albedo, T_w_velo[k], rng_lidar, lidar, dirs, column_poses=poses,
+                               columns=cols)
 
 
 def write_sequence(basedir, route="07", sequence: int | str = 7, frames=DEFAULT_FRAMES, seed: int = 0,

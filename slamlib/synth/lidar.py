@@ -95,29 +95,30 @@ class Hdl64:
         return asdict(self)
 
 
-def ray_directions(model: Hdl64 = Hdl64()) -> np.ndarray:
-    """Unit ray directions ``(M, 3)`` float32 in the Velodyne frame, beam-major (beam b, column c), without
-    the rays the ego vehicle hides (``M <= B * C``)."""
+def _ray_grid(model: Hdl64) -> tuple[np.ndarray, np.ndarray]:
+    """Every ray's unit direction ``(M, 3)`` float64 and azimuth column ``(M,)``, beam-major, the rays the ego
+    vehicle hides removed."""
     e = hdl64_elevations()[:: model.beam_stride]
     a = 2 * np.pi * np.arange(model.columns) / model.columns
     ce, se = np.cos(e)[:, None], np.sin(e)[:, None]
     d = np.stack([ce * np.cos(a)[None], ce * np.sin(a)[None], np.broadcast_to(se, (len(e), len(a)))], axis=-1)
     d = d.reshape(-1, 3)
+    cols = np.broadcast_to(np.arange(model.columns), (len(e), model.columns)).reshape(-1)
     if model.ego_occlusion:
-        d = d[~_hits_box(d, EGO_BOX)]
-    return d.astype(np.float32)
+        seen = ~_hits_box(d, EGO_BOX)
+        d, cols = d[seen], cols[seen]
+    return d, cols.astype(np.int64)
+
+
+def ray_directions(model: Hdl64 = Hdl64()) -> np.ndarray:
+    """Unit ray directions ``(M, 3)`` float32 in the Velodyne frame, beam-major (beam b, column c), without
+    the rays the ego vehicle hides (``M <= B * C``)."""
+    return _ray_grid(model)[0].astype(np.float32)
 
 
 def ray_columns(model: Hdl64 = Hdl64()) -> np.ndarray:
     """The azimuth column ``(M,)`` int64 of each ray of :func:`ray_directions` (same order, same occlusion)."""
-    e = hdl64_elevations()[:: model.beam_stride]
-    cols = np.broadcast_to(np.arange(model.columns), (len(e), model.columns)).reshape(-1)
-    if model.ego_occlusion:
-        a = 2 * np.pi * np.arange(model.columns) / model.columns
-        ce, se = np.cos(e)[:, None], np.sin(e)[:, None]
-        d = np.stack([ce * np.cos(a)[None], ce * np.sin(a)[None], np.broadcast_to(se, (len(e), len(a)))], axis=-1)
-        cols = cols[~_hits_box(d.reshape(-1, 3), EGO_BOX)]
-    return cols.astype(np.int64)
+    return _ray_grid(model)[1]
 
 
 def column_time_offsets(model: Hdl64 = Hdl64(), period: float = SCAN_PERIOD_S) -> np.ndarray:
@@ -131,7 +132,7 @@ def column_time_offsets(model: Hdl64 = Hdl64(), period: float = SCAN_PERIOD_S) -
 
 def simulate_scan(raycasting_scene, albedo: np.ndarray, T_w_velo: np.ndarray, rng: np.random.Generator,
                   model: Hdl64 = Hdl64(), directions: np.ndarray | None = None,
-                  column_poses: np.ndarray | None = None) -> np.ndarray:
+                  column_poses: np.ndarray | None = None, columns: np.ndarray | None = None) -> np.ndarray:
     """One scan ``(N, 4)`` float32 ``x, y, z, reflectance`` in the Velodyne frame.
 
     Parameters
@@ -144,6 +145,7 @@ def simulate_scan(raycasting_scene, albedo: np.ndarray, T_w_velo: np.ndarray, rn
     column_poses : (columns, 4, 4), optional
         The Velodyne pose at each azimuth column's firing time (:func:`column_time_offsets`): the sweep is
         distorted as a real one; each point is stored in the sensor frame of its own column's instant.
+        ``columns`` optionally the precomputed :func:`ray_columns` (with ``directions``).
     """
     import open3d as o3d
     d = ray_directions(model) if directions is None else directions
@@ -153,7 +155,7 @@ def simulate_scan(raycasting_scene, albedo: np.ndarray, T_w_velo: np.ndarray, rn
         rays[:, :3] = np.asarray(T_w_velo[:3, 3], dtype=np.float32)
         rays[:, 3:] = d @ R.T
     else:
-        cols = ray_columns(model)
+        cols = ray_columns(model) if columns is None else columns
         if len(cols) != len(d) or len(column_poses) != model.columns:
             raise ValueError(f"column_poses must be ({model.columns}, 4, 4) for the model's own ray directions")
         P = np.asarray(column_poses, dtype=np.float64)[cols]

@@ -8,6 +8,7 @@ and against the definitions, on sizes that cross every chunk boundary of its loo
 
 import re
 
+import numba
 import numpy as np
 import pytest
 
@@ -778,3 +779,20 @@ def test_reference_transform_is_float64_arithmetic_rounded_once():
     T = make_pose(rpy_to_matrix(np.array([0.01, -0.02, 1.3])), np.array([123.4, -56.7, 1.9]))
     exact = (pts.astype(np.float64) @ T[:3, :3].T + T[:3, 3]).astype(np.float32)
     np.testing.assert_array_equal(reference.transform_points(T, pts), exact)
+
+
+def test_launch_runs_one_task_on_one_thread_and_restores_the_thread_count():
+    """``kernels.cpu._launch(kernel, n, chunk, *args)`` calls ``kernel(*args, chunk)``: on one thread when
+    ``n <= chunk`` (a single task), on the pool's threads otherwise, and leaves the thread count as it found it."""
+    threads = numba.get_num_threads()
+    seen = []
+
+    def spy(a, chunk):
+        seen.append((a, chunk, numba.get_num_threads()))
+        return a + chunk
+
+    assert cpu._launch(spy, 5, 5, 10) == 15
+    assert numba.get_num_threads() == threads
+    assert cpu._launch(spy, 6, 5, 20) == 25
+    assert seen == [(10, 5, 1), (20, 5, threads)]
+    assert numba.get_num_threads() == threads

@@ -130,15 +130,16 @@ def _move_lut_nb(R, t, dR, trans_delta, sigma, key, perm, bits, normal, step_tab
                                  trans_delta[2] + step_tab[2, _hash_index(h, 2, perm, bits)], t_new, i)
 
 
-def _launch(kernel, tasks, *args):
-    """``kernel(*args)`` with its ``prange`` on one thread when it has a single task: waking the pool's other
-    threads would cost more than the work (and on a busy machine, a scheduler time slice)."""
-    if tasks > 1:
-        return kernel(*args)
+def _launch(kernel, n, chunk, *args):
+    """``kernel(*args, chunk)``, a ``prange`` over ``ceil(n / chunk)`` tasks of ``chunk`` items, on one thread
+    when that is a single task: waking the pool's other threads would cost more than the work (and on a busy
+    machine, a scheduler time slice). The thread count is restored afterwards."""
+    if n > chunk:
+        return kernel(*args, chunk)
     threads = numba.get_num_threads()
     numba.set_num_threads(1)
     try:
-        return kernel(*args)
+        return kernel(*args, chunk)
     finally:
         numba.set_num_threads(threads)
 
@@ -201,13 +202,13 @@ def move_particles(R, t, rpy_delta, trans_delta, noise, sigma, out=None):
         trig_tab = np.empty((3, T, 2) if with_trig else (3, 1, 2))
         _lut_tables_nb(tables.normal, sigma, step_tab, trig_tab, with_trig)
         key = np.uint64(frame_key(np.uint64(noise.step), np.uint64(noise.seed)))
-        _launch(_move_lut_nb, -(-P // PARTICLE_BLOCK), R, t, dR, trans, sigma, key, tables.perm,
-                np.int64(tables.bits), tables.normal, step_tab, trig_tab, with_trig, R_new, t_new, PARTICLE_BLOCK)
+        _launch(_move_lut_nb, P, PARTICLE_BLOCK, R, t, dR, trans, sigma, key, tables.perm, np.int64(tables.bits),
+                tables.normal, step_tab, trig_tab, with_trig, R_new, t_new)
         return R_new, t_new
     noise = np.ascontiguousarray(noise, dtype=np.float64)
     if noise.shape != (P, 6):
         raise ValueError(f"noise must have shape (P, 6) = ({P}, 6), got {noise.shape}")
-    _launch(_move_nb, -(-P // PARTICLE_BLOCK), R, t, dR, trans, noise, sigma, R_new, t_new, PARTICLE_BLOCK)
+    _launch(_move_nb, P, PARTICLE_BLOCK, R, t, dR, trans, noise, sigma, R_new, t_new)
     return R_new, t_new
 
 
@@ -266,12 +267,11 @@ def transform_points(T, points, out=None):
         out = np.empty_like(pts)
     elif out is pts or (isinstance(out, np.ndarray) and out.shape == pts.shape and _same_memory(out, pts)):
         _check_out(out, pts, "out")
-        _launch(_transform_inplace_nb, -(-len(pts) // TRANSFORM_CHUNK), R32, t32, out.reshape(-1), TRANSFORM_CHUNK)
+        _launch(_transform_inplace_nb, len(pts), TRANSFORM_CHUNK, R32, t32, out.reshape(-1))
         return out
     else:
         _check_out(out, pts, "out")
-    _launch(_transform_nb, -(-len(pts) // TRANSFORM_CHUNK), R32, t32, pts.reshape(-1), out.reshape(-1),
-            TRANSFORM_CHUNK)
+    _launch(_transform_nb, len(pts), TRANSFORM_CHUNK, R32, t32, pts.reshape(-1), out.reshape(-1))
     return out
 
 

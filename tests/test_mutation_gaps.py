@@ -796,3 +796,26 @@ def test_launch_runs_one_task_on_one_thread_and_restores_the_thread_count():
     assert cpu._launch(spy, 6, 5, 20) == 25
     assert seen == [(10, 5, 1), (20, 5, threads)]
     assert numba.get_num_threads() == threads
+
+
+def test_ceil_div_counts_the_tasks_that_cover_n_items():
+    """``kernels.cpu._ceil_div(n, chunk) = ceil(n / chunk)``: the task count of every ``prange`` in the CPU backend."""
+    for n, chunk in [(0, 4), (1, 4), (3, 4), (4, 4), (5, 4), (8, 4), (9, 4), (7, 1), (1, 1), (100, 64)]:
+        assert cpu._ceil_div(n, chunk) == -(-n // chunk), (n, chunk)
+
+
+def test_move_particles_takes_float32_particles_and_returns_float64():
+    """``move_particles`` converts ``R``, ``t`` to float64 before the kernel (its documented ``(P, 3, 3) f8`` result):
+    float32 particles give the float64 result of the same poses, not a float32 one."""
+    rng = np.random.default_rng(4)
+    P = 5
+    R = np.stack([geometry.rpy_to_matrix(a) for a in rng.uniform(-0.5, 0.5, (P, 3))]).astype(np.float32)
+    t = rng.normal(size=(P, 3)).astype(np.float32)
+    noise = rng.normal(size=(P, 6))
+    sigma = np.array([0.1, 0.2, 0.05, 0.01, 0.02, 0.03])
+    args = ([0.01, -0.02, 0.03], [1.0, 0.1, 0.0], noise, sigma)
+    R_new, t_new = cpu.move_particles(R, t, *args)
+    R_ref, t_ref = cpu.move_particles(R.astype(np.float64), t.astype(np.float64), *args)
+    assert R_new.dtype == t_new.dtype == np.float64
+    np.testing.assert_array_equal(R_new, R_ref)
+    np.testing.assert_array_equal(t_new, t_ref)

@@ -61,6 +61,12 @@ _frame_key = _L["frame_key"]
 _thread_hash = _L["thread_hash"]
 _hash_index = _L["hash_index"]
 
+@njit(cache=True, inline="always")
+def _ceil_div(n, chunk):
+    """``ceil(n / chunk)`` for ``n >= 0``, ``chunk >= 1``: the number of tasks of ``chunk`` items covering ``n``."""
+    return (n + chunk - 1) // chunk
+
+
 #: Scan points per parallel task of ``score_particles``.
 POINT_CHUNK = 64
 #: Particles per parallel task of ``score_particles`` (inner loop: one point, consecutive particles).
@@ -78,9 +84,9 @@ LUT_TRIG_TABLE_RATIO = 1
 @njit(parallel=True, cache=True)
 def _move_nb(R, t, dR, trans_delta, noise, sigma, R_new, t_new, block):
     P = R.shape[0]
-    for b in prange((P + block - 1) // block):
-        N = np.empty((3, 3))
-        A = np.empty((3, 3))
+    for b in prange(_ceil_div(P, block)):
+        N = np.empty_like(dR)  # 3x3 scratch, once per block
+        A = np.empty_like(dR)
         for i in range(b * block, min(P, (b + 1) * block)):
             _rpy_matrix(sigma[3] * noise[i, 3], sigma[4] * noise[i, 4], sigma[5] * noise[i, 5], N)
             _pose_times(R, i, dR, A)  # A = R_i dR (read before R_new[i] is written: R_new may be R)
@@ -109,9 +115,9 @@ def _lut_tables_nb(normal, sigma, step_tab, trig_tab, with_trig):
 def _move_lut_nb(R, t, dR, trans_delta, sigma, key, perm, bits, normal, step_tab, trig_tab, with_trig, R_new, t_new,
                  block):
     P = R.shape[0]
-    for b in prange((P + block - 1) // block):
-        N = np.empty((3, 3))
-        A = np.empty((3, 3))
+    for b in prange(_ceil_div(P, block)):
+        N = np.empty_like(dR)  # 3x3 scratch, once per block
+        A = np.empty_like(dR)
         for i in range(b * block, min(P, (b + 1) * block)):
             h = _thread_hash(i, key)  # one hash per particle; the six table indexes come from it
             i3 = _hash_index(h, 3, perm, bits)
@@ -226,7 +232,7 @@ def _transform_nb(R, t, x, y, chunk):
     """``y[3j:3j+3] = R[0] x[3j:3j+3] + t[0]`` over the flat float32 arrays ``x``, ``y`` (3N,). Unsigned indexes:
     no negative-index wrap-around test, so the inner loop vectorises."""
     n = x.shape[0] // 3
-    for c in prange((n + chunk - 1) // chunk):
+    for c in prange(_ceil_div(n, chunk)):
         for j in range(c * chunk, min(n, (c + 1) * chunk)):
             k = _U3 * np.uint64(j)
             wx, wy, wz = _world_point(R, t, 0, x[k], x[k + _U1], x[k + _U2])
@@ -239,7 +245,7 @@ def _transform_nb(R, t, x, y, chunk):
 def _transform_inplace_nb(R, t, x, chunk):
     """:func:`_transform_nb` with ``y = x`` (one array: no aliasing check for LLVM to fail)."""
     n = x.shape[0] // 3
-    for c in prange((n + chunk - 1) // chunk):
+    for c in prange(_ceil_div(n, chunk)):
         for j in range(c * chunk, min(n, (c + 1) * chunk)):
             k = _U3 * np.uint64(j)
             wx, wy, wz = _world_point(R, t, 0, x[k], x[k + _U1], x[k + _U2])
@@ -279,7 +285,7 @@ def transform_points(T, points, out=None):
 @njit(cache=True, inline="always")
 def _n_chunks(N, P, pt_chunk, part_chunk):
     """Number of point chunks and of particle chunks; tasks are their ``npc * nqc`` pairs."""
-    return (N + pt_chunk - 1) // pt_chunk, (P + part_chunk - 1) // part_chunk
+    return _ceil_div(N, pt_chunk), _ceil_div(P, part_chunk)
 
 
 @njit(cache=True, inline="always")

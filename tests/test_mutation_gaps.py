@@ -819,3 +819,32 @@ def test_move_particles_takes_float32_particles_and_returns_float64():
     assert R_new.dtype == t_new.dtype == np.float64
     np.testing.assert_array_equal(R_new, R_ref)
     np.testing.assert_array_equal(t_new, t_ref)
+
+
+@pytest.mark.parametrize("which", ["rpy_delta", "trans_delta", "sigma"])
+def test_move_particles_names_a_vector_of_the_wrong_length(which):
+    """``move_particles`` needs 3 (``rpy_delta``, ``trans_delta``) and 6 (``sigma``) values: one more is an error
+    naming the argument, not silently ignored (the kernels read only the first 3 or 6)."""
+    P = 2
+    R, t = np.tile(np.eye(3), (P, 1, 1)), np.zeros((P, 3))
+    args = {"rpy_delta": np.zeros(3), "trans_delta": np.zeros(3), "sigma": np.ones(6)}
+    args[which] = np.zeros(args[which].size + 1)
+    with pytest.raises(ValueError, match=rf"{which} must have {args[which].size - 1} values"):
+        cpu.move_particles(R, t, args["rpy_delta"], args["trans_delta"], np.zeros((P, 6)), args["sigma"])
+
+
+def test_systematic_resample_normalises_float32_weights_in_float64():
+    """``systematic_resample`` accumulates the weights in float64 whatever their dtype: on a pointer that falls
+    between the float32 and the float64 cumulative sums of the same weights, float32 weights pick the index the
+    reference picks from their float64 values."""
+    P = 10
+    w32 = np.full(P, 0.1, np.float32)
+    w64 = w32.astype(np.float64)
+    c32 = np.cumsum(w32 / w32.sum())
+    c64 = np.cumsum(w64 / w64.sum())
+    u0s = np.linspace(0.0, 0.999, 99901)
+    pointers = (u0s[:, None] + np.arange(P)) / P
+    differ = np.any(np.searchsorted(c32, pointers, side="right") != np.searchsorted(c64, pointers, side="right"), 1)
+    assert differ.any(), "no pointer separates the float32 and float64 sums: the test needs another weight"
+    u0 = u0s[np.argmax(differ)]
+    np.testing.assert_array_equal(cpu.systematic_resample(w32, u0), reference.systematic_resample(w64, u0))

@@ -158,6 +158,14 @@ def _check_particles(R, t):
     return R, t
 
 
+def _vector(x, n, name):
+    """``x`` as a contiguous float64 array of ``n`` values (any shape holding ``n`` values, as ``reshape``)."""
+    v = np.ascontiguousarray(x, dtype=np.float64)
+    if v.size != n:
+        raise ValueError(f"{name} must have {n} values, got shape {v.shape}")
+    return v.reshape(n)
+
+
 def _check_out(out, like, name):
     """``out`` as a destination for an array shaped and typed like ``like``: C-contiguous, same dtype and shape."""
     if not (isinstance(out, np.ndarray) and out.dtype == like.dtype and out.shape == like.shape
@@ -187,9 +195,9 @@ def move_particles(R, t, rpy_delta, trans_delta, noise, sigma, out=None):
     """
     R, t = _check_particles(R, t)
     P = R.shape[0]
-    sigma = np.ascontiguousarray(sigma, dtype=np.float64).reshape(6)
-    rpy = np.asarray(rpy_delta, dtype=np.float64).reshape(3)
-    trans = np.ascontiguousarray(trans_delta, dtype=np.float64).reshape(3)
+    sigma = _vector(sigma, 6, "sigma")
+    rpy = _vector(rpy_delta, 3, "rpy_delta")
+    trans = _vector(trans_delta, 3, "trans_delta")
     dR = np.empty((3, 3))
     _rpy_matrix(rpy[0], rpy[1], rpy[2], dR)
     if out is None:
@@ -262,7 +270,7 @@ def transform_points(T, points, out=None):
     C-contiguous float32 array). Parallel over spans of ``TRANSFORM_CHUNK`` points; the arithmetic is float32
     with contraction into FMAs (agrees with the reference to float32 rounding, not bit for bit).
     """
-    T = np.asarray(T, dtype=np.float64)
+    T = np.asarray(T)  # cast to float32 below
     pts = np.ascontiguousarray(points, dtype=np.float32)
     if T.shape != (4, 4) or pts.ndim != 2 or pts.shape[1] != 3:
         raise ValueError(f"need T (4, 4) and points (N, 3), got {T.shape} and {pts.shape}")

@@ -14,7 +14,7 @@ export NUMBA_CACHE_DIR ?= $(CURDIR)/_cache/numba
 SYSTEM_PACKAGES := libusb-1.0-0 libvulkan1 mesa-vulkan-drivers
 SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 
-.PHONY: all setup system-packages book test test-unit test-notebooks bench clean mathjax browser-check lab mutate
+.PHONY: all setup system-packages book test test-unit test-notebooks bench clean mathjax browser-check lab mutate mutate-run
 
 all: book
 
@@ -57,24 +57,39 @@ lab: setup
 	$(BIN)/jupyter lab notebooks/
 
 # Mutation testing of the core math (not in CI: slow). mutmut (installed on first use) works on a copy of slamlib/
-# and tests/ in _build/mutate, so the checkout is never mutated; config in pyproject.toml [tool.mutmut].
+# and tests/ (MUTATE_DIR), so the checkout is never mutated; config in pyproject.toml [tool.mutmut].
 # mutmut forks a worker per mutant: GNU OpenMP (Numba's default parallel layer here) aborts after fork, so the
-# workqueue layer is used. MUTANTS limits the run to mutant-name globs, e.g. make mutate MUTANTS='slamlib.resampling.* slamlib.metrics.*'.
-# Numba decorators are stripped from the copy (tests/mutation/strip_jit.py) and the tests run with NUMBA_DISABLE_JIT=1,
-# so jitted bodies are mutated and run as Python (prange = range). MUTATE_TESTS narrows the test selection of the
-# copy to the files that test the chosen modules, e.g. MUTATE_TESTS='tests/test_maps.py tests/test_kernels_cpu.py'.
-# Per-module scores: tests/mutation/score.py; report: tests/mutation/REPORT.md.
-MUTMUT_VERSION := 3.8.1
-MUTATE_DIR     := _build/mutate
-MUTANTS        ?=
-MUTATE_TESTS   ?=
+# workqueue layer is used. `make mutate` runs two groups and prints one table (tests/mutation/score.py):
+# - MUTATE_JITTED, the modules with Numba kernels: their decorators are stripped from the copy
+#   (tests/mutation/strip_jit.py) and the tests run with NUMBA_DISABLE_JIT=1, so jitted bodies are mutated and run
+#   as Python (prange = range); only the kernel and map tests are selected (MUTATE_JITTED_TESTS).
+# - MUTATE_PURE, plain-Python modules: the copy keeps its decorators and the tests run jitted (the pipeline and
+#   reader tests call the kernels, far too slow as Python), with the whole selection of pyproject.toml.
+# One group or module: make mutate-run MUTANTS='slamlib.metrics.*' [MUTATE_JIT=0|1] [MUTATE_TESTS='tests/a.py ...']
+# [MUTATE_DIR=...]. Report: tests/mutation/REPORT.md.
+MUTMUT_VERSION      := 3.8.1
+MUTATE_DIR          ?= _build/mutate
+MUTANTS             ?=
+MUTATE_TESTS        ?=
+MUTATE_JIT          ?= 0
+MUTATE_PURE         := slamlib.resampling.* slamlib.metrics.* slamlib.geometry.* slamlib.odometry.* \
+                       slamlib.sim1d.* slamlib.slam3d.* slamlib.kitti.*
+MUTATE_JITTED       := slamlib.noise.* slamlib.maps.* slamlib.kernels.*
+MUTATE_JITTED_TESTS := tests/test_noise.py tests/test_maps.py tests/test_kernels_cpu.py tests/test_mutation_gaps.py
 mutate: setup
+	$(MAKE) --no-print-directory mutate-run MUTATE_DIR=_build/mutate-pure MUTATE_JIT=1 MUTANTS='$(MUTATE_PURE)'
+	$(MAKE) --no-print-directory mutate-run MUTATE_DIR=_build/mutate-jitted MUTATE_JIT=0 MUTANTS='$(MUTATE_JITTED)' \
+	  MUTATE_TESTS='$(MUTATE_JITTED_TESTS)'
+	$(BIN)/python tests/mutation/score.py _build/mutate-pure/results.txt _build/mutate-jitted/results.txt
+
+mutate-run: setup
 	@$(BIN)/python -c "import mutmut" 2>/dev/null || $(BIN)/python -m pip install -q -c requirements.lock mutmut==$(MUTMUT_VERSION)
 	rm -rf $(MUTATE_DIR) && mkdir -p $(MUTATE_DIR)
 	tar --exclude=__pycache__ -cf - slamlib tests pyproject.toml | tar -xf - -C $(MUTATE_DIR)
-	$(BIN)/python tests/mutation/strip_jit.py $(MUTATE_DIR)
+	[ "$(MUTATE_JIT)" = 1 ] || $(BIN)/python tests/mutation/strip_jit.py $(MUTATE_DIR)
 	$(BIN)/python tests/mutation/select_tests.py $(MUTATE_DIR) $(MUTATE_TESTS)
-	cd $(MUTATE_DIR) && NUMBA_DISABLE_JIT=1 NUMBA_CACHE_DIR=$(CURDIR)/$(MUTATE_DIR)/numba NUMBA_THREADING_LAYER=workqueue nice -n 19 $(CURDIR)/$(BIN)/mutmut run --max-children 2 $(MUTANTS)
+	cd $(MUTATE_DIR) && $(if $(filter 1,$(MUTATE_JIT)),,NUMBA_DISABLE_JIT=1) NUMBA_CACHE_DIR=$(CURDIR)/$(MUTATE_DIR)/numba \
+	  NUMBA_THREADING_LAYER=workqueue nice -n 19 $(CURDIR)/$(BIN)/mutmut run --max-children 2 $(MUTANTS)
 	cd $(MUTATE_DIR) && $(CURDIR)/$(BIN)/mutmut results --all true > results.txt && \
 	  $(CURDIR)/$(BIN)/python $(CURDIR)/tests/mutation/score.py results.txt
 

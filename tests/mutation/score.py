@@ -1,6 +1,7 @@
 """Mutation score per module from ``mutmut results --all true`` output (``make mutate`` runs it).
 
-Usage: ``python tests/mutation/score.py results.txt``. A line ``    slamlib.metrics.x_f__mutmut_3: killed`` counts
+Usage: ``python tests/mutation/score.py results.txt [more.txt ...]`` (``make mutate`` passes its two groups'
+files: a mutant is counted in the file where it was checked). A line ``    slamlib.metrics.x_f__mutmut_3: killed`` counts
 for module ``slamlib.metrics``. Score = killed (+ timeout) / (all - skipped), as mutmut's own badge; mutants with
 no covering test count as not killed. Prints a Markdown table and then every mutant not killed.
 """
@@ -17,10 +18,11 @@ def module_of(name: str) -> str:
     return re.split(r"\.x[_\u01c1]", name, maxsplit=1)[0]
 
 
-def main(path: str) -> None:
+def main(paths: list[str]) -> None:
     counts: dict[str, Counter] = defaultdict(Counter)
     alive: list[str] = []
-    for line in open(path, encoding="utf-8"):
+    lines = [line for path in paths for line in open(path, encoding="utf-8")]
+    for line in lines:
         line = line.strip()
         if "__mutmut_" not in line or ": " not in line:
             continue
@@ -44,4 +46,4 @@ def main(path: str) -> None:
 
 
 if __name__ == "__main__":
-    main(sys.argv[1])
+    main(sys.argv[1:])

@@ -116,9 +116,10 @@ def test_write_poses_rejects_3d_wrong_shape(tmp_path):
 
 
 def test_write_poses_non_finite_message_counts(tmp_path):
-    """Three poses, the 2nd and 3rd with NaN / inf: '2 of 3, the first at index 1'; nothing is written."""
+    """Three poses, the 2nd and 3rd with NaN / inf (each pose checked whole, bottom row included): '2 of 3, the
+    first at index 1'; nothing is written."""
     T = np.tile(np.eye(4), (3, 1, 1))
-    T[1, 0, 3] = np.nan
+    T[1, 3, 3] = np.nan
     T[2, 2, 2] = np.inf
     msg = "refusing to write a trajectory with non-finite (NaN / inf) poses: 2 of 3, the first at index 1"
     assert str(_raises(lambda: write_kitti_poses(tmp_path / "p.txt", T), ValueError)) == msg
@@ -312,3 +313,20 @@ def test_write_timestamps_round_trip(tmp_path):
         "1970-01-01 00:00:00.000000000\n2011-09-26 13:02:25.964389445\n1677-09-21 00:12:43.145224192\n")
     np.testing.assert_array_equal(read_timestamps_ns(tmp_path / "ts.txt", strictly_increasing=False), ns)
     assert format_timestamp_ns(ns[1]) == "2011-09-26 13:02:25.964389445"
+
+
+def test_writers_convert_object_arrays_to_float(tmp_path):
+    """Object arrays (e.g. a pandas object column's ``.values``) are converted to float64 like any array: the
+    files are identical to those written from float arrays."""
+    T = np.tile(np.eye(4), (2, 1, 1))
+    T[1, :3, 3] = [0.1, 0.2, 0.3]
+    t = np.array([0.5, 1.5])
+    write_kitti_poses(tmp_path / "a.txt", T)
+    write_kitti_poses(tmp_path / "b.txt", T.astype(object))
+    write_tum(tmp_path / "c.txt", t, T)
+    write_tum(tmp_path / "d.txt", t.astype(object), T.astype(object))
+    write_times(tmp_path / "e.txt", t)
+    write_times(tmp_path / "f.txt", t.astype(object))
+    for x, y in ("ab", "cd", "ef"):
+        assert (tmp_path / f"{x}.txt").read_text() == (tmp_path / f"{y}.txt").read_text()
+    assert (tmp_path / "f.txt").read_text() == "0.5\n1.5\n"

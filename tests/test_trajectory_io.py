@@ -134,3 +134,16 @@ def test_write_rejects_bad_shapes(tmp_path):
         write_kitti_poses(tmp_path / "a.txt", np.zeros((3, 4)))
     with pytest.raises(ValueError):
         write_tum(tmp_path / "a.txt", [0.0, 1.0], np.tile(np.eye(4), (3, 1, 1)))
+
+
+def test_empty_trajectories_round_trip(tmp_path):
+    """An empty trajectory (a run with no poses) is written as empty KITTI and TUM files and read back as
+    ``(0, 4, 4)`` poses (and no timestamps), as the readers return for an empty file."""
+    empty = np.zeros((0, 4, 4))
+    write_kitti_poses(tmp_path / "p.txt", empty)
+    assert (tmp_path / "p.txt").read_text() == ""
+    assert read_kitti_poses(tmp_path / "p.txt").shape == (0, 4, 4)
+    write_tum(tmp_path / "t.txt", np.zeros(0), empty, header=False)
+    assert (tmp_path / "t.txt").read_text() == ""
+    t, T = read_tum(tmp_path / "t.txt")
+    assert t.shape == (0,) and T.shape == (0, 4, 4)

@@ -221,13 +221,14 @@ def test_pykitti_check_blank_line_message(tmp_path):
 
 
 def test_pykitti_check_absent_key_is_a_data_format_error_without_line(tmp_path):
-    """A required key pykitti does not find and no line holds (check run without check_calibration) is still a
-    DataFormatError naming the file, with no line."""
+    """A required key pykitti does not find and no line holds (check run without check_calibration) is a
+    DataFormatError naming the file, with no line, saying the key is missing."""
     d = _date_dir(tmp_path)
     path = d / IMU_TO_VELO
     _write(path, f"R: {IDENTITY_9}\n")
     err = _raises(lambda: check_calibration_for_pykitti(d))
-    assert err.path == str(path) and err.line is None and "'T'" in err.message
+    assert err.path == str(path) and err.line is None
+    assert err.message == "calibration key 'T' is missing: pykitti needs 'T:' at the start of a line"
 
 
 def test_pykitti_check_key_line_splits_at_first_colon(tmp_path):

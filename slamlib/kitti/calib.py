@@ -191,8 +191,10 @@ def check_calibration_for_pykitti(date_dir: str | os.PathLike) -> None:
         theirs = pykitti_read_calib_file(path)
         for key in keys:
             if key not in theirs:
-                raise DataFormatError(path, f"calibration key {key!r} has spaces around it: pykitti needs "
-                                            f"'{key}:' at the start of the line", _key_line(path, key))
+                line = _key_line(path, key)
+                problem = "is missing" if line is None else "has spaces around it"
+                raise DataFormatError(path, f"calibration key {key!r} {problem}: pykitti needs '{key}:' at the start "
+                                            "of a line", line)
 
 
 def load_T_velo_imu(date_dir: str | os.PathLike) -> np.ndarray:

@@ -62,7 +62,7 @@ OXTS_FIELDS: tuple[str, ...] = tuple(OxtsPacket._fields)
 N_INT_FIELDS = 5
 assert len(OXTS_FIELDS) == 30
 
-# Physical ranges checked at read time (:func:`check_oxts_ranges`). They are generous on purpose: they only catch
+# Physical ranges checked at read time (:func:`oxts_range_problem`). They are generous on purpose: they only catch
 # values no vehicle can produce, which would otherwise turn into NaN poses far downstream.
 #: Latitude limit (deg): the Mercator projection of the ground truth (``ln tan((90 + lat) / 2)``) diverges at the
 #: poles (lat -90 gives -inf, +90 overflows), so a latitude must lie strictly inside, here within 89 degrees.

@@ -246,8 +246,9 @@ def test_range_image_drops_out_of_grid_points():
     pts = [[0.0, 2.0, 0.0], [3.0, 0.0, 0.0], [0.0, -4.0, 0.0]]  # az 90, 0, -90: no drop, one ring
     img = ss.range_image(pts, az_limits_deg=(-90.0, 90.0), columns=4, n_rings=2)
     np.testing.assert_array_equal(img, [[2.0, 3.0], [np.nan, np.nan]])
-    two_rings = [[3.0, 0.1, 0.0], [5.0, -0.1, 0.0]]  # az ~1.9 then ~358.9 deg: a wrap -> ring 1
-    assert ss.range_image(two_rings, az_limits_deg=(-90.0, 90.0), columns=4, n_rings=1).shape == (1, 2)
+    two_rings = [[5.0, -0.1, 0.0], [3.0, 0.1, 0.0]]  # az ~358.9 then ~1.9 deg: the wrap starts ring 1
+    img = ss.range_image(two_rings, az_limits_deg=(-90.0, 90.0), columns=4, n_rings=1)
+    np.testing.assert_array_equal(img, [[np.nan, np.hypot(5.0, 0.1)]])
     spread = [[0.0, 2.0, 0.0], [1.0, 1.0, 0.0]]  # az 90 then 45: drop pi/4 splits only with min_drop < pi/4
     img = ss.range_image(spread, az_limits_deg=(-90.0, 90.0), columns=8, n_rings=2, min_drop=0.5)
     np.testing.assert_allclose(img, [[2.0, np.nan, np.nan, np.nan], [np.nan, np.sqrt(2.0), np.nan, np.nan]])

@@ -1,0 +1,128 @@
+"""Value tests of ``ParticleSLAM3D.register_frame`` that pin what mutation testing of slamlib.slam3d left unpinned.
+
+Each test builds a tiny filter (20 particles, a few hundred points) and compares against values computed
+independently with the step functions or by hand.
+"""
+
+from types import SimpleNamespace
+
+import numpy as np
+
+from slamlib import geometry
+from slamlib.slam3d import steps
+from slamlib.slam3d.config import FilterConfig, MotionConfig, ScanConfig, SLAM3DConfig
+from slamlib.slam3d.pipeline import MIN_SCAN_POINTS, ParticleSLAM3D
+
+
+def _scan(n=300, seed=0):
+    rng = np.random.default_rng(seed)
+    az = rng.uniform(-np.pi, np.pi, n)
+    r = rng.uniform(5.0, 30.0, n)
+    xyz = np.column_stack([r * np.cos(az), r * np.sin(az), rng.uniform(-1.5, 1.0, n)])
+    return np.column_stack([xyz, np.zeros(n)]).astype(np.float32)
+
+
+def _frame(scan, v=(10.0, 0.0, 0.0), w=(0.0, 0.0, 0.1), dt=0.1):
+    return SimpleNamespace(scan=scan, velocity=np.array(v, float), angular_rate=np.array(w, float), dt=dt)
+
+
+def _config(**kw):
+    return SLAM3DConfig(filter=FilterConfig(particles=20, scored_points=100), **kw)
+
+
+def _sorted(points):
+    p = np.asarray(points, dtype=np.float64)
+    return p[np.lexsort(p.T[::-1])]
+
+
+def _map_of(config, points):
+    m = config.map.make()
+    steps.merge_scan(m, np.eye(4), points, "cpu")
+    return _sorted(m.points())
+
+
+def test_constant_velocity_model_is_lidar_only_even_when_the_frame_has_an_imu():
+    """``MotionConfig(model="constant_velocity")``: a frame WITH IMU values still makes the filter LIDAR-only (no
+    dead-reckoning twin, ``lidar_only`` True); the default model with IMU values is not LIDAR-only."""
+    scan = _scan()
+    cv = ParticleSLAM3D(_config(motion=MotionConfig(model="constant_velocity")))
+    cv.register_frame(_frame(scan))
+    assert cv.lidar_only is True and cv.dead_reckoning is None
+    imu = ParticleSLAM3D(_config())
+    imu.register_frame(_frame(scan))
+    assert imu.lidar_only is False and imu.dead_reckoning.shape == (1, 4, 4)
+
+
+def test_a_frame_without_a_velocity_attribute_makes_the_filter_lidar_only():
+    """A first frame object that has no ``velocity`` attribute at all (KITTI odometry layout) is LIDAR-only."""
+    slam = ParticleSLAM3D(_config())
+    slam.register_frame(SimpleNamespace(scan=_scan(), dt=0.1))
+    assert slam.lidar_only is True and slam.dead_reckoning is None
+
+
+def test_first_frame_merges_the_scan_moved_into_the_body_frame():
+    """``read_scan`` gets ``T_body_velo = inv(T_velo_imu)``: the first frame's map is the cropped scan moved by
+    ``T_body_velo`` (written out here: ``R p + t``), merged at the identity start pose."""
+    scan = _scan()
+    T_velo_imu = geometry.make_pose(geometry.rpy_to_matrix([0.0, 0.0, 0.7]), [2.0, -1.0, 0.5])
+    config = SLAM3DConfig(filter=FilterConfig(particles=20), scan=ScanConfig(downsample_voxel=0.0))
+    slam = ParticleSLAM3D(config, T_velo_imu=T_velo_imu)
+    slam.register_frame(_frame(scan))
+    T = np.linalg.inv(T_velo_imu)
+    body = (scan[:, :3].astype(np.float64) @ T[:3, :3].T + T[:3, 3]).astype(np.float32)
+    expected = _map_of(config, body)
+    np.testing.assert_array_equal(_sorted(slam.map_points()), expected)
+    unmoved = _map_of(config, scan[:, :3])
+    assert expected.shape != unmoved.shape or np.abs(expected - unmoved).max() > 0.5
+
+
+def test_deskew_config_deskews_the_scan_with_the_frames_imu_before_merging():
+    """``ScanConfig(deskew=True)``: the first frame merges ``steps.deskew_scan(points, (v, w), cfg.scan,
+    T_body_velo)`` of the body-frame points, with the frame's own velocity and angular rate."""
+    scan = _scan()
+    T_velo_imu = geometry.make_pose(geometry.rpy_to_matrix([0.0, 0.0, 1.2]), [0.8, -0.3, 1.7])
+    T = np.linalg.inv(T_velo_imu)
+    sc = ScanConfig(downsample_voxel=0.0, deskew=True, sweep_period=0.1)
+    config = SLAM3DConfig(filter=FilterConfig(particles=20), scan=sc)
+    frame = _frame(scan, v=(12.0, 0.5, 0.0), w=(0.0, 0.0, 0.3))
+    slam = ParticleSLAM3D(config, T_velo_imu=T_velo_imu)
+    slam.register_frame(frame)
+    body = steps.read_scan(frame, sc, T)
+    expected = steps.deskew_scan(body, (frame.velocity, frame.angular_rate), sc, T)
+    np.testing.assert_array_equal(_sorted(slam.map_points()), _map_of(config, expected))
+    assert np.abs(_sorted(expected) - _sorted(body)).max() > 0.05  # de-skewing moved the points
+    no_t = steps.deskew_scan(body, (frame.velocity, frame.angular_rate), sc)
+    assert np.abs(no_t - expected).max() > 1e-3  # the mounting matters
+
+
+def test_second_imu_frame_gets_the_ordinary_sigma_not_the_lidar_only_start_search():
+    """In IMU mode the second frame's step-6 spread is ``motion.sigma(increment[1], dt, False, False)``
+    (``start = lidar_only and len(poses) == 1`` is False), not the wide constant-velocity start spread."""
+    scan = _scan()
+    config = _config()
+    slam = ParticleSLAM3D(config)
+    f1, f2 = _frame(scan), _frame(scan, v=(11.0, 0.2, 0.0), w=(0.0, 0.01, 0.12), dt=0.1)
+    slam.register_frame(f1)
+    slam.register_frame(f2)
+    imu1 = (f1.velocity, f1.angular_rate)
+    inc = steps.motion_increment((f2.velocity, f2.angular_rate), 0.1, imu1)
+    np.testing.assert_array_equal(slam.last["sigma"], config.motion.sigma(inc[1], 0.1, False, False))
+    assert not np.allclose(slam.last["sigma"], config.motion.sigma(inc[1], 0.1, False, True))
+
+
+def test_a_scan_of_exactly_min_scan_points_is_merged_and_scored():
+    """A scan of exactly ``MIN_SCAN_POINTS`` points (after the crop) is not degenerate: the first frame merges it
+    and the second frame is scored (``last['scores']`` has one score per particle), none skipped."""
+    n = MIN_SCAN_POINTS
+    ang = np.arange(n) * 2 * np.pi / n
+    scan = np.column_stack([10 * np.cos(ang), 10 * np.sin(ang), np.zeros(n), np.zeros(n)]).astype(np.float32)
+    config = SLAM3DConfig(filter=FilterConfig(particles=20), scan=ScanConfig(downsample_voxel=0.0))
+    slam = ParticleSLAM3D(config)
+    slam.register_frame(_frame(scan))
+    assert slam.n_skipped_frames == 0 and len(slam.map_points()) == n
+    slam.register_frame(_frame(scan))
+    assert slam.n_skipped_frames == 0 and slam.last["scores"].shape == (20,)
+    assert len(slam.last["sample"]) == n
+    short = ParticleSLAM3D(config)
+    short.register_frame(_frame(scan[: n - 1]))
+    assert short.n_skipped_frames == 1 and len(short.map_points()) == 0

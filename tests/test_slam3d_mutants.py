@@ -126,3 +126,79 @@ def test_a_scan_of_exactly_min_scan_points_is_merged_and_scored():
     short = ParticleSLAM3D(config)
     short.register_frame(_frame(scan[: n - 1]))
     assert short.n_skipped_frames == 1 and len(short.map_points()) == 0
+
+
+def test_lidar_only_second_frame_sigma_is_the_constant_velocity_start_spread():
+    """LIDAR-only the second frame's spread is ``motion.sigma(increment[1], dt, True, True)`` with the increment of
+    the zero own motion (``constant_velocity`` is passed as True, the start search is on)."""
+    scan = _scan()
+    config = _config(motion=MotionConfig(model="constant_velocity"))
+    slam = ParticleSLAM3D(config)
+    slam.register_frame(_frame(scan))
+    slam.register_frame(_frame(scan))
+    inc = steps.motion_increment((np.zeros(3), np.zeros(3)), 0.1, None)
+    np.testing.assert_array_equal(slam.last["sigma"], config.motion.sigma(inc[1], 0.1, True, True))
+    assert not np.allclose(slam.last["sigma"], config.motion.sigma(inc[1], 0.1, False, True))
+
+
+def test_a_map_of_one_voxel_is_scored_against():
+    """Only an EMPTY map skips scoring: a first scan of ``MIN_SCAN_POINTS`` points inside one voxel makes a map of
+    one element, and the second frame is scored (one score per particle) and not skipped."""
+    rng = np.random.default_rng(3)
+    n = MIN_SCAN_POINTS
+    scan = np.column_stack([10.05 + rng.uniform(0, 0.01, (n, 3)), np.zeros(n)]).astype(np.float32)
+    config = SLAM3DConfig(filter=FilterConfig(particles=20), scan=ScanConfig(downsample_voxel=0.0))
+    slam = ParticleSLAM3D(config)
+    slam.register_frame(_frame(scan, v=(0, 0, 0), w=(0, 0, 0)))
+    assert len(slam.map) == 1
+    slam.register_frame(_frame(scan, v=(0, 0, 0), w=(0, 0, 0)))
+    assert slam.n_skipped_frames == 0 and slam.last["scores"].shape == (20,) and slam.last["best"] is not None
+
+
+def test_a_skipped_frame_keeps_its_imu_sample_and_sigma():
+    """A degenerate (empty) second frame still records its IMU sample as ``imu_prev`` (the next frame's increment
+    starts from it) and its step-6 ``sigma`` in ``last``; the third frame is then not taken for a first frame."""
+    scan = _scan()
+    config = _config()
+    slam = ParticleSLAM3D(config)
+    f1 = _frame(scan)
+    f2 = _frame(np.zeros((0, 4), np.float32), v=(9.0, 0.1, 0.0), w=(0.0, 0.0, 0.2))
+    slam.register_frame(f1)
+    slam.register_frame(f2)
+    assert slam.n_skipped_frames == 1
+    np.testing.assert_array_equal(slam.imu_prev[0], f2.velocity)
+    np.testing.assert_array_equal(slam.imu_prev[1], f2.angular_rate)
+    inc = steps.motion_increment((f2.velocity, f2.angular_rate), 0.1, (f1.velocity, f1.angular_rate))
+    np.testing.assert_array_equal(slam.last["sigma"], config.motion.sigma(inc[1], 0.1, False, False))
+    slam.register_frame(_frame(scan))
+    assert len(slam.poses) == 3 and len(slam.dr_poses) == 3
+
+
+def test_imu_mode_scores_every_point_without_ground_thinning():
+    """With an IMU the pool is the whole scan (no ``thin_ground``): ``scored_points`` above the scan size samples
+    every point in input order, so ``last['sample']`` and ``last['points']`` are the step-2 points."""
+    scan = _scan()
+    scan[:150, 2] = -1.7  # a flat road for thin_ground to thin
+    config = SLAM3DConfig(filter=FilterConfig(particles=20, scored_points=10_000), scan=ScanConfig(downsample_voxel=0))
+    slam = ParticleSLAM3D(config)
+    slam.register_frame(_frame(scan))
+    slam.register_frame(_frame(scan))
+    points = steps.read_scan(scan, config.scan)
+    np.testing.assert_array_equal(slam.last["points"], points)
+    np.testing.assert_array_equal(slam.last["sample"], points)
+
+
+def test_configured_mean_estimate_is_used_for_the_pose():
+    """``FilterConfig(estimate="mean")`` reaches step 9: the pose is ``pick_best_particle(moved, log_w, "mean")``,
+    not the best particle's pose (checked with ``ess_fraction=0``: no resampling, ``particles`` are the moved)."""
+    scan = _scan()
+    for estimate in ("best", "mean"):
+        config = SLAM3DConfig(filter=FilterConfig(particles=20, estimate=estimate, ess_fraction=0.0))
+        slam = ParticleSLAM3D(config)
+        slam.register_frame(_frame(scan))
+        pose = slam.register_frame(_frame(scan))
+        p, i = slam.particles, slam.last["best"]
+        expected, _ = steps.pick_best_particle(p, slam.log_weights, estimate)
+        np.testing.assert_allclose(pose, expected, atol=1e-12)
+        best_pose = geometry.make_pose(p.R[i], p.t[i])
+        assert np.allclose(pose, best_pose) == (estimate == "best")

@@ -37,7 +37,7 @@ def read_velodyne_scan(path: str | os.PathLike) -> np.ndarray:
 
         try:
             with lzma.open(path) as f:
-                raw = f.read()
+                raw = bytearray(f.read())  # writable: the scan is a writable array, as from a .bin
         except (lzma.LZMAError, EOFError) as exc:
             raise DataFormatError(path, f"not a readable xz file: {exc}") from None
         size = len(raw)

@@ -202,3 +202,15 @@ def test_configured_mean_estimate_is_used_for_the_pose():
         np.testing.assert_allclose(pose, expected, atol=1e-12)
         best_pose = geometry.make_pose(p.R[i], p.t[i])
         assert np.allclose(pose, best_pose) == (estimate == "best")
+
+
+def test_step_11_counts_resamplings_with_the_configured_ess_fraction():
+    """Step 11 uses ``FilterConfig.ess_fraction`` and ``n_resampled`` accumulates: ``ess_fraction=1`` resamples
+    whenever ESS < P (at least 2 of the 3 scored frames; a non-accumulating count would be at most 1),
+    ``ess_fraction=0`` never (0)."""
+    scan = _scan()
+    for frac, at_least, at_most in ((1.0, 2, 3), (0.0, 0, 0)):
+        slam = ParticleSLAM3D(SLAM3DConfig(filter=FilterConfig(particles=20, ess_fraction=frac)))
+        for _ in range(4):
+            slam.register_frame(_frame(scan))
+        assert at_least <= slam.n_resampled <= at_most

@@ -55,12 +55,17 @@ def test_normalise_frames_values_and_dtype():
 
 
 def test_normalise_frames_error_messages():
-    """Full messages for a 0-d / 2-D selection and for frame numbers just past the last frame."""
+    """Full messages for a 0-d / 2-D selection, for frame numbers that are not whole numbers (0.5 was read as
+    frame 0) and for frame numbers just past the last frame."""
     msg = "frames must be a range, a slice or a 1-D sequence of frame numbers"
     for bad in (np.array(2), np.zeros((2, 2), dtype=int)):
         with pytest.raises(ValueError) as info:
             _normalise_frames(bad, N)
         assert str(info.value) == msg
+    for bad, shown in (([0, 0.5], "0.5"), ([np.inf], "inf"), (["1"], "'1'")):
+        with pytest.raises(ValueError) as info:
+            _normalise_frames(bad, N)
+        assert str(info.value).startswith("frames must be whole frame numbers, got ") and shown in str(info.value)
     with pytest.raises(ValueError) as info:
         _normalise_frames([0, N], N)
     assert str(info.value) == "frames out of range: the drive has frames 0..3, asked for 0..4"

@@ -130,9 +130,18 @@ def _normalise_frames(frames, n: int) -> np.ndarray:
         return np.arange(n, dtype=np.int64)
     if isinstance(frames, slice):
         return np.arange(n, dtype=np.int64)[frames]
-    idx = np.asarray(list(frames) if not isinstance(frames, (range, np.ndarray)) else frames, dtype=np.int64)
-    if idx.ndim != 1:
+    given = np.asarray(list(frames) if not isinstance(frames, (range, np.ndarray)) else frames)
+    if given.ndim != 1:
         raise ValueError("frames must be a range, a slice or a 1-D sequence of frame numbers")
+    if np.issubdtype(given.dtype, np.integer):
+        whole = np.ones(given.shape, bool)
+    elif np.issubdtype(given.dtype, np.floating):  # 2.0 is frame 2; 0.5 is no frame (astype would truncate it)
+        whole = np.isfinite(given) & (given == np.floor(given))
+    else:
+        whole = np.zeros(given.shape, bool)
+    if not whole.all():
+        raise ValueError(f"frames must be whole frame numbers, got {given[~whole][0]!r}")
+    idx = given.astype(np.int64)
     if idx.size and (idx.min() < 0 or idx.max() >= n):
         raise ValueError(f"frames out of range: the drive has frames 0..{n - 1}, asked for {idx.min()}..{idx.max()}")
     return idx

@@ -848,3 +848,18 @@ def test_systematic_resample_normalises_float32_weights_in_float64():
     assert differ.any(), "no pointer separates the float32 and float64 sums: the test needs another weight"
     u0 = u0s[np.argmax(differ)]
     np.testing.assert_array_equal(cpu.systematic_resample(w32, u0), reference.systematic_resample(w64, u0))
+
+
+def test_fill_kernel_built_afresh_draws_what_lut_normal_draws():
+    """``noise._make_fill(lut_draw)`` (the ``prange`` kernel behind ``lut_normal_nb``, built once per process by
+    ``numba_functions``) fills row ``i``, column ``k`` with draw ``k`` of thread ``i``: a fresh build (so that
+    mutation runs see its body) gives :func:`slamlib.noise.lut_normal` bit for bit on every row of a 37 x 6 array."""
+    from numba import njit
+
+    from slamlib.noise import _make_fill, lut_normal, make_lut_functions, make_tables
+
+    tables = make_tables(seed=3, bits=8)
+    fill = _make_fill(make_lut_functions(njit(inline="always"))["lut_draw"])
+    out = np.full((37, 6), np.nan, np.float32)
+    fill(tables.normal, tables.perm, np.int64(tables.bits), np.int64(4), np.int64(9), out)
+    np.testing.assert_array_equal(out, lut_normal(tables, 37, 4, 9))

@@ -228,3 +228,22 @@ def test_default_ess_fraction_is_one_half():
     out, new_log_w, resampled = steps.resample_particles(particles, log_w, np.random.default_rng(0))
     assert resampled is False and out is particles
     np.testing.assert_allclose(new_log_w, np.log([0.4, 0.2, 0.2, 0.2]), rtol=1e-12)
+
+
+def test_weighted_mean_pose_normalises_float32_weights_in_float64():
+    """``weighted_mean_pose`` casts the weights to float64 before ``w / sum w``: float32 weights (1, 2) on
+    positions 0 and 3 m give exactly ``t = 2`` m (float32 ``2/3`` would give 2.00000006)."""
+    R = np.repeat(np.eye(3)[None], 2, axis=0)
+    pose = steps.weighted_mean_pose(R, np.array([[0.0, 0.0, 0.0], [3.0, 0.0, 0.0]]), np.array([1, 2], np.float32))
+    np.testing.assert_allclose(pose[:3, 3], [2.0, 0.0, 0.0], rtol=1e-15, atol=0)
+
+
+def test_mean_estimate_exponentiates_float32_log_weights_in_float64():
+    """Step 9 casts the log-weights to float64: float32 log-weights (0, -1) give the mean
+    ``0.3 e^-1 / (1 + e^-1)`` to float64 precision (a float32 ``exp`` is off by ~1e-8 relative)."""
+    t = np.array([[0.0, 0.0, 0.0], [0.3, 0.0, 0.0]])
+    particles = steps.Particles3D(np.repeat(np.eye(3)[None], 2, axis=0), t)
+    pose, best = steps.pick_best_particle(particles, np.array([0.0, -1.0], np.float32), "mean")
+    assert best == 0
+    e = np.exp(-1.0)
+    np.testing.assert_allclose(pose[:3, 3], [0.3 * e / (1.0 + e), 0.0, 0.0], rtol=1e-14, atol=0)

@@ -214,3 +214,124 @@ def test_step_11_counts_resamplings_with_the_configured_ess_fraction():
         for _ in range(4):
             slam.register_frame(_frame(scan))
         assert at_least <= slam.n_resampled <= at_most
+
+
+# ------------------------------------------------------------------ pipeline survivors, second pass
+def _ten_points():
+    """Exactly MIN_SCAN_POINTS returns, each in its own voxel and inside [min_range, max_range]."""
+    x = 5.0 + 2.0 * np.arange(MIN_SCAN_POINTS)
+    return np.column_stack([x, np.zeros_like(x), np.zeros_like(x), np.zeros_like(x)]).astype(np.float32)
+
+
+def test_a_fresh_filter_has_default_config_zero_counters_and_the_model_lidar_only_flag():
+    """``ParticleSLAM3D()`` builds with the default config; counters start at 0; ``lidar_only`` is set from
+    ``MotionConfig.model`` already at construction (True for constant velocity, False for the IMU model)."""
+    slam = ParticleSLAM3D()
+    assert slam.config == SLAM3DConfig()
+    assert slam.n_resampled == 0 and slam.n_skipped_frames == 0
+    assert slam.lidar_only is False
+    assert ParticleSLAM3D(_config(motion=MotionConfig(model="constant_velocity"))).lidar_only is True
+
+
+def test_given_T0_and_calibration_are_stored_and_place_the_particles():
+    """``T0`` (given as integers) is stored as float64 and every particle starts there; ``T_velo_imu`` is stored
+    inverted as ``T_body_velo``."""
+    T0 = np.eye(4, dtype=np.int64)
+    T0[:3, 3] = [3, -2, 1]
+    T_velo_imu = geometry.make_pose(geometry.rpy_to_matrix([0.0, 0.0, 0.7]), [2.0, -1.0, 0.5])
+    slam = ParticleSLAM3D(_config(), T_velo_imu=T_velo_imu, T0=T0)
+    assert slam.T0.dtype == np.float64
+    np.testing.assert_array_equal(slam.T0, T0.astype(np.float64))
+    np.testing.assert_array_equal(slam.particles.t, np.tile([3.0, -2.0, 1.0], (20, 1)))
+    np.testing.assert_array_equal(slam.particles.R, np.tile(np.eye(3), (20, 1, 1)))
+    np.testing.assert_allclose(slam.T_body_velo, np.linalg.inv(T_velo_imu), atol=1e-12)
+
+
+def test_weigh_adds_tempered_scores_and_stores_them():
+    """``_weigh``: ``normalise(log_w + score / (N * temperature))`` with ``score = steps.score_particles`` (computed
+    here independently), and the raw scores land in ``last["scores"]``."""
+    scan = _scan()
+    config = _config()
+    slam = ParticleSLAM3D(config)
+    slam.register_frame(_frame(scan))
+    parts = steps.perturb_with_noise(slam.particles, np.full(6, 0.05), np.random.default_rng(3))
+    sample = scan[:50, :3].astype(np.float64)
+    log_w = np.log(np.linspace(1.0, 2.0, 20) / np.linspace(1.0, 2.0, 20).sum())
+    got = slam._weigh(parts, log_w, sample)
+    scores = steps.score_particles(parts, sample, slam.map)
+    raw = log_w + scores / (50 * config.filter.temperature)
+    expected = raw - np.log(np.exp(raw - raw.max()).sum()) - raw.max()
+    np.testing.assert_allclose(got, expected, rtol=1e-9, atol=1e-9)
+    np.testing.assert_array_equal(slam.last["scores"], scores)
+    assert np.ptp(scores) > 0
+
+
+def test_refine_rounds_each_resample_once():
+    """``FilterConfig(refine=3)`` with step 11 off (``ess_fraction=0``): the 3 annealing rounds resample with
+    ``ess_fraction=1`` each, so ``n_resampled`` is 3 after the second frame and 6 after the third."""
+    scan = _scan()
+    slam = ParticleSLAM3D(SLAM3DConfig(filter=FilterConfig(particles=20, scored_points=100, refine=3,
+                                                           ess_fraction=0.0)))
+    slam.register_frame(_frame(scan, v=(0.0, 0.0, 0.0), w=(0.0, 0.0, 0.0)))
+    slam.register_frame(_frame(scan, v=(0.0, 0.0, 0.0), w=(0.0, 0.0, 0.0)))
+    assert slam.n_resampled == 3
+    slam.register_frame(_frame(scan, v=(0.0, 0.0, 0.0), w=(0.0, 0.0, 0.0)))
+    assert slam.n_resampled == 6
+
+
+def test_lidar_only_start_frame_runs_cv_start_rounds_rounds():
+    """LIDAR-only, the second frame adds ``cv_start_rounds`` halving rounds (here 2, refine 0, step 11 off):
+    ``n_resampled`` is 2; the third frame (not a start) adds none."""
+    scan = _scan()
+    slam = ParticleSLAM3D(SLAM3DConfig(filter=FilterConfig(particles=20, scored_points=100, ess_fraction=0.0),
+                                       motion=MotionConfig(model="constant_velocity", cv_start_rounds=2)))
+    slam.register_frame(_frame(scan, v=(0.0, 0.0, 0.0), w=(0.0, 0.0, 0.0)))
+    slam.register_frame(_frame(scan, v=(0.0, 0.0, 0.0), w=(0.0, 0.0, 0.0)))
+    assert slam.n_resampled == 2
+    slam.register_frame(_frame(scan, v=(0.0, 0.0, 0.0), w=(0.0, 0.0, 0.0)))
+    assert slam.n_resampled == 2
+
+
+def test_first_frame_of_exactly_min_scan_points_starts_the_map_and_records_its_points():
+    """A first frame with exactly ``MIN_SCAN_POINTS`` points is merged (map of 10 points, nothing skipped) and
+    ``last["points"]`` is its body-frame scan."""
+    slam = ParticleSLAM3D(_config())
+    slam.register_frame(_frame(_ten_points()))
+    assert slam.n_skipped_frames == 0 and len(slam.map_points()) == MIN_SCAN_POINTS
+    np.testing.assert_array_equal(_sorted(slam.last["points"]), _sorted(_ten_points()[:, :3]))
+
+
+def test_empty_first_then_min_scan_points_frame_starts_the_map_at_the_predicted_pose():
+    """Empty first frame (skipped), then exactly ``MIN_SCAN_POINTS`` points: ``_skip`` starts the map with them
+    (10 points), ``n_skipped_frames`` stays 1; ``last`` holds these points, an empty (0, 3) sample, the sigma and
+    ``best=None``."""
+    config = _config()
+    slam = ParticleSLAM3D(config)
+    slam.register_frame(_frame(np.zeros((0, 4), np.float32)))
+    slam.register_frame(_frame(_ten_points()))
+    assert slam.n_skipped_frames == 1 and len(slam.map_points()) == MIN_SCAN_POINTS
+    assert len(slam.last["points"]) == MIN_SCAN_POINTS and slam.last["sample"].shape == (0, 3)
+    assert slam.last["sigma"] is not None and slam.last["best"] is None
+
+
+def test_a_skipped_frame_after_a_scored_one_clears_best_and_sample():
+    """Frame 3 empty after a scored frame 2: ``last["best"]`` is None (not frame 2's index), ``last["sample"]`` is
+    empty (0, 3), ``last["points"]`` the empty scan, ``imu_prev`` frame 3's IMU."""
+    scan = _scan()
+    slam = ParticleSLAM3D(_config())
+    slam.register_frame(_frame(scan))
+    slam.register_frame(_frame(scan))
+    assert slam.last["best"] is not None and len(slam.last["sample"]) == 100
+    f3 = _frame(np.zeros((0, 4), np.float32), v=(8.0, 0.0, 0.0))
+    slam.register_frame(f3)
+    assert slam.last["best"] is None and slam.last["sample"].shape == (0, 3) and len(slam.last["points"]) == 0
+    np.testing.assert_array_equal(slam.imu_prev[0], f3.velocity)
+
+
+def test_prune_every_zero_never_prunes():
+    """``MapConfig(prune_every=0)`` turns pruning off: frames register (no ``% 0``) and nothing is archived."""
+    from slamlib.slam3d.config import MapConfig
+    slam = ParticleSLAM3D(_config(map=MapConfig(prune_every=0, prune_radius=1.0)))
+    slam.register_frame(_frame(_scan()))
+    slam.register_frame(_frame(_scan()))
+    assert slam.archive == [] and len(slam.poses) == 2

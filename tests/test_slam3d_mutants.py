@@ -335,3 +335,17 @@ def test_prune_every_zero_never_prunes():
     slam.register_frame(_frame(_scan()))
     slam.register_frame(_frame(_scan()))
     assert slam.archive == [] and len(slam.poses) == 2
+
+
+def test_a_map_point_exactly_at_prune_radius_stays_live_and_is_not_archived():
+    """``_prune`` archives only points strictly farther than ``prune_radius`` (the maps' own ``>`` rule): with
+    returns at x = 5, 7, ..., 23 and radius 9 around the start pose, x = 5, 7, 9 stay live, x = 11..23 are archived,
+    and the point at exactly 9 is not also in the archive (``map_points`` has each point once)."""
+    from slamlib.slam3d.config import MapConfig
+    config = SLAM3DConfig(filter=FilterConfig(particles=20), scan=ScanConfig(downsample_voxel=0.0),
+                          map=MapConfig(prune_every=1, prune_radius=9.0))
+    slam = ParticleSLAM3D(config)
+    slam.register_frame(_frame(_ten_points()))
+    np.testing.assert_array_equal(_sorted(slam.map.points())[:, 0], [5.0, 7.0, 9.0])
+    np.testing.assert_array_equal(_sorted(np.concatenate(slam.archive))[:, 0], 11.0 + 2.0 * np.arange(7))
+    np.testing.assert_array_equal(_sorted(slam.map_points())[:, 0], 5.0 + 2.0 * np.arange(10))

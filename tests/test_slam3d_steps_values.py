@@ -14,6 +14,7 @@ from slamlib import geometry
 from slamlib.kernels import get_backend
 from slamlib.slam3d import steps
 from slamlib.slam3d.config import MotionConfig, ScanConfig
+from slamlib.slam3d.preprocess import deskew, sweep_times
 
 
 def test_one_particle_is_enough_and_zero_particles_is_an_error_naming_the_count():
@@ -247,3 +248,18 @@ def test_mean_estimate_exponentiates_float32_log_weights_in_float64():
     assert best == 0
     e = np.exp(-1.0)
     np.testing.assert_allclose(pose[:3, 3], [0.3 * e / (1.0 + e), 0.0, 0.0], rtol=1e-14, atol=0)
+
+
+def test_deskew_scan_moves_a_one_point_scan_and_casts_an_empty_float64_scan():
+    """``deskew_scan`` short-cuts only the empty scan: a single point 10 m to the left (azimuth 90 deg, fired a
+    quarter sweep early) moves by ``deskew`` with its firing time ``sweep_times``; an empty float64 (0, 3) scan
+    comes back as float32."""
+    pts = np.array([[0.0, 10.0, 0.5]], np.float32)
+    imu = (np.array([10.0, 0.0, 0.0]), np.zeros(3))
+    times = sweep_times(pts, 0.1)
+    assert times[0] == pytest.approx(-0.025)
+    got = steps.deskew_scan(pts, imu, ScanConfig(sweep_period=0.1))
+    np.testing.assert_array_equal(got, deskew(pts, *imu, times))
+    np.testing.assert_allclose(got, [[-0.25, 10.0, 0.5]], atol=1e-5)  # 10 m/s * -0.025 s along x
+    empty = steps.deskew_scan(np.zeros((0, 3)), imu, ScanConfig())
+    assert empty.dtype == np.float32 and empty.shape == (0, 3)

@@ -263,3 +263,17 @@ def test_deskew_scan_moves_a_one_point_scan_and_casts_an_empty_float64_scan():
     np.testing.assert_allclose(got, [[-0.25, 10.0, 0.5]], atol=1e-5)  # 10 m/s * -0.025 s along x
     empty = steps.deskew_scan(np.zeros((0, 3)), imu, ScanConfig())
     assert empty.dtype == np.float32 and empty.shape == (0, 3)
+
+
+def test_project_to_rotation_of_a_float32_matrix_is_computed_in_float64():
+    """``project_to_rotation`` casts to float64 before the SVD: a float32 matrix gives the polar factor of its
+    float64 copy (``scipy.linalg.polar``, the closest orthogonal matrix, here with det +1) to 1e-12, not the
+    ~1e-7 of a float32 SVD."""
+    from scipy.linalg import polar
+
+    M = np.array([[0.9, -0.3, 0.1], [0.35, 0.8, -0.2], [-0.05, 0.25, 1.1]], np.float32)
+    expected, _ = polar(M.astype(np.float64))
+    assert np.linalg.det(expected) > 0
+    got = steps.project_to_rotation(M)
+    assert got.dtype == np.float64
+    np.testing.assert_allclose(got, expected, atol=1e-12)

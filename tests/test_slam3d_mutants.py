@@ -255,11 +255,11 @@ def test_weigh_adds_tempered_scores_and_stores_them():
     slam = ParticleSLAM3D(config)
     slam.register_frame(_frame(scan))
     parts = steps.perturb_with_noise(slam.particles, np.full(6, 0.05), np.random.default_rng(3))
-    sample = scan[:50, :3].astype(np.float64)
+    sample = scan[:40, :3].astype(np.float64)  # N * temperature = 0.8, not 1
     log_w = np.log(np.linspace(1.0, 2.0, 20) / np.linspace(1.0, 2.0, 20).sum())
     got = slam._weigh(parts, log_w, sample)
     scores = steps.score_particles(parts, sample, slam.map)
-    raw = log_w + scores / (50 * config.filter.temperature)
+    raw = log_w + scores / (40 * config.filter.temperature)
     expected = raw - np.log(np.exp(raw - raw.max()).sum()) - raw.max()
     np.testing.assert_allclose(got, expected, rtol=1e-9, atol=1e-9)
     np.testing.assert_array_equal(slam.last["scores"], scores)

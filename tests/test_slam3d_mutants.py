@@ -349,3 +349,25 @@ def test_a_map_point_exactly_at_prune_radius_stays_live_and_is_not_archived():
     np.testing.assert_array_equal(_sorted(slam.map.points())[:, 0], [5.0, 7.0, 9.0])
     np.testing.assert_array_equal(_sorted(np.concatenate(slam.archive))[:, 0], 11.0 + 2.0 * np.arange(7))
     np.testing.assert_array_equal(_sorted(slam.map_points())[:, 0], 5.0 + 2.0 * np.arange(10))
+
+
+def test_refine_does_not_resample_when_all_weights_are_equal():
+    """Annealing rounds resample only when ``ESS < 1.0 * P``: a second frame 1 m off the map scores every particle
+    the same truncated value, the weights stay exactly uniform (ESS = P), so ``refine=2`` with step 11 off
+    resamples 0 times (not "always", not ``ESS < 2 P``)."""
+    scan = _scan()
+    slam = ParticleSLAM3D(SLAM3DConfig(filter=FilterConfig(particles=20, scored_points=100, refine=2,
+                                                           ess_fraction=0.0)))
+    slam.register_frame(_frame(scan))
+    slam.register_frame(_frame(scan))
+    assert np.ptp(slam.last["scores"]) == 0
+    assert slam.n_resampled == 0
+
+
+def test_a_float32_calibration_is_inverted_in_float64():
+    """``T_velo_imu`` given as float32 is cast to float64 before inverting: ``T_body_velo`` is float64 and equals
+    the float64 inverse of the float64 cast exactly."""
+    T = geometry.make_pose(geometry.rpy_to_matrix([0.1, -0.2, 0.7]), [2.0, -1.0, 0.5]).astype(np.float32)
+    slam = ParticleSLAM3D(_config(), T_velo_imu=T)
+    assert slam.T_body_velo.dtype == np.float64
+    np.testing.assert_array_equal(slam.T_body_velo, np.linalg.inv(T.astype(np.float64)))

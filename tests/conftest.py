@@ -30,3 +30,31 @@ def street_maps():
         m.merge(world)
         out.append(m.lookup())
     return world, out
+
+
+# The tiny KITTI raw drive shared by the reader tests (test_kitti_errors.py, test_kitti_values_raw.py).
+TINY_DRIVE_FRAMES = 4
+TINY_DRIVE_POINT_STRIDE = 500  # every 500th point of the embedded sample scans: ~250 points a scan, fast to read
+
+
+@pytest.fixture
+def tiny_drive_frames():
+    """How many frames the ``drive_dir`` drive has."""
+    return TINY_DRIVE_FRAMES
+
+
+@pytest.fixture
+def drive_dir(tmp_path):
+    """A tiny KITTI raw drive written under ``tmp_path``: the path of its ``DATE_drive_XXXX_sync`` folder."""
+    from slamlib.kitti.sample import make_tiny_drive
+
+    return make_tiny_drive(tmp_path, n_frames=TINY_DRIVE_FRAMES, point_stride=TINY_DRIVE_POINT_STRIDE)
+
+
+@pytest.fixture
+def open_drive(drive_dir):
+    """``open_drive(**options)`` opens the ``drive_dir`` drive as a ``KittiRawDrive`` with the reader's options."""
+    from slamlib.kitti import KittiRawDrive
+    from slamlib.kitti.sample import SAMPLE_DATE, SAMPLE_DRIVE
+
+    return lambda **kw: KittiRawDrive(drive_dir.parent.parent, SAMPLE_DATE, SAMPLE_DRIVE, **kw)

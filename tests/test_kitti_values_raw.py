@@ -13,20 +13,8 @@ from slamlib.errors import DataFormatError
 from slamlib.kitti import KittiRawDrive
 from slamlib.kitti import scan_stats as ss
 from slamlib.kitti.raw import _normalise_frames, check_numbered_files, drive_folder_name
-from slamlib.kitti.sample import SAMPLE_DATE, SAMPLE_DRIVE, make_tiny_drive
+from slamlib.kitti.sample import SAMPLE_DATE, SAMPLE_DRIVE
 from slamlib.kitti.timestamps import read_timestamps_ns, write_timestamps_ns
-
-N = 4
-
-
-@pytest.fixture
-def drive_dir(tmp_path):
-    return make_tiny_drive(tmp_path, n_frames=N, point_stride=500)
-
-
-def _open(drive_dir, **kw):
-    return KittiRawDrive(drive_dir.parent.parent, SAMPLE_DATE, SAMPLE_DRIVE, **kw)
-
 
 # ------------------------------------------------------------------ raw: names and frame selection
 def test_drive_folder_name_keeps_string_drive_as_given():
@@ -42,6 +30,9 @@ def test_check_numbered_files_full_message(tmp_path):
         check_numbered_files(tmp_path, ".txt", 3, "OXTS packets", "timestamps")
     assert info.value.message == ("fewer OXTS packets than the 3 timestamps: 2 of 3 missing "
                                   "(first: 0000000001.txt; files are numbered 0000000000.txt upwards)")
+
+
+N = 4  # frames in the drive that _normalise_frames is told about
 
 
 def test_normalise_frames_values_and_dtype():
@@ -83,50 +74,50 @@ def test_missing_drive_folder_full_message(tmp_path):
                                   f"basedir={str(tmp_path)!r}, date='2011_09_26', drive='0007')")
 
 
-def test_dataset_suffix_selects_folder(drive_dir):
+def test_dataset_suffix_selects_folder(drive_dir, tiny_drive_frames):
     """``dataset='extract'`` opens ``DATE_drive_XXXX_extract`` (the suffix is not always ``sync``)."""
     other = drive_dir.with_name(drive_dir.name.replace("_sync", "_extract"))
     drive_dir.rename(other)
-    drive = _open(other, dataset="extract")
+    drive = KittiRawDrive(other.parent.parent, SAMPLE_DATE, SAMPLE_DRIVE, dataset="extract")
     assert drive.path == other
-    assert len(drive) == N
+    assert len(drive) == tiny_drive_frames
 
 
-def test_without_velodyne_timestamps(drive_dir):
+def test_without_velodyne_timestamps(drive_dir, open_drive):
     """Without velodyne_points/timestamps.txt the drive opens and the scan times are None."""
     (drive_dir / "velodyne_points" / "timestamps.txt").unlink()
-    drive = _open(drive_dir)
+    drive = open_drive()
     assert drive.all_velo_timestamps_ns is None and drive.velo_timestamps_ns is None
 
 
-def test_velodyne_timestamps_need_not_increase(drive_dir):
+def test_velodyne_timestamps_need_not_increase(drive_dir, open_drive):
     """Scan times out of order are accepted (informational) and returned as written, per selected frame."""
     f = drive_dir / "velodyne_points" / "timestamps.txt"
     ts = read_timestamps_ns(f)[::-1].copy()
     write_timestamps_ns(f, ts)
-    drive = _open(drive_dir, frames=[2, 0])
+    drive = open_drive(frames=[2, 0])
     assert drive.velo_timestamps_ns.tolist() == [ts[2], ts[0]]
 
 
-def test_repr_exact(drive_dir):
+def test_repr_exact(drive_dir, open_drive):
     """``repr`` names the drive folder and the selection size."""
-    drive = _open(drive_dir, frames=range(1, 3))
+    drive = open_drive(frames=range(1, 3))
     assert repr(drive) == f"KittiRawDrive({str(drive_dir)!r}, 2 of 4 frames)"
 
 
 # ------------------------------------------------------------------ raw: frames
-def test_oxts_packets_are_cached(drive_dir):
+def test_oxts_packets_are_cached(drive_dir, open_drive):
     """A packet is read once: a later change of its file does not change what the drive returns."""
-    drive = _open(drive_dir)
+    drive = open_drive()
     first = drive.oxts_packet(1)
     (drive_dir / "oxts" / "data" / "0000000001.txt").write_text("garbage\n")
     assert drive.oxts_packet(1) is first
     assert drive.oxts_packet(0) is drive.reference_packet
 
 
-def test_getitem_bounds_dt_and_path(drive_dir):
+def test_getitem_bounds_dt_and_path(drive_dir, open_drive):
     """``drive[-n]`` is the first frame (dt 0.0), ``drive[n]`` raises with the full message; the path is kept."""
-    drive = _open(drive_dir, frames=[1, 3])
+    drive = open_drive(frames=[1, 3])
     ts = drive.all_timestamps_ns
     first = drive[-2]
     assert first.index == 1 and first.dt == 0.0
@@ -140,16 +131,16 @@ def test_getitem_bounds_dt_and_path(drive_dir):
         drive[-3]
 
 
-def test_ground_truth_poses_bad_frame_message(drive_dir):
+def test_ground_truth_poses_bad_frame_message(drive_dir, open_drive):
     """The full message for an unknown pose frame."""
     with pytest.raises(ValueError) as info:
-        _open(drive_dir).ground_truth_poses("cam")
+        open_drive().ground_truth_poses("cam")
     assert str(info.value) == "frame must be 'imu' or 'velo', got 'cam'"
 
 
-def test_imu_arrays_two_frames(drive_dir):
+def test_imu_arrays_two_frames(drive_dir, open_drive):
     """With two selected frames ``dt[1]`` is their time difference and the timestamps are the selected ones."""
-    drive = _open(drive_dir, frames=[0, 2])
+    drive = open_drive(frames=[0, 2])
     ts = drive.all_timestamps_ns
     a = drive.imu_arrays()
     assert a.timestamps_ns.tolist() == [ts[0], ts[2]]
@@ -157,18 +148,18 @@ def test_imu_arrays_two_frames(drive_dir):
     assert a.dt[1] == pytest.approx((ts[2] - ts[0]) * 1e-9, rel=1e-12)
 
 
-def test_progress_off_by_default(drive_dir, capsys):
+def test_progress_off_by_default(drive_dir, capsys, open_drive):
     """By default neither iterating nor reading the packets draws a progress bar."""
-    drive = _open(drive_dir)
+    drive = open_drive()
     list(drive)
     drive.imu_arrays()
     assert capsys.readouterr().err == ""
 
 
-def test_progress_bars_labelled_and_cleared(drive_dir, capsys):
+def test_progress_bars_labelled_and_cleared(drive_dir, capsys, open_drive):
     """``progress=True`` draws a 'frames' bar counting 'frame' and an 'OXTS' bar counting 'packet', both removed
     when done (no bar left behind: the output ends in a carriage return, not a newline)."""
-    drive = _open(drive_dir, progress=True)
+    drive = open_drive(progress=True)
     list(drive)
     err = capsys.readouterr().err
     assert err.startswith("\rframes:   0%|") and "0/4 [00:00<?, ?frame/s]" in err

@@ -371,3 +371,33 @@ def test_a_float32_calibration_is_inverted_in_float64():
     slam = ParticleSLAM3D(_config(), T_velo_imu=T)
     assert slam.T_body_velo.dtype == np.float64
     np.testing.assert_array_equal(slam.T_body_velo, np.linalg.inv(T.astype(np.float64)))
+
+
+def test_the_configured_backend_runs_every_step(monkeypatch):
+    """``SLAM3DConfig(backend=...)`` reaches every step that takes a backend (steps 5, 6, 8, 10, 11, the annealing
+    rounds, the first frame's merge and the merge of a frame that starts the map late): with ``backend="numpy"``
+    no step may fall back to its default (``steps.DEFAULT_BACKEND``, resolved by name through ``get_backend``)."""
+    def no_default(name):
+        raise AssertionError(f"a step used its default backend {name!r}, not the configured one")
+
+    monkeypatch.setattr(steps, "get_backend", no_default)
+    scan = _scan()
+    config = SLAM3DConfig(filter=FilterConfig(particles=20, scored_points=100, refine=2, ess_fraction=1.0),
+                          backend="numpy")
+    started = ParticleSLAM3D(config)
+    still = dict(v=(0.0, 0.0, 0.0), w=(0.0, 0.0, 0.0))
+    started.register_frame(_frame(scan, **still))             # _start merges
+    started.register_frame(_frame(scan, **still))             # 5-11 with two annealing rounds
+    assert started.n_resampled >= 2 and len(started.poses) == 2
+    late = ParticleSLAM3D(config)
+    late.register_frame(_frame(np.zeros((0, 4), np.float32)))  # nothing to merge
+    late.register_frame(_frame(scan))                         # _skip starts the map
+    assert late.n_skipped_frames == 1 and len(late.map_points()) > 0
+    with monkeypatch.context() as m:  # the check itself works: a step given no backend reaches the patched lookup
+        m.setattr(steps, "get_backend", no_default)
+        try:
+            steps.merge_scan(late.map, np.eye(4), scan[:, :3])
+        except AssertionError as exc:
+            assert "default backend 'cpu'" in str(exc)
+        else:
+            raise AssertionError("merge_scan without a backend did not look up the default")

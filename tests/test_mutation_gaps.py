@@ -637,6 +637,25 @@ def test_morton_nn_exact_on_coarse_quanta(quantum, leaf):
         assert best_j == int(np.argmin(d2)) and best == pytest.approx(d2.min(), rel=1e-12)
 
 
+@pytest.mark.parametrize("quantum", [0.6, 0.3, 0.2])
+def test_morton_scoring_exact_when_the_cells_are_one_to_four_quanta(quantum):
+    """Quanta so coarse that ``cell_level`` (edge ``quantum 2**cell_level >= 2 radius``) is 0, 1 or 2: the scoring
+    kernel's search stack (``8 (cell_level + 2)`` rows) is at its smallest and the scores are still exact."""
+    rng = np.random.default_rng(35)
+    m = MortonBVHMap(radius=0.3, sigma=0.1, quantum=quantum, dedup_level=0)
+    m.merge(rng.uniform(-2, 2, (2000, 3)).astype(np.float32))
+    lk = m.lookup()
+    assert lk.cell_level == {0.6: 0, 0.3: 1, 0.2: 2}[quantum]
+    stored = lk.points.astype(np.float64)
+    q = stored[rng.integers(0, len(stored), 30)] + rng.normal(0, 0.05, (30, 3))
+    R, t = np.repeat(np.eye(3)[None], 2, axis=0), np.array([[0.0, 0.0, 0.0], [0.05, -0.02, 0.01]])
+    got = CPU.score_particles(R, t, q.astype(np.float32), lk)
+    for i in range(2):
+        w = q.astype(np.float32).astype(np.float64) + t[i]
+        d2 = np.minimum(((w[:, None, :] - stored[None]) ** 2).sum(-1).min(1), 0.3**2)
+        assert got[i] == pytest.approx(np.sum(-0.5 * d2 / 0.1**2), rel=1e-6)
+
+
 def test_cpu_transform_points_dtype_and_messages():
     """float64 points give a float32 result (the points are converted first); bad shapes and a bad ``out`` are
     refused with the documented messages, naming ``out``."""
@@ -718,6 +737,28 @@ def test_morton_search_at_the_low_corner_of_the_range():
     I = np.eye(3)[None]
     for q in stored[:40] + rng.normal(0, 0.02, (40, 3)):
         d2 = min(np.min(np.sum((stored - q) ** 2, axis=1)), 0.3**2)
+        got = CPU.score_particles(I, q[None], np.zeros((1, 3), np.float32), lk)[0]
+        assert got == pytest.approx(-0.5 * d2 / 0.1**2, rel=1e-9, abs=1e-12)
+
+
+def test_morton_search_finds_the_cell_whose_code_is_one():
+    """Points in the first two cells along x of the 21-bit range: cell (1, 0, 0) has Morton code 1, the one code
+    next to the cell cache's "empty" marker (-1); queries there, made first in a fresh kernel call, find their exact
+    nearest neighbours in that cell (a cache whose empty entries read as code 1 would hand back an unset index)."""
+    rng = np.random.default_rng(34)
+    lo = -(2**20) * 0.01
+    m = MortonBVHMap(radius=0.3, sigma=0.1, quantum=0.01, dedup_level=0)
+    edge = 0.01 * 2**m.cell_level  # 0.64 m
+    near = rng.uniform(0.0, 0.3, (100, 3))
+    far = near + [edge + 0.3, 0.0, 0.0]  # x in [0.94, 1.24): cell 1
+    m.merge((lo + np.concatenate([near, far])).astype(np.float32))
+    lk = m.lookup()
+    assert lk.cell_codes.tolist() == [0, 1]
+    stored = lk.points.astype(np.float64)
+    I = np.eye(3)[None]
+    for q in lo + far[:20] + rng.normal(0, 0.02, (20, 3)):
+        d2 = min(np.min(np.sum((stored - q) ** 2, axis=1)), 0.3**2)
+        assert d2 < 0.01
         got = CPU.score_particles(I, q[None], np.zeros((1, 3), np.float32), lk)[0]
         assert got == pytest.approx(-0.5 * d2 / 0.1**2, rel=1e-9, abs=1e-12)
 

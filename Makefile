@@ -14,7 +14,7 @@ export NUMBA_CACHE_DIR ?= $(CURDIR)/_cache/numba
 SYSTEM_PACKAGES := libusb-1.0-0 libvulkan1 mesa-vulkan-drivers
 SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 
-.PHONY: all setup system-packages book test test-unit test-notebooks bench clean mathjax browser-check lab mutate mutate-run
+.PHONY: all setup system-packages book test test-unit test-notebooks bench clean mathjax browser-check lab mutate mutate-run planted
 
 all: book
 
@@ -81,6 +81,11 @@ mutate: setup
 	$(MAKE) --no-print-directory mutate-run MUTATE_DIR=_build/mutate-jitted MUTATE_JIT=0 MUTANTS='$(MUTATE_JITTED)' \
 	  MUTATE_TESTS='$(MUTATE_JITTED_TESTS)'
 	$(BIN)/python tests/mutation/score.py _build/mutate-pure/results.txt _build/mutate-jitted/results.txt
+	$(BIN)/python tests/mutation/planted.py
+
+# Issue 15's four bugs, planted one at a time in a copy: each must fail its unit test (also a test in the suite).
+planted: setup
+	$(BIN)/python tests/mutation/planted.py
 
 mutate-run: setup
 	@$(BIN)/python -c "import mutmut" 2>/dev/null || $(BIN)/python -m pip install -q -c requirements.lock mutmut==$(MUTMUT_VERSION)

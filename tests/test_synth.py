@@ -9,8 +9,8 @@ from slamlib.kitti.scan_stats import elevation_fractions
 from slamlib.kitti.timestamps import read_timestamps_ns
 from slamlib.odometry import dead_reckon
 from slamlib.paths import kitti_sample_dir
-from slamlib.synth import (ZERO_NOISE, Hdl64, ImuNoise, hdl64_elevations, kitti_route, loop_route, oxts_packets,
-                           ray_directions, resolve_route, write_drive)
+from slamlib.synth import (WANDERING_BIASES, ZERO_NOISE, Hdl64, ImuNoise, hdl64_elevations, kitti_route, loop_route,
+                           oxts_packets, ray_directions, resolve_route, write_drive)
 from slamlib.synth.writer import drive_dir
 
 FAST_LIDAR = Hdl64(columns=500)
@@ -152,3 +152,39 @@ def test_route_07_is_planar_z_up():
 def test_kitti_route_rejects_an_empty_selection_clearly():
     with pytest.raises(ValueError, match="key frames 0..1100"):
         kitti_route("07", (2000, 2100))
+
+
+def test_bias_walk_is_a_wiener_process_sampled_at_the_times():
+    """``bias_walk``: zero at the first time; increments ``q sqrt(dt) N(0, 1)`` per axis, independent (over 4,000
+    walks on uneven times, the variance at each time is ``q^2 (t - t_0)`` within sampling error and successive
+    increments are uncorrelated); ``q = 0`` draws nothing."""
+    from slamlib.synth.oxts import bias_walk
+
+    t = np.array([0.0, 0.1, 0.35, 1.0, 3.0])
+    rng = np.random.default_rng(40)
+    walks = np.stack([bias_walk(t, 0.2, rng) for _ in range(4000)])  # (4000, 5, 3)
+    assert np.all(walks[:, 0] == 0.0)
+    var = walks.reshape(4000, 5, 3).var(axis=0).mean(axis=1)  # per time, averaged over the 3 axes
+    np.testing.assert_allclose(var[1:], 0.04 * t[1:], rtol=0.06)
+    inc = np.diff(walks, axis=1)
+    r = np.corrcoef(inc[:, 1, 0], inc[:, 2, 0])[0, 1]
+    assert abs(r) < 0.05
+    state = rng.bit_generator.state
+    assert np.all(bias_walk(t, 0.0, rng) == 0.0) and rng.bit_generator.state == state
+
+
+def test_wandering_biases_change_only_velocity_and_gyro_fields():
+    """With :data:`WANDERING_BIASES` the packets equal the default noise's in every field but the velocities and
+    the two gyro groups, which both carry the same walk; the walk's spread after 600 s is ``q sqrt(600)``."""
+    r = kitti_route("07", (0, 60))
+    t = np.linspace(r.t0, r.t1, 60)
+    base, walk = oxts_packets(r, t, ImuNoise(), seed=3), oxts_packets(r, t, WANDERING_BIASES, seed=3)
+    same = np.r_[0:8, 11:17, 23:30]
+    np.testing.assert_array_equal(walk[:, same], base[:, same])
+    d_xyz, d_flu = walk[:, 17:20] - base[:, 17:20], walk[:, 20:23] - base[:, 20:23]
+    np.testing.assert_allclose(d_xyz, d_flu, atol=1e-15)
+    assert np.all(d_xyz[0] == 0) and np.all(np.abs(d_xyz[1:]).max(axis=0) > 0)
+    assert np.all(walk[0, 8:11] == base[0, 8:11]) and np.abs(walk[1:, 8:11] - base[1:, 8:11]).max() > 0
+    ends = np.array([oxts_packets(r, np.array([0.0, 600.0]), WANDERING_BIASES, seed=s)[1, 20:23]
+                     - oxts_packets(r, np.array([0.0, 600.0]), ImuNoise(), seed=s)[1, 20:23] for s in range(400)])
+    assert ends.std() == pytest.approx(WANDERING_BIASES.gyro_bias_walk * np.sqrt(600.0), rel=0.1)

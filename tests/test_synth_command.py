@@ -9,7 +9,7 @@ import pytest
 from slamlib.cli import main
 from slamlib.commands import synth as synth_command
 from slamlib.kitti import KittiRawDrive
-from slamlib.synth import DEFAULT_FRAMES, ROUTE_NAMES, ZERO_NOISE, Hdl64, ImuNoise
+from slamlib.synth import DEFAULT_FRAMES, ROUTE_NAMES, WANDERING_BIASES, ZERO_NOISE, Hdl64, ImuNoise
 from slamlib.synth.writer import MARKER, drive_dir
 
 TINY = ["--columns", "200", "--frames", "0:3", "--no-progress"]
@@ -121,3 +121,14 @@ def test_parse_route_frames():
     assert p("10:20", "07") == (10, 20) and p("10:", "00") == (10, None) and p("25", "05") == (0, 25)
     assert p(":7", "07") == (0, 7)
     assert p("40", "loop") == 40 and p("0:40", "straight") == 40 and p("0:", "loop") is None
+
+
+def test_bias_walk_flag_writes_wandering_biases(tmp_path):
+    """``--bias-walk`` writes the drive with :data:`WANDERING_BIASES` (recorded in the marker, scaled by
+    ``--imu-noise``); without it the biases stay constant (walks 0)."""
+    out = tmp_path / "w"
+    assert main(["synth", "--out", str(out), "--route", "loop", "--frames", "4", "--imu-noise", "2", "--bias-walk",
+                 "--no-scans", "--no-progress"]) == 0
+    marker = json.loads((drive_dir(out, "2011_09_26", 1) / MARKER).read_text())
+    assert marker["noise"] == WANDERING_BIASES.scaled(2).as_dict()
+    assert marker["noise"]["gyro_bias_walk"] == 4e-4 and ImuNoise().as_dict()["gyro_bias_walk"] == 0.0

@@ -49,6 +49,9 @@ def add_arguments(parser) -> None:
                              "small test drives)")
     parser.add_argument("--imu-noise", type=float, default=1.0, metavar="SCALE",
                         help="multiply every IMU noise, bias and scale error by SCALE (default 1; 0 = exact fields)")
+    parser.add_argument("--bias-walk", action="store_true",
+                        help="the IMU's velocity and gyro biases wander as random walks "
+                             "(slamlib.synth.WANDERING_BIASES: 5 mm/s and 0.2 mrad/s per sqrt(s)), scaled by --imu-noise")
     parser.add_argument("--layout", choices=("raw", "odometry"), default="raw",
                         help="raw: a KITTI raw drive (OXTS + scans; default); odometry: a KITTI odometry sequence "
                              "OUT/sequences/NN (scans, calib.txt, times.txt) with ground truth OUT/poses/NN.txt and no "
@@ -122,7 +125,7 @@ def main(args) -> int:
     import datetime as dt
     import time
 
-    from slamlib.synth import Hdl64, ImuNoise, resolve_route, write_drive
+    from slamlib.synth import WANDERING_BIASES, Hdl64, ImuNoise, resolve_route, write_drive
 
     if not 0 <= args.drive <= 9999:
         _fail(f"--drive must be in 0..9999, got {args.drive}")
@@ -135,7 +138,7 @@ def main(args) -> int:
     if not args.imu_noise <= MAX_IMU_NOISE:
         _fail(f"--imu-noise must be a finite number in [0, {MAX_IMU_NOISE:g}], got {args.imu_noise}")
     try:
-        noise = ImuNoise().scaled(args.imu_noise)
+        noise = (WANDERING_BIASES if args.bias_walk else ImuNoise()).scaled(args.imu_noise)
     except ValueError:
         _fail(f"--imu-noise must be a finite number in [0, {MAX_IMU_NOISE:g}], got {args.imu_noise}")
     if args.seed < 0:
@@ -171,7 +174,8 @@ def main(args) -> int:
     frames_text = (f"key frames {frames[0]}:{'' if frames[1] is None else frames[1]}" if args.route in KITTI_ROUTES
                    else "the whole route" if frames is None else f"frames 0:{frames}")
     print(f"slamlib synth: route {args.route} ({frames_text}) -> {n} frames, seed {args.seed}, "
-          f"{args.columns} LIDAR columns, IMU noise x{args.imu_noise:g}" + (", no scans" if args.no_scans else ""))
+          f"{args.columns} LIDAR columns, IMU noise x{args.imu_noise:g}"
+          + (", wandering biases" if args.bias_walk else "") + (", no scans" if args.no_scans else ""))
     t0 = time.perf_counter()
     write_drive(basedir, args.route, date=args.date, drive=args.drive, frames=frames, seed=args.seed, noise=noise,
                 lidar=Hdl64(columns=args.columns), scans=not args.no_scans, progress=not args.no_progress)

@@ -19,9 +19,15 @@ axis, for a true value ``x`` and white standard normal ``n_k``::
 
     x_meas = (1 + scale) * x + bias + sigma * n_k
 
-with the parameters of :class:`ImuNoise`. slamlib reads ``f, l, u`` as *body* axes (KITTI documents them
-as axes of the level tangent plane; the difference is the few-degree roll/pitch); ``x, y, z`` fields
-(``ax..az``, ``wx..wz``) get the same body-frame quantity with independent noise draws.
+with the parameters of :class:`ImuNoise`. The velocity and gyro biases may also wander (``vel_bias_walk``,
+``gyro_bias_walk``, zero by default): ``bias(t) = bias + q W(t - t_0)``, ``W`` a standard Wiener process per axis
+(a *bias random walk*, the "rate random walk" of IEEE Std 952-1997 for gyros), sampled at the packet times as
+``b_k = b_{k-1} + q sqrt(t_k - t_{k-1}) n_k``; both gyro field groups (``wx..wz``, ``wf..wu``) measure the same
+wandering bias. Its standard deviation after ``T`` seconds is ``q sqrt(T)``.
+
+slamlib reads ``f, l, u`` as *body* axes (KITTI documents them as axes of the level tangent plane; the difference is
+the few-degree roll/pitch); ``x, y, z`` fields (``ax..az``, ``wx..wz``) get the same body-frame quantity with
+independent noise draws.
 
 Status fields: ``pos_accuracy`` 0.05 m, ``vel_accuracy`` 0.02 m/s, ``navstat 4``, ``numsats`` 8-11,
 ``posmode velmode orimode = 6`` (RTK integer, as in good KITTI drives).
@@ -39,7 +45,8 @@ import numpy as np
 from slamlib.geometry import matrix_to_rpy, rot_z
 from slamlib.synth.routes import Route
 
-__all__ = ["ImuNoise", "ZERO_NOISE", "EARTH_RADIUS", "KARLSRUHE", "oxts_packets", "latlon_from_mercator"]
+__all__ = ["ImuNoise", "ZERO_NOISE", "WANDERING_BIASES", "bias_walk", "EARTH_RADIUS", "KARLSRUHE", "oxts_packets",
+           "latlon_from_mercator"]
 
 EARTH_RADIUS = 6378137.0
 #: (lat, lon, alt) of the first packet of 2011_09_26_drive_0001 (Karlsruhe).
@@ -55,8 +62,12 @@ class ImuNoise:
     make dead reckoning over a few hundred metres drift by several percent of the distance, like a low-grade
     wheel-odometry + MEMS gyro; the real OXTS RT3003 is far better.
 
+    The biases may also wander as random walks (``*_bias_walk``, 0 here; :data:`WANDERING_BIASES` turns them
+    on): the bias then starts at ``*_bias`` and after ``T`` seconds is off from it by ``N(0, (q^2 T))`` per axis.
+
     Attributes (units): ``vel_sigma`` m/s, ``vel_bias (3,)`` m/s, ``vel_scale (3,)`` (fraction),
-    ``gyro_sigma`` rad/s, ``gyro_bias (3,)`` rad/s, ``acc_sigma`` m/s^2, ``acc_bias (3,)`` m/s^2.
+    ``gyro_sigma`` rad/s, ``gyro_bias (3,)`` rad/s, ``acc_sigma`` m/s^2, ``acc_bias (3,)`` m/s^2,
+    ``vel_bias_walk`` m/s/sqrt(s), ``gyro_bias_walk`` rad/s/sqrt(s).
     """
 
     vel_sigma: float = 0.05
@@ -66,6 +77,8 @@ class ImuNoise:
     gyro_bias: tuple = (0.0005, -0.0005, 0.003)
     acc_sigma: float = 0.05
     acc_bias: tuple = (0.03, -0.03, 0.05)
+    vel_bias_walk: float = 0.0
+    gyro_bias_walk: float = 0.0
 
     def as_dict(self) -> dict:
         return {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(self).items()}
@@ -90,6 +103,11 @@ class ImuNoise:
 
 ZERO_NOISE = ImuNoise(0.0, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), 0.0, (0.0, 0.0, 0.0), 0.0, (0.0, 0.0, 0.0))
 
+#: The default noise with wandering biases: a gyro bias random walk of 2e-4 rad/s/sqrt(s) (after 100 s the yaw-rate
+#: bias is off by 2 mrad/s, 0.11 deg/s, one sigma: a consumer MEMS gyro, cf. the 3 mrad/s constant bias) and a
+#: velocity bias walk of 5 mm/s/sqrt(s) (5 cm/s after 100 s).
+WANDERING_BIASES = ImuNoise(vel_bias_walk=0.005, gyro_bias_walk=2e-4)
+
 
 def latlon_from_mercator(mx, my, scale: float) -> tuple[np.ndarray, np.ndarray]:
     """Inverse of pykitti's Mercator projection: ``(mx, my)`` m -> ``(lat, lon)`` degrees (see module doc)."""
@@ -101,6 +119,17 @@ def latlon_from_mercator(mx, my, scale: float) -> tuple[np.ndarray, np.ndarray]:
 def _corrupt(x, sigma, bias, scale, rng):
     x = np.asarray(x, dtype=np.float64)
     return (1.0 + np.asarray(scale)) * x + np.asarray(bias) + sigma * rng.standard_normal(x.shape)
+
+
+def bias_walk(times, q: float, rng: np.random.Generator) -> np.ndarray:
+    """A bias random walk ``(N, 3)`` at ``times (N,)`` s: 0 at ``times[0]``, then
+    ``b_k = b_{k-1} + q sqrt(t_k - t_{k-1}) n_k`` with ``n_k ~ N(0, I_3)`` (a Wiener process of intensity ``q``
+    sampled exactly at the times). ``q = 0`` gives zeros and draws nothing from ``rng``."""
+    t = np.asarray(times, dtype=np.float64)
+    if q == 0.0 or len(t) == 0:
+        return np.zeros((len(t), 3))
+    steps = q * np.sqrt(np.diff(t))[:, None] * rng.standard_normal((len(t) - 1, 3))
+    return np.concatenate([np.zeros((1, 3)), np.cumsum(steps, axis=0)])
 
 
 def oxts_packets(route: Route, times, noise: ImuNoise = ImuNoise(), seed: int = 0,
@@ -146,4 +175,9 @@ def oxts_packets(route: Route, times, noise: ImuNoise = ImuNoise(), seed: int = 
     out[:, 25] = 4
     out[:, 26] = rng.integers(8, 12, size=n)
     out[:, 27:30] = 6
+    # drawn last, so that drives without wandering biases keep the noise they always had
+    out[:, 8:11] += bias_walk(t, noise.vel_bias_walk, rng)
+    gyro_walk = bias_walk(t, noise.gyro_bias_walk, rng)
+    out[:, 17:20] += gyro_walk
+    out[:, 20:23] += gyro_walk
     return out

@@ -2,8 +2,9 @@
 
 ``python tests/mutation/planted.py`` (``make planted``; ``make mutate`` runs it last). Each bug is planted in a
 fresh copy of ``slamlib`` and ``tests`` under a temporary folder (never in the checkout) and the named tests are run
-there: each must fail, having passed on the unplanted copy first. Exit status 1 if any planted bug passes its tests (or its code is no longer where the plant
-expects it: the text to replace must occur exactly once), else 0. Prints a Markdown table for tests/mutation/REPORT.md.
+there: each must fail, having passed on the unplanted copy first. Exit status 1 if any planted bug passes its tests
+(or its code is no longer where the plant expects it: the text to replace must occur exactly once), else 0. Prints a
+Markdown table for tests/mutation/REPORT.md.
 
 The four bugs passed every test before issue 15 (its description): the end-to-end checks are robust to them.
 """
@@ -67,8 +68,9 @@ def main() -> int:
         if not Path(where).is_relative_to(work):  # an installed slamlib would shadow the planted copy
             sys.exit(f"planted.py: the copy's tests import slamlib from {where}, not from {work}")
         every = [t for *_, tests in PLANTS for t in tests]
-        clean = subprocess.run([sys.executable, "-m", "pytest", "-p", "no:dash", "-p", "no:cacheprovider", "-q", *every],
-                               cwd=work, env=dict(env, NUMBA_CACHE_DIR=str(work / "numba")), capture_output=True, text=True)
+        clean = subprocess.run([sys.executable, "-m", "pytest", "-p", "no:dash", "-p", "no:cacheprovider", "-q",
+                                *every], cwd=work, env=dict(env, NUMBA_CACHE_DIR=str(work / "numba")),
+                               capture_output=True, text=True)
         if clean.returncode != 0:  # a failure below must be the plant's doing
             sys.exit(f"planted.py: the tests fail on the unplanted copy:\n{clean.stdout[-3000:]}")
         rows, ok = [], True

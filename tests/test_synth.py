@@ -188,3 +188,22 @@ def test_wandering_biases_change_only_velocity_and_gyro_fields():
     ends = np.array([oxts_packets(r, np.array([0.0, 600.0]), WANDERING_BIASES, seed=s)[1, 20:23]
                      - oxts_packets(r, np.array([0.0, 600.0]), ImuNoise(), seed=s)[1, 20:23] for s in range(400)])
     assert ends.std() == pytest.approx(WANDERING_BIASES.gyro_bias_walk * np.sqrt(600.0), rel=0.1)
+
+
+def test_oxts_stamps_follow_the_real_sawtooth():
+    """The synthetic OXTS stamps are matched to the scans as in real drive 0001: on a 10 ms grid (every interval
+    within 0.5 ms of 100 or 110 ms, about 31.5 % = 3.15 / 10 of them 110 ms), 11.5-24.5 ms after the scan stamp,
+    the delay shrinking by 3.15 ms a frame between 10 ms jumps; the real drive's stamps pass the same checks."""
+    from slamlib.synth.writer import frame_timestamps_ns
+
+    real = kitti_sample_dir() / "raw" / "2011_09_26" / "2011_09_26_drive_0001_sync"
+    real_o = read_timestamps_ns(real / "oxts" / "timestamps.txt")
+    real_v = read_timestamps_ns(real / "velodyne_points" / "timestamps.txt")
+    syn = frame_timestamps_ns(300, "2011_09_26", np.random.default_rng(7))
+    for o, v in ((real_o, real_v), (syn["oxts"], syn["velo"])):
+        do, delay = np.diff(o) * 1e-6, (o - v) * 1e-6
+        assert np.all(np.minimum(np.abs(do - 100), np.abs(do - 110)) < 0.5)
+        assert 0.25 < np.mean(do > 105) < 0.4
+        assert np.all((delay > 11.5) & (delay < 24.5))
+        steps = np.diff(delay)
+        assert np.all((np.abs(steps + 3.15) < 0.6) | (np.abs(steps - 6.85) < 0.6))

@@ -30,7 +30,7 @@ from slamlib.synth.writer import (_SAMPLE, MARKER, PARTIAL_MARKER, SCAN_PERIOD, 
 __all__ = ["GENERATOR_VERSION", "write_drive", "write_sequence", "default_drive", "resolve_route", "DEFAULT_FRAMES"]
 
 #: Bump when the generator's output changes: cached drives of another version are regenerated.
-GENERATOR_VERSION = "synth-2"
+GENERATOR_VERSION = "synth-3"
 #: KITTI 07 key frames of the default drive (30 s, ~220 m through the town part of sequence 07).
 DEFAULT_FRAMES = (0, 300)
 
@@ -85,7 +85,7 @@ def write_drive(basedir, route="07", date: str = "2011_09_26", drive: int = 1, f
     progress : show a tqdm progress bar.
     distortion : cast each scan column by column along the sweep, as a real HDL-64E (KITTI's timing:
         :mod:`slamlib.synth.lidar`), centred on the scan's timestamp; off: every scan from one pose, the
-        pose at its OXTS timestamp. The OXTS ground truth stays at the OXTS timestamps, 11-21 ms after the
+        pose at its OXTS timestamp. The OXTS ground truth stays at the OXTS timestamps, 12-24 ms after the
         scans' (as in KITTI raw data).
 
     Returns ``(Path(basedir), date, drive)``.

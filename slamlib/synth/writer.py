@@ -8,12 +8,18 @@ Layout written (``DATE`` e.g. ``2011_09_26``, ``NNNN`` the drive number)::
         timestamps_end.txt, data/0000000000.bin ...   (float32 x, y, z, reflectance)
 
 Timing, modelled on the shipped real drive 2011_09_26_drive_0001 (its files give: scan period 0.10315 s
-with 45 us jitter; OXTS stamps 11-21 ms after the scan stamps; a sweep runs from the previous sweep's end
-to ``timestamp + 51.6 ms``)::
+with 45 us jitter; a sweep runs from the previous sweep's end to ``timestamp + 51.6 ms``; the OXTS unit stamps
+its packets on its own 100 Hz clock, 0-0.7 ms off a 10 ms grid, and each frame gets the first packet at least
+~11.8 ms after the scan stamp, so the delay is a sawtooth that shrinks by ``103.15 mod 10 = 3.15`` ms a frame and
+jumps back up by 10 ms: 11.8-24.0 ms, OXTS intervals of 100 or 110 ms)::
 
     t_velo[k]  = t_start + k * period + N(0, jitter)          (period 0.10315 s, jitter 3.2e-5 s)
-    t_oxts[k]  = t_velo[k] + U(0.011, 0.021)
+    t_oxts[k]  = g0 + tick * ceil((t_velo[k] + theta_k - g0) / tick) + U(0, 0.5 ms)
+                 (tick 10 ms, grid phase g0 = t_velo[0] + U(0, tick), theta_k = 11.55 ms + Exp(0.3 ms))
     t_end[k]   = t_velo[k] + 0.0516,   t_start_sweep[k] = t_end[k-1]  (t_velo[0] - 0.0516 for k = 0)
+
+The exponential tail of ``theta_k`` reproduces the real drive's occasional later packet (4 of its 108 delays exceed
+21.8 ms: the packet one tick later than the shortest delay would pick; ~3 % here).
 
 The vehicle state of frame ``k`` (OXTS packet and the scan's sensor pose) is the route at
 ``t_oxts[k] - t_oxts[0] + route_t0`` (so ``pykitti``'s ``T_w_velo`` is exactly the pose the scan was cast
@@ -50,6 +56,11 @@ _FIXED_FILES = ("oxts/dataformat.txt", "oxts/timestamps.txt", "velodyne_points/t
                 "velodyne_points/timestamps_start.txt", "velodyne_points/timestamps_end.txt")
 _FRAME_FILES = (("oxts/data", re.compile(r"\d{10}\.txt")), ("velodyne_points/data", re.compile(r"\d{10}\.bin")))
 SCAN_PERIOD = 0.10315
+#: The OXTS clock (100 Hz) and how its packets are matched to scans (module docstring; all in ns), from drive 0001:
+OXTS_TICK_NS = 10_000_000
+OXTS_MIN_DELAY_NS = 11_550_000     # the shortest delay of a frame's packet tick after the scan stamp
+OXTS_LATE_MEAN_NS = 300_000        # mean extra threshold (exponential): ~3 % of packets a tick later
+OXTS_GRID_JITTER_NS = 500_000      # packets stamped up to 0.5 ms after their tick (real: 5-95 % of 0.03-0.48 ms)
 _SAMPLE = kitti_sample_dir() / "raw" / "2011_09_26"
 
 
@@ -108,7 +119,10 @@ def frame_timestamps_ns(n: int, date: str, rng: np.random.Generator, start_time:
     velo = t0 + np.round((k * SCAN_PERIOD + 3.2e-5 * rng.standard_normal(n)) * 1e9).astype(np.int64)
     end = velo + 51_600_000 + rng.integers(-20_000, 20_000, n)
     start = np.r_[velo[:1] - 51_600_000, end[:-1]]
-    oxts = velo + rng.integers(11_000_000, 21_000_000, n)
+    g0 = velo[0] + int(rng.integers(0, OXTS_TICK_NS))
+    theta = OXTS_MIN_DELAY_NS + np.round(rng.exponential(OXTS_LATE_MEAN_NS, n)).astype(np.int64)
+    ticks = -((g0 - velo - theta) // OXTS_TICK_NS)  # ceil((velo + theta - g0) / tick) in exact integers
+    oxts = g0 + ticks * OXTS_TICK_NS + rng.integers(0, OXTS_GRID_JITTER_NS, n)
     return {"velo": velo, "start": start, "end": end, "oxts": oxts}
 
 

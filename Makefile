@@ -81,6 +81,8 @@ mutate: setup
 	$(MAKE) --no-print-directory mutate-run MUTATE_DIR=_build/mutate-jitted MUTATE_JIT=0 MUTANTS='$(MUTATE_JITTED)' \
 	  MUTATE_TESTS='$(MUTATE_JITTED_TESTS)'
 	$(BIN)/python tests/mutation/score.py _build/mutate-pure/results.txt _build/mutate-jitted/results.txt
+	$(BIN)/python tests/mutation/survivors.py _build/mutate-pure _build/mutate-jitted > _build/mutate-survivors.md
+	@echo "every survivor with its diff: _build/mutate-survivors.md"
 	$(BIN)/python tests/mutation/planted.py
 
 # Issue 15's four bugs, planted one at a time in a copy: each must fail its unit test (also a test in the suite).

@@ -105,7 +105,9 @@ ZERO_NOISE = ImuNoise(0.0, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), 0.0, (0.0, 0.0, 0.0
 
 #: The default noise with wandering biases: a gyro bias random walk of 2e-4 rad/s/sqrt(s) (after 100 s the yaw-rate
 #: bias is off by 2 mrad/s, 0.11 deg/s, one sigma: a consumer MEMS gyro, cf. the 3 mrad/s constant bias) and a
-#: velocity bias walk of 5 mm/s/sqrt(s) (5 cm/s after 100 s).
+#: velocity bias walk of 5 mm/s/sqrt(s) (5 cm/s after 100 s). Dead reckoning over the whole KITTI 07, 05 and 00 routes
+#: (114, 287, 471 s) then drifts 5.7, 6.5 and 6.7 % (KITTI translational error, mean of seeds 0-3; 2-9 % by seed)
+#: instead of 4.2, 5.2 and 5.4 % with the constant biases alone (``dead_reckon`` of ``oxts_packets`` at 9.7 Hz).
 WANDERING_BIASES = ImuNoise(vel_bias_walk=0.005, gyro_bias_walk=2e-4)
 
 

@@ -128,6 +128,8 @@ def test_twist_between_inverts_the_motion_model():
     np.testing.assert_allclose(v, [10.0, 0.0, 0.0], atol=1e-12)
     np.testing.assert_allclose(w, 0.0, atol=1e-12)
     assert all(np.all(x == 0) for x in twist_between(np.eye(4), Tb, 0.0))
+    for dt in (0.0, -0.1, np.nan, np.inf):  # no motion known: two zero 3-vectors, like a real twist
+        assert [(x.shape, x.dtype) for x in twist_between(np.eye(4), Tb, dt)] == [((3,), np.float64)] * 2
 
 
 def test_read_imu_without_imu_needs_the_estimate(odo):

@@ -22,6 +22,7 @@ from slamlib.synth.lidar import Hdl64, ray_directions, simulate_scan
 from slamlib.synth.oxts import ImuNoise, oxts_packets
 from slamlib.synth.routes import Route, get_route
 from slamlib.synth.scene import build_scene
+from slamlib.synth.traffic import TrafficConfig, build_traffic
 from slamlib.synth.writer import (_SAMPLE, MARKER, PARTIAL_MARKER, SCAN_PERIOD, check_calib, drive_dir,
                                   frame_timestamps_ns, is_own_drive, own_files, own_sequence_files, read_marker,
                                   write_calib, write_marker, write_odometry_calib, write_odometry_scan, write_oxts,
@@ -69,7 +70,8 @@ def resolve_route(route, frames=None) -> tuple[Route, int]:
 
 def write_drive(basedir, route="07", date: str = "2011_09_26", drive: int = 1, frames=DEFAULT_FRAMES,
                 seed: int = 0, noise: ImuNoise = ImuNoise(), lidar: Hdl64 = Hdl64(), scans: bool = True,
-                progress: bool = True, distortion: bool = False) -> tuple[Path, str, int]:
+                progress: bool = True, distortion: bool = False,
+                traffic: TrafficConfig | None = None) -> tuple[Path, str, int]:
     """Write a synthetic drive under ``basedir`` in the KITTI raw layout (see :mod:`slamlib.synth.writer`).
 
     Parameters
@@ -87,6 +89,10 @@ def write_drive(basedir, route="07", date: str = "2011_09_26", drive: int = 1, f
         :mod:`slamlib.synth.lidar`), centred on the scan's timestamp; off: every scan from one pose, the
         pose at its OXTS timestamp. The OXTS ground truth stays at the OXTS timestamps, 12-24 ms after the
         scans' (as in KITTI raw data).
+    traffic : moving cars, cyclists and pedestrians in the scans (:mod:`slamlib.synth.traffic`, e.g.
+        ``TrafficConfig()`` for a KITTI city drive, ``TrafficConfig().scaled(2)`` twice as dense), drawn from a
+        fifth random stream; ``None``: a static town, the same bytes as without the argument. With traffic the
+        town has no parked cars on the left (``TrafficConfig.clear_left_parking``).
 
     Returns ``(Path(basedir), date, drive)``.
 
@@ -98,7 +104,7 @@ def write_drive(basedir, route="07", date: str = "2011_09_26", drive: int = 1, f
     from slamlib.kitti.calib import load_T_velo_imu
 
     r, n = resolve_route(route, frames)
-    rng_time, rng_imu, rng_scene, rng_lidar = _streams(seed)
+    rng_time, rng_imu, rng_scene, rng_lidar, rng_traffic = _streams(seed)
     ddir = drive_dir(basedir, date, drive)
     _check_own_folder(ddir, "basedir, date or drive")
     check_calib(basedir, date)
@@ -106,6 +112,8 @@ def write_drive(basedir, route="07", date: str = "2011_09_26", drive: int = 1, f
               "noise": noise.as_dict(), "lidar": lidar.as_dict(), "scans": scans}
     if distortion:
         params["distortion"] = True
+    if traffic is not None:
+        params["traffic"] = traffic.as_dict()
     _begin(ddir, params, own_files(ddir))
     date_dir = write_calib(basedir, date)
     ts = frame_timestamps_ns(n, date, rng_time)
@@ -118,16 +126,21 @@ def write_drive(basedir, route="07", date: str = "2011_09_26", drive: int = 1, f
         T_w_velo = r.pose(t_route) @ T_imu_velo
         t_sweep = r.t0 + (ts["velo"] - ts["oxts"][0]) * 1e-9 if distortion else None
         for k, scan in _cast_scans(r, t_route, T_w_velo, rng_scene, rng_lidar, lidar, progress,
-                                   f"synth drive {drive:04d}", t_sweep, T_imu_velo):
+                                   f"synth drive {drive:04d}", t_sweep, T_imu_velo, traffic, rng_traffic):
             write_scan(ddir, k, scan)
     write_marker(ddir, params)
     (ddir / PARTIAL_MARKER).unlink()
     return Path(basedir), date, drive
 
 
+#: The generator's random streams: timestamps, IMU noise, scene, LIDAR noise, traffic (the fifth was added later;
+#: ``SeedSequence`` children are derived by index, so the first four are those of the four-stream versions).
+N_STREAMS = 5
+
+
 def _streams(seed: int):
-    """The generator's four independent random streams (timestamps, IMU noise, scene, LIDAR noise) from ``seed``."""
-    return tuple(np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(4))
+    """The generator's independent random streams (timestamps, IMU noise, scene, LIDAR noise, traffic) from ``seed``."""
+    return tuple(np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(N_STREAMS))
 
 
 def _check_own_folder(folder: Path, what: str) -> None:
@@ -154,36 +167,50 @@ def _begin(folder: Path, params: dict, previous: list) -> None:
 
 
 def _cast_scans(r: Route, t_route, T_w_velo, rng_scene, rng_lidar, lidar: Hdl64, progress: bool, desc: str,
-                t_sweep=None, T_imu_velo=None):
+                t_sweep=None, T_imu_velo=None, traffic: TrafficConfig | None = None, rng_traffic=None):
     """Yield ``(k, scan (N, 4) float32)`` for every frame: the town along the route, cast from ``T_w_velo[k]``, or,
     with ``t_sweep`` (each frame's mid-sweep time on the route, s), column by column from the Velodyne pose
-    ``r.pose(t) @ T_imu_velo`` at each column's firing time (:func:`slamlib.synth.lidar.column_time_offsets`)."""
+    ``r.pose(t) @ T_imu_velo`` at each column's firing time (:func:`slamlib.synth.lidar.column_time_offsets`).
+    With ``traffic`` the movers (built from ``rng_traffic``) are in the scans where they are at the frame's instant
+    (``t_route[k]``, or the sweep's blocks around ``t_sweep[k]``)."""
     from tqdm.auto import tqdm
 
     from slamlib.synth.lidar import column_time_offsets, ray_columns
 
     dense_t = np.linspace(t_route[0], t_route[-1], max(2, int((t_route[-1] - t_route[0]) * 20) + 2))
-    scene = build_scene(r.position(dense_t), seed=int(rng_scene.integers(2**63)))
+    if traffic is None:
+        scene = build_scene(r.position(dense_t), seed=int(rng_scene.integers(2**63)))
+    else:
+        sides = (-1,) if traffic.clear_left_parking else (-1, 1)
+        scene = build_scene(r.position(dense_t), seed=int(rng_scene.integers(2**63)), parking_sides=sides)
+        movers = build_traffic(r, t_route[0], t_route[-1], traffic, rng_traffic)
     rc = scene.raycasting_scene()
     dirs = ray_directions(lidar)
     offsets = column_time_offsets(lidar)
     cols = ray_columns(lidar) if t_sweep is not None else None
     for k in tqdm(range(len(t_route)), desc=desc, disable=not progress, unit="scan"):
         poses = None if t_sweep is None else r.pose(np.clip(t_sweep[k] + offsets, r.t0, r.t1)) @ T_imu_velo
+        at = None if traffic is None else _movers_at(movers, t_route[k] if t_sweep is None else t_sweep[k])
         yield k, simulate_scan(rc, scene.albedo, T_w_velo[k], rng_lidar, lidar, dirs, column_poses=poses,
-                               columns=cols)
+                               columns=cols, movers=at)
+
+
+def _movers_at(movers, t_frame: float):
+    """``dt -> movers.mesh(t_frame + dt)``: the movers' triangles ``dt`` s after a frame's instant (route time, s)."""
+    return lambda dt: movers.mesh(t_frame + dt)
 
 
 def write_sequence(basedir, route="07", sequence: int | str = 7, frames=DEFAULT_FRAMES, seed: int = 0,
-                   lidar: Hdl64 = Hdl64(), progress: bool = True, distortion: bool = False) -> tuple[Path, str]:
+                   lidar: Hdl64 = Hdl64(), progress: bool = True, distortion: bool = False,
+                   traffic: TrafficConfig | None = None) -> tuple[Path, str]:
     """Write a synthetic drive in the KITTI **odometry** layout (:mod:`slamlib.kitti.sequence`): scans, ``calib.txt``,
     ``times.txt`` and the ground truth ``poses/NN.txt`` -- no IMU, as the benchmark has none.
 
     The scans, timing and poses are those :func:`write_drive` writes for the same ``route``, ``frames`` and
-    ``seed`` (the same random streams; ``distortion`` as there, the ground truth then at the mid-sweep instants,
-    as KITTI's odometry poses are the scans'): ``times.txt`` holds the scans' mid-sweep times since the first, the
-    poses are the left camera's, ``P_k = Tr inv(T_w_velo_0) T_w_velo_k inv(Tr)``, with ``Tr`` the real 2011_09_26
-    Velodyne -> rectified left camera calibration (:func:`slamlib.synth.writer.odometry_calib`).
+    ``seed`` (the same random streams; ``traffic`` as there; ``distortion`` as there, the ground truth then at the
+    mid-sweep instants, as KITTI's odometry poses are the scans'): ``times.txt`` holds the scans' mid-sweep times
+    since the first, the poses are the left camera's, ``P_k = Tr inv(T_w_velo_0) T_w_velo_k inv(Tr)``, with ``Tr``
+    the real 2011_09_26 Velodyne -> rectified left camera calibration (:func:`slamlib.synth.writer.odometry_calib`).
 
     Returns ``(Path(basedir), "NN")``; the sequence folder is ``basedir/sequences/NN``. Rewrites only a folder of
     this generator's (or an empty one), like :func:`write_drive`; ``basedir/poses/NN.txt`` is written only if
@@ -195,7 +222,7 @@ def write_sequence(basedir, route="07", sequence: int | str = 7, frames=DEFAULT_
 
     name = sequence_name(sequence)
     r, n = resolve_route(route, frames)
-    rng_time, _, rng_scene, rng_lidar = _streams(seed)
+    rng_time, _, rng_scene, rng_lidar, rng_traffic = _streams(seed)
     sdir = Path(basedir) / "sequences" / name
     poses_path = Path(basedir) / "poses" / f"{name}.txt"
     _check_own_folder(sdir, "basedir or sequence")
@@ -206,6 +233,8 @@ def write_sequence(basedir, route="07", sequence: int | str = 7, frames=DEFAULT_
               "lidar": lidar.as_dict()}
     if distortion:
         params["distortion"] = True
+    if traffic is not None:
+        params["traffic"] = traffic.as_dict()
     _begin(sdir, params, own_sequence_files(sdir) + ([poses_path] if poses_path.is_file() else []))
     ts = frame_timestamps_ns(n, "2011_09_26", rng_time)
     t_route = r.t0 + (ts["oxts"] - ts["oxts"][0]) * 1e-9
@@ -220,7 +249,7 @@ def write_sequence(basedir, route="07", sequence: int | str = 7, frames=DEFAULT_
     write_kitti_poses(poses_path, Tr @ (invert_pose(T_w_velo[0])[None] @ T_w_velo) @ invert_pose(Tr))
     (sdir / "velodyne").mkdir(exist_ok=True)
     for k, scan in _cast_scans(r, t_route, T_w_velo, rng_scene, rng_lidar, lidar, progress,
-                               f"synth sequence {name}", t_sweep, T_imu_velo):
+                               f"synth sequence {name}", t_sweep, T_imu_velo, traffic, rng_traffic):
         write_odometry_scan(sdir, k, scan)
     write_marker(sdir, params)
     (sdir / PARTIAL_MARKER).unlink()

@@ -139,7 +139,7 @@ def _resample_by_arclength(p: np.ndarray, step: float) -> np.ndarray:
 
 
 def build_scene(route_positions, seed: int = 0, extent: float = 90.0, ground_cell: float = 2.0,
-                road_clearance: float = 3.2) -> Scene:
+                road_clearance: float = 3.2, parking_sides: tuple = (-1, 1)) -> Scene:
     """Procedural town around a route (see the module docstring).
 
     Parameters
@@ -152,6 +152,9 @@ def build_scene(route_positions, seed: int = 0, extent: float = 90.0, ground_cel
     ground_cell : ground grid spacing (m).
     road_clearance : no object footprint within this distance (m) of the route centre line (parked cars:
         0.75 of it).
+    parking_sides : the sides of the road with parked cars, -1 right and +1 left (moving traffic,
+        :mod:`slamlib.synth.traffic`, drives its oncoming lane where the left ones would stand). The other
+        objects and the random draws stay the same whatever the sides.
     """
     rng = np.random.default_rng(seed)
     p = _resample_by_arclength(np.asarray(route_positions, dtype=np.float64), 1.0)
@@ -218,6 +221,8 @@ def build_scene(route_positions, seed: int = 0, extent: float = 90.0, ground_cel
         normal = np.array([-tangent[1], tangent[0]])
         yaw = np.arctan2(tangent[1], tangent[0])
         xy = p[i0, :2] + side * offset * normal + along * tangent
+        if kind == 3 and side not in parking_sides:
+            return
         if not clear(xy, size, yaw, 0.75 * road_clearance if kind == 3 else road_clearance):
             return
         z = ground_z(xy)[0] - 0.3 + z_lift  # sink 0.3 m so sloped ground never shows a gap underneath

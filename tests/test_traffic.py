@@ -1,0 +1,269 @@
+"""Moving traffic in the synthetic drives (slamlib.synth.traffic): layout of the movers, and the scans seeing them."""
+
+import hashlib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from slamlib.synth import Hdl64, loop_route, straight_route, write_drive, write_sequence
+from slamlib.synth.drive import _streams, resolve_route
+from slamlib.synth.lidar import MOVER_BLOCKS, SCAN_PERIOD_S, _sweep_blocks, column_time_offsets, ray_columns
+from slamlib.synth.traffic import (CYCLE_LANE, CYCLIST_SPEED, FOLLOW_GAP_S, FOLLOW_MIN_DIST, KINDS, LEFT_LANE,
+                                   ONCOMING_SPEED, OVERTAKE_EXCESS, PEDESTRIAN_SPEED, SIDEWALK, SIDEWALK_JITTER,
+                                   TrafficConfig, build_traffic)
+from slamlib.synth.writer import drive_dir, frame_timestamps_ns, read_marker
+
+TINY = Hdl64(columns=64, beam_stride=4)
+SMALL = Hdl64(columns=360, beam_stride=2)
+AHEAD, BEHIND, ONCOMING, OVERTAKING, CYCLIST, PEDESTRIAN = range(len(KINDS))
+#: SHA-256 of the files of small drives written before traffic existed (commit 33dd4d1, seed 5, 3 frames of the
+#: straight route, ``TINY`` LIDAR): traffic=None must keep them byte for byte. Tied to the numpy / open3d versions
+#: of the project's environment, like every byte-level check of the generator.
+GOLDEN = {("drive", False): "4644ac3449cce5c9447507f2f29e793a4e08dcd5fb0d06d01d79a2c0b019b1b0",
+          ("drive", True): "2b01d4d8496e5bc14eb7e18fe3d280911cc0ec7ee1b56b9bfd2245a1c608d96a",
+          ("sequence", False): "6789b46f8c6512dbf8739bb47aa548346345ad211e6d930c557d5b467ca49920",
+          ("sequence", True): "771d457ee1f1148aed096da9d9436dfc729521731438be0e4e8ae1c325b17bb1"}
+
+
+def _digest(root: Path) -> str:
+    """SHA-256 over every file's relative path and bytes, the generator's markers left out."""
+    h = hashlib.sha256()
+    for p in sorted(Path(root).rglob("*")):
+        if p.is_file() and not p.name.startswith(".slamlib"):
+            h.update(str(p.relative_to(root)).encode())
+            h.update(p.read_bytes())
+    return h.hexdigest()
+
+
+def _traffic(route, duration, config=TrafficConfig(), seed=1):
+    return build_traffic(route, route.t0, route.t0 + duration, config, np.random.default_rng(seed))
+
+
+def _arrays(tr):
+    return [tr.kind, tr.lateral, tr.heading, tr.size, tr.albedo, tr.b, tr.c, tr.t_ref, tr.gap, tr.t_on, tr.t_off]
+
+
+def test_deterministic_by_seed():
+    r = straight_route()
+    a, b, c = _traffic(r, 30, seed=4), _traffic(r, 30, seed=4), _traffic(r, 30, seed=5)
+    assert len(a) > 10
+    assert all(np.array_equal(x, y) for x, y in zip(_arrays(a), _arrays(b)))
+    assert len(a) != len(c) or not np.array_equal(a.b, c.b)
+    va, vb = a.mesh(r.t0 + 7.3)[0], b.mesh(r.t0 + 7.3)[0]
+    assert va.shape[0] > 0 and np.array_equal(va, vb)
+
+
+def test_counts_scale_with_density():
+    r = straight_route()  # 600 m
+    base = TrafficConfig()
+    one = np.bincount(_traffic(r, 60, base).kind, minlength=len(KINDS))
+    three = np.bincount(_traffic(r, 60, base.scaled(3)).kind, minlength=len(KINDS))
+    # a kind's street is the extended centre line (plus speed x duration): never shorter than the route
+    assert np.all(one >= np.round(base.per_km() * r.length() / 1000) - 1)
+    # every kind but the overtaking cars, which fit only into gaps of the oncoming lane, keeps its rate
+    rest = np.arange(len(KINDS)) != OVERTAKING
+    assert np.all(one > 0) and np.all(np.abs(three[rest] - 3 * one[rest]) <= 0.1 * 3 * one[rest] + 1)
+    assert len(_traffic(r, 60, base.scaled(0))) == 0
+    assert base.scaled(2).density == 2.0 and base.scaled(2).per_km()[ONCOMING] == 2 * base.oncoming
+    with pytest.raises(ValueError):
+        TrafficConfig(density=-1.0)
+
+
+def _tracks(tr, times):
+    """Per time: the box dict; and per mover index, its (time, centre, yaw) samples."""
+    tracks = {}
+    for t in times:
+        bx = tr.boxes(t)
+        for j, i in enumerate(bx["index"]):
+            tracks.setdefault(int(i), []).append((t, bx["centre"][j], bx["yaw"][j]))
+    return tracks
+
+
+def test_lanes_directions_and_speeds_on_a_straight_route():
+    """Straight route along +x at 10 m/s: a mover's y is its lateral offset, its yaw 0 (with) or pi (against)."""
+    r = straight_route()
+    tr = _traffic(r, 60, TrafficConfig(oncoming=8.0, overtaking=5.0).scaled(2))
+    times = np.arange(0.0, 60.0, 0.5)
+    tracks = _tracks(tr, times)
+    seen = set()
+    for i, samples in tracks.items():
+        if len(samples) < 3:
+            continue
+        kind = tr.kind[i]
+        seen.add(int(kind))
+        t = np.array([s[0] for s in samples])
+        c = np.array([s[1] for s in samples])
+        yaw = np.array([s[2] for s in samples])
+        vx = np.diff(c[:, 0]) / np.diff(t)
+        ego_x = 10.0 * t
+        assert np.allclose(c[:, 2], c[0, 2], atol=1e-6)  # level road
+        along = np.cos(yaw) > 0
+        if kind in (AHEAD, BEHIND):
+            sign = 1 if kind == AHEAD else -1
+            assert np.allclose(c[:, 1], 0.0, atol=1e-9) and along.all()
+            gap = sign * (c[:, 0] - ego_x)
+            assert gap.min() >= FOLLOW_MIN_DIST and gap.max() <= 10.0 * FOLLOW_GAP_S[1] + 1.0
+            assert np.allclose(vx, 10.0, atol=0.05)
+        elif kind == ONCOMING:
+            assert np.allclose(c[:, 1], LEFT_LANE) and not along.any()
+            assert np.all((-vx >= ONCOMING_SPEED[0] - 1e-6) & (-vx <= ONCOMING_SPEED[1] + 1e-6))
+        elif kind == OVERTAKING:
+            assert np.allclose(c[:, 1], LEFT_LANE) and along.all()
+            assert np.all((vx - 10.0 >= OVERTAKE_EXCESS[0] - 1e-6) & (vx - 10.0 <= OVERTAKE_EXCESS[1] + 1e-6))
+        elif kind == CYCLIST:
+            assert np.allclose(c[:, 1], CYCLE_LANE) and along.all()
+            assert np.all((vx >= CYCLIST_SPEED[0] - 1e-6) & (vx <= CYCLIST_SPEED[1] + 1e-6))
+        else:
+            assert np.all(np.abs(np.abs(c[:, 1]) - SIDEWALK) <= SIDEWALK_JITTER)
+            speed = np.abs(vx)
+            assert np.all((speed >= PEDESTRIAN_SPEED[0] - 1e-6) & (speed <= PEDESTRIAN_SPEED[1] + 1e-6))
+            assert np.all(np.sign(vx) == np.where(along[1:], 1, -1))  # walks the way it faces
+    assert seen == set(range(len(KINDS)))
+
+
+def test_lanes_follow_a_curved_route():
+    """Loop of radius 60 m turning left around (0, 60): a mover ``y`` m to the left is ``60 - y`` m from the centre,
+    and its yaw is the circle's tangent (reversed for oncoming cars)."""
+    r = loop_route()
+    tr = _traffic(r, 40, TrafficConfig().scaled(2))
+    checked = 0
+    for t in np.arange(1.0, 40.0, 1.0):
+        bx = tr.boxes(t)
+        rel = bx["centre"][:, :2] - [0.0, 60.0]
+        radius = np.linalg.norm(rel, axis=1)
+        on_circle = np.abs(tr.line.ego_s(t) - tr.arc_length(t)[bx["index"]]) < r.length() - tr.line.length
+        lateral = tr.lateral[bx["index"]]
+        keep = on_circle & (np.arctan2(rel[:, 1], rel[:, 0]) > -np.pi / 2 + 0.1)  # not on the straight extensions
+        assert np.allclose(radius[keep], 60.0 - lateral[keep], atol=0.05)
+        tangent = np.arctan2(rel[:, 1], rel[:, 0]) + np.pi / 2
+        dyaw = np.angle(np.exp(1j * (bx["yaw"] - tangent)))
+        expect = np.where(tr.heading[bx["index"]] > 0, 0.0, np.pi)
+        assert np.all(np.abs(np.angle(np.exp(1j * (dyaw - expect))))[keep] < 0.05)
+        checked += keep.sum()
+    assert checked > 50
+
+
+@pytest.mark.parametrize("route", ["07", "loop", "straight"])
+def test_movers_keep_away_from_the_ego_car(route):
+    """The nearest box centre is more than 3 m from the ego car (its IMU) at every instant of the drive, at three
+    times the default density; the cars in its lane keep at least FOLLOW_MIN_DIST along the route (a chord
+    across a corner can be shorter)."""
+    r, n = resolve_route(route, (0, 300) if route == "07" else 300)
+    duration = (n - 1) * 0.1
+    tr = _traffic(r, duration, TrafficConfig().scaled(3), seed=2)
+    nearest, lane_nearest = np.inf, np.inf
+    for t in np.arange(r.t0 - SCAN_PERIOD_S, r.t0 + duration + SCAN_PERIOD_S, 0.02):
+        bx = tr.boxes(t)
+        d = np.linalg.norm(bx["centre"][:, :2] - r.position(t)[0, :2], axis=1)
+        if len(d):
+            nearest = min(nearest, d.min())
+        lane = np.isin(bx["kind"], (AHEAD, BEHIND))
+        if lane.any():
+            gap = np.abs(tr.arc_length(t)[bx["index"][lane]] - tr.line.ego_s(t))
+            lane_nearest = min(lane_nearest, gap.min())
+    assert 3.0 < nearest < 4.0  # cyclists ride 3.2 m from the ego lane and are passed
+    assert lane_nearest >= FOLLOW_MIN_DIST
+
+
+def test_movers_of_one_lane_never_overlap():
+    r = straight_route()
+    tr = _traffic(r, 60, TrafficConfig().scaled(3), seed=3)
+    for t in np.arange(0.0, 60.0, 0.05):
+        bx = tr.boxes(t)
+        c, size = bx["centre"], bx["size"]
+        dx = np.abs(c[:, None, 0] - c[None, :, 0]) < (size[:, None, 0] + size[None, :, 0]) / 2
+        dy = np.abs(c[:, None, 1] - c[None, :, 1]) < (size[:, None, 1] + size[None, :, 1]) / 2
+        overlap = dx & dy
+        np.fill_diagonal(overlap, False)
+        assert not overlap.any(), f"boxes overlap at t = {t}"
+
+
+def test_sweep_blocks_bound_the_mover_time_error():
+    model = Hdl64(columns=400, beam_stride=8)
+    cols = ray_columns(model)
+    offsets = column_time_offsets(model)
+    seen = np.zeros(len(cols), dtype=int)
+    for dt, sel in _sweep_blocks(cols, model):
+        assert np.all(np.abs(offsets[cols[sel]] - dt) <= SCAN_PERIOD_S / (2 * MOVER_BLOCKS) + 1e-12)
+        seen[sel] += 1
+    assert np.all(seen == 1)
+
+
+def test_first_four_random_streams_unchanged():
+    for seed in (0, 7):
+        old = [np.random.default_rng(s).integers(2**63, size=3) for s in np.random.SeedSequence(seed).spawn(4)]
+        new = _streams(seed)
+        assert len(new) == 5
+        assert all(np.array_equal(o, g.integers(2**63, size=3)) for o, g in zip(old, new))
+
+
+@pytest.mark.parametrize("layout", ["drive", "sequence"])
+@pytest.mark.parametrize("distortion", [False, True])
+def test_no_traffic_output_unchanged(tmp_path, layout, distortion):
+    if layout == "drive":
+        base = write_drive(tmp_path, "straight", frames=3, seed=5, lidar=TINY, progress=False,
+                           distortion=distortion, traffic=None)[0]
+    else:
+        base = write_sequence(tmp_path, "straight", 3, frames=3, seed=5, lidar=TINY, progress=False,
+                              distortion=distortion)[0]
+    assert _digest(base) == GOLDEN[(layout, distortion)]
+
+
+def test_traffic_without_movers_casts_the_same_scans(tmp_path):
+    """Density 0 with the left parking kept: the mover path runs with no movers and must change no byte."""
+    off = write_drive(tmp_path / "off", "straight", frames=3, seed=5, lidar=TINY, progress=False, distortion=True)[0]
+    empty = TrafficConfig(density=0.0, clear_left_parking=False)
+    on = write_drive(tmp_path / "on", "straight", frames=3, seed=5, lidar=TINY, progress=False, distortion=True,
+                     traffic=empty)[0]
+    assert _digest(off) == _digest(on)
+    assert "traffic" not in read_marker(drive_dir(off, "2011_09_26", 1))
+    assert read_marker(drive_dir(on, "2011_09_26", 1))["traffic"] == empty.as_dict()
+
+
+def _points_in_boxes(points_w, bx, lift=0.3):
+    """For each box: the number of world points inside it, above ``lift`` m over its base (the road's points
+    under a box, which is sunk into the road, do not count)."""
+    counts = []
+    for c, yaw, size in zip(bx["centre"], bx["yaw"], bx["size"]):
+        d = points_w - c
+        x = np.cos(yaw) * d[:, 0] + np.sin(yaw) * d[:, 1]
+        y = -np.sin(yaw) * d[:, 0] + np.cos(yaw) * d[:, 1]
+        inside = (np.abs(x) <= size[0] / 2 + 0.05) & (np.abs(y) <= size[1] / 2 + 0.05)
+        counts.append(int((inside & (d[:, 2] > lift) & (d[:, 2] <= size[2] + 0.05)).sum()))
+    return np.array(counts)
+
+
+def test_scans_see_the_movers_where_they_are(tmp_path):
+    """A straight drive at 3x density without sweep distortion: each scan, put in the world frame with the true
+    Velodyne pose, has points inside the cars near the road at that frame's time; the same drive with density 0
+    (the same town, no movers) has none there."""
+    from slamlib.kitti.calib import load_T_velo_imu
+    from slamlib.geometry import invert_pose
+    from slamlib.paths import kitti_sample_dir
+
+    cfg, seed, n = TrafficConfig().scaled(3), 11, 4
+    on = write_drive(tmp_path / "on", "straight", frames=n, seed=seed, lidar=SMALL, progress=False, traffic=cfg)[0]
+    off = write_drive(tmp_path / "off", "straight", frames=n, seed=seed, lidar=SMALL, progress=False,
+                      traffic=TrafficConfig(density=0.0))[0]
+    r, _ = resolve_route("straight", n)
+    streams = _streams(seed)
+    ts = frame_timestamps_ns(n, "2011_09_26", streams[0])
+    t_route = r.t0 + (ts["oxts"] - ts["oxts"][0]) * 1e-9
+    movers = build_traffic(r, t_route[0], t_route[-1], cfg, streams[4])
+    T_imu_velo = invert_pose(load_T_velo_imu(kitti_sample_dir() / "raw" / "2011_09_26"))
+    near_cars = 0
+    for k in range(n):
+        T = r.pose(t_route[k])[0] @ T_imu_velo
+        counts = {}
+        for name, base in (("on", on), ("off", off)):
+            rel = f"2011_09_26/2011_09_26_drive_0001_sync/velodyne_points/data/{k:010d}.bin"
+            p = np.fromfile(base / rel, np.float32).reshape(-1, 4)[:, :3].astype(np.float64)
+            counts[name] = _points_in_boxes(p @ T[:3, :3].T + T[:3, 3], movers.boxes(t_route[k]))
+        bx = movers.boxes(t_route[k])
+        dist = np.linalg.norm(bx["centre"][:, :2] - T[:2, 3], axis=1)
+        cars = np.isin(bx["kind"], (AHEAD, BEHIND, ONCOMING, OVERTAKING)) & (dist < 30.0)
+        near_cars += cars.sum()
+        assert np.all(counts["on"][cars] >= 5), (k, counts["on"][cars])
+        assert np.all(counts["off"][cars] == 0)
+    assert near_cars >= 2

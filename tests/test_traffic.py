@@ -267,3 +267,29 @@ def test_scans_see_the_movers_where_they_are(tmp_path):
         assert np.all(counts["on"][cars] >= 5), (k, counts["on"][cars])
         assert np.all(counts["off"][cars] == 0)
     assert near_cars >= 2
+
+
+def test_command_traffic_option(tmp_path):
+    """``slamlib synth --traffic [SCALE]``: recorded in the marker with its density; absent without the option."""
+    from slamlib.cli import main
+
+    tiny = ["--route", "straight", "--columns", "64", "--frames", "2", "--no-progress"]
+    assert main(["synth", "--out", str(tmp_path / "a"), "--traffic", "2.5", *tiny]) == 0
+    assert main(["synth", "--out", str(tmp_path / "b"), "--traffic", *tiny]) == 0
+    assert main(["synth", "--out", str(tmp_path / "c"), *tiny]) == 0
+    markers = [read_marker(drive_dir(tmp_path / x, "2011_09_26", 1)) for x in "abc"]
+    assert markers[0]["traffic"] == TrafficConfig().scaled(2.5).as_dict()
+    assert markers[1]["traffic"] == TrafficConfig().as_dict()
+    assert "traffic" not in markers[2]
+    assert main(["synth", "--out", str(tmp_path / "d"), "--layout", "odometry", "--traffic", "0.5", *tiny]) == 0
+    assert read_marker(tmp_path / "d" / "sequences" / "00")["traffic"]["density"] == 0.5
+
+
+@pytest.mark.parametrize("value", ["0", "-1", "11", "nan", "inf"])
+def test_command_rejects_a_bad_traffic_scale(tmp_path, capsys, value):
+    from slamlib.cli import main
+
+    with pytest.raises(SystemExit) as err:
+        main(["synth", "--out", str(tmp_path), "--traffic", value, "--no-progress"])
+    assert "--traffic" in str(err.value) and value in str(err.value)
+    assert not any(tmp_path.iterdir())

@@ -26,6 +26,9 @@ HELP = "Write a synthetic drive (town + HDL-64E scans + OXTS) in the KITTI raw l
 
 # Kept here (and checked against slamlib.synth by the tests) so that `slamlib --help` does not import scipy/open3d.
 ROUTES = ("straight", "loop", "00", "05", "07")
+#: Largest --traffic SCALE: ten times a city drive's density already fills the lanes (movers that would overlap are
+#: dropped).
+MAX_TRAFFIC = 10.0
 KITTI_ROUTES = ("00", "05", "07")
 DEFAULT_FRAMES = "0:300"        # slamlib.synth.DEFAULT_FRAMES
 DEFAULT_COLUMNS = 2000          # slamlib.synth.Hdl64().columns
@@ -58,6 +61,10 @@ def add_arguments(parser) -> None:
                              "IMU, for slamlib run --odometry-dir OUT --sequence NN (LIDAR-only)")
     parser.add_argument("--sequence", type=int, default=None, metavar="NN",
                         help="with --layout odometry: the sequence number 0..99 (default: the route's, e.g. 07, or 0)")
+    parser.add_argument("--traffic", type=float, nargs="?", const=1.0, default=None, metavar="SCALE",
+                        help="moving cars, cyclists and pedestrians in the scans (slamlib.synth.traffic), SCALE times "
+                             "the density of a KITTI city drive (default without SCALE: 1; without --traffic: a static "
+                             f"town); SCALE in (0, {MAX_TRAFFIC:g}]")
     parser.add_argument("--no-scans", action="store_true",
                         help="write OXTS packets and timestamps only (no Velodyne scans; slamlib run needs scans)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -143,6 +150,7 @@ def main(args) -> int:
         _fail(f"--imu-noise must be a finite number in [0, {MAX_IMU_NOISE:g}], got {args.imu_noise}")
     if args.seed < 0:
         _fail(f"--seed must be >= 0, got {args.seed}")
+    traffic = _traffic(args.traffic)
     try:
         frames = parse_route_frames(args.frames, args.route)
     except ValueError as exc:
@@ -166,7 +174,7 @@ def main(args) -> int:
     if basedir.exists() and not basedir.is_dir():
         _fail(f"--out {basedir} exists and is not a folder")
     if args.layout == "odometry":
-        return _write_sequence(args, basedir, frames, n)
+        return _write_sequence(args, basedir, frames, n, traffic)
     if args.sequence is not None:
         _fail("--sequence goes with --layout odometry")
     _check_target(basedir, args.date, args.drive)
@@ -178,7 +186,8 @@ def main(args) -> int:
           + (", wandering biases" if args.bias_walk else "") + (", no scans" if args.no_scans else ""))
     t0 = time.perf_counter()
     write_drive(basedir, args.route, date=args.date, drive=args.drive, frames=frames, seed=args.seed, noise=noise,
-                lidar=Hdl64(columns=args.columns), scans=not args.no_scans, progress=not args.no_progress)
+                lidar=Hdl64(columns=args.columns), scans=not args.no_scans, progress=not args.no_progress,
+                traffic=traffic)
     seconds = time.perf_counter() - t0
     from slamlib.synth.writer import drive_dir
 
@@ -195,7 +204,18 @@ def main(args) -> int:
     return 0
 
 
-def _write_sequence(args, basedir: Path, frames, n: int) -> int:
+def _traffic(scale):
+    """``--traffic SCALE`` -> a :class:`slamlib.synth.TrafficConfig` SCALE times the default density, or ``None``."""
+    if scale is None:
+        return None
+    if not 0.0 < scale <= MAX_TRAFFIC:
+        _fail(f"--traffic SCALE must be a number in (0, {MAX_TRAFFIC:g}], got {scale}")
+    from slamlib.synth import TrafficConfig
+
+    return TrafficConfig().scaled(scale)
+
+
+def _write_sequence(args, basedir: Path, frames, n: int, traffic=None) -> int:
     """``--layout odometry``: :func:`slamlib.synth.write_sequence` (no IMU: --imu-noise and --no-scans do not apply)."""
     import time
 
@@ -211,7 +231,7 @@ def _write_sequence(args, basedir: Path, frames, n: int) -> int:
     t0 = time.perf_counter()
     try:
         write_sequence(basedir, args.route, sequence, frames=frames, seed=args.seed, lidar=Hdl64(columns=args.columns),
-                       progress=not args.no_progress)
+                       progress=not args.no_progress, traffic=traffic)
     except FileExistsError as exc:
         _fail(f"{exc}")
     print(f"wrote {n} frames in {time.perf_counter() - t0:.1f} s to {basedir / 'sequences' / f'{sequence:02d}'}")

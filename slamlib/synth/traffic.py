@@ -12,18 +12,20 @@ stands on the road (IMU height minus :data:`~slamlib.synth.scene.IMU_HEIGHT`) an
 (reversed for movers driving against the route). Its arc length moves as one of::
 
     s(t) = s_ego(t) +- smax(|s_ego(t +- gap) - s_ego(t)|, FOLLOW_MIN_DIST)   # follows the ego car by a time gap
-    s(t) = s_meet + v (t - t_meet)                                          # own constant speed v (signed)
+    s(t) = s_0 + v (t - t_0)                                                # own constant speed v (signed)
     s(t) = s_ego(t) + dv (t - t_pass)                                       # overtakes the ego car at dv
 
-with ``s_ego(t)`` the ego car's arc length (linear beyond the drive at the end speeds) and ``smax(a, m) = m + w
-log(1 + exp((a - m) / w))`` a smooth maximum (w = :data:`SMOOTH_MAX_WIDTH`), so every trajectory is smooth.
+with ``s_ego(t)`` the ego car's arc length (linear beyond the drive at the end speeds), ``t_0`` the drive's start
+and ``smax(a, m) = m + w log(1 + exp((a - m) / w))`` a smooth maximum (w = :data:`SMOOTH_MAX_WIDTH`), so every trajectory is smooth.
 
 Kinds (:data:`KINDS`) and their lanes: Germany drives on the right and the ego car keeps to its lane, the centre
 line; the left lane (:data:`LEFT_LANE` m) carries the oncoming and the overtaking cars, the right edge
 (:data:`CYCLE_LANE` m) the cyclists, the sidewalks (``+-`` :data:`SIDEWALK` m) the pedestrians. Densities are
 movers per km of street (:class:`TrafficConfig`), laid on the whole extended centre line, so that a short drive
-sees as busy a street as a long one. Movers of one lane never overlap one another: a candidate that would (checked every
-:data:`CONFLICT_STEP` s) is drawn again, at most :data:`MAX_TRIES` times, then dropped (:data:`BUILD_ORDER`).
+sees as busy a street as a long one. Movers of one lane never overlap one another: a candidate that would (checked
+every :data:`CONFLICT_STEP` s) is drawn again, at most :data:`MAX_TRIES` times, then dropped (:data:`BUILD_ORDER`).
+Following cars appear and vanish at the ends of their time slots, overtaking cars at the ends of
+:data:`OVERTAKE_SPAN` (as if turning in from / off into a side street).
 
 Static scene (:mod:`slamlib.synth.scene`): objects keep 3.2 m from the centre line, parked cars stand at 3.6-4.6 m
 (inner edge 2.6-3.7 m), poles at 5-6 m, trees at 6-8 m, walls at 6.5-9 m, building facades at 7-14 m. The left

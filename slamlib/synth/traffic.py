@@ -16,7 +16,8 @@ stands on the road (IMU height minus :data:`~slamlib.synth.scene.IMU_HEIGHT`) an
     s(t) = s_ego(t) + dv (t - t_pass)                                       # overtakes the ego car at dv
 
 with ``s_ego(t)`` the ego car's arc length (linear beyond the drive at the end speeds), ``t_0`` the drive's start
-and ``smax(a, m) = m + w log(1 + exp((a - m) / w))`` a smooth maximum (w = :data:`SMOOTH_MAX_WIDTH`), so every trajectory is smooth.
+and ``smax(a, m) = m + w log(1 + exp((a - m) / w))`` a smooth maximum (w = :data:`SMOOTH_MAX_WIDTH`), so every
+trajectory is smooth.
 
 Kinds (:data:`KINDS`) and their lanes: Germany drives on the right and the ego car keeps to its lane, the centre
 line; the left lane (:data:`LEFT_LANE` m) carries the oncoming and the overtaking cars, the right edge

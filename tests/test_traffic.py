@@ -339,3 +339,12 @@ def test_swept_scan_sees_a_mover_where_it_is_when_each_column_fires():
     true_time = np.array([_outside(world[i:i + 1], car_at(offsets[c]), size)[0] for i, c in enumerate(col)])
     assert true_time.max() <= bound + 1e-3
     assert _outside(world, car_at(0.0), size).max() > 0.2
+
+
+def test_a_one_frame_drive_has_traffic(tmp_path):
+    """One frame spans no time: the centre line still covers a second of the route, so movers have a direction."""
+    tr = build_traffic(straight_route(), 5.0, 5.0, TrafficConfig(), np.random.default_rng(0))
+    assert len(tr) > 0 and np.all(np.isfinite(tr.arc_length(5.0)))
+    bx = tr.boxes(5.0)
+    assert len(bx["index"]) > 0 and np.all(np.isfinite(bx["centre"])) and np.all(np.isfinite(bx["speed"]))
+    write_drive(tmp_path, "straight", frames=1, seed=1, lidar=TINY, progress=False, traffic=TrafficConfig())

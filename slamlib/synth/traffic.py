@@ -85,10 +85,11 @@ OVERTAKE_SPAN = (-25.0, 35.0)
 CAR_ALBEDO = (0.1, 0.8)
 PERSON_ALBEDO = (0.2, 0.45)
 
-#: Centre line: route sampling rate (Hz), re-sampling step (m) and straight extension at both ends (m; LIDAR
-#: returns beyond ~100 m are rare).
+#: Centre line: route sampling rate (Hz), re-sampling step (m), shortest route time it covers (s) and straight
+#: extension at both ends (m; LIDAR returns beyond ~100 m are rare).
 CENTRE_LINE_HZ = 50.0
 CENTRE_LINE_STEP = 0.5
+MIN_LINE_S = 1.0
 EXTEND = 120.0
 #: Boxes are sunk this far into the road (and made as much taller) so a sloped road shows no gap underneath.
 SINK = 0.2
@@ -396,8 +397,11 @@ def build_traffic(route, t_start: float, t_end: float, config: TrafficConfig, rn
     :data:`ONCOMING_SPEED`.
     Movers that would overlap another of their lane are redrawn (at most :data:`MAX_TRIES` times) or dropped.
     """
-    n_line = max(4, int((t_end - t_start) * CENTRE_LINE_HZ) + 2)
-    times = np.linspace(t_start, t_end, n_line)
+    # the centre line spans at least MIN_LINE_S of the route, so a one-frame drive still has a direction and speed
+    line_end = min(max(t_end, t_start + MIN_LINE_S), route.t1)
+    line_start = max(min(t_start, line_end - MIN_LINE_S), route.t0)
+    n_line = max(4, int((line_end - line_start) * CENTRE_LINE_HZ) + 2)
+    times = np.linspace(line_start, line_end, n_line)
     line = CentreLine(times, route.position(times))
     # the drive and a sweep either side of it (a sweep reaches half a period before its first frame's time)
     check = np.arange(t_start - CONFLICT_PAD, t_end + CONFLICT_PAD, CONFLICT_STEP)

@@ -401,3 +401,66 @@ def test_the_configured_backend_runs_every_step(monkeypatch):
             assert "default backend 'cpu'" in str(exc)
         else:
             raise AssertionError("merge_scan without a backend did not look up the default")
+
+
+def test_lidar_only_holds_the_twist_and_imu_mode_averages_two_samples(monkeypatch):
+    """Step 5's increment: LIDAR-only, ``motion_increment(imu, dt, None)`` (the held twist over ``dt``, no previous
+    sample); with an IMU, the previous frame's sample is passed (the two samples are averaged)."""
+    seen = []
+    real = steps.motion_increment
+    monkeypatch.setattr(steps, "motion_increment", lambda imu, dt, prev: seen.append(prev) or real(imu, dt, prev))
+    scan = _scan()
+    cv = ParticleSLAM3D(_config(motion=MotionConfig(model="constant_velocity", cv_start_rounds=0)))
+    for _ in range(3):
+        cv.register_frame(_frame(scan))
+    assert seen == [None, None]
+    seen.clear()
+    imu = ParticleSLAM3D(_config())
+    f1, f2 = _frame(scan), _frame(scan, v=(9.0, 0.0, 0.0))
+    imu.register_frame(f1)
+    imu.register_frame(f2)
+    assert len(seen) == 1
+    np.testing.assert_array_equal(seen[0][0], f1.velocity)
+    np.testing.assert_array_equal(seen[0][1], f1.angular_rate)
+
+
+def test_lidar_only_scores_a_sample_with_the_road_thinned():
+    """LIDAR-only, the scored sample is drawn from ``thin_ground(points, lidar_only_ground_share)``: on a scan that
+    is 80 % road, with a share of 0.2, at most a fifth of the 100 scored points are road points (drawn from all
+    points, about 80 would be)."""
+    rng = np.random.default_rng(3)
+    n_road, n_wall = 800, 200
+    az = rng.uniform(-np.pi, np.pi, n_road)
+    r = rng.uniform(4.0, 25.0, n_road)
+    road = np.column_stack([r * np.cos(az), r * np.sin(az), np.full(n_road, -1.73)])
+    wall = np.column_stack([rng.uniform(-20, 20, n_wall), np.full(n_wall, 8.0), rng.uniform(-1.0, 3.0, n_wall)])
+    scan = np.column_stack([np.concatenate([road, wall]), np.zeros(n_road + n_wall)]).astype(np.float32)
+    config = SLAM3DConfig(filter=FilterConfig(particles=20, scored_points=100, lidar_only_ground_share=0.2),
+                          motion=MotionConfig(model="constant_velocity", cv_start_rounds=0),
+                          scan=ScanConfig(downsample_voxel=0.0))
+    slam = ParticleSLAM3D(config)
+    slam.register_frame(_frame(scan))
+    slam.register_frame(_frame(scan))
+    sample = np.asarray(slam.last["sample"])
+    assert len(sample) == 100
+    assert np.sum(sample[:, 2] < sample[:, 2].min() + 0.1) <= 25
+
+
+def test_lidar_only_start_rounds_halve_the_spread(monkeypatch):
+    """The LIDAR-only start frame's annealing rounds perturb with ``sigma / 2, sigma / 4, ...`` (``0.5**k``) after
+    step 6's ``sigma``; refine rounds then use ``refine_shrink``."""
+    sigmas = []
+    real = steps.perturb_with_noise
+    monkeypatch.setattr(steps, "perturb_with_noise",
+                        lambda p, sigma, rng, backend: sigmas.append(np.array(sigma)) or real(p, sigma, rng,
+                                                                                             backend=backend))
+    scan = _scan()
+    slam = ParticleSLAM3D(SLAM3DConfig(filter=FilterConfig(particles=20, scored_points=100, refine=1,
+                                                           refine_shrink=0.3),
+                                       motion=MotionConfig(model="constant_velocity", cv_start_rounds=3)))
+    still = dict(v=(0.0, 0.0, 0.0), w=(0.0, 0.0, 0.0))
+    slam.register_frame(_frame(scan, **still))
+    slam.register_frame(_frame(scan, **still))
+    assert len(sigmas) == 5
+    for got, k in zip(sigmas[1:], (0.5, 0.25, 0.125, 0.3)):
+        np.testing.assert_allclose(got, sigmas[0] * k, rtol=1e-15)

@@ -50,6 +50,16 @@ def test_read_scan_takes_a_plain_float64_n_by_3_array_and_returns_float32():
     np.testing.assert_array_equal(got, pts.astype(np.float32))
 
 
+def test_read_scan_down_samples_with_the_configured_voxel():
+    """Step 2 keeps the first point of each ``downsample_voxel`` voxel (here 0.5 m: six points in three voxels keep
+    three), after the range crop; with no voxel every point in range is kept."""
+    pts = np.array([[5.0, 0.1, 0.1], [5.2, 0.2, 0.3], [5.1, 0.4, 0.2],
+                    [7.1, 0.1, 0.1], [7.3, 0.3, 0.4], [9.0, 0.1, 0.1]], dtype=np.float32)
+    got = steps.read_scan(pts, ScanConfig(min_range=1.0, max_range=100.0, downsample_voxel=0.5))
+    np.testing.assert_array_equal(got, pts[[0, 3, 5]])
+    assert len(steps.read_scan(pts, ScanConfig(min_range=1.0, max_range=100.0, downsample_voxel=0.0))) == 6
+
+
 def test_read_scan_rejects_a_scan_with_five_columns_naming_its_shape():
     """A 2-D scan whose second axis is neither 3 nor 4 is a ``ValueError`` with the full message."""
     msg = "scan must have shape (N, 3) or (N, 4), got (4, 5)"

@@ -63,6 +63,13 @@ def test_normalise_frames_error_messages():
     assert _normalise_frames([N - 1], N).tolist() == [N - 1]
 
 
+def test_normalise_frames_of_float32_whole_numbers():
+    """float32 frame numbers are floats too: whole ones are frames, others an error (not "not whole" for all)."""
+    assert _normalise_frames(np.array([0.0, 2.0], np.float32), N).tolist() == [0, 2]
+    with pytest.raises(ValueError, match="^frames must be whole frame numbers, got "):
+        _normalise_frames(np.array([1.5], np.float32), N)
+
+
 # ------------------------------------------------------------------ raw: opening
 def test_missing_drive_folder_full_message(tmp_path):
     """The folder-not-found message repeats basedir, date and drive exactly as the user passed them."""

@@ -305,6 +305,7 @@ def test_weights_are_computed_in_float64_and_extremes_raise_no_warning():
         warnings.simplefilter("error")  # -1e308 - 1e308 overflows to -inf: expected, silenced
         np.testing.assert_array_equal(weights_from_log_weights([-1e308, 1e308]), [0.0, 1.0])
         np.testing.assert_array_equal(normalise_log_weights([-1e308, 1e308]), [-np.inf, 0.0])
+        assert effective_sample_size([1e308, 1e308]) == 2.0  # their sum overflows: handled, silently
 
 
 def test_resample_indexes_threshold_is_strict_and_indexes_are_int64():

@@ -184,7 +184,7 @@ def test_sweep_blocks_bound_the_mover_time_error():
     cols = ray_columns(model)
     offsets = column_time_offsets(model)
     seen = np.zeros(len(cols), dtype=int)
-    for dt, sel in _sweep_blocks(cols, model):
+    for dt, sel, _ in _sweep_blocks(cols, model, np.zeros((model.columns, 3))):
         assert np.all(np.abs(offsets[cols[sel]] - dt) <= SCAN_PERIOD_S / (2 * MOVER_BLOCKS) + 1e-12)
         seen[sel] += 1
     assert np.all(seen == 1)
@@ -348,3 +348,24 @@ def test_a_one_frame_drive_has_traffic(tmp_path):
     bx = tr.boxes(5.0)
     assert len(bx["index"]) > 0 and np.all(np.isfinite(bx["centre"])) and np.all(np.isfinite(bx["speed"]))
     write_drive(tmp_path, "straight", frames=1, seed=1, lidar=TINY, progress=False, traffic=TrafficConfig())
+
+
+@pytest.mark.parametrize("distortion", [False, True])
+def test_azimuth_culling_changes_no_hit(tmp_path, monkeypatch, distortion):
+    """Only the rays within the movers' azimuth spans are cast against them: the same mover hits (every ray's range,
+    normal and albedo) and the same bytes as casting every ray."""
+    from slamlib.synth import lidar
+
+    cast = lidar._cast_movers
+    hits = {"culled": [], "every": []}
+    kw = dict(frames=2, seed=4, lidar=Hdl64(columns=2000, beam_stride=4), progress=False, distortion=distortion,
+              traffic=TrafficConfig().scaled(3))
+    for name in hits:
+        if name == "every":
+            monkeypatch.setattr(lidar, "_azimuth_mask", lambda o, spread, azimuth, v, f: np.ones(len(azimuth), bool))
+        monkeypatch.setattr(lidar, "_cast_movers", lambda *a, out=hits[name]: out.append(cast(*a)) or out[-1])
+        write_drive(tmp_path / name, "07", **kw)
+    assert _digest(tmp_path / "culled") == _digest(tmp_path / "every")
+    for a, b in zip(hits["culled"], hits["every"]):
+        assert np.isfinite(a[0]).sum() > 500
+        assert all(np.array_equal(x, y) for x, y in zip(a, b))

@@ -97,6 +97,8 @@ SINK = 0.2
 CONFLICT_STEP = 0.05
 CONFLICT_MARGIN = 1.0
 MAX_TRIES = 12
+#: Time step (s) of the finite difference giving the movers' speeds (:meth:`Traffic.boxes`).
+SPEED_DT = 1e-3
 CONFLICT_PAD = 0.2
 #: Kinds are laid out in this order, each avoiding the ones before: overtaking cars after the oncoming ones, so
 #: a car overtakes only where the left lane is free (as a driver waits for a gap); with dense oncoming traffic
@@ -250,6 +252,13 @@ class Traffic:
         """The boxes of the movers present at route time ``t``: ``index (M,)`` into the movers, ``kind (M,)``,
         ``centre (M, 3)`` centre of the box's base on the road (world, m), ``yaw (M,)`` rad about z (the box's
         length along it), ``size (M, 3)``, ``albedo (M,)``, ``speed (M,)`` m/s along the heading."""
+        bx = self._boxes(t)
+        idx, s = bx["index"], bx.pop("s")
+        bx["speed"] = np.abs(self.arc_length(t + SPEED_DT)[idx] - s) / SPEED_DT
+        return bx
+
+    def _boxes(self, t: float) -> dict:
+        """:meth:`boxes` without the speeds, with the movers' arc lengths ``s (M,)``."""
         s = self.arc_length(t)
         idx = np.flatnonzero(self.present(t, s))
         road, tan = self.line.frame(s[idx])
@@ -257,15 +266,13 @@ class Traffic:
         centre = road.copy()
         centre[:, :2] += self.lateral[idx, None] * normal
         tan = tan * self.heading[idx, None]
-        dt = 1e-3
-        speed = np.abs(self.arc_length(t + dt)[idx] - s[idx]) / dt
         return {"index": idx, "kind": self.kind[idx], "centre": centre, "yaw": np.arctan2(tan[:, 1], tan[:, 0]),
-                "size": self.size[idx], "albedo": self.albedo[idx], "speed": speed}
+                "size": self.size[idx], "albedo": self.albedo[idx], "s": s[idx]}
 
     def mesh(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The movers at time ``t`` as one triangle soup: ``vertices (8M, 3)`` float32, ``triangles (12M, 3)``
         uint32, per-triangle ``albedo (12M,)`` float32 (boxes sunk :data:`SINK` m into the road)."""
-        bx = self.boxes(t)
+        bx = self._boxes(t)
         tv, tf = _BOX
         m = len(bx["index"])
         size = bx["size"] + [0.0, 0.0, SINK]

@@ -563,3 +563,15 @@ def test_run_slam_1d_field_work_cap_is_inclusive_and_its_message_names_the_numbe
         with pytest.raises(ValueError) as e:
             run_slam_1d(rec, n_particles=5, resolution=0.1, likelihood_sigma=sigma, keep_history=False)
         assert str(e.value) == msg
+
+
+def test_run_slam_1d_progress_bar_only_when_asked(world, capsys):
+    """``progress=True`` draws a 'sim1d SLAM' bar counting 'frame's over the recording (tqdm writes to stderr; not a
+    terminal here, so only when asked); the default draws nothing. Deselected in mutation runs (a tqdm bar hangs in
+    mutmut's forked workers): its mutants are checked by hand (tests/mutation/REPORT.md)."""
+    rec = simulate(world, n_frames=5, seed=6)
+    run_slam_1d(rec, n_particles=10, seed=0)
+    assert capsys.readouterr().err == ""
+    run_slam_1d(rec, n_particles=10, seed=0, progress=True)
+    err = capsys.readouterr().err
+    assert err.startswith("\rsim1d SLAM:   0%|") and "0/5 [00:00<?, ?frame/s]" in err and "5/5" in err

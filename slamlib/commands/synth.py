@@ -209,7 +209,7 @@ def _traffic(scale):
     if scale is None:
         return None
     if not 0.0 < scale <= MAX_TRAFFIC:
-        _fail(f"--traffic SCALE must be a number in (0, {MAX_TRAFFIC:g}], got {scale}")
+        _fail(f"--traffic must be a density scale in (0, {MAX_TRAFFIC:g}], got {scale}")
     from slamlib.synth import TrafficConfig
 
     return TrafficConfig().scaled(scale)

@@ -369,3 +369,22 @@ def test_azimuth_culling_changes_no_hit(tmp_path, monkeypatch, distortion):
     for a, b in zip(hits["culled"], hits["every"]):
         assert np.isfinite(a[0]).sum() > 500
         assert all(np.array_equal(x, y) for x, y in zip(a, b))
+
+
+def test_left_parking_cleared_and_nothing_else_changed():
+    """``parking_sides=(-1,)``: the parked cars on the left (+y of a route along +x) are gone, every other triangle
+    of the town is the same (the layout's random draws do not depend on the sides)."""
+    from slamlib.synth.scene import build_scene
+
+    p = straight_route().position(np.linspace(0.0, 20.0, 401))
+    both, right = build_scene(p, seed=1), build_scene(p, seed=1, parking_sides=(-1,))
+    car = 3
+
+    def triangles(scene, keep):
+        return scene.vertices[scene.triangles[keep]]
+
+    y_both = triangles(both, both.kind == car)[..., 1].mean(1)
+    y_right = triangles(right, right.kind == car)[..., 1].mean(1)
+    assert (y_both > 0).sum() > 10 and (y_both < 0).sum() > 10
+    assert np.all(y_right < 0) and np.array_equal(np.sort(y_right), np.sort(y_both[y_both < 0]))
+    assert np.array_equal(triangles(both, both.kind != car), triangles(right, right.kind != car))

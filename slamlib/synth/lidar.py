@@ -40,6 +40,8 @@ all rays see the movers at the frame's instant. With them the sweep is cut by fi
 :data:`MOVER_BLOCKS` equal blocks and each block's rays see the movers where they are at the block's middle
 instant: a mover of speed ``v`` is then at most ``v * period / (2 * MOVER_BLOCKS)`` from where it truly is when a
 column fires (4.5 cm at 14 m/s), well inside the centimetres of range noise, instead of one mover scene per column.
+Only the rays whose azimuth falls within a mover triangle's azimuth span are cast against the movers (a tenth of
+them in a busy street; the same hits as casting all).
 
 Reference: Velodyne HDL-64E S2 user's manual (2008); Geiger et al., IJRR 2013, sec. 2.
 """

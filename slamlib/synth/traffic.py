@@ -90,6 +90,9 @@ PERSON_ALBEDO = (0.2, 0.45)
 CENTRE_LINE_HZ = 50.0
 CENTRE_LINE_STEP = 0.5
 MIN_LINE_S = 1.0
+#: Chord length (m) giving the centre line's tangent (smooths the ground truth's jitter; KITTI's corners have
+#: radii of 10 m and more).
+TANGENT_BASE = 4.0
 EXTEND = 120.0
 #: Boxes are sunk this far into the road (and made as much taller) so a sloped road shows no gap underneath.
 SINK = 0.2
@@ -173,9 +176,18 @@ class CentreLine:
         grid = np.arange(-EXTEND, self.length + EXTEND + CENTRE_LINE_STEP, CENTRE_LINE_STEP)
         inside = np.clip(grid, 0.0, self.length)
         pts = np.stack([np.interp(inside, s[moving], p[moving, i]) for i in range(3)], axis=1)
-        u0, u1 = self._unit_xy(p[min(5, len(p) - 1)] - p[0]), self._unit_xy(p[-1] - p[max(-6, -len(p))])
+        # the extensions go on along the chords of the first and last TANGENT_BASE m (not the last samples: the car
+        # may stand still there, its ground truth jittering by millimetres in any direction)
+        at = np.clip([0.0, TANGENT_BASE, self.length - TANGENT_BASE, self.length], 0.0, self.length)
+        ends = np.stack([np.interp(at, s[moving], p[moving, i]) for i in range(2)], axis=1)
+        u0, u1 = self._unit_xy(ends[1] - ends[0]), self._unit_xy(ends[3] - ends[2])
         pts[:, :2] += np.minimum(grid, 0.0)[:, None] * u0 + np.maximum(grid - self.length, 0.0)[:, None] * u1
-        tangent = np.gradient(pts[:, :2], CENTRE_LINE_STEP, axis=0)
+        # tangent = chord over TANGENT_BASE m: the ground truth wiggles by centimetres while the car stands still,
+        # which turns a 0.5 m difference by up to ~150 deg and would throw the movers 6 m out sideways
+        k = max(1, int(round(TANGENT_BASE / 2 / CENTRE_LINE_STEP)))
+        ahead = pts[np.minimum(np.arange(len(pts)) + k, len(pts) - 1), :2]
+        behind = pts[np.maximum(np.arange(len(pts)) - k, 0), :2]
+        tangent = ahead - behind
         tangent /= np.linalg.norm(tangent, axis=1, keepdims=True) + 1e-12
         self._grid, self._pts, self._tan = grid, pts, tangent
 

@@ -33,7 +33,9 @@ Static scene (:mod:`slamlib.synth.scene`): objects keep 3.2 m from the centre li
 lane runs where the left parked cars would stand, so with traffic the town has parking on the right side only
 (``TrafficConfig.clear_left_parking``). Known overlaps, not avoided: cyclists (edge at 2.9-3.5 m) pass through the
 inner edge of right-hand parked cars parked closer than 4.4 m, and pedestrians walk through the poles, trunks and
-walls that stand on the sidewalk (the scene has no kerb or sidewalk model).
+walls that stand on the sidewalk (the scene has no kerb or sidewalk model). Offsets are taken along the centre
+line's normal, so on the inside of a corner tighter than the offset (the KITTI routes' sharpest turns have radii of
+about 4-6 m at the centre line) a pedestrian's path folds and it moves faster or briefly backwards there.
 """
 
 from __future__ import annotations

@@ -9,9 +9,9 @@ import pytest
 from slamlib.synth import Hdl64, loop_route, simulate_scan, straight_route, write_drive, write_sequence
 from slamlib.synth.drive import _streams, resolve_route
 from slamlib.synth.lidar import MOVER_BLOCKS, SCAN_PERIOD_S, _sweep_blocks, column_time_offsets, ray_columns
-from slamlib.synth.traffic import (CYCLE_LANE, CYCLIST_SPEED, FOLLOW_GAP_S, FOLLOW_MIN_DIST, KINDS, LEFT_LANE,
-                                   ONCOMING_SPEED, OVERTAKE_EXCESS, PEDESTRIAN_SPEED, SIDEWALK, SIDEWALK_JITTER,
-                                   TrafficConfig, build_traffic)
+from slamlib.synth.traffic import (CYCLE_LANE, CYCLIST_SPEED, FOLLOW_GAP_S, FOLLOW_MIN_DIST, KEEP_RIGHT, KINDS,
+                                   LEFT_LANE, ONCOMING_SPEED, OVERTAKE_EXCESS, PEDESTRIAN_SPEED, SIDEWALK,
+                                   SIDEWALK_JITTER, TrafficConfig, build_traffic)
 from slamlib.synth.writer import drive_dir, frame_timestamps_ns, read_marker
 
 TINY = Hdl64(columns=64, beam_stride=4)
@@ -115,10 +115,13 @@ def test_lanes_directions_and_speeds_on_a_straight_route():
             assert np.allclose(c[:, 1], CYCLE_LANE) and along.all()
             assert np.all((vx >= CYCLIST_SPEED[0] - 1e-6) & (vx <= CYCLIST_SPEED[1] + 1e-6))
         else:
-            assert np.all(np.abs(np.abs(c[:, 1]) - SIDEWALK) <= SIDEWALK_JITTER)
             speed = np.abs(vx)
             assert np.all((speed >= PEDESTRIAN_SPEED[0] - 1e-6) & (speed <= PEDESTRIAN_SPEED[1] + 1e-6))
             assert np.all(np.sign(vx) == np.where(along[1:], 1, -1))  # walks the way it faces
+            # on a sidewalk, keeping to its right: -y of the sidewalk's middle walking along +x, +y walking back
+            middle = np.sign(c[:, 1]) * SIDEWALK
+            keep = np.where(along, -KEEP_RIGHT, KEEP_RIGHT)
+            assert np.all(np.abs(c[:, 1] - middle - keep) <= SIDEWALK_JITTER + 1e-9)
     assert seen == set(range(len(KINDS)))
 
 

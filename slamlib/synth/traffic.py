@@ -55,11 +55,13 @@ AHEAD, BEHIND, ONCOMING, OVERTAKING, CYCLIST, PEDESTRIAN = range(len(KINDS))
 
 #: Lateral offsets of the lanes from the centre line (m, + left). The left lane is 3.5 m from the ego lane (a
 #: German urban lane is 3.0-3.5 m wide); cyclists ride 3.2 m to the right, between the ego car's lane and the
-#: parked cars; the sidewalks are 6.5 m out, jittered by up to :data:`SIDEWALK_JITTER` m per pedestrian.
+#: parked cars; the sidewalks are 6.5 m out, pedestrians keep :data:`KEEP_RIGHT` m to their right of its middle
+#: (so the two directions pass each other), jittered by up to :data:`SIDEWALK_JITTER` m.
 LEFT_LANE = 3.5
 CYCLE_LANE = -3.2
 SIDEWALK = 6.5
-SIDEWALK_JITTER = 0.5
+KEEP_RIGHT = 0.4
+SIDEWALK_JITTER = 0.1
 
 #: Box sizes ``(length, width, height)`` m: a car (a van is :data:`VAN_HEIGHT` tall), a cyclist on a bike, a
 #: pedestrian.
@@ -79,10 +81,10 @@ FOLLOW_PRESENCE = (0.5, 1.0)
 ONCOMING_SPEED = (8.0, 14.0)
 CYCLIST_SPEED = (4.0, 6.0)
 PEDESTRIAN_SPEED = (1.0, 1.5)
-OVERTAKE_EXCESS = (3.0, 6.0)
+OVERTAKE_EXCESS = (4.0, 8.0)
 #: An overtaking car appears this far behind the ego car and leaves this far ahead (m): it comes from / turns
 #: into a side street.
-OVERTAKE_SPAN = (-25.0, 35.0)
+OVERTAKE_SPAN = (-20.0, 25.0)
 #: Albedo ranges of the boxes (cars: paint from black to white).
 CAR_ALBEDO = (0.1, 0.8)
 PERSON_ALBEDO = (0.2, 0.45)
@@ -98,17 +100,18 @@ TANGENT_BASE = 4.0
 EXTEND = 120.0
 #: Boxes are sunk this far into the road (and made as much taller) so a sloped road shows no gap underneath.
 SINK = 0.2
-#: Overlap check of movers in one lane: time step (s), extra along-lane clearance (m), redraws per mover.
+#: Overlap check of movers in one lane: time step (s), extra along-lane clearance (m), redraws per mover, and how
+#: long (s) before and after the drive it is checked (a sweep starts half a period before its frame's time).
 CONFLICT_STEP = 0.05
 CONFLICT_MARGIN = 1.0
 MAX_TRIES = 12
+CONFLICT_PAD = 0.2
 #: Time step (s) of the finite difference giving the movers' speeds (:meth:`Traffic.boxes`).
 SPEED_DT = 1e-3
-CONFLICT_PAD = 0.2
-#: Kinds are laid out in this order, each avoiding the ones before: overtaking cars after the oncoming ones, so
-#: a car overtakes only where the left lane is free (as a driver waits for a gap); with dense oncoming traffic
-#: there are fewer overtaking cars than their rate.
-BUILD_ORDER = (AHEAD, BEHIND, ONCOMING, OVERTAKING, CYCLIST, PEDESTRIAN)
+#: Kinds are laid out in this order, each avoiding the ones before: overtaking cars before the oncoming ones, whose
+#: stream then leaves the left lane free while a car overtakes (an oncoming car every ~4 s would leave no gap the
+#: other way round).
+BUILD_ORDER = (AHEAD, BEHIND, OVERTAKING, ONCOMING, CYCLIST, PEDESTRIAN)
 
 
 @dataclass(frozen=True)
@@ -361,7 +364,8 @@ def _draw(kind: int, rng: np.random.Generator, line: CentreLine, t0: float, t1: 
         else:
             size, alb = _person(rng, PEDESTRIAN_SIZE)
             side, heading = rng.choice([-1.0, 1.0]), rng.choice([-1.0, 1.0])
-            lateral = side * (SIDEWALK + rng.uniform(-SIDEWALK_JITTER, SIDEWALK_JITTER))
+            # the right of a walker heading along the route is -y (the normal's opposite), against it +y
+            lateral = side * SIDEWALK - heading * KEEP_RIGHT + rng.uniform(-SIDEWALK_JITTER, SIDEWALK_JITTER)
             v = rng.uniform(*PEDESTRIAN_SPEED)
         c = heading * v
         lo, hi = line.s_range
@@ -386,21 +390,49 @@ def _stack(line: CentreLine, movers: list[dict]) -> Traffic:
 
 
 def _conflicts(candidate: Traffic, accepted: Traffic, times: np.ndarray) -> bool:
-    """Whether the single mover ``candidate`` overlaps any ``accepted`` one sharing its lane at any of ``times (T,)``:
-    lateral footprints overlap and the along-line distance is below half the summed lengths plus
-    :data:`CONFLICT_MARGIN` while both are present."""
+    """Whether the single mover ``candidate`` overlaps any ``accepted`` one sharing its lane during ``times (T,)``
+    (a regular grid over the drive): lateral footprints overlap and the along-line distance is below half the summed
+    lengths plus :data:`CONFLICT_MARGIN` while both are present.
+
+    Two movers of constant speed are checked in closed form over the whole span of ``times`` (conservatively, as if
+    always present); the others on the grid, within the presence windows."""
     if len(accepted) == 0:
         return False
     lane = np.abs(accepted.lateral - candidate.lateral[0]) < (accepted.size[:, 1] + candidate.size[0, 1]) / 2
     if not lane.any():
         return False
     others = _subset(accepted, lane)
-    t = times[:, None]
-    s_c = candidate.arc_length(t)
-    s_o = others.arc_length(t)
     reach = (others.size[:, 0] + candidate.size[0, 0]) / 2 + CONFLICT_MARGIN
-    both = candidate.present(t, s_c) & others.present(t, s_o)
-    return bool(np.any(both & (np.abs(s_o - s_c) < reach)))
+    steady = _steady(others)
+    if _steady(candidate)[0]:
+        if np.any(_linear_gap(candidate, _subset(others, steady), times[0], times[-1]) < reach[steady]):
+            return True
+        others, reach = _subset(others, ~steady), reach[~steady]
+        if len(others) == 0:
+            return False
+    if np.isfinite(candidate.t_on[0]) or len(others) == 1:
+        t_on, t_off = max(candidate.t_on[0], others.t_on.min()), min(candidate.t_off[0], others.t_off.max())
+        t = times[(times >= t_on) & (times <= t_off)][:, None]
+        s_c = candidate.arc_length(t)
+        s_o = others.arc_length(t)
+        both = candidate.present(t, s_c) & others.present(t, s_o)
+        return bool(np.any(both & (np.abs(s_o - s_c) < reach)))
+    # an always present candidate against movers present for a while: each over its own window
+    return any(_conflicts(candidate, _subset(others, [i]), times) for i in range(len(others)))
+
+
+def _steady(traffic: Traffic) -> np.ndarray:
+    """Which movers keep their own constant speed (``s(t) = b + c (t - t_ref)``, always present), bool (N,)."""
+    return (traffic.a == 0) & (traffic.f == 0) & np.isinf(traffic.t_on) & np.isinf(traffic.t_off)
+
+
+def _linear_gap(one: Traffic, others: Traffic, t0: float, t1: float) -> np.ndarray:
+    """Least along-line distance (m) over ``[t0, t1]`` between the steady mover ``one`` and each steady one of
+    ``others``: ``min |A + B t|`` with ``A + B t`` their arc-length difference (zero if it changes sign)."""
+    A = (others.b - others.c * others.t_ref) - (one.b[0] - one.c[0] * one.t_ref[0])
+    B = others.c - one.c[0]
+    d0, d1 = A + B * t0, A + B * t1
+    return np.where(np.sign(d0) != np.sign(d1), 0.0, np.minimum(np.abs(d0), np.abs(d1)))
 
 
 def _subset(traffic: Traffic, keep: np.ndarray) -> Traffic:

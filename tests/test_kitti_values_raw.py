@@ -297,3 +297,30 @@ def test_icp_initial_rmse_reported():
     res = ss.icp_align(pts, pts, init=init)
     assert isinstance(res.inlier_rmse_init, float)
     assert res.inlier_rmse_init == pytest.approx(0.1, abs=0.02)
+
+
+def test_icp_settings_reach_open3d(monkeypatch):
+    """The documented settings reach open3d: every ICP round stops after ``max_iteration`` iterations (default 60,
+    not open3d's 30), and the normals come from at most 30 neighbours within ``3 voxel_size``."""
+    import open3d as o3d
+
+    reg, geo = o3d.pipelines.registration, o3d.geometry
+    rounds, searches = [], []
+    real_icp, real_search = reg.registration_icp, geo.KDTreeSearchParamHybrid
+
+    def icp(src, tgt, d, T, est, criteria=None):
+        rounds.append(None if criteria is None else criteria.max_iteration)
+        return real_icp(src, tgt, d, T, est) if criteria is None else real_icp(src, tgt, d, T, est, criteria)
+
+    def search(radius, max_nn):
+        searches.append((radius, max_nn))
+        return real_search(radius=radius, max_nn=max_nn)
+
+    monkeypatch.setattr(reg, "registration_icp", icp)
+    monkeypatch.setattr(geo, "KDTreeSearchParamHybrid", search)
+    pts = _plane_grid(12, 0.5)
+    ss.icp_align(pts, pts, voxel_size=0.3)
+    assert rounds == [60, 60, 60] and searches == [(pytest.approx(0.9), 30)] * 2
+    rounds.clear()
+    ss.icp_align(pts, pts, voxel_size=0.3, max_iteration=7, max_distances=(0.5, 0.2))
+    assert rounds == [7, 7]

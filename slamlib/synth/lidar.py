@@ -48,6 +48,7 @@ Reference: Velodyne HDL-64E S2 user's manual (2008); Geiger et al., IJRR 2013, s
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, asdict
 
 import numpy as np
@@ -222,17 +223,29 @@ def _sweep_blocks(cols: np.ndarray, model: Hdl64, positions: np.ndarray,
     (s after the mid-sweep timestamp), the indices of its rays (``cols (M,)`` each ray's column) and the size (m) of
     the box holding its columns' sensor positions ``positions (columns, 3)`` (an upper bound of how far its rays'
     origins are from any one of them)."""
+    block_of_col, parts = _block_partition(model, blocks, cols.tobytes())
+    out = []
+    for b, dt, sel in parts:
+        spread = float(np.linalg.norm(np.ptp(positions[block_of_col == b], axis=0)))
+        out.append((dt, sel, spread))
+    return out
+
+
+@functools.lru_cache(maxsize=8)
+def _block_partition(model: Hdl64, blocks: int, cols_bytes: bytes) -> tuple[np.ndarray, list]:
+    """The sweep's blocks of :func:`_sweep_blocks` for one sensor and ray order (cached: the same every scan):
+    ``(block of each column (columns,), [(block, dt, ray indices)])``, empty blocks left out."""
+    cols = np.frombuffer(cols_bytes, dtype=np.int64)
     offsets = column_time_offsets(model)
     span = SCAN_PERIOD_S / blocks
     block_of_col = np.clip(np.floor((offsets + SCAN_PERIOD_S / 2) / span), 0, blocks - 1).astype(np.int64)
     ray_block = block_of_col[cols]
-    out = []
+    parts = []
     for b in range(blocks):
         sel = np.flatnonzero(ray_block == b)
         if len(sel):
-            spread = float(np.linalg.norm(np.ptp(positions[block_of_col == b], axis=0)))
-            out.append(((b + 0.5) * span - SCAN_PERIOD_S / 2, sel, spread))
-    return out
+            parts.append((b, (b + 0.5) * span - SCAN_PERIOD_S / 2, sel))
+    return block_of_col, parts
 
 
 def _cast_movers(rays: np.ndarray, movers, blocks) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -390,7 +390,7 @@ def test_swept_scan_sees_a_mover_where_it_is_when_each_column_fires():
         return np.array([car_v * dt, 5.0, -1.73])
 
     scan = simulate_scan(far, np.zeros(1, np.float32), np.eye(4), np.random.default_rng(0), model,
-                         column_poses=poses, movers=lambda dt: _box_mesh(car_at(dt), size))
+                         column_poses=poses, movers=lambda dts: [_box_mesh(car_at(dt), size) for dt in dts])
     assert len(scan) > 100
     az = np.arctan2(scan[:, 1], scan[:, 0]) % (2 * np.pi)
     col = np.rint(az / (2 * np.pi) * model.columns).astype(int) % model.columns

@@ -196,8 +196,9 @@ def _cast_scans(r: Route, t_route, T_w_velo, rng_scene, rng_lidar, lidar: Hdl64,
 
 
 def _movers_at(movers, t_frame: float):
-    """``dt -> movers.mesh(t_frame + dt)``: the movers' triangles ``dt`` s after a frame's instant (route time, s)."""
-    return lambda dt: movers.mesh(t_frame + dt)
+    """``dts -> movers.meshes(t_frame + dts)``: the movers' triangles ``dts (K,)`` s after a frame's instant (route
+    time, s), as :func:`~slamlib.synth.lidar.simulate_scan` asks for them."""
+    return lambda dts: movers.meshes(t_frame + np.asarray(dts))
 
 
 def write_sequence(basedir, route="07", sequence: int | str = 7, frames=DEFAULT_FRAMES, seed: int = 0,

@@ -161,10 +161,10 @@ def simulate_scan(raycasting_scene, albedo: np.ndarray, T_w_velo: np.ndarray, rn
         distorted as a real one; each point is stored in the sensor frame of its own column's instant.
         ``columns`` optionally the precomputed :func:`ray_columns` (with ``directions``).
     movers : callable, optional
-        ``movers(dt) -> (vertices (V, 3) float32, triangles (F, 3) uint32, albedo (F,) float32)``: the moving
-        objects (world frame) ``dt`` seconds after the frame's instant (the instant of ``T_w_velo``, or the
-        mid-sweep instant the ``column_poses`` are centred on); see the module docstring. ``None``: a static
-        world, exactly as without the argument.
+        ``movers(dts (K,)) -> [(vertices (V, 3) float32, triangles (F, 3) uint32, albedo (F,) float32)] * K``: the
+        moving objects (world frame) ``dts[k]`` seconds after the frame's instant (the instant of ``T_w_velo``, or
+        the mid-sweep instant the ``column_poses`` are centred on), all asked for at once; see the module
+        docstring. ``None``: a static world, exactly as without the argument.
     """
     import open3d as o3d
     d = ray_directions(model) if directions is None else directions
@@ -250,8 +250,8 @@ def _block_partition(model: Hdl64, blocks: int, cols_bytes: bytes) -> tuple[np.n
 
 def _cast_movers(rays: np.ndarray, movers, blocks) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Cast ``rays (M, 6)`` against the movers of each block: ``(t_hit (M,) float32, inf for a miss; normals (M, 3)
-    float32; albedo (M,) float32)``. ``blocks`` ``[(dt, ray indices, spread of their origins)]``, the movers taken at
-    ``movers(dt)``.
+    float32; albedo (M,) float32)``. ``blocks`` ``[(dt, ray indices, spread of their origins)]``, the movers taken
+    from ``movers(all the blocks' dt)``.
 
     Only the rays whose world azimuth falls within a mover triangle's azimuth span (:func:`_azimuth_mask`) are
     cast: a few per cent of them in a city street, and the same hits as casting them all."""
@@ -260,8 +260,8 @@ def _cast_movers(rays: np.ndarray, movers, blocks) -> tuple[np.ndarray, np.ndarr
     normals = np.zeros((len(rays), 3), dtype=np.float32)
     alb = np.zeros(len(rays), dtype=np.float32)
     azimuth = np.arctan2(rays[:, 4], rays[:, 3])
-    for dt, sel, spread in blocks:
-        v, f, a = movers(dt)
+    meshes = movers(np.array([dt for dt, _, _ in blocks]))
+    for (dt, sel, spread), (v, f, a) in zip(blocks, meshes):
         if len(f) == 0:
             continue
         sel = sel[_azimuth_mask(rays[sel[0], :3], spread, azimuth[sel], np.asarray(v, np.float64), np.asarray(f))]

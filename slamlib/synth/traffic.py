@@ -269,37 +269,46 @@ class Traffic:
         """The boxes of the movers present at route time ``t``: ``index (M,)`` into the movers, ``kind (M,)``,
         ``centre (M, 3)`` centre of the box's base on the road (world, m), ``yaw (M,)`` rad about z (the box's
         length along it), ``size (M, 3)``, ``albedo (M,)``, ``speed (M,)`` m/s along the heading."""
-        bx = self._boxes(t)
-        idx, s = bx["index"], bx.pop("s")
-        bx["speed"] = np.abs(self.arc_length(t + SPEED_DT)[idx] - s) / SPEED_DT
-        return bx
+        s, present, centre, yaw = (x[0] for x in self._state(np.array([t], dtype=np.float64)))
+        idx = np.flatnonzero(present)
+        speed = np.abs(self.arc_length(t + SPEED_DT)[idx] - s[idx]) / SPEED_DT
+        return {"index": idx, "kind": self.kind[idx], "centre": centre[idx], "yaw": yaw[idx], "size": self.size[idx],
+                "albedo": self.albedo[idx], "speed": speed}
 
-    def _boxes(self, t: float) -> dict:
-        """:meth:`boxes` without the speeds, with the movers' arc lengths ``s (M,)``."""
+    def _state(self, times: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Every mover at each of ``times (T,)``: arc length ``(T, N)``, present ``(T, N)`` bool, base centre
+        ``(T, N, 3)`` and yaw ``(T, N)`` (module docstring)."""
+        t = times[:, None]
         s = self.arc_length(t)
-        idx = np.flatnonzero(self.present(t, s))
-        road, tan = self.line.frame(s[idx])
-        normal = np.stack([-tan[:, 1], tan[:, 0]], axis=1)
-        centre = road.copy()
-        centre[:, :2] += self.lateral[idx, None] * normal
-        tan = tan * self.heading[idx, None]
-        return {"index": idx, "kind": self.kind[idx], "centre": centre, "yaw": np.arctan2(tan[:, 1], tan[:, 0]),
-                "size": self.size[idx], "albedo": self.albedo[idx], "s": s[idx]}
+        present = self.present(t, s)
+        road, tan = self.line.frame(s)
+        centre = road
+        centre[..., 0] -= self.lateral * tan[..., 1]  # + lateral x the left normal (-tan_y, tan_x)
+        centre[..., 1] += self.lateral * tan[..., 0]
+        yaw = np.arctan2(self.heading * tan[..., 1], self.heading * tan[..., 0])
+        return s, present, centre, yaw
 
     def mesh(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The movers at time ``t`` as one triangle soup: ``vertices (8M, 3)`` float32, ``triangles (12M, 3)``
         uint32, per-triangle ``albedo (12M,)`` float32 (boxes sunk :data:`SINK` m into the road)."""
-        bx = self._boxes(t)
+        return self.meshes(np.array([t], dtype=np.float64))[0]
+
+    def meshes(self, times) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+        """:meth:`mesh` at each of ``times (T,)`` (route times, s), computed together."""
+        _, present, centre, yaw = self._state(np.asarray(times, dtype=np.float64))
         tv, tf = _BOX
-        m = len(bx["index"])
-        size = bx["size"] + [0.0, 0.0, SINK]
-        v = tv[None] * size[:, None, :]
-        c, s = np.cos(bx["yaw"])[:, None], np.sin(bx["yaw"])[:, None]
-        v = np.stack([c * v[..., 0] - s * v[..., 1], s * v[..., 0] + c * v[..., 1], v[..., 2]], axis=-1)
-        v += (bx["centre"] - [0.0, 0.0, SINK])[:, None, :]
-        f = tf[None] + (len(tv) * np.arange(m))[:, None, None]
-        alb = np.repeat(bx["albedo"], len(tf))
-        return v.reshape(-1, 3).astype(np.float32), f.reshape(-1, 3).astype(np.uint32), alb.astype(np.float32)
+        v = tv[None] * (self.size + [0.0, 0.0, SINK])[:, None, :]  # (N, 8, 3) box in its own frame
+        c, s = np.cos(yaw)[..., None], np.sin(yaw)[..., None]  # (T, N, 1)
+        world = np.stack([c * v[..., 0] - s * v[..., 1], s * v[..., 0] + c * v[..., 1],
+                          np.broadcast_to(v[..., 2], c.shape[:2] + (len(tv),))], axis=-1)
+        world += (centre - [0.0, 0.0, SINK])[:, :, None, :]
+        out = []
+        for k in range(len(present)):
+            idx = np.flatnonzero(present[k])
+            f = tf[None] + (len(tv) * np.arange(len(idx)))[:, None, None]
+            out.append((world[k, idx].reshape(-1, 3).astype(np.float32), f.reshape(-1, 3).astype(np.uint32),
+                        np.repeat(self.albedo[idx], len(tf)).astype(np.float32)))
+        return out
 
 
 def _count(rate_per_km: float, length_m: float) -> int:

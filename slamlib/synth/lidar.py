@@ -41,7 +41,9 @@ all rays see the movers at the frame's instant. With them the sweep is cut by fi
 instant: a mover of speed ``v`` is then at most ``v * period / (2 * MOVER_BLOCKS)`` from where it truly is when a
 column fires (4.5 cm at 14 m/s), well inside the centimetres of range noise, instead of one mover scene per column.
 Only the rays whose azimuth falls within a mover triangle's azimuth span are cast against the movers (a tenth of
-them in a busy street; the same hits as casting all).
+them in a busy street; the same hits as casting all). Cost, default sensor along route 07 with the default traffic
+(:class:`~slamlib.synth.traffic.TrafficConfig`, ~20 movers in view), on a 2-core machine: about +9 ms a scan
+without sweep distortion and +10 ms with it (+30-40 % of ~28 ms); three times as dense, +7 and +14 ms.
 
 Reference: Velodyne HDL-64E S2 user's manual (2008); Geiger et al., IJRR 2013, sec. 2.
 """

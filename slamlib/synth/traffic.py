@@ -94,10 +94,10 @@ PERSON_ALBEDO = (0.2, 0.45)
 CENTRE_LINE_HZ = 50.0
 CENTRE_LINE_STEP = 0.5
 MIN_LINE_S = 1.0
-#: Chord length (m) giving the centre line's tangent (smooths the ground truth's jitter; KITTI's corners have
-#: radii of 10 m and more).
-TANGENT_BASE = 4.0
 EXTEND = 120.0
+#: Chord length (m) giving the centre line's tangent: long enough to smooth the ground truth's centimetre jitter,
+#: short against the routes' corners.
+TANGENT_BASE = 4.0
 #: Boxes are sunk this far into the road (and made as much taller) so a sloped road shows no gap underneath.
 SINK = 0.2
 #: Overlap check of movers in one lane: time step (s), extra along-lane clearance (m), redraws per mover, and how

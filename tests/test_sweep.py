@@ -83,3 +83,64 @@ def test_sweep_refuses_to_overwrite_its_table(tmp_path):
     with pytest.raises(SystemExit, match="holds sweep.csv: pass --overwrite"):
         main(["sweep", "--out", str(tmp_path)])
     assert (tmp_path / "sweep.csv").read_text() == "mine\n"
+
+
+def test_drive_options_name_their_drives_and_reach_the_generator(monkeypatch, tmp_path):
+    """Drive options: drives without any keep their old names; each option gives another drive; the generator gets
+    sweep distortion, traffic at the asked density and wandering biases (no IMU noise in the odometry layout); the
+    label lists what is on."""
+    from slamlib import synth
+    from slamlib.slam3d.sweep import DriveOptions, drive_task
+    from slamlib.synth.traffic import KITTI_CITY
+
+    plain = sweep_tasks(["07"], [0], ["raw"], ["slamlib"], [{}], (0, 5))[0]
+    same = sweep_tasks(["07"], [0], ["raw"], ["slamlib"], [{}], (0, 5), DriveOptions())[0]
+    assert plain.drive_key() == same.drive_key() and plain.drive.label() == ""
+    options = [DriveOptions(distortion=True), DriveOptions(traffic=2.0), DriveOptions(bias_walk=True),
+               DriveOptions(True, 1.0, True)]
+    keys = {sweep_tasks(["07"], [0], ["raw"], ["slamlib"], [{}], (0, 5), o)[0].drive_key() for o in options}
+    assert len(keys) == 4 and plain.drive_key() not in keys
+    assert DriveOptions(True, 2.0, True).label() == "distortion, traffic x2, bias walk"
+    with pytest.raises(ValueError, match="traffic must be a finite number >= 0"):
+        DriveOptions(traffic=-1.0)
+    calls = []
+    monkeypatch.setattr(synth, "write_drive", lambda *a, **kw: calls.append(("raw", kw)))
+    monkeypatch.setattr(synth, "write_sequence", lambda *a, **kw: calls.append(("odometry", kw)))
+    for layout in ("raw", "odometry"):
+        drive_task(sweep_tasks(["07"], [0], [layout], ["slamlib"], [{}], (0, 5), DriveOptions(True, 2.0, True))[0],
+                   tmp_path)
+    (raw, kw_raw), (odo, kw_odo) = calls
+    assert kw_raw["distortion"] is True and kw_raw["traffic"] == KITTI_CITY.scaled(2.0)
+    assert kw_raw["noise"] == synth.WANDERING_BIASES and "noise" not in kw_odo
+    assert kw_odo["distortion"] is True and kw_odo["traffic"] == KITTI_CITY.scaled(2.0)
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--traffic", "0"], "--traffic must be a number in"),
+    (["--traffic", "11"], "--traffic must be a number in"),
+    (["--traffic", "nan"], "--traffic must be a number in"),
+])
+def test_sweep_drive_options_are_checked(tmp_path, argv, message):
+    from slamlib.cli import main
+
+    with pytest.raises(SystemExit, match=message):
+        main(["sweep", "--out", str(tmp_path / "o")] + argv)
+    assert not (tmp_path / "o").exists()
+
+
+def test_a_sweep_with_every_drive_option_runs_end_to_end(cluster, tmp_path):
+    """Swept scans, traffic and wandering biases on, slamlib de-skewing, KISS-ICP beside it: every run gives a
+    finite result, the table names the drive options, the drive's marker records them."""
+    import json
+
+    from slamlib.slam3d.sweep import DriveOptions
+    from slamlib.synth.writer import MARKER, drive_dir
+
+    tasks = sweep_tasks(["loop"], [0], ["raw"], ["slamlib", "kiss_icp"], [{"particles": 40, "deskew": True}], (0, 6),
+                        DriveOptions(True, 1.0, True))
+    rows = run_sweep(tasks, tmp_path / "data", scheduler=cluster.scheduler_address, progress=False)
+    assert [r["drive"] for r in rows] == ["distortion, traffic x1, bias walk"] * 2
+    assert all(math.isfinite(r["ate_rmse_m"]) for r in rows)
+    assert json.loads(rows[0]["settings"]) == {"deskew": True, "particles": 40}
+    marker = json.loads((drive_dir(tmp_path / "data" / tasks[0].drive_key(), "2011_09_26", 1) / MARKER).read_text())
+    assert marker["distortion"] is True and "traffic" in marker and marker["noise"]["gyro_bias_walk"] > 0

@@ -38,6 +38,17 @@ def add_arguments(parser) -> None:
                                                                       "(default both)")
     parser.add_argument("--particles", default=None, help="comma-separated particle counts, one slamlib setting "
                                                           "each (default: the filter's default)")
+    parser.add_argument("--deskew", action="store_true",
+                        help="slamlib de-skews every scan with the frame's motion (ScanConfig.deskew; KISS-ICP "
+                             "de-skews whenever the drives have --distortion)")
+    real = parser.add_argument_group("drive realism (default: a still town, unswept scans, constant IMU biases)")
+    real.add_argument("--distortion", action="store_true",
+                      help="scans swept column by column as a real HDL-64E (slamlib.synth.lidar)")
+    real.add_argument("--traffic", type=float, nargs="?", const=1.0, default=None, metavar="SCALE",
+                      help="moving cars, cyclists and pedestrians at SCALE times a KITTI city drive's density "
+                           "(default without SCALE: 1)")
+    real.add_argument("--bias-walk", action="store_true",
+                      help="the IMU biases wander as random walks (slamlib.synth.WANDERING_BIASES; raw layout)")
     parser.add_argument("--data", type=Path, default=None,
                         help="folder for the generated drives, reused by later sweeps (default: the cache, "
                              "$SLAMLIB_CACHE/sweep)")
@@ -84,6 +95,12 @@ def main(args) -> int:
         if any(not 1 <= p <= MAX_PARTICLES for p in counts):
             _fail(f"--particles must be in [1, {MAX_PARTICLES:,}], got {args.particles!r}")
         settings = [{"particles": p} for p in counts]
+    from slamlib.commands.synth import MAX_TRAFFIC
+
+    if args.traffic is not None and not 0 < args.traffic <= MAX_TRAFFIC:  # also refuses nan
+        _fail(f"--traffic must be a number in (0, {MAX_TRAFFIC:g}], got {args.traffic}")
+    if args.deskew:
+        settings = [dict(s, deskew=True) for s in settings]
     if args.workers is not None and args.workers < 1:
         _fail(f"--workers must be >= 1, got {args.workers}")
     frames = set()
@@ -113,12 +130,13 @@ def main(args) -> int:
         _fail("slamlib sweep needs Dask: pip install 'dask[distributed]' (or pip install -e '.[sweep]')")
 
     from slamlib.paths import cache_dir
-    from slamlib.slam3d.sweep import plot_sweep, run_sweep, sweep_tasks, write_table
+    from slamlib.slam3d.sweep import DriveOptions, plot_sweep, run_sweep, sweep_tasks, write_table
 
-    tasks = sweep_tasks(routes, seeds, layouts, methods, settings, frames)
+    drive = DriveOptions(args.distortion, args.traffic or 0.0, args.bias_walk)
+    tasks = sweep_tasks(routes, seeds, layouts, methods, settings, frames, drive)
     data = args.data if args.data is not None else cache_dir() / "sweep"
     print(f"slamlib sweep: {len(tasks)} runs ({', '.join(routes)} x seeds {', '.join(map(str, seeds))} x "
-          f"{', '.join(layouts)} x {', '.join(methods)}), drives in {data}, "
+          f"{', '.join(layouts)} x {', '.join(methods)}), drives {drive.label() or 'still, unswept'} in {data}, "
           f"scheduler {args.scheduler or 'local cluster'}")
     try:
         rows = run_sweep(tasks, data, scheduler=args.scheduler, workers=args.workers, progress=not args.no_progress)

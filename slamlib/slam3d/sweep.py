@@ -7,8 +7,10 @@ A sweep is the cross product of
 * **seeds**: each seed is one synthetic drive (town, sensor and IMU noise) *and* the filter's seed,
 * **layouts**: ``"raw"`` (KITTI raw drive: LIDAR + IMU) or ``"odometry"`` (KITTI odometry sequence: LIDAR only),
 * **methods**: ``"slamlib"`` for every entry of ``settings`` (dicts of :meth:`SLAM3DConfig.of` settings, e.g.
-  ``{"particles": 100}``), and ``"kiss_icp"`` (:func:`slamlib.peers.kiss_icp_poses`, de-skewing off: the synthetic
-  scans are cast from one pose).
+  ``{"particles": 100}`` or ``{"deskew": True}``), and ``"kiss_icp"`` (:func:`slamlib.peers.kiss_icp_poses`, its
+  de-skewing on exactly when the drive's scans are swept),
+* one set of **drive options** (:class:`DriveOptions`) for every drive: sweep distortion, moving traffic, wandering
+  IMU biases (all off by default: the town holds still and every scan is cast from one pose).
 
 Each (route, seed, layout) drive is generated once, by one task, into ``data_dir`` (:func:`drive_task`); every run
 on it is a task that depends on it (:func:`run_task`), so Dask schedules the generation first and spreads the
@@ -33,14 +35,51 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["SweepTask", "sweep_tasks", "drive_task", "run_task", "run_sweep", "write_table", "read_table",
-           "plot_sweep", "COLUMNS", "METHODS", "LAYOUTS"]
+__all__ = ["DriveOptions", "SweepTask", "sweep_tasks", "drive_task", "run_task", "run_sweep", "write_table",
+           "read_table", "plot_sweep", "COLUMNS", "METHODS", "LAYOUTS"]
 
 METHODS = ("slamlib", "kiss_icp")
 LAYOUTS = ("raw", "odometry")
-#: The columns of a sweep's table, in order (``settings`` is the slamlib settings as JSON; empty for KISS-ICP).
-COLUMNS = ("route", "frames", "seed", "layout", "method", "settings", "path_length_m", "kitti_t_err_percent",
+#: The columns of a sweep's table, in order (``drive`` is :meth:`DriveOptions.label`, empty for a still town seen by
+#: unswept scans; ``settings`` is the slamlib settings as JSON, empty for KISS-ICP).
+COLUMNS = ("route", "frames", "seed", "layout", "drive", "method", "settings", "path_length_m", "kitti_t_err_percent",
            "kitti_r_err_deg_per_m", "ate_rmse_m", "dead_reckoning_kitti_t_err_percent", "fps", "seconds")
+
+
+@dataclass(frozen=True)
+class DriveOptions:
+    """How real the synthetic drives of a sweep are (:func:`slamlib.synth.write_drive` / ``write_sequence``).
+
+    ``distortion``: each scan swept column by column as a real HDL-64E (:mod:`slamlib.synth.lidar`); ``traffic``:
+    moving cars, cyclists and pedestrians at that multiple of a KITTI city drive's density
+    (:data:`slamlib.synth.traffic.KITTI_CITY`; 0 = none); ``bias_walk``: the IMU biases wander
+    (:data:`slamlib.synth.WANDERING_BIASES`; raw layout only, the odometry layout has no IMU).
+    """
+
+    distortion: bool = False
+    traffic: float = 0.0
+    bias_walk: bool = False
+
+    def __post_init__(self):
+        if not (np.isfinite(self.traffic) and self.traffic >= 0):
+            raise ValueError(f"traffic must be a finite number >= 0, got {self.traffic}")
+
+    def label(self) -> str:
+        """``"distortion, traffic x2, bias walk"`` (the options that are on), ``""`` for none."""
+        on = (["distortion"] if self.distortion else []) + ([f"traffic x{self.traffic:g}"] if self.traffic else []) \
+            + (["bias walk"] if self.bias_walk else [])
+        return ", ".join(on)
+
+    def write_kwargs(self, layout: str) -> dict:
+        """The keyword arguments of the generator that give these options."""
+        from slamlib.synth import WANDERING_BIASES
+        from slamlib.synth.traffic import KITTI_CITY
+
+        kw = {"distortion": bool(self.distortion),
+              "traffic": KITTI_CITY.scaled(self.traffic) if self.traffic else None}
+        if layout == "raw" and self.bias_walk:
+            kw["noise"] = WANDERING_BIASES
+        return kw
 
 
 @dataclass(frozen=True)
@@ -53,17 +92,24 @@ class SweepTask:
     layout: str
     method: str
     settings: dict = field(default_factory=dict, hash=False, compare=False)
+    drive: DriveOptions = DriveOptions()
 
     def drive_key(self) -> str:
-        """Name of this task's drive in ``data_dir``: route, frames, seed, layout and the generator's version."""
+        """Name of this task's drive in ``data_dir``: route, frames, seed, layout, drive options (when any is on)
+        and the generator's version."""
         from slamlib.synth import GENERATOR_VERSION
 
-        text = json.dumps([GENERATOR_VERSION, self.route, list(self.frames), self.seed, self.layout])
+        key = [GENERATOR_VERSION, self.route, list(self.frames), self.seed, self.layout]
+        if self.drive != DriveOptions():  # drives without options keep the names they always had
+            key.append([self.drive.distortion, self.drive.traffic, self.drive.bias_walk])
+        text = json.dumps(key)
         return f"{self.layout}-{self.route}-s{self.seed}-{hashlib.sha1(text.encode()).hexdigest()[:10]}"
 
 
-def sweep_tasks(routes, seeds, layouts=("raw",), methods=METHODS, settings=({},), frames=(0, None)) -> list:
-    """The cross product, as :class:`SweepTask` s (KISS-ICP once per drive: it has no slamlib settings)."""
+def sweep_tasks(routes, seeds, layouts=("raw",), methods=METHODS, settings=({},), frames=(0, None),
+                drive: DriveOptions = DriveOptions()) -> list:
+    """The cross product, as :class:`SweepTask` s (KISS-ICP once per drive: it has no slamlib settings), every
+    drive written with the options ``drive``."""
     tasks = []
     for route in routes:
         for seed in seeds:
@@ -74,14 +120,15 @@ def sweep_tasks(routes, seeds, layouts=("raw",), methods=METHODS, settings=({},)
                     if method not in METHODS:
                         raise ValueError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
                     for s in (settings if method == "slamlib" else ({},)):
-                        tasks.append(SweepTask(str(route), tuple(frames), int(seed), layout, method, dict(s)))
+                        tasks.append(SweepTask(str(route), tuple(frames), int(seed), layout, method, dict(s), drive))
     return tasks
 
 
 def drive_task(task: SweepTask, data_dir) -> str:
     """Generate ``task``'s synthetic drive into ``data_dir`` unless a complete one is there; returns its folder.
 
-    Raw layout: :func:`slamlib.synth.write_drive`; odometry layout: :func:`slamlib.synth.write_sequence`.
+    Raw layout: :func:`slamlib.synth.write_drive`; odometry layout: :func:`slamlib.synth.write_sequence`; both with
+    the task's :class:`DriveOptions`.
     """
     from slamlib.synth import GENERATOR_VERSION, write_drive, write_sequence
     from slamlib.synth.writer import drive_dir, read_marker
@@ -90,11 +137,13 @@ def drive_task(task: SweepTask, data_dir) -> str:
     if task.layout == "raw":
         marker = read_marker(drive_dir(base, "2011_09_26", 1))
         if marker is None or marker.get("version") != GENERATOR_VERSION:
-            write_drive(base, task.route, frames=task.frames, seed=task.seed, progress=False)
+            write_drive(base, task.route, frames=task.frames, seed=task.seed, progress=False,
+                        **task.drive.write_kwargs("raw"))
     else:
         marker = read_marker(base / "sequences" / "00")
         if marker is None or marker.get("version") != GENERATOR_VERSION:
-            write_sequence(base, task.route, 0, frames=task.frames, seed=task.seed, progress=False)
+            write_sequence(base, task.route, 0, frames=task.frames, seed=task.seed, progress=False,
+                           **task.drive.write_kwargs("odometry"))
     return str(base)
 
 
@@ -112,6 +161,7 @@ def run_task(task: SweepTask, base: str) -> dict:
 
     frames = _frames_of(task, base)
     row = {"route": task.route, "frames": len(frames), "seed": task.seed, "layout": task.layout,
+           "drive": task.drive.label(),
            "method": task.method, "settings": json.dumps(task.settings, sort_keys=True) if task.settings else ""}
     t0 = time.perf_counter()
     if task.method == "slamlib":
@@ -122,7 +172,7 @@ def run_task(task: SweepTask, base: str) -> dict:
     else:
         from slamlib.peers import kiss_icp_poses
 
-        poses, _ = kiss_icp_poses(frames, deskew=False)
+        poses, _ = kiss_icp_poses(frames, deskew=task.drive.distortion)  # KISS-ICP de-skews swept scans
         gt = (frames.ground_truth_poses() if task.layout == "odometry" else frames.ground_truth_poses("imu"))
         gt = np.linalg.inv(gt[0])[None] @ gt
         dr = None
@@ -199,7 +249,7 @@ def read_table(path) -> list[dict]:
         for r in csv.DictReader(f):
             row = {}
             for k, v in r.items():
-                if k in ("route", "layout", "method", "settings"):
+                if k in ("route", "layout", "drive", "method", "settings"):
                     row[k] = v
                 elif k in ("frames", "seed"):
                     row[k] = int(v)
@@ -207,6 +257,12 @@ def read_table(path) -> list[dict]:
                     row[k] = float(v) if v != "" else float("nan")
             out.append(row)
     return out
+
+
+def _label(row) -> str:
+    """A run's legend entry: method, layout, settings and drive options (those not empty)."""
+    drive = f"({row['drive']})" if row.get("drive") else ""
+    return " ".join(x for x in (row["method"], row["layout"], row["settings"], drive) if x)
 
 
 def plot_sweep(rows, ax=None):
@@ -220,12 +276,12 @@ def plot_sweep(rows, ax=None):
     else:
         fig = ax.figure
     routes = list(dict.fromkeys(r["route"] for r in rows))
-    labels = list(dict.fromkeys(f"{r['method']} {r['layout']} {r['settings']}".strip() for r in rows))
+    labels = list(dict.fromkeys(_label(r) for r in rows))
     width = 0.8 / max(1, len(labels))
     for j, label in enumerate(labels):
         for i, route in enumerate(routes):
             vals = [r["kitti_t_err_percent"] for r in rows if r["route"] == route
-                    and f"{r['method']} {r['layout']} {r['settings']}".strip() == label]
+                    and _label(r) == label]
             vals = [v for v in vals if np.isfinite(v)]
             x = i - 0.4 + width * (j + 0.5)
             if vals:

@@ -95,6 +95,16 @@ def test_without_velodyne_timestamps(drive_dir, open_drive):
     (drive_dir / "velodyne_points" / "timestamps.txt").unlink()
     drive = open_drive()
     assert drive.all_velo_timestamps_ns is None and drive.velo_timestamps_ns is None
+    assert drive[1].scan_time_offset_s == 0.0
+
+
+def test_frames_carry_the_scan_stamp_relative_to_the_pose(open_drive):
+    """``Frame.scan_time_offset_s`` = Velodyne timestamp - OXTS timestamp (s) of the frame itself: 12-24 ms before
+    the pose in the generator's drives, as on KITTI raw."""
+    drive = open_drive(frames=[2, 0])
+    for f, velo in zip(drive, drive.velo_timestamps_ns):
+        assert f.scan_time_offset_s == (int(velo) - f.timestamp_ns) * 1e-9
+        assert -0.0245 < f.scan_time_offset_s < -0.0115
 
 
 def test_velodyne_timestamps_need_not_increase(drive_dir, open_drive):

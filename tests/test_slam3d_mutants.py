@@ -95,6 +95,23 @@ def test_deskew_config_deskews_the_scan_with_the_frames_imu_before_merging():
     assert np.abs(no_t - expected).max() > 1e-3  # the mounting matters
 
 
+def test_deskew_goes_to_the_pose_time_of_the_frame():
+    """A frame with ``scan_time_offset_s`` (its scan stamped before its pose, as KITTI raw frames are) is de-skewed to
+    the pose's time: the first frame merges ``deskew_scan(..., time_offset=frame.scan_time_offset_s)``."""
+    scan = _scan()
+    sc = ScanConfig(downsample_voxel=0.0, deskew=True, sweep_period=0.1)
+    config = SLAM3DConfig(filter=FilterConfig(particles=20), scan=sc)
+    frame = _frame(scan, v=(12.0, 0.5, 0.0), w=(0.0, 0.0, 0.3))
+    frame.scan_time_offset_s = -0.02
+    slam = ParticleSLAM3D(config)
+    slam.register_frame(frame)
+    body = steps.read_scan(frame, sc, None)
+    expected = steps.deskew_scan(body, (frame.velocity, frame.angular_rate), sc, None, -0.02)
+    np.testing.assert_array_equal(_sorted(slam.map_points()), _map_of(config, expected))
+    at_stamp = steps.deskew_scan(body, (frame.velocity, frame.angular_rate), sc)
+    assert np.abs(_sorted(expected) - _sorted(at_stamp)).max() > 0.2  # 12 m/s x 20 ms
+
+
 def test_second_imu_frame_gets_the_ordinary_sigma_not_the_lidar_only_start_search():
     """In IMU mode the second frame's step-6 spread is ``motion.sigma(increment[1], dt, False, False)``
     (``start = lidar_only and len(poses) == 1`` is False), not the wide constant-velocity start spread."""

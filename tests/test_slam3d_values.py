@@ -39,6 +39,21 @@ def test_deskew_scan_times_points_by_their_azimuth_in_the_velodyne_frame():
     assert np.abs(got - untilted).max() > 0.1  # the mounting matters: a quarter sweep at 12 m/s is 0.3 m
 
 
+def test_deskew_scan_moves_points_to_the_pose_time_given_the_scan_offset():
+    """``time_offset`` (the scan's stamp relative to the pose's, ``Frame.scan_time_offset_s``) shifts every firing
+    time: the points go to the frame at the pose's time. A point fired at the scan's stamp then moves by the twist
+    over ``-time_offset``: 12 m/s x 20 ms = 0.24 m forward for a point straight ahead."""
+    pts = _scan()
+    config = ScanConfig(sweep_period=0.1)
+    got = steps.deskew_scan(pts, TWIST, config, time_offset=-0.02)
+    np.testing.assert_array_equal(got, deskew(pts, *TWIST, sweep_times(pts, 0.1) - 0.02))
+    np.testing.assert_array_equal(steps.deskew_scan(pts, TWIST, config, time_offset=0.0),
+                                  steps.deskew_scan(pts, TWIST, config))
+    ahead = np.array([[20.0, 0.0, 0.0]], np.float32)  # azimuth 0: fired at the scan's stamp
+    moved = steps.deskew_scan(ahead, (np.array([12.0, 0.0, 0.0]), np.zeros(3)), config, time_offset=-0.02)
+    np.testing.assert_allclose(moved, [[20.0 - 0.24, 0.0, 0.0]], atol=1e-5)
+
+
 def test_deskew_scan_uses_the_configured_sweep_period_and_keeps_empty_scans():
     """The firing times scale with ``ScanConfig.sweep_period`` (twice the period: twice each point's offset from
     where it was fired, to first order), and an empty scan comes back empty (0, 3) float32."""

@@ -76,6 +76,10 @@ class Frame:
         ``T_w_velo = T_w_imu @ inv(T_velo_imu)``.
     velodyne_path : Path
         The scan file.
+    scan_time_offset_s : float
+        The scan's own timestamp (mid-sweep, ``velodyne_points/timestamps.txt``) minus the frame's OXTS timestamp,
+        in seconds: about -12 to -24 ms on KITTI (the sweep is centred that long before the pose); 0.0 when the drive
+        has no Velodyne timestamps.
     """
 
     index: int
@@ -90,6 +94,7 @@ class Frame:
     T_w_imu: np.ndarray = field(repr=False)
     T_w_velo: np.ndarray = field(repr=False)
     velodyne_path: Path = field(repr=False)
+    scan_time_offset_s: float = 0.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -310,6 +315,8 @@ class KittiRawDrive:
             T_w_imu=T_w_imu,
             T_w_velo=T_w_imu @ self.T_imu_velo,
             velodyne_path=self.velodyne_path(index),
+            scan_time_offset_s=(0.0 if self.all_velo_timestamps_ns is None
+                                else (int(self.all_velo_timestamps_ns[index]) - ts) * 1e-9),
         )
 
     def __getitem__(self, pos: int) -> Frame:

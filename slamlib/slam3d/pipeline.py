@@ -135,8 +135,9 @@ class ParticleSLAM3D:
         points = steps.read_scan(frame, cfg.scan, self.T_body_velo)                                # 2
         imu = steps.read_imu(frame, self.own_motion() if self.lidar_only else None)                # 3
         dt = steps.read_timing(frame)                                                              # 4
-        if cfg.scan.deskew:  # step 2's motion compensation, with the motion step 3 read
-            points = steps.deskew_scan(points, imu, cfg.scan, self.T_body_velo)
+        if cfg.scan.deskew:  # step 2's motion compensation, with the motion step 3 read, to the pose's time
+            points = steps.deskew_scan(points, imu, cfg.scan, self.T_body_velo,
+                                       getattr(frame, "scan_time_offset_s", 0.0))
         if self.imu_prev is None:  # first frame: the map starts at the start pose
             return self._start(points, imu, dt)
         increment = steps.motion_increment(imu, dt, prev)  # once: steps 5 and 6 and the dead-reckoning twin

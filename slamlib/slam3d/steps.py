@@ -148,12 +148,15 @@ def read_scan(frame, scan_config: ScanConfig = ScanConfig(), T_body_velo=None) -
     return np.ascontiguousarray(pts)
 
 
-def deskew_scan(points, imu, scan_config: ScanConfig = ScanConfig(), T_body_velo=None) -> np.ndarray:
+def deskew_scan(points, imu, scan_config: ScanConfig = ScanConfig(), T_body_velo=None,
+                time_offset: float = 0.0) -> np.ndarray:
     """Step 2's motion compensation, once step 3 has the motion: body-frame ``points (N, 3)`` of a scan taken over
-    a sweep, each moved to where it was at the scan's timestamp for the body twist ``imu = (velocity,
+    a sweep, each moved to where it was at the frame's pose time for the body twist ``imu = (velocity,
     angular_rate)`` (:func:`slamlib.slam3d.preprocess.deskew`). Each point's firing time comes from its azimuth
     in the Velodyne frame (:func:`~slamlib.slam3d.preprocess.sweep_times`, ``scan_config.sweep_period``; the
-    points are taken back there with ``inv(T_body_velo)`` for it). Returns ``(N, 3)`` float32.
+    points are taken back there with ``inv(T_body_velo)`` for it), relative to the scan's timestamp; ``time_offset``
+    (s) is that timestamp relative to the pose's (``Frame.scan_time_offset_s``: on KITTI raw the OXTS pose comes
+    12-24 ms after the mid-sweep stamp; 0 moves the points to the scan's own timestamp). Returns ``(N, 3)`` float32.
     """
     pts = np.asarray(points, dtype=np.float32)
     if len(pts) == 0:
@@ -162,7 +165,7 @@ def deskew_scan(points, imu, scan_config: ScanConfig = ScanConfig(), T_body_velo
     if T_body_velo is not None:
         T = np.linalg.inv(np.asarray(T_body_velo, dtype=np.float64))
         velo = pts.astype(np.float64) @ T[:3, :3].T + T[:3, 3]
-    times = sweep_times(velo, scan_config.sweep_period)
+    times = sweep_times(velo, scan_config.sweep_period) + float(time_offset)
     return np.ascontiguousarray(deskew(pts, imu[0], imu[1], times))
 
 

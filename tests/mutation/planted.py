@@ -37,19 +37,27 @@ PLANTS = [
 ]
 
 
+def _run(work: Path, *args: str) -> subprocess.CompletedProcess:
+    """``python ARGS`` in the copy ``work``, importing the copy's slamlib, with a Numba cache of its own."""
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(work / "numba"), PYTHONPATH=str(work))
+    return subprocess.run([sys.executable, *args], cwd=work, env=env, capture_output=True, text=True)
+
+
+def _pytest(work: Path, *tests: str) -> subprocess.CompletedProcess:
+    return _run(work, "-m", "pytest", "-p", "no:dash", "-p", "no:cacheprovider", "-q", *tests)
+
+
 def run_plant(work: Path, file: str, original: str, planted: str, tests: list[str]) -> list[tuple[str, str]]:
     """Plant one bug in ``work`` (a copy), run each test there, restore; ``[(test, outcome)]``."""
     path = work / file
     source = path.read_text(encoding="utf-8")
     if source.count(original) != 1:
         return [(t, f"NOT PLANTED: {original!r} occurs {source.count(original)} times in {file}") for t in tests]
-    env = dict(os.environ, NUMBA_CACHE_DIR=str(work / "numba"), PYTHONPATH=str(work))
     out = []
     try:
         path.write_text(source.replace(original, planted), encoding="utf-8")
         for test in tests:
-            r = subprocess.run([sys.executable, "-m", "pytest", "-p", "no:dash", "-p", "no:cacheprovider", "-q", test],
-                               cwd=work, env=env, capture_output=True, text=True)
+            r = _pytest(work, test)
             out.append((test, "fails (caught)" if r.returncode == 1 else f"NOT CAUGHT (pytest exit {r.returncode})"))
     finally:
         path.write_text(source, encoding="utf-8")
@@ -62,15 +70,14 @@ def main() -> int:
         for part in ("slamlib", "tests"):
             shutil.copytree(ROOT / part, work / part, ignore=shutil.ignore_patterns("__pycache__", "mutation"))
         shutil.copy(ROOT / "pyproject.toml", work)
-        env = dict(os.environ, PYTHONPATH=str(work))
-        where = subprocess.run([sys.executable, "-c", "import slamlib; print(slamlib.__file__)"], cwd=work, env=env,
-                               capture_output=True, text=True, check=True).stdout.strip()
+        found = _run(work, "-c", "import slamlib; print(slamlib.__file__)")
+        if found.returncode != 0:
+            sys.exit(f"planted.py: the copy cannot import slamlib:\n{found.stderr[-3000:]}")
+        where = found.stdout.strip()
         if not Path(where).is_relative_to(work):  # an installed slamlib would shadow the planted copy
             sys.exit(f"planted.py: the copy's tests import slamlib from {where}, not from {work}")
         every = [t for *_, tests in PLANTS for t in tests]
-        clean = subprocess.run([sys.executable, "-m", "pytest", "-p", "no:dash", "-p", "no:cacheprovider", "-q",
-                                *every], cwd=work, env=dict(env, NUMBA_CACHE_DIR=str(work / "numba")),
-                               capture_output=True, text=True)
+        clean = _pytest(work, *every)
         if clean.returncode != 0:  # a failure below must be the plant's doing
             sys.exit(f"planted.py: the tests fail on the unplanted copy:\n{clean.stdout[-3000:]}")
         rows, ok = [], True

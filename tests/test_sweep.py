@@ -116,9 +116,9 @@ def test_drive_options_name_their_drives_and_reach_the_generator(monkeypatch, tm
 
 
 @pytest.mark.parametrize("argv, message", [
-    (["--traffic", "0"], "--traffic must be a number in"),
-    (["--traffic", "11"], "--traffic must be a number in"),
-    (["--traffic", "nan"], "--traffic must be a number in"),
+    (["--traffic", "0"], r"--traffic must be a density scale in \(0, 10\], got "),
+    (["--traffic", "11"], r"--traffic must be a density scale in \(0, 10\], got "),
+    (["--traffic", "nan"], r"--traffic must be a density scale in \(0, 10\], got "),
 ])
 def test_sweep_drive_options_are_checked(tmp_path, argv, message):
     from slamlib.cli import main

@@ -95,10 +95,13 @@ def main(args) -> int:
         if any(not 1 <= p <= MAX_PARTICLES for p in counts):
             _fail(f"--particles must be in [1, {MAX_PARTICLES:,}], got {args.particles!r}")
         settings = [{"particles": p} for p in counts]
-    from slamlib.commands.synth import MAX_TRAFFIC
+    from slamlib.commands.synth import check_traffic_scale
 
-    if args.traffic is not None and not 0 < args.traffic <= MAX_TRAFFIC:  # also refuses nan
-        _fail(f"--traffic must be a number in (0, {MAX_TRAFFIC:g}], got {args.traffic}")
+    if args.traffic is not None:
+        try:
+            check_traffic_scale(args.traffic)
+        except ValueError as exc:
+            _fail(str(exc))
     if args.deskew:
         settings = [dict(s, deskew=True) for s in settings]
     if args.workers is not None and args.workers < 1:

@@ -204,12 +204,20 @@ def main(args) -> int:
     return 0
 
 
+def check_traffic_scale(scale: float) -> None:
+    """``ValueError`` naming ``--traffic`` unless ``0 < scale <= MAX_TRAFFIC`` (nan too); also for ``slamlib sweep``."""
+    if not 0.0 < scale <= MAX_TRAFFIC:
+        raise ValueError(f"--traffic must be a density scale in (0, {MAX_TRAFFIC:g}], got {scale}")
+
+
 def _traffic(scale):
     """``--traffic SCALE`` -> a :class:`slamlib.synth.TrafficConfig` SCALE times the default density, or ``None``."""
     if scale is None:
         return None
-    if not 0.0 < scale <= MAX_TRAFFIC:
-        _fail(f"--traffic must be a density scale in (0, {MAX_TRAFFIC:g}], got {scale}")
+    try:
+        check_traffic_scale(scale)
+    except ValueError as exc:
+        _fail(str(exc))
     from slamlib.synth import TrafficConfig
 
     return TrafficConfig().scaled(scale)

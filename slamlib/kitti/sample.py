@@ -17,7 +17,7 @@ from slamlib.kitti.calib import CAM_TO_CAM, IMU_TO_VELO, VELO_TO_CAM
 from slamlib.kitti.oxts import read_oxts_packet, write_oxts_packet
 from slamlib.kitti.raw import drive_folder_name
 from slamlib.kitti.timestamps import read_timestamps_ns, write_timestamps_ns
-from slamlib.kitti.velodyne import read_velodyne_scan, write_velodyne_scan
+from slamlib.kitti.velodyne import SWEEP_PERIOD_S, read_velodyne_scan, write_velodyne_scan
 from slamlib.paths import kitti_sample_dir
 
 __all__ = ["SAMPLE_DATE", "SAMPLE_DRIVE", "sample_raw_paths", "make_tiny_drive", "REAL_SCANS", "real_scan_path",
@@ -28,7 +28,7 @@ __all__ = ["SAMPLE_DATE", "SAMPLE_DRIVE", "sample_raw_paths", "make_tiny_drive",
 REAL_SCANS = 10
 #: The HDL-64E's scan period measured on the real drive 0001 (median ``timestamps_end - timestamps_start``, s):
 #: the sample scans come without their timestamps, so they are given this nominal spacing.
-NOMINAL_SCAN_PERIOD = 0.10315
+NOMINAL_SCAN_PERIOD = SWEEP_PERIOD_S
 
 SAMPLE_DATE = "2011_09_26"
 SAMPLE_DRIVE = "0001"

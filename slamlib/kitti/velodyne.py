@@ -13,10 +13,14 @@ import numpy as np
 
 from slamlib.errors import DataFormatError
 
-__all__ = ["POINT_BYTES", "read_velodyne_scan", "write_velodyne_scan"]
+__all__ = ["POINT_BYTES", "SWEEP_PERIOD_S", "read_velodyne_scan", "write_velodyne_scan"]
 
 #: Bytes per point: 4 float32 values.
 POINT_BYTES = 16
+#: Seconds one HDL-64E sweep takes on KITTI: the median ``timestamps_end - timestamps_start`` of raw drive 0001
+#: (``../shared/notes/kitti-sensor-facts.md``); the scans are also this far apart. Every module that needs the
+#: sweep (generator, de-skewing, the real samples, KISS-ICP's pose times) takes it from here.
+SWEEP_PERIOD_S = 0.10315
 
 
 def read_velodyne_scan(path: str | os.PathLike) -> np.ndarray:

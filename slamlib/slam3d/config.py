@@ -14,6 +14,8 @@ from dataclasses import asdict, dataclass, field, fields, replace
 
 import numpy as np
 
+from slamlib.kitti.velodyne import SWEEP_PERIOD_S
+
 __all__ = ["MOTION_MODELS", "ScanConfig", "MotionConfig", "MapConfig", "FilterConfig", "SLAM3DConfig", "MAP_KINDS",
            "OLD_MAP_NAMES"]
 
@@ -85,7 +87,7 @@ class ScanConfig:
     max_range: float = 60.0
     downsample_voxel: float = 0.25
     deskew: bool = False
-    sweep_period: float = 0.10315
+    sweep_period: float = SWEEP_PERIOD_S
 
     def __post_init__(self):
         _finite("min_range", self.min_range)

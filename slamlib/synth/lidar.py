@@ -55,11 +55,13 @@ from dataclasses import dataclass, asdict
 
 import numpy as np
 
+from slamlib.kitti.velodyne import SWEEP_PERIOD_S
+
 __all__ = ["Hdl64", "hdl64_elevations", "ray_directions", "ray_columns", "column_time_offsets", "simulate_scan",
            "EGO_BOX", "SCAN_PERIOD_S", "MOVER_BLOCKS"]
 
-#: The HDL-64E's sweep period on KITTI (s): the median ``timestamps_end - timestamps_start`` of raw drive 0001.
-SCAN_PERIOD_S = 0.10315
+#: The HDL-64E's sweep period on KITTI (s): :data:`slamlib.kitti.velodyne.SWEEP_PERIOD_S`.
+SCAN_PERIOD_S = SWEEP_PERIOD_S
 
 #: Ego-vehicle box in the Velodyne frame, ``((xmin, ymin, zmin), (xmax, ymax, zmax))`` m: the roof ~0.6 m below
 #: the sensor, extending 1.6 m behind it (Geiger et al. IJRR 2013, Fig. 3). An effective occluder, not the car's

@@ -41,6 +41,7 @@ import numpy as np
 
 from slamlib.kitti.oxts import format_oxts_packet
 from slamlib.kitti.timestamps import write_timestamps_ns
+from slamlib.kitti.velodyne import SWEEP_PERIOD_S
 from slamlib.paths import kitti_sample_dir
 
 __all__ = ["CALIB_FILES", "MARKER", "PARTIAL_MARKER", "drive_dir", "is_own_drive", "own_files", "check_calib",
@@ -55,7 +56,8 @@ PARTIAL_MARKER = ".slamlib_synth.partial.json"
 _FIXED_FILES = ("oxts/dataformat.txt", "oxts/timestamps.txt", "velodyne_points/timestamps.txt",
                 "velodyne_points/timestamps_start.txt", "velodyne_points/timestamps_end.txt")
 _FRAME_FILES = (("oxts/data", re.compile(r"\d{10}\.txt")), ("velodyne_points/data", re.compile(r"\d{10}\.bin")))
-SCAN_PERIOD = 0.10315
+#: Seconds between scan stamps: the sweep period (:data:`slamlib.kitti.velodyne.SWEEP_PERIOD_S`).
+SCAN_PERIOD = SWEEP_PERIOD_S
 #: The OXTS clock (100 Hz) and how its packets are matched to scans (module docstring; all in ns), from drive 0001:
 OXTS_TICK_NS = 10_000_000
 OXTS_MIN_DELAY_NS = 11_550_000     # the shortest delay of a frame's packet tick after the scan stamp

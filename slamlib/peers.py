@@ -9,6 +9,15 @@ an adaptive threshold and a constant-velocity prediction. It is installed with `
 Frames: KISS-ICP estimates Velodyne poses ``P_k = T_{velo_0 <- velo_k}``; :func:`kiss_icp_poses` returns them as
 body poses ``T_{body_0 <- body_k} = T_velo_imu^{-1} P_k T_velo_imu`` (the identity calibration for LIDAR-only data,
 whose body is the Velodyne), the frame slamlib's trajectories use.
+
+Times: a pose is the sensor's at one instant, and KISS-ICP's is not the instant KITTI stamps its ground truth at.
+De-skewing, KISS-ICP moves every point of a scan to the *end* of the sweep (``Preprocessing.cpp``: the point at
+normalised sweep time ``s`` in [0, 1] by ``Exp((s - 1) Log D)``, ``D`` its last frame-to-frame motion), so the
+pose it then registers is the sweep end's, half a sweep (51.6 ms) after the scan's mid-sweep stamp; without
+de-skewing the pose is about the mid-sweep one. A KITTI raw frame's pose (OXTS) comes another 12-24 ms after the
+mid-sweep stamp (``Frame.scan_time_offset_s``). :func:`kiss_icp_poses` with ``pose_times=True`` moves each pose to
+the frame's pose time along KISS-ICP's own constant-velocity motion, as one interpolates any trajectory to the
+ground truth's stamps before comparing (:func:`move_along`).
 """
 
 from __future__ import annotations
@@ -17,7 +26,10 @@ import time
 
 import numpy as np
 
-__all__ = ["kiss_icp_poses", "kiss_icp_available", "INSTALL_HINT"]
+from slamlib.kitti.velodyne import SWEEP_PERIOD_S
+from slamlib.odometry import imu_increment, increment_matrix, twist_between
+
+__all__ = ["kiss_icp_poses", "kiss_icp_available", "move_along", "pose_time_fraction", "INSTALL_HINT"]
 
 INSTALL_HINT = "KISS-ICP is not installed: pip install kiss-icp (or pip install -e '.[peers]')"
 
@@ -31,12 +43,38 @@ def kiss_icp_available() -> bool:
     return True
 
 
-def kiss_icp_poses(frames, T_velo_imu=None, deskew: bool = False) -> tuple[np.ndarray, np.ndarray]:
+def move_along(pose, motion, fraction: float) -> np.ndarray:
+    """``pose @ Exp(fraction * Log(motion))``: ``pose (4, 4)`` moved on by ``fraction`` of the rigid ``motion
+    (4, 4)`` (both in the pose's own frame), at constant body twist; ``fraction`` 1 gives ``pose @ motion``, -1
+    ``pose @ inv(motion)``, 0 ``pose``. Exp/Log of SE(3) are :func:`slamlib.odometry.twist_between` and
+    :func:`~slamlib.odometry.imu_increment` with equal samples (Sola, Deray, Atchuthan, "A micro Lie theory for
+    state estimation in robotics", 2018, eqs. 172-174)."""
+    v, w = twist_between(np.eye(4), motion, 1.0)
+    return np.asarray(pose, dtype=np.float64) @ increment_matrix(*imu_increment(v, w, v, w, float(fraction)))
+
+
+def pose_time_fraction(scan_time_offset_s: float, deskew: bool, sweep_period: float = SWEEP_PERIOD_S) -> float:
+    """How many sweeps after KISS-ICP's pose of a scan the frame's pose is: ``(t_pose - t_kiss) / T``.
+
+    ``t_kiss`` is the sweep's end with ``deskew`` (the scan stamp ``+ T / 2``), the scan's mid-sweep stamp without;
+    the frame's pose is ``scan_time_offset_s`` (scan stamp minus pose stamp, s; about -17 ms on KITTI raw, 0 when the
+    ground truth is the scan's, as in the odometry layout) before the stamp. ``T`` = ``sweep_period`` (s).
+    """
+    t_kiss = 0.5 * sweep_period if deskew else 0.0
+    return (-float(scan_time_offset_s) - t_kiss) / sweep_period
+
+
+def kiss_icp_poses(frames, T_velo_imu=None, deskew: bool = False, pose_times: bool = False,
+                   sweep_period: float = SWEEP_PERIOD_S) -> tuple[np.ndarray, np.ndarray]:
     """Run KISS-ICP (its default configuration) over ``frames`` (each with ``.scan`` (N, 4), Velodyne frame).
 
     ``T_velo_imu`` (4, 4): the calibration to express the poses in the body frame (default: the frames'
     ``T_velo_imu`` attribute, or the identity). ``deskew``: KISS-ICP's own motion compensation, with each point's
     time from its azimuth (KISS-ICP's rule for KITTI, ``s = 0.5 (1 - atan2(y, x) / pi)``).
+    ``pose_times``: move each pose from the instant KISS-ICP's refers to (see the module docstring) to the frame's
+    pose time (``frame.scan_time_offset_s``, 0 when absent) along KISS-ICP's last motion ``D`` taken as one sweep of
+    ``sweep_period`` s: ``P @ Exp(f Log D)``, ``f`` = :func:`pose_time_fraction`. For swept scans compared with
+    ground truth stamped elsewhere (a KITTI raw drive's OXTS poses); not for scans cast from one instant.
 
     Returns ``(poses (F, 4, 4) body, seconds (F,))``: the poses and each frame's registration time (the
     ``register_frame`` call alone). Raises ``ImportError`` with :data:`INSTALL_HINT` when KISS-ICP is missing.
@@ -61,5 +99,9 @@ def kiss_icp_poses(frames, T_velo_imu=None, deskew: bool = False) -> tuple[np.nd
         t0 = time.perf_counter()
         odometry.register_frame(points, stamps)
         seconds.append(time.perf_counter() - t0)
-        poses.append(T_imu_velo @ odometry.last_pose @ T_velo_imu)
+        pose = odometry.last_pose
+        if pose_times:
+            fraction = pose_time_fraction(getattr(frame, "scan_time_offset_s", 0.0), deskew, sweep_period)
+            pose = move_along(pose, odometry.last_delta, fraction)
+        poses.append(T_imu_velo @ pose @ T_velo_imu)
     return np.asarray(poses).reshape(-1, 4, 4), np.asarray(seconds)

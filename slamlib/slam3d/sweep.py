@@ -8,7 +8,8 @@ A sweep is the cross product of
 * **layouts**: ``"raw"`` (KITTI raw drive: LIDAR + IMU) or ``"odometry"`` (KITTI odometry sequence: LIDAR only),
 * **methods**: ``"slamlib"`` for every entry of ``settings`` (dicts of :meth:`SLAM3DConfig.of` settings, e.g.
   ``{"particles": 100}`` or ``{"deskew": True}``), and ``"kiss_icp"`` (:func:`slamlib.peers.kiss_icp_poses`, its
-  de-skewing on exactly when the drive's scans are swept),
+  de-skewing on exactly when the drive's scans are swept, and then its poses moved from the sweep's end to the
+  frames' pose times, where the ground truth is),
 * one set of **drive options** (:class:`DriveOptions`) for every drive: sweep distortion, moving traffic, wandering
   IMU biases (all off by default: the town holds still and every scan is cast from one pose).
 
@@ -172,7 +173,8 @@ def run_task(task: SweepTask, base: str) -> dict:
     else:
         from slamlib.peers import kiss_icp_poses
 
-        poses, _ = kiss_icp_poses(frames, deskew=task.drive.distortion)  # KISS-ICP de-skews swept scans
+        swept = task.drive.distortion  # KISS-ICP de-skews swept scans, its poses then moved to the frames' pose times
+        poses, _ = kiss_icp_poses(frames, deskew=swept, pose_times=swept)
         gt = (frames.ground_truth_poses() if task.layout == "odometry" else frames.ground_truth_poses("imu"))
         gt = np.linalg.inv(gt[0])[None] @ gt
         dr = None

@@ -31,7 +31,7 @@ from slamlib.synth.writer import (_SAMPLE, MARKER, PARTIAL_MARKER, SCAN_PERIOD, 
 __all__ = ["GENERATOR_VERSION", "write_drive", "write_sequence", "default_drive", "resolve_route", "DEFAULT_FRAMES"]
 
 #: Bump when the generator's output changes: cached drives of another version are regenerated.
-GENERATOR_VERSION = "synth-3"
+GENERATOR_VERSION = "synth-4"
 #: KITTI 07 key frames of the default drive (30 s, ~220 m through the town part of sequence 07).
 DEFAULT_FRAMES = (0, 300)
 
@@ -189,7 +189,7 @@ def _cast_scans(r: Route, t_route, T_w_velo, rng_scene, rng_lidar, lidar: Hdl64,
     offsets = column_time_offsets(lidar)
     cols = ray_columns(lidar) if t_sweep is not None else None
     for k in tqdm(range(len(t_route)), desc=desc, disable=not progress, unit="scan"):
-        poses = None if t_sweep is None else r.pose(np.clip(t_sweep[k] + offsets, r.t0, r.t1)) @ T_imu_velo
+        poses = None if t_sweep is None else r.pose_extended(t_sweep[k] + offsets) @ T_imu_velo
         at = None if traffic is None else _movers_at(movers, t_route[k] if t_sweep is None else t_sweep[k])
         yield k, simulate_scan(rc, scene.albedo, T_w_velo[k], rng_lidar, lidar, dirs, column_poses=poses,
                                columns=cols, movers=at)
@@ -243,7 +243,7 @@ def write_sequence(basedir, route="07", sequence: int | str = 7, frames=DEFAULT_
     T_w_velo = r.pose(t_route) @ T_imu_velo
     t_sweep = r.t0 + (ts["velo"] - ts["oxts"][0]) * 1e-9 if distortion else None
     if distortion:  # the odometry ground truth is the scan's pose: its mid-sweep instant, not the OXTS one
-        T_w_velo = r.pose(t_sweep) @ T_imu_velo
+        T_w_velo = r.pose_extended(t_sweep) @ T_imu_velo
     Tr = write_odometry_calib(sdir)
     write_times(sdir / "times.txt", (ts["velo"] - ts["velo"][0]) * 1e-9)
     poses_path.parent.mkdir(parents=True, exist_ok=True)

@@ -87,6 +87,27 @@ class Route:
         """``T_w_imu (N, 4, 4)``."""
         return make_pose(self.rotation(t), self.position(t))
 
+    def pose_extended(self, t) -> np.ndarray:
+        """``T_w_imu (N, 4, 4)`` at any time: :meth:`pose` within ``[t0, t1]``; beyond an end, the end's pose moved on
+        at the end's constant body twist ``(v, w)``, ``T(t) = T(t_e) Exp((t - t_e) [w, v])`` (the SE(3) exponential
+        of :func:`slamlib.odometry.imu_increments`). A sweep reaches past the route: the first scan's starts about
+        70 ms before the first OXTS stamp, the last scan's ends about 35 ms after the last; the car keeps moving then
+        (a cubic spline's own extrapolation would bend, and holding the end pose would leave half a sweep unswept).
+        """
+        from slamlib.odometry import imu_increments, increment_matrix
+
+        t = np.atleast_1d(np.asarray(t, dtype=np.float64))
+        out = self.pose(np.clip(t, self.t0, self.t1))
+        for end, beyond in ((self.t0, t < self.t0), (self.t1, t > self.t1)):
+            if np.any(beyond):
+                v, w = self.velocity_body(end)[0], self.angular_rate_body(end)[0]
+                dt = t[beyond] - end
+                n = len(dt)
+                inc = increment_matrix(*imu_increments(np.tile(v, (n, 1)), np.tile(w, (n, 1)), np.tile(v, (n, 1)),
+                                                       np.tile(w, (n, 1)), dt))
+                out[beyond] = self.pose(end)[0] @ inc
+        return out
+
     def velocity_world(self, t) -> np.ndarray:
         """``dp/dt (N, 3)`` m/s in the world frame."""
         return self._pos(np.atleast_1d(t), 1)

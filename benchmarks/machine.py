@@ -1,53 +1,5 @@
-"""Describe the machine a benchmark ran on, so committed results say where they came from."""
+"""The machine a benchmark ran on: :func:`slamlib.machine.describe` (``slamlib bench`` loads it from here)."""
 
-from __future__ import annotations
+from slamlib.machine import describe
 
-import datetime as _dt
-import os
-import platform
-
-
-def _cpu_model() -> str:
-    try:
-        with open("/proc/cpuinfo") as f:
-            for line in f:
-                if line.startswith("model name"):
-                    return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown"
-
-
-def _gpu_name() -> str | None:
-    if os.environ.get("NUMBA_ENABLE_CUDASIM") == "1":
-        return "numba CUDA simulator (no GPU)"
-    try:
-        from numba import cuda
-
-        if cuda.is_available():
-            return cuda.get_current_device().name.decode() if isinstance(
-                cuda.get_current_device().name, bytes) else str(cuda.get_current_device().name)
-    except Exception:  # noqa: BLE001 - any driver problem means "no usable GPU"
-        return None
-    return None
-
-
-def describe() -> dict:
-    """Return CPU model, usable cores, GPU (if any), Python and key library versions, and the UTC time."""
-    import numba
-    import numpy
-
-    try:
-        cores = len(os.sched_getaffinity(0))
-    except AttributeError:  # pragma: no cover - non-Linux
-        cores = os.cpu_count()
-    return {
-        "cpu": _cpu_model(),
-        "cores": cores,
-        "gpu": _gpu_name(),
-        "python": platform.python_version(),
-        "numpy": numpy.__version__,
-        "numba": numba.__version__,
-        "platform": platform.platform(),
-        "utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
-    }
+__all__ = ["describe"]

@@ -13,7 +13,7 @@ LAYERS = {
     "slam3d": 3, "synth": 3, "noise_quality": 3,
     "kernels": 2, "kitti": 2, "sim1d": 2, "sim2d": 2, "metrics": 2, "odometry": 2, "peers": 2,
     "maps": 1, "noise": 1, "geometry": 1, "resampling": 1, "contract": 1, "errors": 1,
-    "paths": 1, "data": 1, "plotstyle": 1, "__init__": 6, "__main__": 6,
+    "paths": 1, "data": 1, "plotstyle": 1, "machine": 1, "__init__": 6, "__main__": 6,
 }
 #: Pairs inside one layer that must not know each other (CONTRIBUTING.md: kernels and maps know no pipeline,
 #: kitti and synth know no filter).

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import math
 
 import numpy as np
@@ -43,6 +44,8 @@ def test_sweep_on_a_dask_cluster_writes_one_tidy_row_per_run(cluster, tmp_path):
         assert row["frames"] == 6 and math.isfinite(row["ate_rmse_m"]) and row["fps"] > 0
         assert math.isnan(row["kitti_t_err_percent"])  # a 6-frame drive is far shorter than 100 m
         assert math.isnan(row["dead_reckoning_kitti_t_err_percent"])
+        # dead reckoning: slamlib's IMU-only twin, on the raw layout (the odometry layout has no IMU)
+        assert math.isfinite(row["dead_reckoning_ate_rmse_m"]) == (task.method == "slamlib" and task.layout == "raw")
         assert row["settings"] == ('{"particles": 40}' if task.method == "slamlib" else "")
     # the same seed gives the same drive: slamlib's result on it does not depend on which worker ran it
     again = run_sweep(tasks[:1], tmp_path / "data", scheduler=cluster.scheduler_address, progress=False)
@@ -144,3 +147,20 @@ def test_a_sweep_with_every_drive_option_runs_end_to_end(cluster, tmp_path):
     assert json.loads(rows[0]["settings"]) == {"deskew": True, "particles": 40}
     marker = json.loads((drive_dir(tmp_path / "data" / tasks[0].drive_key(), "2011_09_26", 1) / MARKER).read_text())
     assert marker["distortion"] is True and "traffic" in marker and marker["noise"]["gyro_bias_walk"] > 0
+
+
+def test_the_sweep_command_writes_its_table_plot_and_provenance(cluster, tmp_path, capsys):
+    from slamlib.cli import main
+    from slamlib.synth import GENERATOR_VERSION
+
+    out = tmp_path / "out"
+    assert main(["sweep", "--out", str(out), "--data", str(tmp_path / "data"), "--routes", "loop", "--frames", "4",
+                 "--seeds", "0", "--methods", "slamlib", "--particles", "20", "--no-progress",
+                 "--scheduler", cluster.scheduler_address]) == 0
+    rows = read_table(out / "sweep.csv")
+    assert [(r["route"], r["seed"], r["method"], r["frames"]) for r in rows] == [("loop", 0, "slamlib", 4)]
+    info = json.loads((out / "sweep.json").read_text())
+    assert info["command"].startswith("slamlib sweep ") and "--particles 20" in info["command"]
+    assert info["generator_version"] == GENERATOR_VERSION and info["scheduler"] == cluster.scheduler_address
+    assert info["machine"]["cores"] >= 1 and info["seconds"] > 0
+    assert (out / "sweep.png").stat().st_size > 0 and "sweep.json" in capsys.readouterr().out

@@ -15,13 +15,16 @@ See :mod:`slamlib.slam3d.sweep`.
 
 from __future__ import annotations
 
+import json
+import shlex
+import time
 from pathlib import Path
 
 NAME = "sweep"
 HELP = "Run SLAM (and KISS-ICP) over routes x seeds x settings as Dask tasks; write one table (CSV) and a plot."
 
 ROUTES = ("straight", "loop", "00", "05", "07")  # slamlib.commands.synth.ROUTES
-OUT_FILES = ("sweep.csv", "sweep.png")
+OUT_FILES = ("sweep.csv", "sweep.json", "sweep.png")
 
 
 def add_arguments(parser) -> None:
@@ -57,6 +60,16 @@ def add_arguments(parser) -> None:
     parser.add_argument("--workers", type=int, default=None,
                         help="worker processes of the local cluster (default: one per core)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def _version(distribution: str) -> str | None:
+    """The installed version of ``distribution``, or None."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version(distribution)
+    except PackageNotFoundError:
+        return None
 
 
 def _fail(message: str):
@@ -133,6 +146,7 @@ def main(args) -> int:
         _fail("slamlib sweep needs Dask: pip install 'dask[distributed]' (or pip install -e '.[sweep]')")
 
     from slamlib.paths import cache_dir
+    from slamlib.synth import GENERATOR_VERSION
     from slamlib.slam3d.sweep import DriveOptions, plot_sweep, run_sweep, sweep_tasks, write_table
 
     drive = DriveOptions(args.distortion, args.traffic or 0.0, args.bias_walk)
@@ -141,12 +155,20 @@ def main(args) -> int:
     print(f"slamlib sweep: {len(tasks)} runs ({', '.join(routes)} x seeds {', '.join(map(str, seeds))} x "
           f"{', '.join(layouts)} x {', '.join(methods)}), drives {drive.label() or 'still, unswept'} in {data}, "
           f"scheduler {args.scheduler or 'local cluster'}")
+    from slamlib.machine import describe
+
+    started = time.perf_counter()
+    info = {"command": "slamlib " + " ".join(shlex.quote(a) for a in args.argv), "machine": describe(),
+            "workers": args.workers, "scheduler": args.scheduler, "generator_version": GENERATOR_VERSION,
+            "kiss_icp_version": _version("kiss-icp"), "slamlib_version": _version("slamlib")}
     try:
         rows = run_sweep(tasks, data, scheduler=args.scheduler, workers=args.workers, progress=not args.no_progress)
     except (OSError, TimeoutError) as exc:
         _fail(f"could not reach or run the Dask cluster: {exc}")
     out.mkdir(parents=True, exist_ok=True)
     write_table(rows, out / "sweep.csv")
+    info["seconds"] = time.perf_counter() - started  # the machine's "utc" is the start
+    (out / "sweep.json").write_text(json.dumps(info, indent=1) + "\n", encoding="utf-8")
     import matplotlib
 
     matplotlib.use("Agg")
@@ -159,5 +181,5 @@ def main(args) -> int:
     for r in rows:
         print(f"{r['route']:>8s} {r['seed']:4d} {r['layout']:>8s} {r['method']:>9s} {r['settings']:>18s} "
               f"{r['kitti_t_err_percent']:8.3f} {r['ate_rmse_m']:7.3f}")
-    print(f"wrote {out / 'sweep.csv'} and {out / 'sweep.png'}")
+    print(f"wrote {out / 'sweep.csv'}, {out / 'sweep.json'} (command, machine, versions) and {out / 'sweep.png'}")
     return 0

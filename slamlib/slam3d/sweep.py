@@ -44,7 +44,8 @@ LAYOUTS = ("raw", "odometry")
 #: The columns of a sweep's table, in order (``drive`` is :meth:`DriveOptions.label`, empty for a still town seen by
 #: unswept scans; ``settings`` is the slamlib settings as JSON, empty for KISS-ICP).
 COLUMNS = ("route", "frames", "seed", "layout", "drive", "method", "settings", "path_length_m", "kitti_t_err_percent",
-           "kitti_r_err_deg_per_m", "ate_rmse_m", "dead_reckoning_kitti_t_err_percent", "fps", "seconds")
+           "kitti_r_err_deg_per_m", "ate_rmse_m", "dead_reckoning_kitti_t_err_percent",
+           "dead_reckoning_ate_rmse_m", "fps", "seconds")
 
 
 @dataclass(frozen=True)
@@ -180,12 +181,13 @@ def run_task(task: SweepTask, base: str) -> dict:
         dr = None
     seconds = time.perf_counter() - t0
     m = trajectory_metrics(poses, gt)
+    m_dr = trajectory_metrics(dr, gt) if dr is not None else {}  # slamlib's runs only: the IMU-only twin
     row.update(path_length_m=float(trajectory_distances(gt)[-1]),
                kitti_t_err_percent=m.get("kitti_t_err_percent", float("nan")),
                kitti_r_err_deg_per_m=m.get("kitti_r_err_deg_per_m", float("nan")),
                ate_rmse_m=m["ate_rmse_m"],
-               dead_reckoning_kitti_t_err_percent=(trajectory_metrics(dr, gt).get("kitti_t_err_percent", float("nan"))
-                                                   if dr is not None else float("nan")),
+               dead_reckoning_kitti_t_err_percent=m_dr.get("kitti_t_err_percent", float("nan")),
+               dead_reckoning_ate_rmse_m=m_dr.get("ate_rmse_m", float("nan")),
                fps=len(poses) / seconds, seconds=seconds)
     return {k: row[k] for k in COLUMNS}
 

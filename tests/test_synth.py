@@ -10,7 +10,7 @@ from slamlib.kitti.timestamps import read_timestamps_ns
 from slamlib.odometry import dead_reckon
 from slamlib.paths import kitti_sample_dir
 from slamlib.synth import (WANDERING_BIASES, ZERO_NOISE, Hdl64, ImuNoise, hdl64_elevations, kitti_route, loop_route,
-                           oxts_packets, ray_directions, resolve_route, write_drive)
+                           oxts_packets, ray_directions, resolve_route, simulate_scan, write_drive)
 from slamlib.synth.writer import drive_dir
 
 FAST_LIDAR = Hdl64(columns=500)
@@ -207,3 +207,20 @@ def test_oxts_stamps_follow_the_real_sawtooth():
         assert np.all((delay > 11.5) & (delay < 24.5))
         steps = np.diff(delay)
         assert np.all((np.abs(steps + 3.15) < 0.6) | (np.abs(steps - 6.85) < 0.6))
+
+
+def test_a_scene_of_boxes_is_hit_where_its_faces_are():
+    from slamlib.synth import Scene
+
+    scene = Scene.from_boxes([((10.0, -2.0, 0.0), (10.5, 2.0, 3.0)), ((-8.0, -1.0, 0.0), (-7.0, 1.0, 1.0))])
+    assert scene.n_triangles == 24 and set(scene.kind) == {Scene.KINDS.index("wall")}
+    lidar = Hdl64(columns=360, beam_stride=4, sigma_range=0.0, dropout=0.0)
+    origin = np.eye(4)
+    origin[2, 3] = 0.5
+    scan = simulate_scan(scene.raycasting_scene(), scene.albedo, origin, np.random.default_rng(0), lidar)
+    ahead = scan[(np.abs(scan[:, 1]) < 1.5) & (scan[:, 0] > 0)]
+    behind = scan[(np.abs(scan[:, 1]) < 0.5) & (scan[:, 0] < 0)]
+    np.testing.assert_allclose(ahead[:, 0], 10.0, atol=1e-4)  # the near face of each box
+    np.testing.assert_allclose(behind[:, 0], -7.0, atol=1e-4)
+    with pytest.raises(ValueError, match="hi > lo"):
+        Scene.from_boxes([((0, 0, 0), (1, 0, 1))])

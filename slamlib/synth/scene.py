@@ -47,6 +47,18 @@ class Scene:
 
     KINDS = ("ground", "building", "wall", "car", "pole", "trunk", "crown")
 
+    @classmethod
+    def from_boxes(cls, boxes, albedo: float = 0.5) -> "Scene":
+        """A scene of axis-aligned boxes ``[(lo (3,), hi (3,)), ...]`` (opposite corners, world frame, m), each of
+        kind ``"wall"`` and reflectivity ``albedo``: a yard to try the sensor model in (the book's swept wall)."""
+        b = _Builder()
+        for lo, hi in boxes:
+            lo, hi = np.asarray(lo, dtype=np.float64), np.asarray(hi, dtype=np.float64)
+            if lo.shape != (3,) or hi.shape != (3,) or not np.all(hi > lo):
+                raise ValueError(f"a box is two corners (lo, hi) with hi > lo on every axis, got {lo}, {hi}")
+            b.add(_BOX, np.r_[(lo[:2] + hi[:2]) / 2, lo[2]], hi - lo, 0.0, albedo, cls.KINDS.index("wall"))
+        return b.build()
+
     def raycasting_scene(self):
         """An ``open3d.t.geometry.RaycastingScene`` holding the mesh (geometry id 0)."""
         import open3d as o3d

@@ -495,6 +495,10 @@ def test_slamlib_run_map_names_and_bad_settings(tiny_drive, tmp_path, capsys):
     assert "--map bvh is now called --map morton_bvh" in capsys.readouterr().out
     info = json.loads((tmp_path / "b" / "metrics.json").read_text())
     assert info["config"]["map"]["kind"] == "morton_bvh" and info["config"]["filter"]["particles"] == 5
+    assert info["config"]["scan"]["deskew"] is False
+    assert main(common + ["--frames", "0:3", "--particles", "5", "--points", "20", "--deskew",
+                          "--out", str(tmp_path / "c")]) == 0
+    assert json.loads((tmp_path / "c" / "metrics.json").read_text())["config"]["scan"]["deskew"] is True
 
 
 def test_crop_and_downsample_equals_crop_then_downsample():

@@ -50,6 +50,9 @@ def add_arguments(parser) -> None:
     f.add_argument("--lidar-only", action="store_true",
                    help="ignore the IMU: step 3 holds the filter's own last motion (constant velocity), as on data "
                         "without an IMU (the odometry layout, where it is always on)")
+    f.add_argument("--deskew", action="store_true",
+                   help="motion-compensate each scan taken over a sweep, to the frame's pose time (ScanConfig.deskew): "
+                        "for real KITTI drives and synthetic ones written with --distortion")
     f.add_argument("--noise", type=float, default=1.0, metavar="SCALE",
                    help="scale of step 6's motion noise (all six sigmas; default 1.0 = the tuned defaults)")
     f.add_argument("--temperature", type=float, default=FilterConfig.temperature,
@@ -143,7 +146,7 @@ def main(args) -> int:
         print(f"slamlib run: note: --map {args.map_kind} is now called --map {kind}")
     try:
         cfg = SLAM3DConfig.of(particles=args.particles, scored_points=args.points, kind=kind, backend=args.backend,
-                              seed=args.seed, refine=args.refine, temperature=args.temperature)
+                              seed=args.seed, refine=args.refine, temperature=args.temperature, deskew=args.deskew)
         cfg = replace(cfg, motion=replace(cfg.motion.scaled(float(args.noise)),
                                           model="constant_velocity" if args.lidar_only or odometry else "imu"))
     except ValueError as exc:

@@ -132,3 +132,16 @@ def test_bias_walk_flag_writes_wandering_biases(tmp_path):
     marker = json.loads((drive_dir(out, "2011_09_26", 1) / MARKER).read_text())
     assert marker["noise"] == WANDERING_BIASES.scaled(2).as_dict()
     assert marker["noise"]["gyro_bias_walk"] == 4e-4 and ImuNoise().as_dict()["gyro_bias_walk"] == 0.0
+
+
+@pytest.mark.parametrize("layout", ["raw", "odometry"])
+def test_distortion_flag_writes_swept_scans(tmp_path, layout):
+    """``--distortion`` reaches the generator in either layout (recorded in the marker); without it, none."""
+    from slamlib.synth.writer import read_marker
+
+    for flag, name in (([], "plain"), (["--distortion"], "swept")):
+        out = tmp_path / name
+        assert main(["synth", "--out", str(out), "--route", "loop", "--frames", "3", "--columns", "90",
+                     "--layout", layout, "--no-progress"] + flag) == 0
+        folder = drive_dir(out, "2011_09_26", 1) if layout == "raw" else out / "sequences" / "00"
+        assert read_marker(folder).get("distortion", False) is bool(flag)

@@ -55,6 +55,10 @@ def add_arguments(parser) -> None:
     parser.add_argument("--bias-walk", action="store_true",
                         help="the IMU's velocity and gyro biases wander as random walks "
                              "(slamlib.synth.WANDERING_BIASES: 5 mm/s and 0.2 mrad/s per sqrt(s)), scaled by --imu-noise")
+    parser.add_argument("--distortion", action="store_true",
+                        help="sweep each scan column by column as KITTI's HDL-64E does (slamlib.synth.lidar): the car "
+                             "moves during the 0.1 s turn (default: every scan cast from one pose); de-skew with "
+                             "slamlib run --deskew")
     parser.add_argument("--layout", choices=("raw", "odometry"), default="raw",
                         help="raw: a KITTI raw drive (OXTS + scans; default); odometry: a KITTI odometry sequence "
                              "OUT/sequences/NN (scans, calib.txt, times.txt) with ground truth OUT/poses/NN.txt and no "
@@ -183,11 +187,12 @@ def main(args) -> int:
                    else "the whole route" if frames is None else f"frames 0:{frames}")
     print(f"slamlib synth: route {args.route} ({frames_text}) -> {n} frames, seed {args.seed}, "
           f"{args.columns} LIDAR columns, IMU noise x{args.imu_noise:g}"
-          + (", wandering biases" if args.bias_walk else "") + (", no scans" if args.no_scans else ""))
+          + (", wandering biases" if args.bias_walk else "") + (", swept scans" if args.distortion else "")
+          + (", no scans" if args.no_scans else ""))
     t0 = time.perf_counter()
     write_drive(basedir, args.route, date=args.date, drive=args.drive, frames=frames, seed=args.seed, noise=noise,
                 lidar=Hdl64(columns=args.columns), scans=not args.no_scans, progress=not args.no_progress,
-                traffic=traffic)
+                traffic=traffic, distortion=args.distortion)
     seconds = time.perf_counter() - t0
     from slamlib.synth.writer import drive_dir
 
@@ -239,7 +244,7 @@ def _write_sequence(args, basedir: Path, frames, n: int, traffic=None) -> int:
     t0 = time.perf_counter()
     try:
         write_sequence(basedir, args.route, sequence, frames=frames, seed=args.seed, lidar=Hdl64(columns=args.columns),
-                       progress=not args.no_progress, traffic=traffic)
+                       progress=not args.no_progress, traffic=traffic, distortion=args.distortion)
     except FileExistsError as exc:
         _fail(f"{exc}")
     print(f"wrote {n} frames in {time.perf_counter() - t0:.1f} s to {basedir / 'sequences' / f'{sequence:02d}'}")

@@ -287,3 +287,12 @@ def test_project_to_rotation_of_a_float32_matrix_is_computed_in_float64():
     got = steps.project_to_rotation(M)
     assert got.dtype == np.float64
     np.testing.assert_allclose(got, expected, atol=1e-12)
+
+
+def test_read_scan_time_offset_reads_the_frame_or_zero_and_rejects_the_impossible():
+    assert steps.read_scan_time_offset(SimpleNamespace(scan_time_offset_s=-0.0171)) == -0.0171
+    assert steps.read_scan_time_offset(SimpleNamespace()) == 0.0  # odometry layout, simulated frames
+    for bad in (float("nan"), 0.2, -0.11):
+        with pytest.raises(ValueError, match=r"scan time offset \(frame 3\) must be finite and within one sweep"):
+            steps.read_scan_time_offset(SimpleNamespace(scan_time_offset_s=bad, index=3))
+    assert steps.read_scan_time_offset(SimpleNamespace(scan_time_offset_s=0.15), ScanConfig(sweep_period=0.2)) == 0.15

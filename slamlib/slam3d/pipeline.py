@@ -137,7 +137,7 @@ class ParticleSLAM3D:
         dt = steps.read_timing(frame)                                                              # 4
         if cfg.scan.deskew:  # step 2's motion compensation, with the motion step 3 read, to the pose's time
             points = steps.deskew_scan(points, imu, cfg.scan, self.T_body_velo,
-                                       getattr(frame, "scan_time_offset_s", 0.0))
+                                       steps.read_scan_time_offset(frame, cfg.scan))
         if self.imu_prev is None:  # first frame: the map starts at the start pose
             return self._start(points, imu, dt)
         increment = steps.motion_increment(imu, dt, prev)  # once: steps 5 and 6 and the dead-reckoning twin

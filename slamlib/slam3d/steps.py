@@ -18,7 +18,8 @@ The steps
 2. :func:`read_scan` -- range crop, voxel down-sampling, Velodyne -> body frame.
 3. :func:`read_imu` -- body velocities ``(vf, vl, vu)`` m/s and angular rates ``(wf, wl, wu)`` rad/s; LIDAR-only
    (no IMU), the filter's own last estimated twist held (constant velocity).
-4. :func:`read_timing` -- ``dt`` seconds since the previous frame.
+4. :func:`read_timing` -- ``dt`` seconds since the previous frame (and, for de-skewing, :func:`read_scan_time_offset`:
+   the scan's timestamp relative to the pose).
 5. :func:`offset_by_motion` -- ``T_i <- T_i [dR, dp]`` with the IMU increment ``(dR, dp)`` over ``dt``
    (:func:`motion_increment`: the midpoint twist of the previous and this IMU sample, integrated on SE(3)).
 6. :func:`perturb_with_noise` -- ``T_i <- T_i [N_i, sigma_t n_i]``: Gaussian noise in the body frame with the
@@ -65,7 +66,8 @@ from slamlib.slam3d.config import MotionConfig, ScanConfig
 from slamlib.slam3d.preprocess import crop_and_downsample, deskew, sweep_times
 
 __all__ = [
-    "Particles3D", "initialise_particles", "read_scan", "deskew_scan", "read_imu", "read_timing", "motion_increment",
+    "Particles3D", "initialise_particles", "read_scan", "deskew_scan", "read_imu", "read_timing",
+    "read_scan_time_offset", "motion_increment",
     "motion_noise_sigma", "offset_by_motion", "perturb_with_noise", "transform_scan", "score_particles",
     "pick_best_particle", "merge_scan", "resample_particles", "weighted_mean_pose", "project_to_rotation",
 ]
@@ -205,6 +207,22 @@ def read_timing(frame) -> float:
     if not np.isfinite(dt) or dt < 0:
         raise ValueError(f"frame dt must be finite and >= 0, got {dt}")
     return dt
+
+
+def read_scan_time_offset(frame, scan_config: ScanConfig = ScanConfig()) -> float:
+    """Step 4's other reading, for de-skewing: the scan's timestamp minus the frame's pose time (s).
+
+    On KITTI raw the pose (OXTS) comes 12-24 ms after the scan's mid-sweep timestamp, so this is about -0.017 s
+    (``Frame.scan_time_offset_s``); 0.0 for frames without it (the odometry layout, whose poses are the scans',
+    and synthetic or simulated frames). Raises ``ValueError`` for a non-finite offset or one longer than a sweep
+    (``scan_config.sweep_period``), which no real pairing of a scan with its pose gives.
+    """
+    offset = float(getattr(frame, "scan_time_offset_s", 0.0))
+    if not np.isfinite(offset) or abs(offset) > scan_config.sweep_period:
+        where = f" (frame {frame.index})" if hasattr(frame, "index") else ""
+        raise ValueError(f"scan time offset{where} must be finite and within one sweep "
+                         f"(+-{scan_config.sweep_period:g} s) of the pose, got {offset}")
+    return offset
 
 
 # ------------------------------------------------------------------------------------------------ step 5

@@ -478,3 +478,26 @@ def test_a_drive_with_traffic_is_deterministic_by_seed(tmp_path):
     d = write_sequence(tmp_path / "d", "straight", 3, seed=6, **kw)[0]
     e = write_sequence(tmp_path / "e", "straight", 3, seed=6, **kw)[0]
     assert _digest(d) == _digest(e)
+
+
+def test_drive_traffic_gives_the_movers_the_scans_hold(tmp_path):
+    """``drive_traffic`` rebuilds the movers a drive's scans were cast with: many scan points lie inside its boxes
+    (``Traffic.inside``) at each frame's time; the same drive without movers has only the road under the (sunk)
+    boxes there."""
+    from slamlib.kitti import KittiRawDrive
+    from slamlib.synth import drive_traffic
+
+    cfg, seed, n = TrafficConfig().scaled(3), 11, 3
+    route, t_route, movers = drive_traffic("straight", n, seed, cfg)
+    counts = {}
+    for name, config in (("on", cfg), ("off", TrafficConfig(density=0.0))):
+        drive = KittiRawDrive(write_drive(tmp_path / name, "straight", frames=n, seed=seed, lidar=SMALL,
+                                          progress=False, traffic=config)[0], "2011_09_26", 1)
+        T0 = route.pose(t_route[0])[0]  # the drive's world (the IMU at frame 0) in the route's
+        counts[name] = []
+        for k, f in enumerate(drive):
+            T = T0 @ f.T_w_velo
+            p = f.scan[:, :3].astype(np.float64) @ T[:3, :3].T + T[:3, 3]
+            above = p[:, 2] > route.pose(t_route[k])[0][2, 3] - 0.5  # above the road (the IMU is 0.93 m up)
+            counts[name].append(int(movers.inside(p[above], t_route[k]).sum()))
+    assert min(counts["on"]) > 200 and max(counts["off"]) < 0.05 * min(counts["on"]), counts

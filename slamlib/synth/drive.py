@@ -28,7 +28,8 @@ from slamlib.synth.writer import (_SAMPLE, MARKER, PARTIAL_MARKER, SCAN_PERIOD, 
                                   write_calib, write_marker, write_odometry_calib, write_odometry_scan, write_oxts,
                                   write_scan, write_velodyne_timestamps)
 
-__all__ = ["GENERATOR_VERSION", "write_drive", "write_sequence", "default_drive", "resolve_route", "DEFAULT_FRAMES"]
+__all__ = ["GENERATOR_VERSION", "write_drive", "write_sequence", "default_drive", "resolve_route", "DEFAULT_FRAMES",
+           "drive_traffic"]
 
 #: Bump when the generator's output changes: cached drives of another version are regenerated.
 GENERATOR_VERSION = "synth-4"
@@ -136,6 +137,20 @@ def write_drive(basedir, route="07", date: str = "2011_09_26", drive: int = 1, f
 #: The generator's random streams: timestamps, IMU noise, scene, LIDAR noise, traffic (the fifth was added later;
 #: ``SeedSequence`` children are derived by index, so the first four are those of the four-stream versions).
 N_STREAMS = 5
+
+
+def drive_traffic(route="07", frames=DEFAULT_FRAMES, seed: int = 0, traffic: TrafficConfig = TrafficConfig(),
+                  date: str = "2011_09_26"):
+    """The movers that :func:`write_drive` (raw layout) puts in the scans of a drive with these arguments, from
+    the same random streams: ``(route, t_route (F,), traffic)``, with ``t_route[k]`` frame k's OXTS instant on the
+    route (s) and :class:`~slamlib.synth.traffic.Traffic` ``traffic`` (``.boxes(t)``, ``.inside(points, t)``). The
+    route's world frame is the drive's ground truth's moved by the route's pose at ``t_route[0]``:
+    ``p_route = route.pose(t_route[0])[0] @ p_drive``. For plots and checks of what the scans hold."""
+    r, n = resolve_route(route, frames)
+    rng_time, _, _, _, rng_traffic = _streams(seed)
+    ts = frame_timestamps_ns(n, date, rng_time)
+    t_route = r.t0 + (ts["oxts"] - ts["oxts"][0]) * 1e-9
+    return r, t_route, build_traffic(r, t_route[0], t_route[-1], traffic, rng_traffic)
 
 
 def _streams(seed: int):

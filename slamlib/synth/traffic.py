@@ -275,6 +275,20 @@ class Traffic:
         return {"index": idx, "kind": self.kind[idx], "centre": centre[idx], "yaw": yaw[idx], "size": self.size[idx],
                 "albedo": self.albedo[idx], "speed": speed}
 
+    def inside(self, points, t: float, margin: float = 0.1) -> np.ndarray:
+        """``(N,)`` bool: which of the world ``points (N, 3)`` lie in a mover's box at route time ``t``, grown by
+        ``margin`` m on every side (a scan's range noise, and a swept scan's block timing)."""
+        p = np.asarray(points, dtype=np.float64)
+        out = np.zeros(len(p), dtype=bool)
+        b = self.boxes(t)
+        for c, yaw, size in zip(b["centre"], b["yaw"], b["size"]):
+            d = p - c
+            along = np.cos(yaw) * d[:, 0] + np.sin(yaw) * d[:, 1]
+            across = -np.sin(yaw) * d[:, 0] + np.cos(yaw) * d[:, 1]
+            out |= ((np.abs(along) <= size[0] / 2 + margin) & (np.abs(across) <= size[1] / 2 + margin)
+                    & (d[:, 2] >= -margin) & (d[:, 2] <= size[2] + margin))
+        return out
+
     def _state(self, times: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Every mover at each of ``times (T,)``: arc length ``(T, N)``, present ``(T, N)`` bool, base centre
         ``(T, N, 3)`` and yaw ``(T, N)`` (module docstring)."""

@@ -117,15 +117,14 @@ def write_drive(basedir, route="07", date: str = "2011_09_26", drive: int = 1, f
         params["traffic"] = traffic.as_dict()
     _begin(ddir, params, own_files(ddir))
     date_dir = write_calib(basedir, date)
-    ts = frame_timestamps_ns(n, date, rng_time)
-    t_route = r.t0 + (ts["oxts"] - ts["oxts"][0]) * 1e-9
+    ts, t_route = _frame_times(r, n, date, rng_time)
     packets = oxts_packets(r, t_route, noise, seed=int(rng_imu.integers(2**63)))
     write_oxts(ddir, packets, ts["oxts"])
     write_velodyne_timestamps(ddir, ts)
     if scans:
         T_imu_velo = invert_pose(load_T_velo_imu(date_dir))
         T_w_velo = r.pose(t_route) @ T_imu_velo
-        t_sweep = r.t0 + (ts["velo"] - ts["oxts"][0]) * 1e-9 if distortion else None
+        t_sweep = _route_time(r, ts, "velo") if distortion else None
         for k, scan in _cast_scans(r, t_route, T_w_velo, rng_scene, rng_lidar, lidar, progress,
                                    f"synth drive {drive:04d}", t_sweep, T_imu_velo, traffic, rng_traffic):
             write_scan(ddir, k, scan)
@@ -148,9 +147,20 @@ def drive_traffic(route="07", frames=DEFAULT_FRAMES, seed: int = 0, traffic: Tra
     ``p_route = route.pose(t_route[0])[0] @ p_drive``. For plots and checks of what the scans hold."""
     r, n = resolve_route(route, frames)
     rng_time, _, _, _, rng_traffic = _streams(seed)
-    ts = frame_timestamps_ns(n, date, rng_time)
-    t_route = r.t0 + (ts["oxts"] - ts["oxts"][0]) * 1e-9
+    _, t_route = _frame_times(r, n, date, rng_time)
     return r, t_route, build_traffic(r, t_route[0], t_route[-1], traffic, rng_traffic)
+
+
+def _frame_times(r: Route, n: int, date: str, rng_time):
+    """The ``n`` frames' timestamps (:func:`~slamlib.synth.writer.frame_timestamps_ns`, from ``rng_time``) and their
+    OXTS instants on the route ``t_route (n,)`` s (the first frame's packet at the route's start)."""
+    ts = frame_timestamps_ns(n, date, rng_time)
+    return ts, _route_time(r, ts, "oxts")
+
+
+def _route_time(r: Route, ts: dict, which: str) -> np.ndarray:
+    """Route time (s) of the stamps ``ts[which]`` (``"oxts"``, ``"velo"``, ...), the first OXTS stamp at ``r.t0``."""
+    return r.t0 + (ts[which] - ts["oxts"][0]) * 1e-9
 
 
 def _streams(seed: int):
@@ -252,11 +262,10 @@ def write_sequence(basedir, route="07", sequence: int | str = 7, frames=DEFAULT_
     if traffic is not None:
         params["traffic"] = traffic.as_dict()
     _begin(sdir, params, own_sequence_files(sdir) + ([poses_path] if poses_path.is_file() else []))
-    ts = frame_timestamps_ns(n, "2011_09_26", rng_time)
-    t_route = r.t0 + (ts["oxts"] - ts["oxts"][0]) * 1e-9
+    ts, t_route = _frame_times(r, n, "2011_09_26", rng_time)
     T_imu_velo = invert_pose(load_T_velo_imu(_SAMPLE))
     T_w_velo = r.pose(t_route) @ T_imu_velo
-    t_sweep = r.t0 + (ts["velo"] - ts["oxts"][0]) * 1e-9 if distortion else None
+    t_sweep = _route_time(r, ts, "velo") if distortion else None
     if distortion:  # the odometry ground truth is the scan's pose: its mid-sweep instant, not the OXTS one
         T_w_velo = r.pose_extended(t_sweep) @ T_imu_velo
     Tr = write_odometry_calib(sdir)

@@ -6,13 +6,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from slamlib.synth import Hdl64, loop_route, simulate_scan, straight_route, write_drive, write_sequence
+from slamlib.synth import (Hdl64, drive_traffic, loop_route, simulate_scan, straight_route, write_drive,
+                           write_sequence)
 from slamlib.synth.drive import _streams, resolve_route
 from slamlib.synth.lidar import MOVER_BLOCKS, SCAN_PERIOD_S, _sweep_blocks, column_time_offsets, ray_columns
 from slamlib.synth.traffic import (CYCLE_LANE, CYCLIST_SPEED, FOLLOW_GAP_S, FOLLOW_MIN_DIST, KEEP_RIGHT, KINDS,
                                    LEFT_LANE, ONCOMING_SPEED, OVERTAKE_EXCESS, PEDESTRIAN_SPEED, SIDEWALK,
-                                   SIDEWALK_JITTER, TrafficConfig, build_traffic)
-from slamlib.synth.writer import drive_dir, frame_timestamps_ns, read_marker
+                                   SIDEWALK_JITTER, TrafficConfig, build_traffic, points_in_boxes)
+from slamlib.synth.writer import drive_dir, read_marker
 
 TINY = Hdl64(columns=64, beam_stride=4)
 SMALL = Hdl64(columns=360, beam_stride=2)
@@ -283,19 +284,6 @@ def test_traffic_without_movers_casts_the_same_scans(tmp_path):
     assert read_marker(drive_dir(on, "2011_09_26", 1))["traffic"] == empty.as_dict()
 
 
-def _points_in_boxes(points_w, bx, lift=0.3):
-    """For each box: the number of world points inside it, above ``lift`` m over its base (the road's points
-    under a box, which is sunk into the road, do not count)."""
-    counts = []
-    for c, yaw, size in zip(bx["centre"], bx["yaw"], bx["size"]):
-        d = points_w - c
-        x = np.cos(yaw) * d[:, 0] + np.sin(yaw) * d[:, 1]
-        y = -np.sin(yaw) * d[:, 0] + np.cos(yaw) * d[:, 1]
-        inside = (np.abs(x) <= size[0] / 2 + 0.05) & (np.abs(y) <= size[1] / 2 + 0.05)
-        counts.append(int((inside & (d[:, 2] > lift) & (d[:, 2] <= size[2] + 0.05)).sum()))
-    return np.array(counts)
-
-
 def test_scans_see_the_movers_where_they_are(tmp_path):
     """A straight drive at 3x density without sweep distortion: each scan, put in the world frame with the true
     Velodyne pose, has points inside the cars near the road at that frame's time; the same drive with density 0
@@ -308,11 +296,7 @@ def test_scans_see_the_movers_where_they_are(tmp_path):
     on = write_drive(tmp_path / "on", "straight", frames=n, seed=seed, lidar=SMALL, progress=False, traffic=cfg)[0]
     off = write_drive(tmp_path / "off", "straight", frames=n, seed=seed, lidar=SMALL, progress=False,
                       traffic=TrafficConfig(density=0.0))[0]
-    r, _ = resolve_route("straight", n)
-    streams = _streams(seed)
-    ts = frame_timestamps_ns(n, "2011_09_26", streams[0])
-    t_route = r.t0 + (ts["oxts"] - ts["oxts"][0]) * 1e-9
-    movers = build_traffic(r, t_route[0], t_route[-1], cfg, streams[4])
+    r, t_route, movers = drive_traffic("straight", n, seed, cfg)
     T_imu_velo = invert_pose(load_T_velo_imu(kitti_sample_dir() / "raw" / "2011_09_26"))
     near_cars = 0
     for k in range(n):
@@ -321,7 +305,9 @@ def test_scans_see_the_movers_where_they_are(tmp_path):
         for name, base in (("on", on), ("off", off)):
             rel = f"2011_09_26/2011_09_26_drive_0001_sync/velodyne_points/data/{k:010d}.bin"
             p = np.fromfile(base / rel, np.float32).reshape(-1, 4)[:, :3].astype(np.float64)
-            counts[name] = _points_in_boxes(p @ T[:3, :3].T + T[:3, 3], movers.boxes(t_route[k]))
+            # points above 0.3 m over each box's base: the road under a (sunk) box does not count
+            inside = points_in_boxes(p @ T[:3, :3].T + T[:3, 3], movers.boxes(t_route[k]), margin=0.05, lift=0.3)
+            counts[name] = inside.sum(axis=1)
         bx = movers.boxes(t_route[k])
         dist = np.linalg.norm(bx["centre"][:, :2] - T[:2, 3], axis=1)
         cars = np.isin(bx["kind"], (AHEAD, BEHIND, ONCOMING, OVERTAKING)) & (dist < 30.0)
@@ -485,7 +471,6 @@ def test_drive_traffic_gives_the_movers_the_scans_hold(tmp_path):
     (``Traffic.inside``) at each frame's time; the same drive without movers has only the road under the (sunk)
     boxes there."""
     from slamlib.kitti import KittiRawDrive
-    from slamlib.synth import drive_traffic
 
     cfg, seed, n = TrafficConfig().scaled(3), 11, 3
     route, t_route, movers = drive_traffic("straight", n, seed, cfg)

@@ -46,8 +46,8 @@ import numpy as np
 
 from slamlib.synth.scene import IMU_HEIGHT, _BOX
 
-__all__ = ["TrafficConfig", "Traffic", "CentreLine", "build_traffic", "KINDS", "KITTI_CITY", "LEFT_LANE",
-           "CYCLE_LANE", "SIDEWALK", "FOLLOW_MIN_DIST", "CAR_SIZE", "CYCLIST_SIZE", "PEDESTRIAN_SIZE"]
+__all__ = ["TrafficConfig", "Traffic", "CentreLine", "build_traffic", "points_in_boxes", "KINDS", "KITTI_CITY",
+           "LEFT_LANE", "CYCLE_LANE", "SIDEWALK", "FOLLOW_MIN_DIST", "CAR_SIZE", "CYCLIST_SIZE", "PEDESTRIAN_SIZE"]
 
 #: Mover kinds; ``Traffic.kind`` holds indices into this tuple.
 KINDS = ("ahead", "behind", "oncoming", "overtaking", "cyclist", "pedestrian")
@@ -278,16 +278,7 @@ class Traffic:
     def inside(self, points, t: float, margin: float = 0.1) -> np.ndarray:
         """``(N,)`` bool: which of the world ``points (N, 3)`` lie in a mover's box at route time ``t``, grown by
         ``margin`` m on every side (a scan's range noise, and a swept scan's block timing)."""
-        p = np.asarray(points, dtype=np.float64)
-        out = np.zeros(len(p), dtype=bool)
-        b = self.boxes(t)
-        for c, yaw, size in zip(b["centre"], b["yaw"], b["size"]):
-            d = p - c
-            along = np.cos(yaw) * d[:, 0] + np.sin(yaw) * d[:, 1]
-            across = -np.sin(yaw) * d[:, 0] + np.cos(yaw) * d[:, 1]
-            out |= ((np.abs(along) <= size[0] / 2 + margin) & (np.abs(across) <= size[1] / 2 + margin)
-                    & (d[:, 2] >= -margin) & (d[:, 2] <= size[2] + margin))
-        return out
+        return points_in_boxes(points, self.boxes(t), margin).any(axis=0)
 
     def _state(self, times: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Every mover at each of ``times (T,)``: arc length ``(T, N)``, present ``(T, N)`` bool, base centre
@@ -323,6 +314,22 @@ class Traffic:
             out.append((world[k, idx].reshape(-1, 3).astype(np.float32), f.reshape(-1, 3).astype(np.uint32),
                         np.repeat(self.albedo[idx], len(tf)).astype(np.float32)))
         return out
+
+
+def points_in_boxes(points, boxes: dict, margin: float = 0.1, lift: float | None = None) -> np.ndarray:
+    """``(M, N)`` bool: which of the world ``points (N, 3)`` lie in each of the ``M`` boxes of :meth:`Traffic.boxes`,
+    grown by ``margin`` m on every side; ``lift`` (m above the box's base, default ``-margin``) raises the floor, to
+    leave out the road under a box sunk into it (:data:`SINK`)."""
+    p = np.asarray(points, dtype=np.float64)
+    floor = -margin if lift is None else lift
+    out = np.zeros((len(boxes["centre"]), len(p)), dtype=bool)
+    for i, (c, yaw, size) in enumerate(zip(boxes["centre"], boxes["yaw"], boxes["size"])):
+        d = p - c
+        along = np.cos(yaw) * d[:, 0] + np.sin(yaw) * d[:, 1]
+        across = -np.sin(yaw) * d[:, 0] + np.cos(yaw) * d[:, 1]
+        out[i] = ((np.abs(along) <= size[0] / 2 + margin) & (np.abs(across) <= size[1] / 2 + margin)
+                  & (d[:, 2] >= floor) & (d[:, 2] <= size[2] + margin))
+    return out
 
 
 def _count(rate_per_km: float, length_m: float) -> int:

@@ -101,11 +101,7 @@ class Route:
         for end, beyond in ((self.t0, t < self.t0), (self.t1, t > self.t1)):
             if np.any(beyond):
                 v, w = self.velocity_body(end)[0], self.angular_rate_body(end)[0]
-                dt = t[beyond] - end
-                n = len(dt)
-                inc = increment_matrix(*imu_increments(np.tile(v, (n, 1)), np.tile(w, (n, 1)), np.tile(v, (n, 1)),
-                                                       np.tile(w, (n, 1)), dt))
-                out[beyond] = self.pose(end)[0] @ inc
+                out[beyond] = self.pose(end)[0] @ increment_matrix(*imu_increments(v, w, v, w, t[beyond] - end))
         return out
 
     def velocity_world(self, t) -> np.ndarray:

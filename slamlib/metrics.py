@@ -47,6 +47,7 @@ __all__ = [
     "trajectory_metrics",
     "KittiOdometryResult",
     "kitti_odometry_error",
+    "plane_residuals",
 ]
 
 #: Segment lengths (metres) of the KITTI odometry benchmark.
@@ -345,3 +346,21 @@ def json_safe(obj):
     if isinstance(obj, (float, np.floating)):
         return float(obj) if np.isfinite(obj) else None
     return obj
+
+
+def plane_residuals(points, reference, k: int = 10) -> tuple[np.ndarray, np.ndarray]:
+    """How sharp a point cloud is against a reference one: each of ``points (N, 3)``'s distance (m) to the plane
+    through its ``k`` nearest ``reference (M, 3)`` points (least squares: their centroid and the eigenvector of the
+    smallest eigenvalue of their scatter matrix), and that plane's unit normal. Returns ``(distances (N,), normals
+    (N, 3))``. The point-to-plane residual of ICP (Chen and Medioni, 1992), for a map's sharpness (a swept scan's
+    walls lie off the planes of one taken from one instant)."""
+    from scipy.spatial import cKDTree
+
+    ref = np.asarray(reference, dtype=np.float64)
+    q = np.asarray(points, dtype=np.float64)
+    _, idx = cKDTree(ref).query(q, k)
+    nb = ref[idx]
+    centre = nb.mean(axis=1)
+    d = nb - centre[:, None]
+    normal = np.linalg.eigh(np.einsum("nki,nkj->nij", d, d))[1][:, :, 0]
+    return np.abs(np.einsum("ni,ni->n", q - centre, normal)), normal

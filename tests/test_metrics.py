@@ -458,3 +458,16 @@ def test_trajectory_metrics_values_and_thresholds():
 def test_trajectory_distances_of_float32_positions_are_summed_in_float64():
     p = np.cumsum(np.random.default_rng(1).normal(size=(500, 3)), axis=0).astype(np.float32) + 1000.0
     np.testing.assert_array_equal(trajectory_distances(p), trajectory_distances(p.astype(np.float64)))
+
+
+def test_plane_residuals_are_distances_to_the_local_plane_of_the_reference():
+    from slamlib.metrics import plane_residuals
+
+    rng = np.random.default_rng(0)
+    floor = np.column_stack([rng.uniform(-5, 5, (2000, 2)), np.zeros(2000)])  # z = 0
+    wall = np.column_stack([np.full(2000, 8.0), rng.uniform(-5, 5, 2000), rng.uniform(0.5, 4, 2000)])  # x = 8
+    ref = np.vstack([floor, wall])
+    q = np.array([[1.0, 1.0, 0.03], [-2.0, 0.5, -0.05], [7.9, 0.0, 2.0], [8.2, 1.0, 3.0]])
+    dist, normal = plane_residuals(q, ref)
+    np.testing.assert_allclose(dist, [0.03, 0.05, 0.1, 0.2], atol=1e-9)
+    np.testing.assert_allclose(np.abs(normal), [[0, 0, 1], [0, 0, 1], [1, 0, 0], [1, 0, 0]], atol=1e-9)

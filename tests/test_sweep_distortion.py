@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
+from slamlib.metrics import plane_residuals
 from slamlib.odometry import imu_increments, increment_matrix
 from slamlib.slam3d import steps
 from slamlib.slam3d.config import ScanConfig
@@ -125,18 +125,10 @@ def test_the_first_and_last_scans_are_swept_all_the_way(tmp_path):
         fixed = steps.deskew_scan(steps.read_scan(f.scan, body, T_body_velo), (v, w), body, T_body_velo,
                                   f.scan_time_offset_s)
         ref = steps.read_scan(still[k].scan, body, T_body_velo).astype(np.float64)
-        d = point_to_plane(fixed, ref)
+        d = plane_residuals(fixed, ref, k=8)[0]
         # exact but at edges, where a plane does not fit: 1.5 mm at the 90th percentile; 85 mm for the first scan
         # when the sweep was held at the route's first pose before its start (the bug this guards against)
         assert np.percentile(d, 90) < 0.01, (k, np.percentile(d, [50, 90, 99]))
-        raw = point_to_plane(steps.read_scan(f.scan, body, T_body_velo), ref)
+        raw = plane_residuals(steps.read_scan(f.scan, body, T_body_velo), ref, k=8)[0]
         assert np.percentile(raw, 95) > 0.1  # the check sees a sweep: 8 m/s moves the sensor 0.8 m in one
 
-
-def point_to_plane(points, ref, k: int = 8) -> np.ndarray:
-    """Each point's distance to the plane through its ``k`` nearest ``ref`` points (least squares, by PCA)."""
-    q = np.asarray(points, dtype=np.float64)
-    _, idx = cKDTree(ref).query(q, k)
-    nb = ref[idx] - ref[idx].mean(axis=1, keepdims=True)
-    normal = np.linalg.eigh(np.einsum("nki,nkj->nij", nb, nb))[1][:, :, 0]
-    return np.abs(np.einsum("ni,ni->n", q - ref[idx].mean(axis=1), normal))

@@ -5,6 +5,8 @@ Examples::
     slamlib sweep --out sweeps/quick                                   # route 07 key frames 0:150, seeds 0 and 1
     slamlib sweep --out sweeps/all --routes 00,05,07 --frames 0: --seeds 0,1       # the whole routes
     slamlib sweep --out sweeps/lidar --layouts odometry --particles 300,1000      # LIDAR-only, two settings
+    slamlib sweep --out sweeps/real --routes 00,05,07 --frames 0: --distortion --traffic --bias-walk \\
+        --deskew --refine 2                                          # realistic drives, two annealing rounds
     slamlib sweep --out sweeps/x --scheduler tcp://10.0.0.5:8786                  # on an existing Dask cluster
 
 Writes ``OUT/sweep.csv`` (one row per run: route, frames, seed, layout, method, settings, path length, KITTI
@@ -41,6 +43,9 @@ def add_arguments(parser) -> None:
                                                                       "(default both)")
     parser.add_argument("--particles", default=None, help="comma-separated particle counts, one slamlib setting "
                                                           "each (default: the filter's default)")
+    parser.add_argument("--refine", type=int, default=None, metavar="K",
+                        help="slamlib's coarse-to-fine annealing rounds per frame (FilterConfig.refine) in every "
+                             "setting (default: the filter's default)")
     parser.add_argument("--deskew", action="store_true",
                         help="slamlib de-skews every scan with the frame's motion (ScanConfig.deskew; KISS-ICP "
                              "de-skews whenever the drives have --distortion)")
@@ -115,6 +120,12 @@ def main(args) -> int:
             check_traffic_scale(args.traffic)
         except ValueError as exc:
             _fail(str(exc))
+    if args.refine is not None:
+        from slamlib.slam3d.config import MAX_REFINE
+
+        if not 0 <= args.refine <= MAX_REFINE:
+            _fail(f"--refine must be in [0, {MAX_REFINE}], got {args.refine}")
+        settings = [dict(s, refine=args.refine) for s in settings]
     if args.deskew:
         settings = [dict(s, deskew=True) for s in settings]
     if args.workers is not None and args.workers < 1:

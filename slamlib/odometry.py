@@ -34,7 +34,11 @@ from scipy.spatial.transform import Rotation
 
 from slamlib.geometry import make_pose, matrix_to_rpy, rpy_to_matrix
 
-__all__ = ["imu_increment", "imu_increments", "increment_matrix", "dead_reckon", "so3_left_jacobian", "twist_between"]
+__all__ = ["imu_increment", "imu_increments", "increment_matrix", "dead_reckon", "so3_left_jacobian", "twist_between",
+           "gravity_up", "GRAVITY"]
+
+#: Gravity (m/s^2) in the accelerometer model ``f_b = R^T (a + g e_z)`` of the generator and of :func:`gravity_up`.
+GRAVITY = 9.81
 
 
 def _skew(v: np.ndarray) -> np.ndarray:
@@ -140,3 +144,41 @@ def twist_between(T_a, T_b, dt: float) -> tuple[np.ndarray, np.ndarray]:
     phi = Rotation.from_matrix(T_rel[:3, :3]).as_rotvec()
     v = np.linalg.solve(so3_left_jacobian(phi), T_rel[:3, 3])
     return v / dt, phi / dt
+
+
+def gravity_up(rotations, specific_force, velocity, dts) -> np.ndarray | None:
+    """Which way is up, in the body frame of the last of ``K + 1`` frames, from the accelerometer over them.
+
+    An accelerometer measures the specific force ``f_b = R^T (a - g_w)`` with ``g_w = -g e_z``: the vehicle's own
+    acceleration ``a`` plus gravity, in the body frame. One sample cannot tell the two apart (braking looks like
+    pitching forward), but over a window they separate: integrating ``a = R f_b - g e_z`` from ``t_0`` to ``t_K``,
+
+        v_w(t_K) - v_w(t_0) = int R f_b dt - g e_z (t_K - t_0)
+        =>  g (t_K - t_0) e_z = int R f_b dt - (R_K v_K - R_0 v_0),
+
+    with the body velocities ``v`` turned into the world by the same rotations. The integral is the trapezoid rule
+    over the samples. Only the rotations *relative* to the last one enter (the result is ``R_K^T e_z``, normalised),
+    so a filter may pass its own estimates, whose absolute tilt drifts but whose rotation over a second or two is
+    accurate: the answer is the absolute up direction it can hold its roll and pitch to. Errors: a velocity error
+    ``dv`` at either end tilts it by about ``dv / (g T)`` (0.05 m/s over 2 s: 2.5 mrad), an accelerometer bias ``b``
+    by ``b / g`` (0.03 m/s^2: 3 mrad), for ever: a constant bias is indistinguishable from a tilt.
+
+    Parameters
+    ----------
+    rotations : (K + 1, 3, 3) body-to-world rotations ``R_k`` (any common world frame).
+    specific_force : (K + 1, 3) accelerometer samples ``f_b`` (m/s^2, body frame, gravity included: KITTI OXTS
+        ``ax, ay, az``; ``+g`` on z when level and still).
+    velocity : (K + 1, 3) body velocities ``v`` (m/s; OXTS ``vf, vl, vu``).
+    dts : (K + 1,) ``dts[k] = t_k - t_{k-1}`` (s); ``dts[0]`` is ignored.
+
+    Returns the unit vector ``R_K^T e_z`` (3,) as measured, or None when the window spans no time (``K = 0``).
+    """
+    R = np.asarray(rotations, dtype=np.float64)
+    f_w = np.einsum("kij,kj->ki", R, np.asarray(specific_force, dtype=np.float64))
+    v_w = np.einsum("kij,kj->ki", R, np.asarray(velocity, dtype=np.float64))
+    dts = np.asarray(dts, dtype=np.float64)[1:]
+    if len(dts) == 0 or not dts.sum() > 0:
+        return None
+    up_w = np.sum(0.5 * (f_w[:-1] + f_w[1:]) * dts[:, None], axis=0) - (v_w[-1] - v_w[0])
+    up_b = R[-1].T @ up_w
+    return up_b / np.linalg.norm(up_b)

@@ -136,6 +136,7 @@ def test_frame_fields_and_timing(tiny):
     np.testing.assert_array_equal(f.velocity, [f.oxts.vf, f.oxts.vl, f.oxts.vu])
     np.testing.assert_array_equal(f.angular_rate, [f.oxts.wf, f.oxts.wl, f.oxts.wu])
     np.testing.assert_array_equal(f.acceleration, [f.oxts.af, f.oxts.al, f.oxts.au])
+    np.testing.assert_array_equal(f.specific_force, [f.oxts.ax, f.oxts.ay, f.oxts.az])
     np.testing.assert_allclose(f.T_w_velo, f.T_w_imu @ np.linalg.inv(drive.T_velo_imu))
     assert f.scan.dtype == np.float32 and f.scan.shape[1] == 4
     np.testing.assert_array_equal(drive.timestamps_ns, ts)
@@ -150,6 +151,7 @@ def test_imu_arrays_match_frames(tiny):
     np.testing.assert_array_equal(imu.velocity, np.stack([f.velocity for f in frames]))
     np.testing.assert_array_equal(imu.angular_rate, np.stack([f.angular_rate for f in frames]))
     np.testing.assert_array_equal(imu.acceleration, np.stack([f.acceleration for f in frames]))
+    np.testing.assert_array_equal(imu.specific_force, np.stack([f.specific_force for f in frames]))
     np.testing.assert_allclose(imu.dt, [f.dt for f in frames], atol=1e-15)
     np.testing.assert_allclose(imu.time_s, [f.time_s for f in frames], atol=1e-15)
     assert imu.dt[0] == 0.0 and imu.time_s[0] > 0.09  # time counts from drive frame 0

@@ -6,7 +6,7 @@ Examples::
     slamlib sweep --out sweeps/all --routes 00,05,07 --frames 0: --seeds 0,1       # the whole routes
     slamlib sweep --out sweeps/lidar --layouts odometry --particles 300,1000      # LIDAR-only, two settings
     slamlib sweep --out sweeps/real --routes 00,05,07 --frames 0: --distortion --traffic --bias-walk \\
-        --deskew --refine 2                                          # realistic drives, two annealing rounds
+        --deskew --refine 2 --tilt-sigma 0.005                       # realistic drives, the filter at its best
     slamlib sweep --out sweeps/x --scheduler tcp://10.0.0.5:8786                  # on an existing Dask cluster
 
 Writes ``OUT/sweep.csv`` (one row per run: route, frames, seed, layout, method, settings, path length, KITTI
@@ -18,6 +18,7 @@ See :mod:`slamlib.slam3d.sweep`.
 from __future__ import annotations
 
 import json
+import math
 import shlex
 import time
 from pathlib import Path
@@ -46,6 +47,9 @@ def add_arguments(parser) -> None:
     parser.add_argument("--refine", type=int, default=None, metavar="K",
                         help="slamlib's coarse-to-fine annealing rounds per frame (FilterConfig.refine) in every "
                              "setting (default: the filter's default)")
+    parser.add_argument("--tilt-sigma", type=float, default=None, metavar="RAD",
+                        help="slamlib holds roll and pitch to the accelerometer's gravity with this uncertainty "
+                             "(FilterConfig.tilt_sigma, radians; 0 = off, the default)")
     parser.add_argument("--deskew", action="store_true",
                         help="slamlib de-skews every scan with the frame's motion (ScanConfig.deskew; KISS-ICP "
                              "de-skews whenever the drives have --distortion)")
@@ -126,6 +130,10 @@ def main(args) -> int:
         if not 0 <= args.refine <= MAX_REFINE:
             _fail(f"--refine must be in [0, {MAX_REFINE}], got {args.refine}")
         settings = [dict(s, refine=args.refine) for s in settings]
+    if args.tilt_sigma is not None:
+        if not (math.isfinite(args.tilt_sigma) and args.tilt_sigma >= 0):
+            _fail(f"--tilt-sigma must be a finite number >= 0 (radians), got {args.tilt_sigma}")
+        settings = [dict(s, tilt_sigma=args.tilt_sigma) for s in settings]
     if args.deskew:
         settings = [dict(s, deskew=True) for s in settings]
     if args.workers is not None and args.workers < 1:

@@ -16,14 +16,15 @@ Reader (:mod:`slamlib.kitti.raw`)::
         f.oxts                      # OxtsPacket, all 30 named fields (f.oxts.lat, .vf, .wu, .navstat, ...)
         f.velocity                  # (3,) (vf, vl, vu) m/s, body frame
         f.angular_rate              # (3,) (wf, wl, wu) rad/s
-        f.acceleration              # (3,) (af, al, au) m/s^2
+        f.acceleration              # (3,) (af, al, au) m/s^2, level heading frame on real drives
+        f.specific_force            # (3,) (ax, ay, az) m/s^2, body frame, gravity included
         f.T_w_imu, f.T_w_velo       # (4, 4) ground truth, world = IMU pose at drive frame 0
     drive[k]                        # the k-th selected frame (random access)
     drive.T_velo_imu                # (4, 4) from calib_imu_to_velo.txt: p_velo = T_velo_imu p_imu
     drive.timestamps_ns             # (N,) int64 of the selection
     drive.ground_truth_poses("imu" | "velo")   # (N, 4, 4), reads OXTS only
     drive.imu_arrays()              # ImuArrays: index, timestamps_ns, time_s, dt, velocity, angular_rate,
-                                    # acceleration as arrays, reads OXTS only
+                                    # acceleration, specific_force as arrays, reads OXTS only
     drive.calib                     # pykitti's full calibration namedtuple (cameras too)
 
 Odometry layout (:mod:`slamlib.kitti.sequence`; no IMU, the body frame is the Velodyne's)::

@@ -70,7 +70,11 @@ class Frame:
     angular_rate : (3,) float64
         ``(wf, wl, wu)`` rad/s about the body forward, left, up axes.
     acceleration : (3,) float64
-        ``(af, al, au)`` m/s^2, body frame (includes gravity on ``au``, ~9.81 m/s^2 when level).
+        ``(af, al, au)`` m/s^2 (includes gravity on ``au``, ~9.81 m/s^2). On real KITTI drives these are axes of the
+        level heading frame (forward, left, up: gravity always on ``au``); the synthetic drives write body axes.
+    specific_force : (3,) float64
+        ``(ax, ay, az)`` m/s^2, body frame, gravity included: what the accelerometer measures, which tells the
+        body's roll and pitch (:func:`slamlib.odometry.gravity_up`).
     T_w_imu, T_w_velo : (4, 4) float64
         Ground-truth poses of the IMU and Velodyne in the world (= IMU at frame 0);
         ``T_w_velo = T_w_imu @ inv(T_velo_imu)``.
@@ -91,6 +95,7 @@ class Frame:
     velocity: np.ndarray = field(repr=False)
     angular_rate: np.ndarray = field(repr=False)
     acceleration: np.ndarray = field(repr=False)
+    specific_force: np.ndarray = field(repr=False)
     T_w_imu: np.ndarray = field(repr=False)
     T_w_velo: np.ndarray = field(repr=False)
     velodyne_path: Path = field(repr=False)
@@ -103,7 +108,8 @@ class ImuArrays:
 
     ``index (N,)`` int64 frame numbers, ``timestamps_ns (N,)`` int64, ``time_s (N,)`` since frame 0,
     ``dt (N,)`` seconds since the previous selected frame (``dt[0] = 0.0``), ``velocity (N, 3)`` (vf, vl, vu)
-    m/s, ``angular_rate (N, 3)`` (wf, wl, wu) rad/s, ``acceleration (N, 3)`` (af, al, au) m/s^2, body frame.
+    m/s, ``angular_rate (N, 3)`` (wf, wl, wu) rad/s, ``acceleration (N, 3)`` (af, al, au) m/s^2 and
+    ``specific_force (N, 3)`` (ax, ay, az) m/s^2, as in :class:`Frame`.
     """
 
     index: np.ndarray
@@ -113,6 +119,7 @@ class ImuArrays:
     velocity: np.ndarray
     angular_rate: np.ndarray
     acceleration: np.ndarray
+    specific_force: np.ndarray
 
 
 def check_numbered_files(folder: Path, ext: str, n: int, what: str, against: str, digits: int = 10) -> None:
@@ -312,6 +319,7 @@ class KittiRawDrive:
             velocity=np.array([packet.vf, packet.vl, packet.vu]),
             angular_rate=np.array([packet.wf, packet.wl, packet.wu]),
             acceleration=np.array([packet.af, packet.al, packet.au]),
+            specific_force=np.array([packet.ax, packet.ay, packet.az]),
             T_w_imu=T_w_imu,
             T_w_velo=T_w_imu @ self.T_imu_velo,
             velodyne_path=self.velodyne_path(index),
@@ -374,5 +382,6 @@ class KittiRawDrive:
             velocity=pick(("vf", "vl", "vu")),
             angular_rate=pick(("wf", "wl", "wu")),
             acceleration=pick(("af", "al", "au")),
+            specific_force=pick(("ax", "ay", "az")),
         )
 

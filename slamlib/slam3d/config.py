@@ -261,6 +261,12 @@ class FilterConfig:
     lidar_only_ground_share : float
         LIDAR-only: the share of road points in step 8's sample (the rest stands above the road;
         :func:`slamlib.slam3d.preprocess.thin_ground`). 1 keeps the scan's own mix.
+    tilt_sigma : float
+        Radians; > 0 holds roll and pitch to gravity: step 8 adds :func:`slamlib.slam3d.steps.tilt_log_prior`
+        with the up direction the accelerometer measured over the last ``tilt_window`` seconds
+        (:func:`slamlib.odometry.gravity_up`). 0 (default) = off; needs an IMU with ``specific_force``.
+    tilt_window : float
+        Seconds of accelerometer samples behind each up measurement (longer: less noise from the velocities).
     """
 
     particles: int = 300
@@ -271,6 +277,8 @@ class FilterConfig:
     refine: int = 0
     refine_shrink: float = 0.4
     lidar_only_ground_share: float = 0.1
+    tilt_sigma: float = 0.0
+    tilt_window: float = 2.0
 
     def __post_init__(self):
         if int(self.particles) < 1 or int(self.scored_points) < 1:
@@ -289,6 +297,9 @@ class FilterConfig:
         if int(self.refine) < 0 or not 0 < self.refine_shrink <= 1:
             raise ValueError(f"need refine >= 0 and 0 < refine_shrink <= 1, got {self.refine}, {self.refine_shrink}")
         _integer("refine", self.refine, 0, MAX_REFINE)
+        if not _finite("tilt_sigma", self.tilt_sigma) >= 0 or not _finite("tilt_window", self.tilt_window) > 0:
+            raise ValueError(f"need tilt_sigma >= 0 (0 = off) and tilt_window > 0, got {self.tilt_sigma}, "
+                             f"{self.tilt_window}")
         if not 0 <= _finite("lidar_only_ground_share", self.lidar_only_ground_share) <= 1:
             raise ValueError(f"lidar_only_ground_share must be in [0, 1], got {self.lidar_only_ground_share}")
 

@@ -40,6 +40,18 @@ body motion capture by annealed particle filtering", CVPR 2000): resample by the
 noise shrunk by ``refine_shrink``, score again. The result is still a particle filter (a sequence of
 importance-sampling / resampling stages on the same posterior), just with a sharper proposal.
 
+Holding the tilt to gravity
+---------------------------
+The map fixes a particle's roll and pitch only *relative to the map*, and the map is built from the filter's own
+earlier estimates: each frame's small tilt error goes into the map, and over thousands of frames it random-walks
+(on a whole KITTI route tens of milliradians, which the motion turns into metres of height). Gravity is the one
+absolute reference on board. With ``FilterConfig.tilt_sigma > 0`` step 3 also reads the accelerometer
+(:func:`~slamlib.slam3d.steps.read_specific_force`), :func:`slamlib.odometry.gravity_up` separates gravity from the
+vehicle's own acceleration over the last ``tilt_window`` seconds, and step 8 adds
+:func:`~slamlib.slam3d.steps.tilt_log_prior` to every weight: a measurement of two of the six pose coordinates,
+as an attitude filter uses its accelerometer. An accelerometer bias ``b`` tilts the measured up by ``b / g`` for
+good, so the prior is a slow pull, not a clamp.
+
 Degenerate frames
 -----------------
 A frame whose scan keeps fewer than :data:`MIN_SCAN_POINTS` points after step 2 (an empty or all-zero scan, every
@@ -53,10 +65,12 @@ still empty (degenerate first frames) the first frame with enough points starts 
 
 from __future__ import annotations
 
+from collections import deque
+
 import numpy as np
 
 from slamlib.kernels import get_backend
-from slamlib.odometry import increment_matrix, twist_between
+from slamlib.odometry import gravity_up, increment_matrix, twist_between
 from slamlib.resampling import normalise_log_weights
 from slamlib.slam3d import steps
 from slamlib.slam3d.config import SLAM3DConfig
@@ -118,6 +132,8 @@ class ParticleSLAM3D:
         self.imu_prev = None
         self.dts: list[float] = []
         self.lidar_only = self.config.motion.model == "constant_velocity"
+        self.tilt_samples: deque = deque()  # the accelerometer window of the tilt prior (_gravity_up)
+        self._up = None
 
     # ----------------------------------------------------------------------------------------- step 12
     def register_frame(self, frame) -> np.ndarray:
@@ -134,6 +150,8 @@ class ParticleSLAM3D:
         prev = None if self.lidar_only else self.imu_prev  # constant velocity: the twist is held over dt
         points = steps.read_scan(frame, cfg.scan, self.T_body_velo)                                # 2
         imu = steps.read_imu(frame, self.own_motion() if self.lidar_only else None)                # 3
+        tilt = cfg.filter.tilt_sigma and not self.lidar_only  # 3's accelerometer, for step 8's tilt prior
+        force = steps.read_specific_force(frame) if tilt else None
         dt = steps.read_timing(frame)                                                              # 4
         if cfg.scan.deskew:  # step 2's motion compensation, with the motion step 3 read, to the pose's time
             points = steps.deskew_scan(points, imu, cfg.scan, self.T_body_velo,
@@ -141,6 +159,7 @@ class ParticleSLAM3D:
         if self.imu_prev is None:  # first frame: the map starts at the start pose
             return self._start(points, imu, dt)
         increment = steps.motion_increment(imu, dt, prev)  # once: steps 5 and 6 and the dead-reckoning twin
+        self._up = self._gravity_up(imu, force, dt, increment)  # step 8's tilt prior (None when off)
         moved = steps.offset_by_motion(self.particles, imu, dt, prev, be, increment)               # 5
         start = self.lidar_only and len(self.poses) == 1  # no motion estimate yet: search widely
         sigma = cfg.motion.sigma(increment[1], dt, self.lidar_only, start)  # = steps.motion_noise_sigma(...)
@@ -161,10 +180,31 @@ class ParticleSLAM3D:
 
     # ----------------------------------------------------------------------------------------- helpers
     def _weigh(self, particles, log_w, sample) -> np.ndarray:
-        """Steps 7 + 8 and the weight update: ``log_w + score / (N * temperature)``, normalised (tempering, above)."""
+        """Steps 7 + 8 and the weight update: ``log_w + score / (N * temperature)``, normalised (tempering, above),
+        plus the tilt prior when on (module docstring, "Holding the tilt to gravity")."""
         scores = steps.score_particles(particles, sample, self.map, self.backend)
         self.last["scores"] = scores
-        return normalise_log_weights(log_w + scores / (len(sample) * self.config.filter.temperature))
+        log_w = log_w + scores / (len(sample) * self.config.filter.temperature)
+        if self._up is not None:
+            log_w = log_w + steps.tilt_log_prior(particles, self._up, self.config.filter.tilt_sigma)
+        return normalise_log_weights(log_w)
+
+    def _gravity_up(self, imu, force, dt, increment):
+        """The up direction in this frame's body, from the accelerometer over the last ``tilt_window`` seconds
+        (:func:`slamlib.odometry.gravity_up`): the samples of this frame and the registered frames before it,
+        turned by the filter's own estimated rotations and this frame's predicted one (the IMU increment on the
+        last estimate). None when the prior is off, LIDAR-only, or the frame has no accelerometer."""
+        f, samples = self.config.filter, self.tilt_samples  # samples: (force, velocity, dt) per frame, oldest first
+        if not f.tilt_sigma or force is None:
+            samples.clear()
+            return None
+        samples.append((force, imu[0], dt))
+        while len(samples) > 2 and sum(s[2] for s in list(samples)[2:]) >= f.tilt_window:
+            samples.popleft()  # the rest still spans the window
+        past = [T[:3, :3] for T in self.poses[len(self.poses) - len(samples) + 1:]]
+        R = np.array(past + [self.poses[-1][:3, :3] @ increment_matrix(*increment)[:3, :3]])
+        force, velocity, dts = (np.array(x) for x in zip(*samples))
+        return gravity_up(R, force, velocity, dts)
 
     def _anneal(self, particles, log_w, sample, sigma, start: bool = False):
         """``refine`` coarse-to-fine rounds: resample, perturb with the noise shrunk by ``refine_shrink``, weigh.

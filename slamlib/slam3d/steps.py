@@ -17,7 +17,8 @@ The steps
    uncertainty at frame 0), as :class:`Particles3D`, and uniform log-weights.
 2. :func:`read_scan` -- range crop, voxel down-sampling, Velodyne -> body frame.
 3. :func:`read_imu` -- body velocities ``(vf, vl, vu)`` m/s and angular rates ``(wf, wl, wu)`` rad/s; LIDAR-only
-   (no IMU), the filter's own last estimated twist held (constant velocity).
+   (no IMU), the filter's own last estimated twist held (constant velocity). With a tilt prior, also
+   :func:`read_specific_force`: the accelerometer, which tells up from down (:func:`slamlib.odometry.gravity_up`).
 4. :func:`read_timing` -- ``dt`` seconds since the previous frame (and, for de-skewing, :func:`read_scan_time_offset`:
    the scan's timestamp relative to the pose).
 5. :func:`offset_by_motion` -- ``T_i <- T_i [dR, dp]`` with the IMU increment ``(dR, dp)`` over ``dt``
@@ -26,7 +27,8 @@ The steps
    spread of :func:`motion_noise_sigma` (grows with distance travelled and with ``dt``).
 7. :func:`transform_scan` -- body points into the world with each particle's pose (or one pose): ``R p_b + t``.
 8. :func:`score_particles` -- fused 7 + 8 for every particle against the map built so far (the backend's
-   ``score_particles``; never builds ``P x N`` points). Returns log-likelihood scores.
+   ``score_particles``; never builds ``P x N`` points). Returns log-likelihood scores. With a tilt prior,
+   :func:`tilt_log_prior` adds how well each particle's roll and pitch agree with the accelerometer's up.
 9. :func:`pick_best_particle` -- the maximum-weight particle, or the weighted mean around it.
 10. :func:`merge_scan` -- the whole down-sampled scan, moved with the chosen pose, into the map (in place).
 11. :func:`resample_particles` -- systematic resampling (Kitagawa 1996) when the effective sample size falls
@@ -59,7 +61,7 @@ import numpy as np
 
 from slamlib.geometry import make_pose, rpy_to_matrix
 from slamlib.kernels import Backend, get_backend
-from slamlib.kitti.oxts import MAX_ANGULAR_RATE_RADPS, MAX_SPEED_MPS
+from slamlib.kitti.oxts import MAX_ACCELERATION_MPS2, MAX_ANGULAR_RATE_RADPS, MAX_SPEED_MPS
 from slamlib.odometry import imu_increment
 from slamlib.resampling import normalise_log_weights, resample_indexes, uniform_log_weights
 from slamlib.slam3d.config import MotionConfig, ScanConfig
@@ -67,7 +69,7 @@ from slamlib.slam3d.preprocess import crop_and_downsample, deskew, sweep_times
 
 __all__ = [
     "Particles3D", "initialise_particles", "read_scan", "deskew_scan", "read_imu", "read_timing",
-    "read_scan_time_offset", "motion_increment",
+    "read_scan_time_offset", "read_specific_force", "motion_increment", "tilt_log_prior",
     "motion_noise_sigma", "offset_by_motion", "perturb_with_noise", "transform_scan", "score_particles",
     "pick_best_particle", "merge_scan", "resample_particles", "weighted_mean_pose", "project_to_rotation",
 ]
@@ -226,6 +228,25 @@ def read_scan_time_offset(frame, scan_config: ScanConfig = ScanConfig()) -> floa
 
 
 # ------------------------------------------------------------------------------------------------ step 5
+def read_specific_force(frame) -> np.ndarray | None:
+    """Step 3's accelerometer reading: the body-frame specific force ``(ax, ay, az)`` m/s^2, gravity included
+    (``frame.specific_force``; ``+9.81`` on z when level and still), or None when the frame has none (the KITTI
+    odometry layout). KITTI's ``af, al, au`` are *not* used: on real drives they are axes of the level heading
+    frame, where gravity is always straight down, so they cannot tell the body's tilt.
+
+    Raises ``ValueError`` on a non-finite value or one beyond :data:`slamlib.kitti.oxts.MAX_ACCELERATION_MPS2`.
+    """
+    f = getattr(frame, "specific_force", None)
+    if f is None:
+        return None
+    f = np.asarray(f, dtype=np.float64).reshape(3)
+    if not np.all(np.isfinite(f)) or np.any(np.abs(f) > MAX_ACCELERATION_MPS2):
+        where = f" (frame {frame.index})" if hasattr(frame, "index") else ""
+        raise ValueError(f"IMU specific_force{where} must be finite and within +-{MAX_ACCELERATION_MPS2:g} m/s^2, "
+                         f"got {f.tolist()}")
+    return f
+
+
 def motion_increment(imu, dt: float, previous_imu=None) -> tuple[np.ndarray, np.ndarray]:
     """Body-frame motion over ``dt``: ``(rpy_delta (3,) rad, trans_delta (3,) m)``.
 
@@ -314,6 +335,20 @@ def score_particles(particles: Particles3D, points, world_map, backend=DEFAULT_B
     """
     return _backend(backend).score_particles(particles.R, particles.t, np.ascontiguousarray(points, dtype=np.float32),
                                              world_map.lookup())
+
+
+def tilt_log_prior(particles: Particles3D, up, sigma: float) -> np.ndarray:
+    """Step 8's second term: log-prior ``(P,)`` of each particle's roll and pitch given the measured up direction.
+
+    ``log p_i = -|R_i^T e_z - u|^2 / (2 sigma^2)``, with ``u`` the unit up vector in the body frame measured by
+    the accelerometer (:func:`slamlib.odometry.gravity_up`) and ``R_i^T e_z`` the particle's own (its rotation's
+    third row). For small angles ``|R_i^T e_z - u|`` is the tilt between the two in radians; yaw does not enter.
+    ``sigma`` (rad) is the measured up's uncertainty. The map alone fixes the tilt only relative to the map, which
+    is itself built from earlier estimates, so its error random-walks over a long drive; this term holds it to
+    gravity (Thrun et al. 2005, ch. 7: a direct measurement of part of the state).
+    """
+    diff = particles.R[:, 2, :] - np.asarray(up, dtype=np.float64)[None, :]
+    return -0.5 * np.sum(diff * diff, axis=1) / float(sigma) ** 2
 
 
 # ------------------------------------------------------------------------------------------------ step 9

@@ -36,12 +36,12 @@ from scipy.interpolate import CubicSpline
 from scipy.spatial.transform import Rotation, RotationSpline
 
 from slamlib.geometry import invert_pose, make_pose
+from slamlib.odometry import GRAVITY
 from slamlib.paths import kitti_sample_dir
 
 __all__ = ["Route", "GRAVITY", "straight_route", "loop_route", "kitti_route", "get_route", "ROUTE_NAMES",
            "kitti_T_cam_imu"]
 
-GRAVITY = 9.81
 ROUTE_NAMES = ("straight", "loop", "00", "05", "07")
 
 

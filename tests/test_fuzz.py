@@ -411,7 +411,8 @@ def _stop(*args, **kwargs):
 
 
 OPTIONS = {
-    "run": ["--particles", "--points", "--temperature", "--refine", "--seed", "--noise", "--frames"],
+    "run": ["--particles", "--points", "--temperature", "--refine", "--tilt-sigma", "--seed", "--noise",
+            "--frames"],
     "sim1d": ["--particles", "--frames", "--seed", "--motion-noise", "--sensor-noise", "--bias"],
     "sim2d": ["--particles", "--laps", "--seed", "--resolution", "--beams"],
     "synth": ["--frames", "--seed", "--drive", "--columns", "--imu-noise", "--date"],

@@ -218,7 +218,7 @@ def cli_drive(tmp_path):
 @pytest.mark.parametrize("option,value", [("--temperature", "0"), ("--temperature", "-1"),
                                           ("--temperature", "nan"), ("--temperature", "inf"), ("--seed", "-1"),
                                           ("--particles", "1000000000"), ("--refine", "-1"), ("--noise", "inf"),
-                                          ("--noise", "nan")])
+                                          ("--noise", "nan"), ("--tilt-sigma", "-0.01"), ("--tilt-sigma", "nan")])
 def test_slamlib_run_bad_option_is_one_line_naming_it(cli_drive, tmp_path, monkeypatch, option, value):
     import slamlib.slam3d
     from slamlib.cli import main
@@ -257,6 +257,19 @@ def test_slamlib_run_with_an_empty_scan_counts_it_and_writes_valid_json(cli_driv
     assert info["n_skipped_frames"] == 1 and "1 of 4 frames" in info["warnings"][0]
     assert np.all(np.isfinite(read_kitti_poses(out / "slam_poses.txt")))
     assert "warning: 1 of 4 frames" in capsys.readouterr().out
+
+
+def test_slamlib_run_tilt_sigma_reaches_the_filter(cli_drive, tmp_path):
+    """``--tilt-sigma`` turns on the tilt prior on the real OXTS samples (ax, ay, az) and is recorded."""
+    from slamlib.cli import main
+    from slamlib.kitti import read_kitti_poses
+
+    args, _ = cli_drive
+    out = tmp_path / "o"
+    assert main(args + ["--tilt-sigma", "0.005", "--out", str(out)]) == 0
+    info = json.loads((out / "metrics.json").read_text())
+    assert info["config"]["filter"]["tilt_sigma"] == 0.005
+    assert np.all(np.isfinite(read_kitti_poses(out / "slam_poses.txt")))
 
 
 def test_slamlib_run_bad_oxts_is_one_message_without_a_wrong_drive_hint(cli_drive, tmp_path):

@@ -59,6 +59,9 @@ def add_arguments(parser) -> None:
                    help=f"likelihood temperature: log L = score / (N * T) (default {FilterConfig.temperature})")
     f.add_argument("--refine", type=int, default=FilterConfig.refine,
                    help=f"coarse-to-fine annealing rounds per frame (default {FilterConfig.refine})")
+    f.add_argument("--tilt-sigma", type=float, default=FilterConfig.tilt_sigma, metavar="RAD",
+                   help="hold roll and pitch to the accelerometer's gravity with this uncertainty (FilterConfig."
+                        f"tilt_sigma, radians; 0 = off, the default {FilterConfig.tilt_sigma:g}; needs an IMU)")
     f.add_argument("--seed", type=int, default=SLAM3DConfig.seed,
                    help=f"seed of the filter's random numbers (default {SLAM3DConfig.seed})")
     f.add_argument("--backend", choices=BACKENDS, default=SLAM3DConfig.backend,
@@ -92,7 +95,8 @@ def _drive_hint(basedir: Path, date: str | None, drive: str | None) -> str:
 
 #: The ``slamlib run`` option of each setting name that appears in the configuration's ValueError messages.
 _OPTION_OF = {"particles": "--particles", "scored_points": "--points", "temperature": "--temperature",
-              "refine": "--refine", "seed": "--seed", "sigma": "--noise", "kind": "--map", "backend": "--backend"}
+              "refine": "--refine", "tilt_sigma": "--tilt-sigma", "seed": "--seed", "sigma": "--noise", "kind": "--map",
+              "backend": "--backend"}
 
 
 def _option_error(exc: ValueError) -> str:
@@ -146,7 +150,8 @@ def main(args) -> int:
         print(f"slamlib run: note: --map {args.map_kind} is now called --map {kind}")
     try:
         cfg = SLAM3DConfig.of(particles=args.particles, scored_points=args.points, kind=kind, backend=args.backend,
-                              seed=args.seed, refine=args.refine, temperature=args.temperature, deskew=args.deskew)
+                              seed=args.seed, refine=args.refine, temperature=args.temperature, deskew=args.deskew,
+                              tilt_sigma=args.tilt_sigma)
         cfg = replace(cfg, motion=replace(cfg.motion.scaled(float(args.noise)),
                                           model="constant_velocity" if args.lidar_only or odometry else "imu"))
     except ValueError as exc:

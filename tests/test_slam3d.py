@@ -561,6 +561,6 @@ def test_tilt_prior_pulls_a_tilted_start_back_to_gravity(drive):
 
     without, plain = run()
     with_prior, slam = run(tilt_sigma=0.002)
-    assert without > 0.03 and plain._up is None  # the map holds the start's tilt
+    assert without > 0.03 and plain.up is None  # the map holds the start's tilt
     assert with_prior < without / 2, (with_prior, without)
-    np.testing.assert_allclose(slam._up, gt[-1][2, :3], atol=0.01)  # the measured up is the true one
+    np.testing.assert_allclose(slam.up, gt[-1][2, :3], atol=0.01)  # the measured up is the true one

@@ -112,6 +112,9 @@ class ParticleSLAM3D:
     lidar_only : whether step 3 holds the filter's own last motion (constant velocity, :meth:`own_motion`)
         instead of reading an IMU: ``MotionConfig.model == "constant_velocity"``, or set at the first frame when
         it has no IMU values (the KITTI odometry layout). LIDAR-only there is no dead-reckoning twin.
+    up : (3,) the accelerometer's up direction in this frame's body (:func:`slamlib.odometry.gravity_up`), which
+        step 8's tilt prior holds the particles to; None when the prior is off (``FilterConfig.tilt_sigma = 0``).
+    tilt_samples : deque of ``(specific_force, velocity, dt)`` of the frames in the tilt prior's window.
     last : dict with this frame's intermediate results (scores, sample, sigma, ...), for plots and tests.
     """
 
@@ -133,7 +136,7 @@ class ParticleSLAM3D:
         self.dts: list[float] = []
         self.lidar_only = self.config.motion.model == "constant_velocity"
         self.tilt_samples: deque = deque()  # the accelerometer window of the tilt prior (_gravity_up)
-        self._up = None
+        self.up = None
 
     # ----------------------------------------------------------------------------------------- step 12
     def register_frame(self, frame) -> np.ndarray:
@@ -159,7 +162,7 @@ class ParticleSLAM3D:
         if self.imu_prev is None:  # first frame: the map starts at the start pose
             return self._start(points, imu, dt)
         increment = steps.motion_increment(imu, dt, prev)  # once: steps 5 and 6 and the dead-reckoning twin
-        self._up = self._gravity_up(imu, force, dt, increment)  # step 8's tilt prior (None when off)
+        self.up = self._gravity_up(imu, force, dt, increment)  # step 8's tilt prior (None when off)
         moved = steps.offset_by_motion(self.particles, imu, dt, prev, be, increment)               # 5
         start = self.lidar_only and len(self.poses) == 1  # no motion estimate yet: search widely
         sigma = cfg.motion.sigma(increment[1], dt, self.lidar_only, start)  # = steps.motion_noise_sigma(...)
@@ -185,8 +188,8 @@ class ParticleSLAM3D:
         scores = steps.score_particles(particles, sample, self.map, self.backend)
         self.last["scores"] = scores
         log_w = log_w + scores / (len(sample) * self.config.filter.temperature)
-        if self._up is not None:
-            log_w = log_w + steps.tilt_log_prior(particles, self._up, self.config.filter.tilt_sigma)
+        if self.up is not None:
+            log_w = log_w + steps.tilt_log_prior(particles, self.up, self.config.filter.tilt_sigma)
         return normalise_log_weights(log_w)
 
     def _gravity_up(self, imu, force, dt, increment):

@@ -197,12 +197,12 @@ class ParticleSLAM3D:
         (:func:`slamlib.odometry.gravity_up`): the samples of this frame and the registered frames before it,
         turned by the filter's own estimated rotations and this frame's predicted one (the IMU increment on the
         last estimate). None when the prior is off, LIDAR-only, or the frame has no accelerometer."""
-        f, samples = self.config.filter, self.tilt_samples  # samples: (force, velocity, dt) per frame, oldest first
-        if not f.tilt_sigma or force is None:
+        samples = self.tilt_samples  # (force, velocity, dt) per frame, oldest first
+        if force is None:  # register_frame reads no accelerometer when the prior is off or LIDAR-only
             samples.clear()
             return None
         samples.append((force, imu[0], dt))
-        while len(samples) > 2 and sum(s[2] for s in list(samples)[2:]) >= f.tilt_window:
+        while len(samples) > 2 and sum(s[2] for s in list(samples)[2:]) >= self.config.filter.tilt_window:
             samples.popleft()  # the rest still spans the window
         past = [T[:3, :3] for T in self.poses[len(self.poses) - len(samples) + 1:]]
         R = np.array(past + [self.poses[-1][:3, :3] @ increment_matrix(*increment)[:3, :3]])

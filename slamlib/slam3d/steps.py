@@ -227,7 +227,6 @@ def read_scan_time_offset(frame, scan_config: ScanConfig = ScanConfig()) -> floa
     return offset
 
 
-# ------------------------------------------------------------------------------------------------ step 5
 def read_specific_force(frame) -> np.ndarray | None:
     """Step 3's accelerometer reading: the body-frame specific force ``(ax, ay, az)`` m/s^2, gravity included
     (``frame.specific_force``; ``+9.81`` on z when level and still), or None when the frame has none (the KITTI
@@ -247,6 +246,7 @@ def read_specific_force(frame) -> np.ndarray | None:
     return f
 
 
+# ------------------------------------------------------------------------------------------------ step 5
 def motion_increment(imu, dt: float, previous_imu=None) -> tuple[np.ndarray, np.ndarray]:
     """Body-frame motion over ``dt``: ``(rpy_delta (3,) rad, trans_delta (3,) m)``.
 

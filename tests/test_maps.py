@@ -180,6 +180,48 @@ def test_voxel_hash_prune_keeps_near_voxels_reachable():
     np.testing.assert_allclose(cpu.score_particles(I, z, score_pts, lk), s_before, rtol=1e-6)
 
 
+def _wall_and_mover(frames: int, speed: float = 0.6):
+    """A static wall hit every frame, and a one-point mover ``speed`` m along y per frame (a trail of voxels)."""
+    wall = np.stack(np.meshgrid([5.2], np.arange(0, 2, 0.1), np.arange(0, 1, 0.1), indexing="ij"), -1)
+    wall = wall.reshape(-1, 3).astype(np.float32)
+    return [np.concatenate([wall, np.float32([[1.0, -10.0 + speed * k, 0.5]])]) for k in range(frames)]
+
+
+def test_voxel_hash_remembers_when_each_voxel_was_hit():
+    m = VoxelHashMap(voxel_size=1.0, capacity=1024)
+    for pts in _wall_and_mover(5):
+        m.merge(pts)
+    first, last = m.seen()
+    wall = m.points()[:, 0] > 5.0
+    assert m.frames == 5 and np.all(first[wall] == 0) and np.all(last[wall] == 4)
+    # the mover opens a voxel every frame or two (0.6 m per frame, 1 m voxels); each is hit only in its span
+    assert sorted(first[~wall]) == [0, 2, 4] and np.all(last[~wall] - first[~wall] <= 1)
+
+
+def test_voxel_hash_evicts_the_trail_of_a_mover_and_keeps_static_surfaces():
+    m = VoxelHashMap(voxel_size=0.5, capacity=1024)
+    for pts in _wall_and_mover(30):
+        m.merge(pts)
+    first, last = m.seen()
+    transient = m.transients(10)
+    # by the rule: hit within < 10 frames, the last hit >= 10 frames before the last merge (frame 29)
+    assert np.array_equal(transient, (last - first < 10) & (29 - last >= 10))
+    wall_before = np.sort(m.points()[m.points()[:, 0] > 5.0], axis=0)
+    trail = int(transient.sum())
+    assert trail == 20  # frames 0..19 of the mover: 0.6 m apart, one 0.5 m voxel each; 20..29 are too recent
+    assert m.evict_transients(10) == trail and len(m) == len(transient) - trail
+    assert np.array_equal(np.sort(m.points()[m.points()[:, 0] > 5.0], axis=0), wall_before)
+    assert not m.transients(10).any() and m.evict_transients(10) == 0
+    lk = m.lookup()  # the rebuilt table still finds every kept key
+    for s in np.flatnonzero(lk.keys != EMPTY_KEY):
+        assert _find(lk.keys, int(lk.keys[s]), lk.log2_capacity, lk.max_probe) == s
+    # a surface hit for a long span is kept however old its last hit, and the clock survives a prune
+    m.prune([5.0, 0.0, 0.0], 3.0)
+    assert m.frames == 30 and np.all(m.seen()[0] == 0)
+    with pytest.raises(ValueError, match="span must be >= 1"):
+        m.transients(0)
+
+
 def test_morton_map_layout_and_dedup():
     rng = np.random.default_rng(2)
     pts = _random_points(rng, 6000, scale=2.0)

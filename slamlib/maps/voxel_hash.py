@@ -14,7 +14,15 @@ Storage: an open-addressing table of fixed ``capacity = 2**k`` slots, keys packe
 **When full**: the table accepts at most ``floor(max_load * capacity)`` voxels; points that would open a new voxel
 beyond that are dropped and counted in :attr:`VoxelHashMap.n_dropped` (points in existing voxels are still
 merged). Call :meth:`VoxelHashMap.prune` with the vehicle position to evict far voxels and make room.
-Memory is fixed at construction: about 124 bytes per slot (:meth:`VoxelHashMap.memory_bytes`).
+Memory is fixed at construction: about 132 bytes per slot (:meth:`VoxelHashMap.memory_bytes`).
+
+**Transients**: every :meth:`~VoxelHashMap.merge` is one *frame* of the map's own clock
+(:attr:`VoxelHashMap.frames`), and each voxel remembers the first and the last frame that hit it.
+:meth:`VoxelHashMap.evict_transients` drops the voxels that were hit only within a short span of frames and not
+since: the trail a moving car or pedestrian leaves through the map, which a static surface in view does not
+(it is hit frame after frame for as long as it is in range). This is the "seen over time" test of dynamic-object
+removal (cf. the occupancy-duration filters surveyed by Pomerleau et al., ICRA 2014, "Long-term 3D map maintenance
+in dynamic environments"), without the ray casting of free-space carving.
 """
 
 from __future__ import annotations
@@ -61,8 +69,10 @@ def _update_field(s, count, s1, s2, mean, icov, corner_x, corner_y, corner_z, mi
 
 
 @njit(cache=True)
-def _merge_nb(points, keys, count, s1, s2, mean, icov, voxel_size, log2_capacity, max_voxels, min_sigma2, state):
-    """Merge ``points`` (N, 3) f4 into the table; ``state = [n_voxels, max_probe, n_dropped]`` updated in place."""
+def _merge_nb(points, keys, count, s1, s2, mean, icov, first, last, stamp, voxel_size, log2_capacity, max_voxels,
+              min_sigma2, state):
+    """Merge ``points`` (N, 3) f4 into the table; ``state = [n_voxels, max_probe, n_dropped]`` updated in place.
+    A new voxel gets ``first = stamp``; every voxel hit gets ``last = stamp``."""
     inv_h = 1.0 / voxel_size
     mask = (np.int64(1) << log2_capacity) - 1
     n = points.shape[0]
@@ -91,6 +101,7 @@ def _merge_nb(points, keys, count, s1, s2, mean, icov, voxel_size, log2_capacity
                 state[2] += 1
                 continue
             keys[s] = key
+            first[s] = stamp
             state[0] += 1
             if probe > state[1]:
                 state[1] = probe
@@ -98,6 +109,7 @@ def _merge_nb(points, keys, count, s1, s2, mean, icov, voxel_size, log2_capacity
         ly = y - (uy - AXIS_OFFSET) * voxel_size
         lz = z - (uz - AXIS_OFFSET) * voxel_size
         count[s] += 1
+        last[s] = stamp
         s1[s, 0] += lx
         s1[s, 1] += ly
         s1[s, 2] += lz
@@ -120,7 +132,8 @@ def _merge_nb(points, keys, count, s1, s2, mean, icov, voxel_size, log2_capacity
 
 
 @njit(cache=True)
-def _reinsert_nb(old_keys, keep, count, s1, s2, mean, icov, keys, count2, s12, s22, mean2, icov2, log2_capacity):
+def _reinsert_nb(old_keys, keep, count, s1, s2, mean, icov, first, last, keys, count2, s12, s22, mean2, icov2, first2,
+                 last2, log2_capacity):
     """Insert the kept slots of an old table into the empty table ``keys`` (same capacity); return max probe."""
     mask = (np.int64(1) << log2_capacity) - 1
     max_probe = 0
@@ -137,6 +150,8 @@ def _reinsert_nb(old_keys, keep, count, s1, s2, mean, icov, keys, count2, s12, s
             max_probe = probe
         keys[s] = key
         count2[s] = count[s_old]
+        first2[s] = first[s_old]
+        last2[s] = last[s_old]
         for a in range(3):
             s12[s, a] = s1[s_old, a]
             mean2[s, a] = mean[s_old, a]
@@ -171,6 +186,8 @@ class VoxelHashMap(Map3D):
         Points refused so far (non-finite, outside the +-2**20-voxel range, or table full).
     max_probe : int
         Longest linear-probe distance of any stored key.
+    frames : int
+        Merges so far: the map's clock for :meth:`evict_transients`.
     """
 
     def __init__(self, voxel_size: float = 0.5, capacity: int = 2**18, max_load: float = 0.75,
@@ -193,6 +210,9 @@ class VoxelHashMap(Map3D):
         self._s2 = np.zeros((capacity, 6), np.float64)
         self._mean = np.zeros((capacity, 3), np.float32)
         self._icov = np.zeros((capacity, 6), np.float32)
+        self._first = np.zeros(capacity, np.int32)  # frame of the merge that opened the voxel
+        self._last = np.zeros(capacity, np.int32)   # frame of the last merge that hit it
+        self.frames = 0
         self._state = np.zeros(3, np.int64)  # n_voxels, max_probe, n_dropped
         self._changed()
 
@@ -200,8 +220,10 @@ class VoxelHashMap(Map3D):
     def merge(self, points_world) -> None:
         """Add world points (N, 3) to the voxels' statistics and refresh the touched voxels' Gaussians (Numba)."""
         pts = as_points(points_world, "points_world")
-        _merge_nb(pts, self._keys, self._count, self._s1, self._s2, self._mean, self._icov, self.voxel_size,
-                  self.log2_capacity, self.max_voxels, self.min_sigma**2, self._state)
+        _merge_nb(pts, self._keys, self._count, self._s1, self._s2, self._mean, self._icov, self._first, self._last,
+                  np.int32(self.frames), self.voxel_size, self.log2_capacity, self.max_voxels, self.min_sigma**2,
+                  self._state)
+        self.frames += 1
         self._changed()
 
     def lookup(self) -> VoxelHashLookup:
@@ -218,11 +240,20 @@ class VoxelHashMap(Map3D):
         """Number of merged points (M,) of each occupied voxel, in the order of :meth:`points`."""
         return self._count[self._keys != EMPTY_KEY].copy()
 
+    def seen(self) -> tuple[np.ndarray, np.ndarray]:
+        """Frames ``(first, last)`` (M,) int32 that first and last hit each occupied voxel (order of :meth:`points`;
+        frame ``k`` is the ``k``-th merge, counted from 0)."""
+        occupied = self._keys != EMPTY_KEY
+        return self._first[occupied].copy(), self._last[occupied].copy()
+
     def __len__(self) -> int:
         return int(self._state[0])
 
+    def _buffers(self) -> tuple:
+        return self._keys, self._count, self._s1, self._s2, self._mean, self._icov, self._first, self._last
+
     def memory_bytes(self) -> int:
-        return int(sum(a.nbytes for a in (self._keys, self._count, self._s1, self._s2, self._mean, self._icov)))
+        return int(sum(a.nbytes for a in self._buffers()))
 
     @property
     def n_dropped(self) -> int:
@@ -237,19 +268,40 @@ class VoxelHashMap(Map3D):
 
         Returns the number of voxels evicted. Costs O(capacity)."""
         c = np.asarray(center, dtype=np.float64).reshape(3)
-        occupied = self._keys != EMPTY_KEY
         d2 = np.sum((self._mean.astype(np.float64) - c) ** 2, axis=1)
-        keep = occupied & (d2 <= float(radius) ** 2)
-        evicted = int(occupied.sum() - keep.sum())
+        return self._keep_only((self._keys != EMPTY_KEY) & (d2 <= float(radius) ** 2))
+
+    def transients(self, span: int) -> np.ndarray:
+        """Which occupied voxels (M,) bool, in the order of :meth:`points`, are transient with a ``span`` of frames:
+        every hit fell within fewer than ``span`` consecutive frames (``last - first < span``), and the last one
+        is at least ``span`` frames old (``frames - 1 - last >= span``), so a surface still being hit is never
+        one. ``span`` >= 1 (frames)."""
+        first, last = self.seen()
+        return self._transient(first, last, int(span))
+
+    def _transient(self, first, last, span):
+        if span < 1:
+            raise ValueError(f"span must be >= 1 frame, got {span}")
+        return (last - first < span) & (self.frames - 1 - last >= span)
+
+    def evict_transients(self, span: int) -> int:
+        """Evict the voxels :meth:`transients` names (the trails of movers, module docstring); rebuild the table.
+
+        Returns the number of voxels evicted. Costs O(capacity)."""
+        occupied = self._keys != EMPTY_KEY
+        keep = occupied.copy()
+        keep[occupied] = ~self._transient(self._first[occupied], self._last[occupied], int(span))
+        return self._keep_only(keep)
+
+    def _keep_only(self, keep) -> int:
+        """Rebuild the table with the slots ``keep`` (capacity,) bool; return how many occupied ones went."""
+        evicted = int(np.count_nonzero(self._keys != EMPTY_KEY) - np.count_nonzero(keep))
         if evicted == 0:
             return 0
-        new = (np.full(self.capacity, EMPTY_KEY, np.int64), np.zeros(self.capacity, np.int64),
-               np.zeros((self.capacity, 3)), np.zeros((self.capacity, 6)),
-               np.zeros((self.capacity, 3), np.float32), np.zeros((self.capacity, 6), np.float32))
-        max_probe = _reinsert_nb(self._keys, keep, self._count, self._s1, self._s2, self._mean, self._icov,
-                                 *new, self.log2_capacity)
-        self._keys, self._count, self._s1, self._s2, self._mean, self._icov = new
-        self._state[0] = int(keep.sum())
+        new = tuple(np.full_like(a, EMPTY_KEY) if a is self._keys else np.zeros_like(a) for a in self._buffers())
+        max_probe = _reinsert_nb(self._keys, keep, *self._buffers()[1:], *new, self.log2_capacity)
+        self._keys, self._count, self._s1, self._s2, self._mean, self._icov, self._first, self._last = new
+        self._state[0] = int(np.count_nonzero(keep))
         self._state[1] = max_probe
         self._changed()
         return evicted

@@ -35,7 +35,7 @@ from scipy.spatial.transform import Rotation
 from slamlib.geometry import make_pose, matrix_to_rpy, rpy_to_matrix
 
 __all__ = ["imu_increment", "imu_increments", "increment_matrix", "dead_reckon", "so3_left_jacobian", "twist_between",
-           "gravity_up", "GRAVITY"]
+           "gravity_up", "GRAVITY", "tilt_calibration_prior", "tilt_calibration_update", "tilt_calibration"]
 
 #: Gravity (m/s^2) in the accelerometer model ``f_b = R^T (a + g e_z)`` of the generator and of :func:`gravity_up`.
 GRAVITY = 9.81
@@ -182,3 +182,55 @@ def gravity_up(rotations, specific_force, velocity, dts) -> np.ndarray | None:
     up_w = np.sum(0.5 * (f_w[:-1] + f_w[1:]) * dts[:, None], axis=0) - (v_w[-1] - v_w[0])
     up_b = R[-1].T @ up_w
     return up_b / np.linalg.norm(up_b)
+
+
+#: Unknowns of the tilt calibration, in order: the world's up ``g_w = normalise(e_z + (a, b, 0))`` (world x, y
+#: components, rad) and the accelerometer's bias as an angle ``beta = (c, d, 0)`` (body x, y components: ``b / g``).
+TILT_CALIBRATION_UNKNOWNS = ("world_up_x", "world_up_y", "bias_x", "bias_y")
+
+
+def tilt_calibration_prior(sigma_world: float, sigma_bias: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The tilt calibration's prior in information form ``(Lambda (4, 4), eta (4,), free (4,) bool)``: zero mean,
+    standard deviations ``sigma_world`` for the world's up (rad: how far from level the first body pose, which
+    defines the world, may stand) and ``sigma_bias`` for the accelerometer's bias (rad, ``b / g``). A sigma of 0
+    holds that pair at 0 (``free`` False: :func:`tilt_calibration` leaves it out); unknowns in
+    :data:`TILT_CALIBRATION_UNKNOWNS`."""
+    sig = np.repeat(np.array([sigma_world, sigma_bias], dtype=np.float64), 2)
+    if not np.all(np.isfinite(sig)) or np.any(sig < 0):
+        raise ValueError(f"need finite sigma_world, sigma_bias >= 0, got {sigma_world}, {sigma_bias}")
+    free = sig > 0
+    info = np.zeros(4)
+    info[free] = 1.0 / sig[free] ** 2
+    return np.diag(info), np.zeros(4), free
+
+
+def tilt_calibration_update(info, eta, R, up, weight: float) -> tuple[np.ndarray, np.ndarray]:
+    """Add one frame to the tilt calibration (recursive least squares, information form; returns new arrays).
+
+    A measured up ``u`` (body frame, :func:`gravity_up`) of a body with rotation ``R`` (body to world) is, to
+    first order in the small unknowns,
+
+        u - R^T e_z = a R^T e_x + b R^T e_y + c e_x + d e_y + noise,    i.e.  y = H x + noise,
+
+    the world's up off the world's z by ``(a, b)`` and the accelerometer's bias ``(c, d) = b_perp / g`` (a bias
+    ``b`` adds ``b / g`` to the measured up). The world part turns with the body, the bias does not: one heading
+    cannot tell them apart, a turn can (as in an IMU's in-motion alignment; Groves, "Principles of GNSS,
+    Inertial, and Multisensor Integrated Navigation Systems", 2nd ed. 2013, ch. 14). ``Lambda += w H^T H``,
+    ``eta += w H^T y`` with ``weight w = 1 / sigma_u^2`` times the frame's share of an independent sample.
+    """
+    R = np.asarray(R, dtype=np.float64)
+    H = np.column_stack([R[0], R[1], np.eye(3)[:, 0], np.eye(3)[:, 1]])  # rows of R: R^T e_x, R^T e_y
+    y = np.asarray(up, dtype=np.float64) - R[2]
+    return info + weight * H.T @ H, eta + weight * H.T @ y
+
+
+def tilt_calibration(info, eta, free) -> tuple[np.ndarray, np.ndarray]:
+    """The current estimate from ``(Lambda, eta)``: the world's up ``g_w`` (3,) unit vector, world frame, and the
+    accelerometer's bias ``beta`` (3,) as an angle in the body frame (z component 0), so that a body ``R``
+    measures ``u = R^T g_w + beta``. Unknowns not ``free`` (prior sigma 0) stay 0."""
+    free = np.asarray(free, dtype=bool)
+    x = np.zeros(4)
+    if free.any():
+        x[free] = np.linalg.solve(info[np.ix_(free, free)], eta[free])
+    world_up = np.array([x[0], x[1], 1.0])
+    return world_up / np.linalg.norm(world_up), np.array([x[2], x[3], 0.0])

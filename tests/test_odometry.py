@@ -8,7 +8,8 @@ from hypothesis import given, settings, strategies as st
 from scipy.spatial.transform import Rotation
 
 from slamlib.geometry import make_pose, rpy_to_matrix
-from slamlib.odometry import GRAVITY, dead_reckon, gravity_up, imu_increment, imu_increments, increment_matrix
+from slamlib.odometry import (GRAVITY, dead_reckon, gravity_up, imu_increment, imu_increments, increment_matrix,
+                              tilt_calibration, tilt_calibration_prior, tilt_calibration_update)
 
 
 def _rel(a, b):
@@ -209,3 +210,55 @@ def test_gravity_up_of_a_still_tilted_body_and_of_no_window():
     up = gravity_up(np.stack([R, R]), np.stack([f, f]), np.zeros((2, 3)), [0.0, 0.1])
     np.testing.assert_allclose(up, R.T @ [0.0, 0.0, 1.0], atol=1e-12)
     assert gravity_up(R[None], f[None], np.zeros((1, 3)), [0.0]) is None
+
+
+# ------------------------------------------------------------------------------------------ tilt calibration
+WORLD_TILT = np.array([0.02, -0.01])  # the world's up off its z (rad, world x and y)
+BIAS = np.array([0.003, -0.004])       # the accelerometer's bias b / g (rad, body x and y)
+
+
+def _measured_up(R):
+    """What an accelerometer with BIAS measures in a body R of a world whose up is off z by WORLD_TILT."""
+    g_w = np.r_[WORLD_TILT, 1.0] / np.linalg.norm(np.r_[WORLD_TILT, 1.0])
+    u = R.T @ g_w + np.r_[BIAS, 0.0]
+    return u / np.linalg.norm(u)
+
+
+def _calibrate(yaws, sigma_world=0.05, sigma_bias=0.01, weight=1e6):
+    info, eta, free = tilt_calibration_prior(sigma_world, sigma_bias)
+    for yaw in yaws:
+        R = rpy_to_matrix([0.01 * np.sin(yaw), -0.02 * np.cos(yaw), yaw])
+        info, eta = tilt_calibration_update(info, eta, R, _measured_up(R), weight)
+    return tilt_calibration(info, eta, free)
+
+
+def test_tilt_calibration_tells_a_tilted_world_from_a_bias_when_the_car_turns():
+    """Headings all round: the world's up and the bias are both recovered (to the linearisation's second order)."""
+    world_up, bias = _calibrate(np.linspace(0, 2 * np.pi, 40, endpoint=False))
+    np.testing.assert_allclose(world_up[:2] / world_up[2], WORLD_TILT, atol=2e-4)
+    np.testing.assert_allclose(bias, np.r_[BIAS, 0.0], atol=2e-4)
+    assert np.linalg.norm(world_up) == pytest.approx(1.0)
+
+
+def test_tilt_calibration_on_one_heading_sees_only_the_sum_and_splits_it_by_the_prior():
+    """Driving straight (yaw 0, level) a tilted world and a bias look alike: the data fix their sum, the prior's
+    variances split it (sigma_world^2 : sigma_bias^2), the least-squares answer of the indistinguishable pair."""
+    info, eta, free = tilt_calibration_prior(0.05, 0.01)
+    R = np.eye(3)
+    for _ in range(50):
+        info, eta = tilt_calibration_update(info, eta, R, _measured_up(R), 1e8)
+    world_up, bias = tilt_calibration(info, eta, free)
+    total = world_up[:2] / world_up[2] + bias[:2]
+    np.testing.assert_allclose(total, WORLD_TILT + BIAS, atol=2e-4)
+    np.testing.assert_allclose(bias[:2] / total, 0.01**2 / (0.05**2 + 0.01**2), rtol=1e-3)
+
+
+def test_tilt_calibration_holds_an_unknown_with_prior_sigma_zero_at_zero():
+    world_up, bias = _calibrate(np.linspace(0, 2 * np.pi, 40, endpoint=False), sigma_bias=0.0)
+    assert np.all(bias == 0.0) and abs(world_up[0]) > 0.01  # the world's part still moves
+    world_up, bias = _calibrate(np.linspace(0, 2 * np.pi, 40, endpoint=False), sigma_world=0.0, sigma_bias=0.0)
+    assert np.array_equal(world_up, [0.0, 0.0, 1.0]) and np.all(bias == 0.0)
+    info, eta, free = tilt_calibration_prior(0.05, 0.01)
+    assert np.array_equal(tilt_calibration(info, eta, free)[0], [0.0, 0.0, 1.0])  # no data: the prior's mean
+    with pytest.raises(ValueError, match="sigma_world, sigma_bias >= 0"):
+        tilt_calibration_prior(-0.01, 0.01)

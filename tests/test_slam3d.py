@@ -15,7 +15,8 @@ from slamlib.geometry import invert_pose, make_pose, matrix_to_rpy, rpy_to_matri
 from slamlib.kernels import get_backend
 from slamlib.maps import VoxelHashMap
 from slamlib.metrics import absolute_trajectory_error
-from slamlib.odometry import GRAVITY, dead_reckon
+from slamlib.odometry import (GRAVITY, dead_reckon, tilt_calibration, tilt_calibration_prior,
+                              tilt_calibration_update)
 from slamlib.slam3d import (MotionConfig, ParticleSLAM3D, Particles3D, ScanConfig, SLAM3DConfig, crop_range,
                             initialise_particles, merge_scan, motion_increment, motion_noise_sigma,
                             offset_by_motion, parse_frames, perturb_with_noise, pick_best_particle, read_imu,
@@ -408,12 +409,29 @@ def test_pruned_map_points_are_kept_for_export(drive):
     assert np.linalg.norm(slam.archive[-1] - slam.poses[-1][:3, 3], axis=1).min() > 12.0 - 1e-4
 
 
+def test_transient_voxels_are_evicted_every_span_frames(drive):
+    frames, _ = drive
+    span = 4
+    slam = ParticleSLAM3D(tiny_config(particles=10, scored_points=50, transient_span=span, prune_every=0))
+    plain = ParticleSLAM3D(tiny_config(particles=10, scored_points=50, prune_every=0))
+    for k, f in enumerate(frames[:2 * span]):
+        slam.register_frame(f)
+        plain.register_frame(f)
+        if (k + 1) % span == 0:
+            assert not slam.map.transients(span).any()
+    assert slam.map.frames == plain.map.frames == 2 * span
+    assert len(slam.map) < len(plain.map) and plain.map.transients(span).any()
+
+
 def test_config_rejects_bad_values():
     for bad, message in ((dict(kind="octree"), "map kind"), (dict(kind="voxel"), "now called 'voxel_hash'"),
                          (dict(particles=0), "particles"), (dict(temperature=0.0), "temperature"),
                          (dict(estimate="median"), "estimate"), (dict(min_range=5.0, max_range=4.0), "min_range"),
                          (dict(voxel_size=0.3), "unknown SLAM3D setting 'voxel_size'"),
-                         (dict(tilt_sigma=-0.01), "tilt_sigma"), (dict(tilt_window=0.0), "tilt_window")):
+                         (dict(tilt_sigma=-0.01), "tilt_sigma"), (dict(tilt_window=0.0), "tilt_window"),
+                         (dict(transient_span=-1), "transient_span must be >= 0"),
+                         (dict(transient_span=2.5), "transient_span must be an integer"),
+                         (dict(transient_span=10, kind="morton_bvh"), "transient_span needs the 'voxel_hash'")):
         with pytest.raises(ValueError, match=message):
             SLAM3DConfig.of(**bad)
 
@@ -534,6 +552,30 @@ def test_tilt_log_prior_penalises_roll_and_pitch_not_yaw():
     assert lp[3] == pytest.approx(-0.5 * (0.02 / 0.005) ** 2, rel=1e-4)
 
 
+def test_tilt_calibration_is_the_least_squares_of_the_filters_own_frames():
+    """The filter's bias and world's up are :func:`slamlib.odometry.tilt_calibration` of its own rotations (step 9)
+    and measured ups, over the frames whose window spans ``tilt_window``, each weighing ``dt / tilt_window`` of a
+    ``tilt_sigma`` measurement (the identification itself: tests/test_odometry.py). A biased accelerometer on a
+    turning drive moves both away from the prior's zero."""
+    frames, _ = simulate(40, yaw_rate=0.6)
+    for f in frames:
+        f.specific_force = f.specific_force + [0.05, -0.04, 0.0]
+    sigma, window = 0.005, 1.05  # not a multiple of dt = 0.1, whose sums round either way
+    slam = ParticleSLAM3D(tiny_config(tilt_sigma=sigma, tilt_window=window, tilt_world_sigma=0.02))
+    info, eta, free = tilt_calibration_prior(0.02, slam.config.filter.tilt_bias_sigma)
+    used = 0
+    for f in frames:
+        slam.register_frame(f)
+        if slam.up is not None and sum(s[2] for s in list(slam.tilt_samples)[1:]) >= window:
+            info, eta = tilt_calibration_update(info, eta, slam.poses[-1][:3, :3], slam.up, f.dt / window / sigma**2)
+            used += 1
+    world_up, bias = tilt_calibration(info, eta, free)
+    assert used == len(frames) - 12  # frames 0..11: no window yet, or one shorter than 1.05 s
+    np.testing.assert_allclose(slam.up_bias, bias, atol=1e-12)
+    np.testing.assert_allclose(slam.world_up, world_up, atol=1e-12)
+    assert np.abs(bias).max() > 1e-3 and np.abs(world_up[:2]).max() > 1e-4
+
+
 def test_read_specific_force_checks_its_values():
     from slamlib.slam3d.steps import read_specific_force
 
@@ -560,7 +602,7 @@ def test_tilt_prior_pulls_a_tilted_start_back_to_gravity(drive):
         return np.linalg.norm(slam.poses[-1][2, :3] - gt[-1][2, :3]), slam
 
     without, plain = run()
-    with_prior, slam = run(tilt_sigma=0.002)
+    with_prior, slam = run(tilt_sigma=0.002, tilt_world_sigma=0.0, tilt_bias_sigma=0.0)  # level world, no bias
     assert without > 0.03 and plain.up is None  # the map holds the start's tilt
     assert with_prior < without / 2, (with_prior, without)
     np.testing.assert_allclose(slam.up, gt[-1][2, :3], atol=0.01)  # the measured up is the true one

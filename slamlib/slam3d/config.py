@@ -209,6 +209,11 @@ class MapConfig:
         (bounded memory and lookup time on long drives; 0 disables).
     keep_pruned : bool
         Keep the pruned elements' points for the exported map (:meth:`ParticleSLAM3D.map_points`).
+    transient_span : int
+        Every ``transient_span`` frames evict the voxels hit only within fewer than ``transient_span`` consecutive
+        frames and not in the last ``transient_span`` (:meth:`slamlib.maps.VoxelHashMap.evict_transients`): the
+        trails of moving cars and people, which a static surface in view does not leave. 0 (default) keeps
+        every voxel; the voxel map only. Evicted voxels are not archived.
     """
 
     kind: str = "voxel_hash"
@@ -216,6 +221,7 @@ class MapConfig:
     prune_every: int = 20
     prune_radius: float = 120.0
     keep_pruned: bool = True
+    transient_span: int = 0
 
     def __post_init__(self):
         if self.kind not in MAP_KINDS:
@@ -224,6 +230,10 @@ class MapConfig:
         if int(self.prune_every) < 0 or not self.prune_radius > 0:
             raise ValueError(f"need prune_every >= 0 and prune_radius > 0, got {self.prune_every}, "
                              f"{self.prune_radius}")
+        _integer("transient_span", self.transient_span, 0)  # frames; 0 = off
+        if self.transient_span and self.kind != "voxel_hash":
+            raise ValueError(f"transient_span needs the 'voxel_hash' map (its voxels remember when they were hit), "
+                             f"got kind {self.kind!r}")
         for name, value in dict(self.params).items():
             if name in POSITIVE_MAP_PARAMS and not _finite(name, value) > 0:
                 raise ValueError(f"map parameter {name} must be finite and > 0, got {value!r}")
@@ -267,6 +277,14 @@ class FilterConfig:
         (:func:`slamlib.odometry.gravity_up`). 0 (default) = off; needs an IMU with ``specific_force``.
     tilt_window : float
         Seconds of accelerometer samples behind each up measurement (longer: less noise from the velocities).
+    tilt_bias_sigma, tilt_world_sigma : float
+        Radians; with the prior on, the filter also estimates, by least squares over the frames whose window spans
+        ``tilt_window`` (:func:`slamlib.odometry.tilt_calibration_update`), the accelerometer's bias as an angle
+        ``b / g``, with prior standard deviation ``tilt_bias_sigma`` (default 0.01: 0.1 m/s^2), and how far the
+        world's z (the first body pose's) is from gravity's up, with ``tilt_world_sigma``. 0 holds either at 0.
+        The default 0 for the world takes the first pose as level (the synthetic drives start level): a slow tilt
+        drift of the map looks exactly like a tilted world, so estimating the world's up also gives in to that
+        drift. A bias turns with the body and a map's tilt does not, so turns tell those two apart.
     """
 
     particles: int = 300
@@ -279,6 +297,8 @@ class FilterConfig:
     lidar_only_ground_share: float = 0.1
     tilt_sigma: float = 0.0
     tilt_window: float = 2.0
+    tilt_bias_sigma: float = 0.01
+    tilt_world_sigma: float = 0.0
 
     def __post_init__(self):
         if int(self.particles) < 1 or int(self.scored_points) < 1:
@@ -300,6 +320,9 @@ class FilterConfig:
         if not _finite("tilt_sigma", self.tilt_sigma) >= 0 or not _finite("tilt_window", self.tilt_window) > 0:
             raise ValueError(f"need tilt_sigma >= 0 (0 = off) and tilt_window > 0, got {self.tilt_sigma}, "
                              f"{self.tilt_window}")
+        for name in ("tilt_bias_sigma", "tilt_world_sigma"):
+            if not _finite(name, getattr(self, name)) >= 0:
+                raise ValueError(f"need {name} >= 0 (0 = held at 0), got {getattr(self, name)}")
         if not 0 <= _finite("lidar_only_ground_share", self.lidar_only_ground_share) <= 1:
             raise ValueError(f"lidar_only_ground_share must be in [0, 1], got {self.lidar_only_ground_share}")
 

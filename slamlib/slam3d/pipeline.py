@@ -50,7 +50,10 @@ absolute reference on board. With ``FilterConfig.tilt_sigma > 0`` step 3 also re
 vehicle's own acceleration over the last ``tilt_window`` seconds, and step 8 adds
 :func:`~slamlib.slam3d.steps.tilt_log_prior` to every weight: a measurement of two of the six pose coordinates,
 as an attitude filter uses its accelerometer. An accelerometer bias ``b`` tilts the measured up by ``b / g`` for
-good, so the prior is a slow pull, not a clamp.
+good, and the world (the first body pose) need not be level: after step 9 each frame's estimated rotation and
+measured up also go into a least-squares estimate of both (:func:`slamlib.odometry.tilt_calibration_update`; a
+bias turns with the body, a tilted world does not), and step 8 compares each particle's ``R_i^T g_w`` with the
+measured up less the bias.
 
 Degenerate frames
 -----------------
@@ -70,7 +73,8 @@ from collections import deque
 import numpy as np
 
 from slamlib.kernels import get_backend
-from slamlib.odometry import gravity_up, increment_matrix, twist_between
+from slamlib.odometry import (gravity_up, increment_matrix, tilt_calibration, tilt_calibration_prior,
+                              tilt_calibration_update, twist_between)
 from slamlib.resampling import normalise_log_weights
 from slamlib.slam3d import steps
 from slamlib.slam3d.config import SLAM3DConfig
@@ -115,6 +119,8 @@ class ParticleSLAM3D:
     up : (3,) the accelerometer's up direction in this frame's body (:func:`slamlib.odometry.gravity_up`), which
         step 8's tilt prior holds the particles to; None when the prior is off (``FilterConfig.tilt_sigma = 0``).
     tilt_samples : deque of ``(specific_force, velocity, dt)`` of the frames in the tilt prior's window.
+    world_up, up_bias : (3,) the estimated world's up (world frame) and accelerometer bias (an angle, body frame) of
+        the tilt prior (``e_z`` and 0 until frames come in; ``tilt_estimate`` holds the least squares behind them).
     last : dict with this frame's intermediate results (scores, sample, sigma, ...), for plots and tests.
     """
 
@@ -137,6 +143,8 @@ class ParticleSLAM3D:
         self.lidar_only = self.config.motion.model == "constant_velocity"
         self.tilt_samples: deque = deque()  # the accelerometer window of the tilt prior (_gravity_up)
         self.up = None
+        self.tilt_estimate = tilt_calibration_prior(cfg.filter.tilt_world_sigma, cfg.filter.tilt_bias_sigma)
+        self.world_up, self.up_bias = tilt_calibration(*self.tilt_estimate)
 
     # ----------------------------------------------------------------------------------------- step 12
     def register_frame(self, frame) -> np.ndarray:
@@ -174,6 +182,7 @@ class ParticleSLAM3D:
         log_w = self._weigh(moved, self.log_weights, sample)                                       # 7 + 8
         moved, log_w = self._anneal(moved, log_w, sample, sigma, start)  # cfg.filter.refine rounds (none by default)
         pose, best = steps.pick_best_particle(moved, log_w, cfg.filter.estimate)                   # 9
+        self._calibrate_tilt(pose, dt)  # the world's up and the accelerometer's bias, for the next frames
         steps.merge_scan(self.map, pose, points, be)                                               # 10
         self._record(pose, imu, increment, points, dt, sample=sample, sigma=sigma, best=best)
         self.particles, self.log_weights, resampled = steps.resample_particles(                    # 11
@@ -189,8 +198,21 @@ class ParticleSLAM3D:
         self.last["scores"] = scores
         log_w = log_w + scores / (len(sample) * self.config.filter.temperature)
         if self.up is not None:
-            log_w = log_w + steps.tilt_log_prior(particles, self.up, self.config.filter.tilt_sigma)
+            log_w = log_w + steps.tilt_log_prior(particles, self.up - self.up_bias, self.config.filter.tilt_sigma,
+                                                 self.world_up)
         return normalise_log_weights(log_w)
+
+    def _calibrate_tilt(self, pose, dt) -> None:
+        """Add this frame's estimated rotation and measured up to the tilt calibration (none when the prior is off or
+        the window does not yet span ``tilt_window``): each frame weighs ``dt / tilt_window`` of an independent up measurement of standard deviation
+        ``tilt_sigma`` (consecutive windows overlap)."""
+        f = self.config.filter
+        if self.up is None or sum(s[2] for s in list(self.tilt_samples)[1:]) < f.tilt_window:
+            return  # a shorter window (the drive's first seconds) measures up with errors ~ 1 / its span
+        info, eta, free = self.tilt_estimate
+        info, eta = tilt_calibration_update(info, eta, pose[:3, :3], self.up, dt / f.tilt_window / f.tilt_sigma**2)
+        self.tilt_estimate = (info, eta, free)
+        self.world_up, self.up_bias = tilt_calibration(info, eta, free)
 
     def _gravity_up(self, imu, force, dt, increment):
         """The up direction in this frame's body, from the accelerometer over the last ``tilt_window`` seconds
@@ -268,9 +290,11 @@ class ParticleSLAM3D:
             self.dr_poses.append(np.asarray(T_dr, dtype=np.float64))
         self.imu_prev = imu
         self.last.update(points=points, **last)
-        every = self.config.map.prune_every
+        every, span = self.config.map.prune_every, self.config.map.transient_span
         if every and len(self.poses) % every == 0:
             self._prune(self.poses[-1][:3, 3])
+        if span and len(self.poses) % span == 0:  # the movers' trails (MapConfig.transient_span)
+            self.map.evict_transients(span)
 
     def _prune(self, center) -> None:
         """Drop map elements farther than ``prune_radius`` from ``center``; keep their points in ``archive``."""

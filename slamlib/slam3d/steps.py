@@ -337,17 +337,22 @@ def score_particles(particles: Particles3D, points, world_map, backend=DEFAULT_B
                                              world_map.lookup())
 
 
-def tilt_log_prior(particles: Particles3D, up, sigma: float) -> np.ndarray:
+def tilt_log_prior(particles: Particles3D, up, sigma: float, world_up=None) -> np.ndarray:
     """Step 8's second term: log-prior ``(P,)`` of each particle's roll and pitch given the measured up direction.
 
-    ``log p_i = -|R_i^T e_z - u|^2 / (2 sigma^2)``, with ``u`` the unit up vector in the body frame measured by
-    the accelerometer (:func:`slamlib.odometry.gravity_up`) and ``R_i^T e_z`` the particle's own (its rotation's
-    third row). For small angles ``|R_i^T e_z - u|`` is the tilt between the two in radians; yaw does not enter.
-    ``sigma`` (rad) is the measured up's uncertainty. The map alone fixes the tilt only relative to the map, which
-    is itself built from earlier estimates, so its error random-walks over a long drive; this term holds it to
-    gravity (Thrun et al. 2005, ch. 7: a direct measurement of part of the state).
+    ``log p_i = -|R_i^T g_w - u|^2 / (2 sigma^2)``, with ``u`` the unit up vector in the body frame measured by
+    the accelerometer (:func:`slamlib.odometry.gravity_up`, less its bias when estimated) and ``R_i^T g_w`` the
+    particle's own, ``g_w`` the world's up (default ``e_z``: then it is ``R_i``'s third row). For small angles
+    ``|R_i^T g_w - u|`` is the tilt between the two in radians; yaw does not enter. ``sigma`` (rad) is the
+    measured up's uncertainty. The map alone fixes the tilt only relative to the map, which is itself built from
+    earlier estimates, so its error random-walks over a long drive; this term holds it to gravity (Thrun et al.
+    2005, ch. 7: a direct measurement of part of the state).
     """
-    diff = particles.R[:, 2, :] - np.asarray(up, dtype=np.float64)[None, :]
+    if world_up is None:
+        own = particles.R[:, 2, :]
+    else:
+        own = np.einsum("pji,j->pi", particles.R, np.asarray(world_up, dtype=np.float64))
+    diff = own - np.asarray(up, dtype=np.float64)[None, :]
     return -0.5 * np.sum(diff * diff, axis=1) / float(sigma) ** 2
 
 

@@ -209,6 +209,9 @@ def test_voxel_hash_evicts_the_trail_of_a_mover_and_keeps_static_surfaces():
     wall_before = np.sort(m.points()[m.points()[:, 0] > 5.0], axis=0)
     trail = int(transient.sum())
     assert trail == 20  # frames 0..19 of the mover: 0.6 m apart, one 0.5 m voxel each; 20..29 are too recent
+    # only near a centre: the trail's first five voxels (0.6 m apart) lie within 2.9 m of its start
+    near = m.transients(10, center=[1.0, -10.0, 0.5], radius=2.9)
+    assert near.sum() == 5 and np.all(near <= transient)
     assert m.evict_transients(10) == trail and len(m) == len(transient) - trail
     assert np.array_equal(np.sort(m.points()[m.points()[:, 0] > 5.0], axis=0), wall_before)
     assert not m.transients(10).any() and m.evict_transients(10) == 0

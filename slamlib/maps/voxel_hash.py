@@ -271,26 +271,33 @@ class VoxelHashMap(Map3D):
         d2 = np.sum((self._mean.astype(np.float64) - c) ** 2, axis=1)
         return self._keep_only((self._keys != EMPTY_KEY) & (d2 <= float(radius) ** 2))
 
-    def transients(self, span: int) -> np.ndarray:
+    def transients(self, span: int, center=None, radius: float = np.inf) -> np.ndarray:
         """Which occupied voxels (M,) bool, in the order of :meth:`points`, are transient with a ``span`` of frames:
-        every hit fell within fewer than ``span`` consecutive frames (``last - first < span``), and the last one
-        is at least ``span`` frames old (``frames - 1 - last >= span``), so a surface still being hit is never
-        one. ``span`` >= 1 (frames)."""
-        first, last = self.seen()
-        return self._transient(first, last, int(span))
+        every hit fell within fewer than ``span`` consecutive frames (``last - first < span``), the last one is at
+        least ``span`` frames old (``frames - 1 - last >= span``), so a surface still being hit is never one, and
+        the voxel's mean lies within ``radius`` metres of ``center`` (3,) when given: near the sensor, where a
+        static surface would still be seen, not at the edge of its range, which the car has left behind.
+        ``span`` >= 1 (frames)."""
+        occupied = self._keys != EMPTY_KEY
+        return self._transient(occupied, int(span), center, radius)
 
-    def _transient(self, first, last, span):
+    def _transient(self, slots, span, center, radius):
         if span < 1:
             raise ValueError(f"span must be >= 1 frame, got {span}")
-        return (last - first < span) & (self.frames - 1 - last >= span)
+        first, last = self._first[slots], self._last[slots]
+        out = (last - first < span) & (self.frames - 1 - last >= span)
+        if center is not None:
+            d = self._mean[slots].astype(np.float64) - np.asarray(center, dtype=np.float64).reshape(3)
+            out &= np.sum(d * d, axis=1) <= float(radius) ** 2
+        return out
 
-    def evict_transients(self, span: int) -> int:
+    def evict_transients(self, span: int, center=None, radius: float = np.inf) -> int:
         """Evict the voxels :meth:`transients` names (the trails of movers, module docstring); rebuild the table.
 
         Returns the number of voxels evicted. Costs O(capacity)."""
         occupied = self._keys != EMPTY_KEY
         keep = occupied.copy()
-        keep[occupied] = ~self._transient(self._first[occupied], self._last[occupied], int(span))
+        keep[occupied] = ~self._transient(occupied, int(span), center, radius)
         return self._keep_only(keep)
 
     def _keep_only(self, keep) -> int:

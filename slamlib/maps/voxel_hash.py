@@ -20,9 +20,8 @@ Memory is fixed at construction: about 132 bytes per slot (:meth:`VoxelHashMap.m
 (:attr:`VoxelHashMap.frames`), and each voxel remembers the first and the last frame that hit it.
 :meth:`VoxelHashMap.evict_transients` drops the voxels that were hit only within a short span of frames and not
 since: the trail a moving car or pedestrian leaves through the map, which a static surface in view does not
-(it is hit frame after frame for as long as it is in range). This is the "seen over time" test of dynamic-object
-removal (cf. the occupancy-duration filters surveyed by Pomerleau et al., ICRA 2014, "Long-term 3D map maintenance
-in dynamic environments"), without the ray casting of free-space carving.
+(it is hit frame after frame for as long as it is in range). It needs no ray casting, where occupancy mapping
+clears the free space every ray passes through (OctoMap: Hornung et al., Autonomous Robots 34(3), 2013).
 """
 
 from __future__ import annotations

@@ -412,7 +412,7 @@ def _stop(*args, **kwargs):
 
 OPTIONS = {
     "run": ["--particles", "--points", "--temperature", "--refine", "--tilt-sigma", "--seed", "--noise",
-            "--frames"],
+            "--frames", "--transient-span"],
     "sim1d": ["--particles", "--frames", "--seed", "--motion-noise", "--sensor-noise", "--bias"],
     "sim2d": ["--particles", "--laps", "--seed", "--resolution", "--beams"],
     "synth": ["--frames", "--seed", "--drive", "--columns", "--imu-noise", "--date"],

@@ -272,6 +272,21 @@ def test_slamlib_run_tilt_sigma_reaches_the_filter(cli_drive, tmp_path):
     assert np.all(np.isfinite(read_kitti_poses(out / "slam_poses.txt")))
 
 
+def test_slamlib_run_transient_span_reaches_the_map_and_names_itself(cli_drive, tmp_path):
+    """``--transient-span`` turns on the eviction of movers' trails (recorded in metrics.json); with the Morton
+    map, which keeps no hit times, the error names both options."""
+    from slamlib.cli import main
+
+    args, _ = cli_drive
+    out = tmp_path / "o"
+    assert main(args + ["--transient-span", "2", "--out", str(out)]) == 0
+    assert json.loads((out / "metrics.json").read_text())["config"]["map"]["transient_span"] == 2
+    with pytest.raises(SystemExit, match=r"--transient-span, --map: transient_span needs the 'voxel_hash' map"):
+        main(args + ["--transient-span", "2", "--map", "morton_bvh", "--out", str(tmp_path / "p")])
+    with pytest.raises(SystemExit, match=r"--transient-span: transient_span must be >= 0"):
+        main(args + ["--transient-span", "-1", "--out", str(tmp_path / "q")])
+
+
 def test_slamlib_run_bad_oxts_is_one_message_without_a_wrong_drive_hint(cli_drive, tmp_path):
     from slamlib.cli import main
 

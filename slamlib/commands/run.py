@@ -62,6 +62,10 @@ def add_arguments(parser) -> None:
     f.add_argument("--tilt-sigma", type=float, default=FilterConfig.tilt_sigma, metavar="RAD",
                    help="hold roll and pitch to the accelerometer's gravity with this uncertainty (FilterConfig."
                         f"tilt_sigma, radians; 0 = off, the default {FilterConfig.tilt_sigma:g}; needs an IMU)")
+    f.add_argument("--transient-span", type=int, default=MapConfig.transient_span, metavar="FRAMES",
+                   help="every FRAMES frames evict the map voxels hit only within fewer than FRAMES frames and not "
+                        "since: the trails of moving cars and people (MapConfig.transient_span; 0 = off, the "
+                        f"default {MapConfig.transient_span}; the voxel_hash map only)")
     f.add_argument("--seed", type=int, default=SLAM3DConfig.seed,
                    help=f"seed of the filter's random numbers (default {SLAM3DConfig.seed})")
     f.add_argument("--backend", choices=BACKENDS, default=SLAM3DConfig.backend,
@@ -96,7 +100,7 @@ def _drive_hint(basedir: Path, date: str | None, drive: str | None) -> str:
 #: The ``slamlib run`` option of each setting name that appears in the configuration's ValueError messages.
 _OPTION_OF = {"particles": "--particles", "scored_points": "--points", "temperature": "--temperature",
               "refine": "--refine", "tilt_sigma": "--tilt-sigma", "seed": "--seed", "sigma": "--noise", "kind": "--map",
-              "backend": "--backend"}
+              "backend": "--backend", "transient_span": "--transient-span"}
 
 
 def _option_error(exc: ValueError) -> str:
@@ -151,7 +155,7 @@ def main(args) -> int:
     try:
         cfg = SLAM3DConfig.of(particles=args.particles, scored_points=args.points, kind=kind, backend=args.backend,
                               seed=args.seed, refine=args.refine, temperature=args.temperature, deskew=args.deskew,
-                              tilt_sigma=args.tilt_sigma)
+                              tilt_sigma=args.tilt_sigma, transient_span=args.transient_span)
         cfg = replace(cfg, motion=replace(cfg.motion.scaled(float(args.noise)),
                                           model="constant_velocity" if args.lidar_only or odometry else "imu"))
     except ValueError as exc:

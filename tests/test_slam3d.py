@@ -576,6 +576,20 @@ def test_tilt_calibration_is_the_least_squares_of_the_filters_own_frames():
     assert np.abs(bias).max() > 1e-3 and np.abs(world_up[:2]).max() > 1e-4
 
 
+def test_tilt_log_prior_measures_the_tilt_from_the_worlds_up():
+    """With the world's up ``g_w`` off ``e_z``, a particle tilted like the world and a measured up ``e_z`` agree."""
+    from slamlib.slam3d.steps import tilt_log_prior
+
+    world = rpy_to_matrix([0.01, -0.02, 0.0])
+    R = np.stack([world, np.eye(3)])
+    lp = tilt_log_prior(Particles3D(R, np.zeros((2, 3))), [0.0, 0.0, 1.0], 0.005, world @ [0.0, 0.0, 1.0])
+    assert lp[0] == pytest.approx(0.0, abs=1e-20)
+    assert lp[1] == pytest.approx(-0.5 * (0.01**2 + 0.02**2) / 0.005**2, rel=1e-3)
+    np.testing.assert_array_equal(tilt_log_prior(Particles3D(R, np.zeros((2, 3))), [0.0, 0.0, 1.0], 0.005),
+                                  tilt_log_prior(Particles3D(R, np.zeros((2, 3))), [0.0, 0.0, 1.0], 0.005,
+                                                 [0.0, 0.0, 1.0]))
+
+
 def test_read_specific_force_checks_its_values():
     from slamlib.slam3d.steps import read_specific_force
 

@@ -50,10 +50,10 @@ absolute reference on board. With ``FilterConfig.tilt_sigma > 0`` step 3 also re
 vehicle's own acceleration over the last ``tilt_window`` seconds, and step 8 adds
 :func:`~slamlib.slam3d.steps.tilt_log_prior` to every weight: a measurement of two of the six pose coordinates,
 as an attitude filter uses its accelerometer. An accelerometer bias ``b`` tilts the measured up by ``b / g`` for
-good, and the world (the first body pose) need not be level: after step 9 each frame's estimated rotation and
-measured up also go into a least-squares estimate of both (:func:`slamlib.odometry.tilt_calibration_update`; a
-bias turns with the body, a tilted world does not), and step 8 compares each particle's ``R_i^T g_w`` with the
-measured up less the bias.
+good, so after step 9 each frame's estimated rotation and measured up also go into a least-squares estimate of
+the bias (:func:`slamlib.odometry.tilt_calibration_update`; a bias turns with the body, a tilted map does not), and
+step 8 compares each particle's ``R_i^T g_w`` with the measured up less the bias. ``g_w``, the world's up, is
+``e_z`` (the first body pose taken as level) unless ``FilterConfig.tilt_world_sigma > 0`` lets the fit move it.
 
 Degenerate frames
 -----------------
@@ -118,7 +118,8 @@ class ParticleSLAM3D:
         it has no IMU values (the KITTI odometry layout). LIDAR-only there is no dead-reckoning twin.
     up : (3,) the accelerometer's up direction in this frame's body (:func:`slamlib.odometry.gravity_up`), which
         step 8's tilt prior holds the particles to; None when the prior is off (``FilterConfig.tilt_sigma = 0``).
-    tilt_samples : deque of ``(specific_force, velocity, dt)`` of the frames in the tilt prior's window.
+    tilt_samples : deque of ``(specific_force, velocity, dt)`` of the frames in the tilt prior's window;
+        ``up_span`` the seconds it spans.
     world_up, up_bias : (3,) the estimated world's up (world frame) and accelerometer bias (an angle, body frame) of
         the tilt prior (``e_z`` and 0 until frames come in; ``tilt_estimate`` holds the least squares behind them).
     last : dict with this frame's intermediate results (scores, sample, sigma, ...), for plots and tests.
@@ -142,7 +143,7 @@ class ParticleSLAM3D:
         self.dts: list[float] = []
         self.lidar_only = self.config.motion.model == "constant_velocity"
         self.tilt_samples: deque = deque()  # the accelerometer window of the tilt prior (_gravity_up)
-        self.up = None
+        self.up, self.up_span = None, 0.0
         self.tilt_estimate = tilt_calibration_prior(cfg.filter.tilt_world_sigma, cfg.filter.tilt_bias_sigma)
         self.world_up, self.up_bias = tilt_calibration(*self.tilt_estimate)
 
@@ -203,11 +204,11 @@ class ParticleSLAM3D:
         return normalise_log_weights(log_w)
 
     def _calibrate_tilt(self, pose, dt) -> None:
-        """Add this frame's estimated rotation and measured up to the tilt calibration (none when the prior is off or
-        the window does not yet span ``tilt_window``): each frame weighs ``dt / tilt_window`` of an independent up measurement of standard deviation
-        ``tilt_sigma`` (consecutive windows overlap)."""
+        """Add this frame's estimated rotation and measured up to the tilt calibration (none when the prior is off
+        or the window does not yet span ``tilt_window``): each frame weighs ``dt / tilt_window`` of an independent
+        up measurement of standard deviation ``tilt_sigma`` (consecutive windows overlap)."""
         f = self.config.filter
-        if self.up is None or sum(s[2] for s in list(self.tilt_samples)[1:]) < f.tilt_window:
+        if self.up is None or self.up_span < f.tilt_window:
             return  # a shorter window (the drive's first seconds) measures up with errors ~ 1 / its span
         info, eta, free = self.tilt_estimate
         info, eta = tilt_calibration_update(info, eta, pose[:3, :3], self.up, dt / f.tilt_window / f.tilt_sigma**2)
@@ -229,6 +230,7 @@ class ParticleSLAM3D:
         past = [T[:3, :3] for T in self.poses[len(self.poses) - len(samples) + 1:]]
         R = np.array(past + [self.poses[-1][:3, :3] @ increment_matrix(*increment)[:3, :3]])
         force, velocity, dts = (np.array(x) for x in zip(*samples))
+        self.up_span = float(dts[1:].sum())
         return gravity_up(R, force, velocity, dts)
 
     def _anneal(self, particles, log_w, sample, sigma, start: bool = False):

@@ -35,7 +35,8 @@ from scipy.spatial.transform import Rotation
 from slamlib.geometry import make_pose, matrix_to_rpy, rpy_to_matrix
 
 __all__ = ["imu_increment", "imu_increments", "increment_matrix", "dead_reckon", "so3_left_jacobian", "twist_between",
-           "gravity_up", "GRAVITY", "tilt_calibration_prior", "tilt_calibration_update", "tilt_calibration"]
+           "gravity_up", "GRAVITY", "tilt_calibration_prior", "tilt_calibration_update", "tilt_calibration",
+           "heading_bin", "balance_heading_bins"]
 
 #: Gravity (m/s^2) in the accelerometer model ``f_b = R^T (a + g e_z)`` of the generator and of :func:`gravity_up`.
 GRAVITY = 9.81
@@ -234,3 +235,31 @@ def tilt_calibration(info, eta, free) -> tuple[np.ndarray, np.ndarray]:
         x[free] = np.linalg.solve(info[np.ix_(free, free)], eta[free])
     world_up = np.array([x[0], x[1], 1.0])
     return world_up / np.linalg.norm(world_up), np.array([x[2], x[3], 0.0])
+
+
+def heading_bin(R, bins: int) -> int:
+    """Which of ``bins`` equal sectors of heading (yaw ``atan2(R[1, 0], R[0, 0])``, from ``-pi``) the body of
+    rotation ``R`` faces."""
+    yaw = np.arctan2(R[1][0], R[0][0])
+    return int(np.floor((yaw + np.pi) / (2 * np.pi) * bins)) % bins
+
+
+def balance_heading_bins(infos, etas, weights) -> tuple[np.ndarray, np.ndarray]:
+    """The data part ``(Lambda (4, 4), eta (4,))`` of the tilt calibration with every heading sector weighing alike.
+
+    ``infos (B, 4, 4)``, ``etas (B,  4)`` hold each sector's own sums of :func:`tilt_calibration_update` (from zero)
+    and ``weights (B,)`` its total weight. Each sector that has frames is scaled to ``W / n`` (``W`` the total
+    weight, ``n`` the sectors with frames), so the data weigh as much as before in all, but a long straight counts
+    no more than a short stretch the other way. Why: the fit's residual holds the filter's own tilt error, and a tilt
+    of the *map* is fixed in the world, so in the body frame it turns with the heading. Over headings spread evenly
+    it cancels, a bias does not; weighed by time, the headings of the longest straights win and their share of the
+    map's tilt is taken for a bias. Add the prior (:func:`tilt_calibration_prior`) and pass the sums to
+    :func:`tilt_calibration`.
+    """
+    weights = np.asarray(weights, dtype=np.float64)
+    used = weights > 0
+    if not used.any():
+        return np.zeros((4, 4)), np.zeros(4)
+    scale = np.zeros_like(weights)
+    scale[used] = weights.sum() / (used.sum() * weights[used])
+    return np.einsum("b,bij->ij", scale, infos), scale @ np.asarray(etas, dtype=np.float64)

@@ -8,8 +8,9 @@ from hypothesis import given, settings, strategies as st
 from scipy.spatial.transform import Rotation
 
 from slamlib.geometry import make_pose, rpy_to_matrix
-from slamlib.odometry import (GRAVITY, dead_reckon, gravity_up, imu_increment, imu_increments, increment_matrix,
-                              tilt_calibration, tilt_calibration_prior, tilt_calibration_update)
+from slamlib.odometry import (GRAVITY, balance_heading_bins, dead_reckon, gravity_up, heading_bin, imu_increment,
+                              imu_increments, increment_matrix, tilt_calibration, tilt_calibration_prior,
+                              tilt_calibration_update)
 
 
 def _rel(a, b):
@@ -262,3 +263,45 @@ def test_tilt_calibration_holds_an_unknown_with_prior_sigma_zero_at_zero():
     assert np.array_equal(tilt_calibration(info, eta, free)[0], [0.0, 0.0, 1.0])  # no data: the prior's mean
     with pytest.raises(ValueError, match="sigma_world, sigma_bias >= 0"):
         tilt_calibration_prior(-0.01, 0.01)
+
+
+def test_heading_bin_counts_sectors_from_minus_pi():
+    assert [heading_bin(rpy_to_matrix([0.0, 0.0, yaw]), 8) for yaw in (-np.pi + 1e-9, -0.01, 0.0, 0.8, np.pi - 1e-9)] \
+        == [0, 3, 4, 5, 7]
+    assert heading_bin(rpy_to_matrix([0.02, -0.03, 2.0]), 1) == 0
+
+
+def test_balance_heading_bins_weighs_every_used_sector_alike():
+    infos = np.stack([np.eye(4) * 3.0, np.zeros((4, 4)), np.eye(4)])
+    etas = np.array([[3.0, 0, 0, 0], [0, 0, 0, 0], [0, 1.0, 0, 0]])
+    info, eta = balance_heading_bins(infos, etas, [3.0, 0.0, 1.0])
+    # total weight 4 over two used sectors: each scaled to 2, i.e. by 2/3 and 2
+    np.testing.assert_allclose(info, np.eye(4) * 4.0)
+    np.testing.assert_allclose(eta, [2.0, 2.0, 0.0, 0.0])
+    one = balance_heading_bins(infos[:1], etas[:1], [3.0])  # one sector: the plain sums
+    np.testing.assert_allclose(one[0], infos[0])
+    np.testing.assert_allclose(one[1], etas[0])
+    assert not balance_heading_bins(infos, etas, [0.0, 0.0, 0.0])[0].any()
+
+
+def test_balanced_bias_fit_is_not_pulled_by_a_tilted_map_on_a_long_straight():
+    """A map tilted 5 mrad (fixed in the world: the filter's rotations are T R) and a true bias. Ninety frames
+    east, ten west: weighed by time the fit takes 80 % of the map's tilt for a bias; with the two headings weighing
+    alike the tilt cancels."""
+    T = rpy_to_matrix([0.0, 0.005, 0.0])
+    info0, eta0, free = tilt_calibration_prior(0.0, 0.01)
+    infos, etas, weights = np.zeros((8, 4, 4)), np.zeros((8, 4)), np.zeros(8)
+    plain = info0, eta0
+    for yaw in [0.0] * 90 + [np.pi - 0.1] * 10:
+        R = rpy_to_matrix([0.0, 0.0, yaw])
+        up = R.T @ [0.0, 0.0, 1.0] + np.r_[BIAS, 0.0]
+        up /= np.linalg.norm(up)
+        plain = tilt_calibration_update(*plain, T @ R, up, 1e6)
+        b = heading_bin(T @ R, 8)
+        infos[b], etas[b] = tilt_calibration_update(infos[b], etas[b], T @ R, up, 1e6)
+        weights[b] += 1e6
+    info, eta = balance_heading_bins(infos, etas, weights)
+    balanced = tilt_calibration(info0 + info, eta0 + eta, free)[1][:2]
+    time_weighted = tilt_calibration(*plain, free)[1][:2]
+    np.testing.assert_allclose(balanced, BIAS, atol=3e-4)
+    assert abs(time_weighted[0] - BIAS[0]) > 3e-3  # 0.8 x 5 mrad of the map's pitch taken for a bias

@@ -15,8 +15,8 @@ from slamlib.geometry import invert_pose, make_pose, matrix_to_rpy, rpy_to_matri
 from slamlib.kernels import get_backend
 from slamlib.maps import VoxelHashMap
 from slamlib.metrics import absolute_trajectory_error
-from slamlib.odometry import (GRAVITY, dead_reckon, tilt_calibration, tilt_calibration_prior,
-                              tilt_calibration_update)
+from slamlib.odometry import (GRAVITY, balance_heading_bins, dead_reckon, heading_bin, tilt_calibration,
+                              tilt_calibration_prior, tilt_calibration_update)
 from slamlib.slam3d import (MotionConfig, ParticleSLAM3D, Particles3D, ScanConfig, SLAM3DConfig, crop_range,
                             initialise_particles, merge_scan, motion_increment, motion_noise_sigma,
                             offset_by_motion, parse_frames, perturb_with_noise, pick_best_particle, read_imu,
@@ -430,6 +430,7 @@ def test_config_rejects_bad_values():
                          (dict(voxel_size=0.3), "unknown SLAM3D setting 'voxel_size'"),
                          (dict(tilt_sigma=-0.01), "tilt_sigma"), (dict(tilt_window=0.0), "tilt_window"),
                          (dict(transient_span=-1), "transient_span must be >= 0"),
+                         (dict(tilt_heading_bins=0), "tilt_heading_bins must be >= 1"),
                          (dict(transient_span=2.5), "transient_span must be an integer"),
                          (dict(transient_span=10, kind="morton_bvh"), "transient_span needs the 'voxel_hash'")):
         with pytest.raises(ValueError, match=message):
@@ -555,22 +556,29 @@ def test_tilt_log_prior_penalises_roll_and_pitch_not_yaw():
 def test_tilt_calibration_is_the_least_squares_of_the_filters_own_frames():
     """The filter's bias and world's up are :func:`slamlib.odometry.tilt_calibration` of its own rotations (step 9)
     and measured ups, over the frames whose window spans ``tilt_window``, each weighing ``dt / tilt_window`` of a
-    ``tilt_sigma`` measurement (the identification itself: tests/test_odometry.py). A biased accelerometer on a
-    turning drive moves both away from the prior's zero."""
+    ``tilt_sigma`` measurement, in heading sectors that weigh alike (the identification itself:
+    tests/test_odometry.py). A biased accelerometer on a turning drive moves both away from the prior's zero."""
     frames, _ = simulate(40, yaw_rate=0.6)
     for f in frames:
         f.specific_force = f.specific_force + [0.05, -0.04, 0.0]
     sigma, window = 0.005, 1.05  # not a multiple of dt = 0.1, whose sums round either way
     slam = ParticleSLAM3D(tiny_config(tilt_sigma=sigma, tilt_window=window, tilt_world_sigma=0.02))
-    info, eta, free = tilt_calibration_prior(0.02, slam.config.filter.tilt_bias_sigma)
+    info0, eta0, free = tilt_calibration_prior(0.02, slam.config.filter.tilt_bias_sigma)
+    bins = slam.config.filter.tilt_heading_bins
+    infos, etas, weights = np.zeros((bins, 4, 4)), np.zeros((bins, 4)), np.zeros(bins)
     used = 0
     for f in frames:
         slam.register_frame(f)
         if slam.up is not None and sum(s[2] for s in list(slam.tilt_samples)[1:]) >= window:
-            info, eta = tilt_calibration_update(info, eta, slam.poses[-1][:3, :3], slam.up, f.dt / window / sigma**2)
+            R = slam.poses[-1][:3, :3]
+            b = heading_bin(R, bins)
+            infos[b], etas[b] = tilt_calibration_update(infos[b], etas[b], R, slam.up, f.dt / window / sigma**2)
+            weights[b] += f.dt / window / sigma**2
             used += 1
-    world_up, bias = tilt_calibration(info, eta, free)
+    info, eta = balance_heading_bins(infos, etas, weights)
+    world_up, bias = tilt_calibration(info0 + info, eta0 + eta, free)
     assert used == len(frames) - 12  # frames 0..11: no window yet, or one shorter than 1.05 s
+    assert np.count_nonzero(weights) >= 3  # the drive turns through several sectors
     np.testing.assert_allclose(slam.up_bias, bias, atol=1e-12)
     np.testing.assert_allclose(slam.world_up, world_up, atol=1e-12)
     assert np.abs(bias).max() > 1e-3 and np.abs(world_up[:2]).max() > 1e-4

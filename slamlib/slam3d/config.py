@@ -285,6 +285,9 @@ class FilterConfig:
         The default 0 for the world takes the first pose as level (the synthetic drives start level): a slow tilt
         drift of the map looks exactly like a tilted world, so estimating the world's up also gives in to that
         drift. A bias turns with the body and a map's tilt does not, so turns tell those two apart.
+    tilt_heading_bins : int
+        Sectors of heading that weigh alike in that fit (:func:`slamlib.odometry.balance_heading_bins`), so that a
+        long straight does not pass its share of the map's tilt to the bias; 1 = every frame alike.
     """
 
     particles: int = 300
@@ -299,6 +302,7 @@ class FilterConfig:
     tilt_window: float = 2.0
     tilt_bias_sigma: float = 0.01
     tilt_world_sigma: float = 0.0
+    tilt_heading_bins: int = 8
 
     def __post_init__(self):
         if int(self.particles) < 1 or int(self.scored_points) < 1:
@@ -320,6 +324,7 @@ class FilterConfig:
         if not _finite("tilt_sigma", self.tilt_sigma) >= 0 or not _finite("tilt_window", self.tilt_window) > 0:
             raise ValueError(f"need tilt_sigma >= 0 (0 = off) and tilt_window > 0, got {self.tilt_sigma}, "
                              f"{self.tilt_window}")
+        _integer("tilt_heading_bins", self.tilt_heading_bins, 1)
         for name in ("tilt_bias_sigma", "tilt_world_sigma"):
             if not _finite(name, getattr(self, name)) >= 0:
                 raise ValueError(f"need {name} >= 0 (0 = held at 0), got {getattr(self, name)}")

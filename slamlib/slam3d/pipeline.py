@@ -73,8 +73,8 @@ from collections import deque
 import numpy as np
 
 from slamlib.kernels import get_backend
-from slamlib.odometry import (gravity_up, increment_matrix, tilt_calibration, tilt_calibration_prior,
-                              tilt_calibration_update, twist_between)
+from slamlib.odometry import (balance_heading_bins, gravity_up, heading_bin, increment_matrix, tilt_calibration,
+                              tilt_calibration_prior, tilt_calibration_update, twist_between)
 from slamlib.resampling import normalise_log_weights
 from slamlib.slam3d import steps
 from slamlib.slam3d.config import SLAM3DConfig
@@ -121,7 +121,8 @@ class ParticleSLAM3D:
     tilt_samples : deque of ``(specific_force, velocity, dt)`` of the frames in the tilt prior's window;
         ``up_span`` the seconds it spans.
     world_up, up_bias : (3,) the estimated world's up (world frame) and accelerometer bias (an angle, body frame) of
-        the tilt prior (``e_z`` and 0 until frames come in; ``tilt_estimate`` holds the least squares behind them).
+        the tilt prior (``e_z`` and 0 until frames come in). Behind them: ``tilt_prior`` ``(Lambda, eta, free)``
+        and ``tilt_bins`` ``(Lambdas, etas, weights)``, the least-squares sums of each heading sector.
     last : dict with this frame's intermediate results (scores, sample, sigma, ...), for plots and tests.
     """
 
@@ -144,8 +145,10 @@ class ParticleSLAM3D:
         self.lidar_only = self.config.motion.model == "constant_velocity"
         self.tilt_samples: deque = deque()  # the accelerometer window of the tilt prior (_gravity_up)
         self.up, self.up_span = None, 0.0
-        self.tilt_estimate = tilt_calibration_prior(cfg.filter.tilt_world_sigma, cfg.filter.tilt_bias_sigma)
-        self.world_up, self.up_bias = tilt_calibration(*self.tilt_estimate)
+        self.tilt_prior = tilt_calibration_prior(cfg.filter.tilt_world_sigma, cfg.filter.tilt_bias_sigma)
+        bins = cfg.filter.tilt_heading_bins
+        self.tilt_bins = (np.zeros((bins, 4, 4)), np.zeros((bins, 4)), np.zeros(bins))
+        self.world_up, self.up_bias = tilt_calibration(*self.tilt_prior)
 
     # ----------------------------------------------------------------------------------------- step 12
     def register_frame(self, frame) -> np.ndarray:
@@ -205,15 +208,19 @@ class ParticleSLAM3D:
 
     def _calibrate_tilt(self, pose, dt) -> None:
         """Add this frame's estimated rotation and measured up to the tilt calibration (none when the prior is off
-        or the window does not yet span ``tilt_window``): each frame weighs ``dt / tilt_window`` of an independent
-        up measurement of standard deviation ``tilt_sigma`` (consecutive windows overlap)."""
+        or the window does not yet span ``tilt_window``), in its heading's sector: each frame weighs
+        ``dt / tilt_window`` of an independent up measurement of standard deviation ``tilt_sigma`` (consecutive
+        windows overlap), and the sectors weigh alike (:func:`slamlib.odometry.balance_heading_bins`)."""
         f = self.config.filter
         if self.up is None or self.up_span < f.tilt_window:
             return  # a shorter window (the drive's first seconds) measures up with errors ~ 1 / its span
-        info, eta, free = self.tilt_estimate
-        info, eta = tilt_calibration_update(info, eta, pose[:3, :3], self.up, dt / f.tilt_window / f.tilt_sigma**2)
-        self.tilt_estimate = (info, eta, free)
-        self.world_up, self.up_bias = tilt_calibration(info, eta, free)
+        infos, etas, weights = self.tilt_bins
+        b, w = heading_bin(pose[:3, :3], len(weights)), dt / f.tilt_window / f.tilt_sigma**2
+        infos[b], etas[b] = tilt_calibration_update(infos[b], etas[b], pose[:3, :3], self.up, w)
+        weights[b] += w
+        info0, eta0, free = self.tilt_prior
+        info, eta = balance_heading_bins(infos, etas, weights)
+        self.world_up, self.up_bias = tilt_calibration(info0 + info, eta0 + eta, free)
 
     def _gravity_up(self, imu, force, dt, increment):
         """The up direction in this frame's body, from the accelerometer over the last ``tilt_window`` seconds

@@ -36,7 +36,8 @@ from slamlib.geometry import make_pose, matrix_to_rpy, rpy_to_matrix
 
 __all__ = ["imu_increment", "imu_increments", "increment_matrix", "dead_reckon", "so3_left_jacobian", "twist_between",
            "gravity_up", "GRAVITY", "tilt_calibration_prior", "tilt_calibration_update", "tilt_calibration",
-           "heading_bin", "balance_heading_bins"]
+           "heading_bin", "balance_heading_bins", "tilt_calibration_bins", "tilt_calibration_add",
+           "tilt_calibration_estimate"]
 
 #: Gravity (m/s^2) in the accelerometer model ``f_b = R^T (a + g e_z)`` of the generator and of :func:`gravity_up`.
 GRAVITY = 9.81
@@ -263,3 +264,25 @@ def balance_heading_bins(infos, etas, weights) -> tuple[np.ndarray, np.ndarray]:
     scale = np.zeros_like(weights)
     scale[used] = weights.sum() / (used.sum() * weights[used])
     return np.einsum("b,bij->ij", scale, infos), scale @ np.asarray(etas, dtype=np.float64)
+
+
+def tilt_calibration_bins(bins: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Empty per-sector sums ``(Lambdas (B, 4, 4), etas (B, 4), weights (B,))`` for :func:`tilt_calibration_add`."""
+    return np.zeros((bins, 4, 4)), np.zeros((bins, 4)), np.zeros(bins)
+
+
+def tilt_calibration_add(sums, R, up, weight: float) -> None:
+    """Add one frame (rotation ``R``, measured ``up``, ``weight``) to its heading sector of ``sums``
+    (:func:`tilt_calibration_bins`), in place: :func:`tilt_calibration_update` on that sector's sums."""
+    infos, etas, weights = sums
+    b = heading_bin(R, len(weights))
+    infos[b], etas[b] = tilt_calibration_update(infos[b], etas[b], R, up, weight)
+    weights[b] += weight
+
+
+def tilt_calibration_estimate(prior, sums) -> tuple[np.ndarray, np.ndarray]:
+    """The world's up and the bias (:func:`tilt_calibration`) from the ``prior`` ``(Lambda, eta, free)``
+    (:func:`tilt_calibration_prior`) and the sectors' ``sums``, weighed alike (:func:`balance_heading_bins`)."""
+    info0, eta0, free = prior
+    info, eta = balance_heading_bins(*sums)
+    return tilt_calibration(info0 + info, eta0 + eta, free)

@@ -9,7 +9,8 @@ from scipy.spatial.transform import Rotation
 
 from slamlib.geometry import make_pose, rpy_to_matrix
 from slamlib.odometry import (GRAVITY, balance_heading_bins, dead_reckon, gravity_up, heading_bin, imu_increment,
-                              imu_increments, increment_matrix, tilt_calibration, tilt_calibration_prior,
+                              imu_increments, increment_matrix, tilt_calibration, tilt_calibration_add,
+                              tilt_calibration_bins, tilt_calibration_estimate, tilt_calibration_prior,
                               tilt_calibration_update)
 
 
@@ -305,3 +306,21 @@ def test_balanced_bias_fit_is_not_pulled_by_a_tilted_map_on_a_long_straight():
     time_weighted = tilt_calibration(*plain, free)[1][:2]
     np.testing.assert_allclose(balanced, BIAS, atol=3e-4)
     assert abs(time_weighted[0] - BIAS[0]) > 3e-3  # 0.8 x 5 mrad of the map's pitch taken for a bias
+
+
+def test_tilt_calibration_add_and_estimate_are_the_sectors_sums_balanced():
+    rng = np.random.default_rng(4)
+    prior, sums = tilt_calibration_prior(0.02, 0.01), tilt_calibration_bins(4)
+    infos, etas, weights = np.zeros((4, 4, 4)), np.zeros((4, 4)), np.zeros(4)
+    for yaw, w in zip(rng.uniform(-np.pi, np.pi, 30), rng.uniform(1.0, 3.0, 30)):
+        R = rpy_to_matrix([0.0, 0.0, yaw])
+        up = _measured_up(R)
+        tilt_calibration_add(sums, R, up, w)
+        b = heading_bin(R, 4)
+        infos[b], etas[b] = tilt_calibration_update(infos[b], etas[b], R, up, w)
+        weights[b] += w
+    info, eta = balance_heading_bins(infos, etas, weights)
+    expected = tilt_calibration(prior[0] + info, prior[1] + eta, prior[2])
+    for got, want in zip(tilt_calibration_estimate(prior, sums), expected):
+        np.testing.assert_array_equal(got, want)
+    assert np.count_nonzero(sums[2]) == 4

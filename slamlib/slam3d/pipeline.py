@@ -73,8 +73,8 @@ from collections import deque
 import numpy as np
 
 from slamlib.kernels import get_backend
-from slamlib.odometry import (balance_heading_bins, gravity_up, heading_bin, increment_matrix, tilt_calibration,
-                              tilt_calibration_prior, tilt_calibration_update, twist_between)
+from slamlib.odometry import (gravity_up, increment_matrix, tilt_calibration_add, tilt_calibration_bins,
+                              tilt_calibration_estimate, tilt_calibration_prior, twist_between)
 from slamlib.resampling import normalise_log_weights
 from slamlib.slam3d import steps
 from slamlib.slam3d.config import SLAM3DConfig
@@ -146,9 +146,8 @@ class ParticleSLAM3D:
         self.tilt_samples: deque = deque()  # the accelerometer window of the tilt prior (_gravity_up)
         self.up, self.up_span = None, 0.0
         self.tilt_prior = tilt_calibration_prior(cfg.filter.tilt_world_sigma, cfg.filter.tilt_bias_sigma)
-        bins = cfg.filter.tilt_heading_bins
-        self.tilt_bins = (np.zeros((bins, 4, 4)), np.zeros((bins, 4)), np.zeros(bins))
-        self.world_up, self.up_bias = tilt_calibration(*self.tilt_prior)
+        self.tilt_bins = tilt_calibration_bins(cfg.filter.tilt_heading_bins)
+        self.world_up, self.up_bias = tilt_calibration_estimate(self.tilt_prior, self.tilt_bins)
 
     # ----------------------------------------------------------------------------------------- step 12
     def register_frame(self, frame) -> np.ndarray:
@@ -214,13 +213,8 @@ class ParticleSLAM3D:
         f = self.config.filter
         if self.up is None or self.up_span < f.tilt_window:
             return  # a shorter window (the drive's first seconds) measures up with errors ~ 1 / its span
-        infos, etas, weights = self.tilt_bins
-        b, w = heading_bin(pose[:3, :3], len(weights)), dt / f.tilt_window / f.tilt_sigma**2
-        infos[b], etas[b] = tilt_calibration_update(infos[b], etas[b], pose[:3, :3], self.up, w)
-        weights[b] += w
-        info0, eta0, free = self.tilt_prior
-        info, eta = balance_heading_bins(infos, etas, weights)
-        self.world_up, self.up_bias = tilt_calibration(info0 + info, eta0 + eta, free)
+        tilt_calibration_add(self.tilt_bins, pose[:3, :3], self.up, dt / f.tilt_window / f.tilt_sigma**2)
+        self.world_up, self.up_bias = tilt_calibration_estimate(self.tilt_prior, self.tilt_bins)
 
     def _gravity_up(self, imu, force, dt, increment):
         """The up direction in this frame's body, from the accelerometer over the last ``tilt_window`` seconds

@@ -1,11 +1,11 @@
 """``slamlib bench scaling``: how the cost of the 3D particle SLAM grows, with fitted slopes.
 
-Three sweeps over the default synthetic drive (:func:`slamlib.synth.default_drive`), default
+Three sweeps over the still default synthetic drive (:func:`slamlib.synth.default_drive` with ``realism=False``), default
 :class:`slamlib.slam3d.SLAM3DConfig` (hashed NDT voxel map, Numba CPU backend) except the swept setting:
 
 * ``particles``: frames ``SWEEP_FRAMES`` for ``P`` in :data:`PARTICLES` (100 ... 3000);
 * ``points``: the same frames for ``scored_points`` ``N`` in :data:`POINTS` (points per particle in step 8);
-* ``route``: the whole route (``default_drive(full=True)``, ~1,100 frames, ~690 m) with the default settings,
+* ``route``: the whole route (``default_drive(full=True, realism=False)``, ~1,100 frames, ~690 m) with the default settings,
   per-frame ``register_frame`` times and the map's size every :data:`ROUTE_SNAPSHOT_EVERY` frames: is the time
   per frame flat while the map grows?
 
@@ -72,7 +72,7 @@ def run(quick: bool = False) -> dict:
     from slamlib.synth import default_drive
 
     load_before = os.getloadavg()[0]
-    basedir, date, drive_id = default_drive(progress=False)
+    basedir, date, drive_id = default_drive(progress=False, realism=False)
     a, b = QUICK_FRAMES if quick else SWEEP_FRAMES
     drive = KittiRawDrive(basedir, date, drive_id, frames=range(a, b))
     run_drive(KittiRawDrive(basedir, date, drive_id, frames=range(0, 5)), SLAM3DConfig.of(particles=50),
@@ -86,14 +86,14 @@ def run(quick: bool = False) -> dict:
                    particles=default.filter.particles, points=N)
               for N in (QUICK_POINTS if quick else POINTS)]
 
-    route_drive = drive if quick else KittiRawDrive(*default_drive(full=True, progress=False))
+    route_drive = drive if quick else KittiRawDrive(*default_drive(full=True, progress=False, realism=False))
     r = run_drive(route_drive, default, progress=False, snapshot_every=ROUTE_SNAPSHOT_EVERY)
     ms = r.frame_seconds * 1e3
     k = np.arange(len(ms))
     snaps = [(int(pos), int(len(pts))) for pos, pts, _ in r.snapshots]
     m = evaluate(r)
     route = {
-        "drive": "slamlib.synth.default_drive()" if quick else "slamlib.synth.default_drive(full=True)",
+        "drive": "slamlib.synth.default_drive(realism=False)" if quick else "slamlib.synth.default_drive(full=True, realism=False)",
         "frames": int(len(ms)), "path_length_m": round(float(m["path_length_m"]), 1),
         "particles": default.filter.particles, "points": default.filter.scored_points, "map": default.map.kind,
         "fps": round(r.fps, 2), "ate_rmse_m": round(float(m["slam"]["ate_rmse_m"]), 4),
@@ -105,7 +105,7 @@ def run(quick: bool = False) -> dict:
     }
     print({k_: v for k_, v in route.items() if k_ != "frame_ms"}, flush=True)
     return {
-        "workload": {"drive": "slamlib.synth.default_drive()", "frames": [a, b], "backend": default.backend,
+        "workload": {"drive": "slamlib.synth.default_drive(realism=False)", "frames": [a, b], "backend": default.backend,
                      "numba_threads": int(numba.get_num_threads()), "config": default.as_dict()},
         "particles": particles,
         "fit_ms_vs_particles": _fit([r_["particles"] for r_ in particles], [r_["frame_ms_median"] for r_ in particles]),

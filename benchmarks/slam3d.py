@@ -1,7 +1,8 @@
 """``slamlib bench slam3d``: frames/s and accuracy of the 3D particle SLAM on the default synthetic drive.
 
-Workload: the default synthetic drive (:func:`slamlib.synth.default_drive`, KITTI 07 route, ~100,000-point
-HDL-64E scans), frames ``FRAMES`` (``QUICK_FRAMES`` with ``--quick``), default :class:`SLAM3DConfig` except
+Workload: the still default synthetic drive (:func:`slamlib.synth.default_drive` with ``realism=False``: no sweep
+distortion, traffic or bias walk, so that the timings stay comparable with the committed history; KITTI 07 route,
+~100,000-point HDL-64E scans), frames ``FRAMES`` (``QUICK_FRAMES`` with ``--quick``), default :class:`SLAM3DConfig` except
 the number of particles (100, 300, 1000) and the map kind (``voxel_hash``, ``morton_bvh``), Numba CPU backend. Each
 configuration runs once after a short untimed warm-up (JIT caches, page cache).
 
@@ -14,7 +15,7 @@ Reported per configuration:
 * ``ate_rmse_m`` of SLAM and of dead reckoning from the same IMU data, their ratio, and the KITTI translational
   error (%) when the range is over 100 m.
 
-``long``: the default configuration over the whole synthetic route (``default_drive(full=True)``, ~1,100 frames,
+``long``: the default configuration over the whole synthetic route (``default_drive(full=True, realism=False)``, ~1,100 frames,
 ~690 m, generated on first use), for the KITTI metric on a drive of more than 500 m (skipped with ``--quick``).
 """
 
@@ -38,7 +39,7 @@ def run(quick: bool = False) -> dict:
     from slamlib.slam3d import SLAM3DConfig, evaluate, run_drive
     from slamlib.synth import default_drive
 
-    basedir, date, drive_id = default_drive(progress=False)
+    basedir, date, drive_id = default_drive(progress=False, realism=False)
     a, b = QUICK_FRAMES if quick else FRAMES
     drive = KittiRawDrive(basedir, date, drive_id, frames=range(a, b))
     warm = KittiRawDrive(basedir, date, drive_id, frames=range(0, 5))
@@ -65,7 +66,7 @@ def run(quick: bool = False) -> dict:
     long = None if quick else _long_run()
     return {
         "long": long,
-        "workload": {"drive": "slamlib.synth.default_drive()", "frames": [a, b],
+        "workload": {"drive": "slamlib.synth.default_drive(realism=False)", "frames": [a, b],
                      "path_length_m": round(m["path_length_m"], 1), "backend": "cpu",
                      "numba_threads": int(numba.get_num_threads()),
                      "config": SLAM3DConfig().as_dict()},   # the rows change filter.particles and map.kind
@@ -79,11 +80,11 @@ def _long_run() -> dict:
     from slamlib.slam3d import SLAM3DConfig, evaluate, run_drive
     from slamlib.synth import default_drive
 
-    drive = KittiRawDrive(*default_drive(full=True, progress=False))
+    drive = KittiRawDrive(*default_drive(full=True, progress=False, realism=False))
     cfg = SLAM3DConfig()
     r = run_drive(drive, cfg, progress=False)
     m = evaluate(r)
-    out = {"drive": "slamlib.synth.default_drive(full=True)", "frames": m["frames"],
+    out = {"drive": "slamlib.synth.default_drive(full=True, realism=False)", "frames": m["frames"],
            "path_length_m": round(m["path_length_m"], 1), "particles": cfg.filter.particles, "map": cfg.map.kind,
            "fps": round(r.fps, 2), "fps_median": round(float(1.0 / np.median(r.frame_seconds[1:])), 2)}
     for key in ("slam", "dead_reckoning"):

@@ -518,10 +518,27 @@ def test_slamlib_run_map_names_and_bad_settings(tiny_drive, tmp_path, capsys):
     assert "--map bvh is now called --map morton_bvh" in capsys.readouterr().out
     info = json.loads((tmp_path / "b" / "metrics.json").read_text())
     assert info["config"]["map"]["kind"] == "morton_bvh" and info["config"]["filter"]["particles"] == 5
-    assert info["config"]["scan"]["deskew"] is False
+    # a still synthetic drive (no distortion): by default (deskew None) no scan is de-skewed; --deskew does all
+    assert info["config"]["scan"]["deskew"] is None and info["n_deskewed_frames"] == 0
     assert main(common + ["--frames", "0:3", "--particles", "5", "--points", "20", "--deskew",
                           "--out", str(tmp_path / "c")]) == 0
-    assert json.loads((tmp_path / "c" / "metrics.json").read_text())["config"]["scan"]["deskew"] is True
+    info = json.loads((tmp_path / "c" / "metrics.json").read_text())
+    assert info["config"]["scan"]["deskew"] is True and info["n_deskewed_frames"] == 3
+
+
+def test_slamlib_run_default_drive_is_realistic_unless_still(tiny_drive, tmp_path, monkeypatch, capsys):
+    """With no drive given, ``slamlib run`` asks for the realistic default drive; ``--still-default`` for the still
+    one (``default_drive(realism=False)``), and says so."""
+    import slamlib.synth
+    from slamlib.cli import main
+
+    asked = []
+    monkeypatch.setattr(slamlib.synth, "default_drive", lambda **kw: asked.append(kw) or tiny_drive)
+    for flags, realism in (([], True), (["--still-default"], False)):
+        assert main(["run", "--frames", "0:3", "--particles", "5", "--points", "20", "--no-progress", "--no-plots",
+                     "--out", str(tmp_path / str(realism))] + flags) == 0
+        assert asked[-1]["realism"] is realism
+        assert ("default drive (still)" in capsys.readouterr().out) is not realism
 
 
 def test_crop_and_downsample_equals_crop_then_downsample():

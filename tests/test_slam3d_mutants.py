@@ -95,6 +95,25 @@ def test_deskew_config_deskews_the_scan_with_the_frames_imu_before_merging():
     assert np.abs(no_t - expected).max() > 1e-3  # the mounting matters
 
 
+def test_default_deskew_follows_the_frames_sweep():
+    """``ScanConfig.deskew`` None (the default) de-skews a frame whose ``swept`` is true, as ``deskew=True`` does,
+    and merges a frame with ``swept`` false (or none) as ``deskew=False``; ``n_deskewed`` counts the frames."""
+    scan = _scan()
+    frame = _frame(scan, v=(12.0, 0.5, 0.0), w=(0.0, 0.0, 0.3))
+    maps = {}
+    for name, deskew, swept in (("auto swept", None, True), ("on", True, False), ("auto still", None, False),
+                                ("off", False, True)):
+        config = SLAM3DConfig(filter=FilterConfig(particles=20), scan=ScanConfig(downsample_voxel=0.0, deskew=deskew))
+        slam = ParticleSLAM3D(config)
+        frame.swept = swept
+        slam.register_frame(frame)
+        maps[name] = (_sorted(slam.map_points()), slam.n_deskewed)
+    np.testing.assert_array_equal(maps["auto swept"][0], maps["on"][0])
+    np.testing.assert_array_equal(maps["auto still"][0], maps["off"][0])
+    assert maps["on"][0].shape != maps["off"][0].shape or np.abs(maps["on"][0] - maps["off"][0]).max() > 0.05
+    assert [maps[k][1] for k in ("auto swept", "on", "auto still", "off")] == [1, 1, 0, 0]
+
+
 def test_deskew_goes_to_the_pose_time_of_the_frame():
     """A frame with ``scan_time_offset_s`` (its scan stamped before its pose, as KITTI raw frames are) is de-skewed to
     the pose's time: the first frame merges ``deskew_scan(..., time_offset=frame.scan_time_offset_s)``."""

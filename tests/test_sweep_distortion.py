@@ -82,6 +82,36 @@ def test_write_drive_with_distortion_records_it_and_changes_only_the_scans(tmp_p
     da, db = KittiRawDrive(*a), KittiRawDrive(*b)
     np.testing.assert_array_equal(da.ground_truth_poses(), db.ground_truth_poses())
     assert not np.array_equal(da[1].scan, db[1].scan)
+    # the reader tells the swept drive, and its frames, from the still one (ScanConfig.deskew None follows it)
+    assert (da.swept, da[1].swept, db.swept, db[1].swept) == (False, False, True, True)
+
+
+def test_scans_count_as_swept_unless_a_synthetic_marker_says_otherwise(tmp_path):
+    """Real data (no marker) and an unreadable marker: swept; a marker without ``distortion`` or with it false:
+    not; ``"distortion": true``: swept."""
+    import json
+
+    from slamlib.kitti import SYNTH_MARKER, scans_swept
+
+    assert scans_swept(tmp_path / "nowhere") and scans_swept(tmp_path)
+    for text, swept in (("{not json", True), ("[1, 2]", True), (json.dumps({"seed": 1}), False),
+                        (json.dumps({"distortion": False}), False), (json.dumps({"distortion": True}), True)):
+        (tmp_path / SYNTH_MARKER).write_text(text, encoding="ascii")
+        assert scans_swept(tmp_path) is swept, text
+
+
+def test_should_deskew_follows_the_frame_unless_the_config_says():
+    """``ScanConfig.deskew`` None (the default): the frame's ``swept`` (missing: cast from one pose); True / False win
+    over it."""
+    from types import SimpleNamespace
+
+    swept, still, bare = SimpleNamespace(swept=True), SimpleNamespace(swept=False), SimpleNamespace()
+    assert ScanConfig().deskew is None
+    assert [steps.should_deskew(f) for f in (swept, still, bare)] == [True, False, False]
+    assert [steps.should_deskew(f, ScanConfig(deskew=True)) for f in (swept, still, bare)] == [True] * 3
+    assert [steps.should_deskew(f, ScanConfig(deskew=False)) for f in (swept, still, bare)] == [False] * 3
+    with pytest.raises(ValueError, match="deskew must be True, False or None"):
+        ScanConfig(deskew="auto")
 
 
 def test_pose_extended_continues_the_route_at_its_end_twist():

@@ -224,3 +224,22 @@ def test_a_scene_of_boxes_is_hit_where_its_faces_are():
     np.testing.assert_allclose(behind[:, 0], -7.0, atol=1e-4)
     with pytest.raises(ValueError, match="hi > lo"):
         Scene.from_boxes([((0, 0, 0), (1, 0, 1))])
+
+
+def test_default_drive_is_realistic_unless_asked_for_the_still_one(tmp_path, monkeypatch):
+    """``default_drive()`` writes swept scans, KITTI-city traffic and wandering biases; ``realism=False`` none of
+    them, into its own cache folder; a ``noise`` given wins over either default."""
+    from slamlib.synth import KITTI_CITY
+    from slamlib.synth import drive as drive_module
+
+    monkeypatch.setenv("SLAMLIB_CACHE", str(tmp_path))
+    calls = []
+    monkeypatch.setattr(drive_module, "write_drive", lambda basedir, *a, **kw: calls.append((basedir, kw)))
+    drive_module.default_drive(progress=False)
+    drive_module.default_drive(progress=False, realism=False)
+    drive_module.default_drive(progress=False, noise=ZERO_NOISE)
+    (real_dir, real), (still_dir, still), (_, quiet) = calls
+    assert real["distortion"] is True and real["traffic"] == KITTI_CITY and real["noise"] == WANDERING_BIASES
+    assert still["distortion"] is False and still["traffic"] is None and still["noise"] == ImuNoise()
+    assert quiet["distortion"] is True and quiet["noise"] == ZERO_NOISE
+    assert len({real_dir, still_dir, calls[2][0]}) == 3

@@ -3,6 +3,7 @@
 Examples::
 
     slamlib run --out runs/default                                   # the default synthetic drive (300 frames)
+    slamlib run --still-default --out runs/still                     # its still twin: one pose a scan, no traffic
     slamlib run --full-default --out runs/full                       # the whole synthetic drive (~690 m)
     slamlib run --basedir ~/kitti --date 2011_09_26 --drive 0005 --frames 0:150 --particles 1000 --out runs/05
     slamlib run --out runs/default --video map.mp4                   # and a video of the map being built (.gif too)
@@ -15,6 +16,7 @@ reckoning, frames/s) and two plots (see :func:`slamlib.slam3d.run.save_run`).
 
 from __future__ import annotations
 
+import argparse
 from pathlib import Path
 
 NAME = "run"
@@ -33,6 +35,9 @@ def add_arguments(parser) -> None:
     g.add_argument("--sequence", default=None, metavar="NN", help="with --odometry-dir: the sequence, e.g. 07")
     g.add_argument("--full-default", action="store_true",
                    help="with no --basedir: the whole synthetic drive (~1,100 frames, ~690 m) instead of 300 frames")
+    g.add_argument("--still-default", action="store_true",
+                   help="with no --basedir: the default drive without sweep distortion, traffic and wandering IMU "
+                        "biases (the book's first chapters explain SLAM on it)")
     g.add_argument("--frames", default=None, metavar="A:B",
                    help="frame range A:B (drive frame numbers, B exclusive; A:, :B or B also work); default all")
     from slamlib.kernels import BACKENDS
@@ -50,9 +55,10 @@ def add_arguments(parser) -> None:
     f.add_argument("--lidar-only", action="store_true",
                    help="ignore the IMU: step 3 holds the filter's own last motion (constant velocity), as on data "
                         "without an IMU (the odometry layout, where it is always on)")
-    f.add_argument("--deskew", action="store_true",
-                   help="motion-compensate each scan taken over a sweep, to the frame's pose time (ScanConfig.deskew): "
-                        "for real KITTI drives and synthetic ones written with --distortion")
+    f.add_argument("--deskew", action=argparse.BooleanOptionalAction, default=None,
+                   help="motion-compensate each scan to the frame's pose time, or not (ScanConfig.deskew; default: "
+                        "when the scans were taken over a sweep, as real KITTI drives and the default drive's are, "
+                        "not synthetic drives written without --distortion)")
     f.add_argument("--noise", type=float, default=1.0, metavar="SCALE",
                    help="scale of step 6's motion noise (all six sigmas; default 1.0 = the tuned defaults)")
     f.add_argument("--temperature", type=float, default=FilterConfig.temperature,
@@ -168,8 +174,10 @@ def main(args) -> int:
     else:
         from slamlib.synth import default_drive
 
-        basedir, date, drive_id = default_drive(full=args.full_default, progress=not args.no_progress)
-        source = "synthetic default drive" + (" (full)" if args.full_default else "")
+        basedir, date, drive_id = default_drive(full=args.full_default, realism=not args.still_default,
+                                                progress=not args.no_progress)
+        source = ("synthetic default drive" + (" (full)" if args.full_default else "")
+                  + (" (still)" if args.still_default else ""))
     try:
         if odometry:
             from slamlib.kitti import KittiOdometrySequence

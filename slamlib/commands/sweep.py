@@ -17,6 +17,7 @@ See :mod:`slamlib.slam3d.sweep`.
 
 from __future__ import annotations
 
+import argparse
 import json
 import math
 import shlex
@@ -50,9 +51,10 @@ def add_arguments(parser) -> None:
     parser.add_argument("--tilt-sigma", type=float, default=None, metavar="RAD",
                         help="slamlib holds roll and pitch to the accelerometer's gravity with this uncertainty "
                              "(FilterConfig.tilt_sigma, radians; 0 = off, the default)")
-    parser.add_argument("--deskew", action="store_true",
-                        help="slamlib de-skews every scan with the frame's motion (ScanConfig.deskew; KISS-ICP "
-                             "de-skews whenever the drives have --distortion)")
+    parser.add_argument("--deskew", action=argparse.BooleanOptionalAction, default=None,
+                        help="slamlib de-skews every scan with the frame's motion, or none (ScanConfig.deskew; "
+                             "default: the swept scans, those of drives with --distortion; KISS-ICP de-skews "
+                             "whenever the drives have --distortion)")
     real = parser.add_argument_group("drive realism (default: a still town, unswept scans, constant IMU biases)")
     real.add_argument("--distortion", action="store_true",
                       help="scans swept column by column as a real HDL-64E (slamlib.synth.lidar)")
@@ -134,8 +136,8 @@ def main(args) -> int:
         if not (math.isfinite(args.tilt_sigma) and args.tilt_sigma >= 0):
             _fail(f"--tilt-sigma must be a finite number >= 0 (radians), got {args.tilt_sigma}")
         settings = [dict(s, tilt_sigma=args.tilt_sigma) for s in settings]
-    if args.deskew:
-        settings = [dict(s, deskew=True) for s in settings]
+    if args.deskew is not None:
+        settings = [dict(s, deskew=args.deskew) for s in settings]
     if args.workers is not None and args.workers < 1:
         _fail(f"--workers must be >= 1, got {args.workers}")
     frames = set()

@@ -57,8 +57,8 @@ def add_arguments(parser) -> None:
                              "(slamlib.synth.WANDERING_BIASES: 5 mm/s and 0.2 mrad/s per sqrt(s)), scaled by --imu-noise")
     parser.add_argument("--distortion", action="store_true",
                         help="sweep each scan column by column as KITTI's HDL-64E does (slamlib.synth.lidar): the car "
-                             "moves during the 0.1 s turn (default: every scan cast from one pose); de-skew with "
-                             "slamlib run --deskew")
+                             "moves during the 0.1 s turn (default: every scan cast from one pose); slamlib run "
+                             "de-skews such a drive's scans by default")
     parser.add_argument("--layout", choices=("raw", "odometry"), default="raw",
                         help="raw: a KITTI raw drive (OXTS + scans; default); odometry: a KITTI odometry sequence "
                              "OUT/sequences/NN (scans, calib.txt, times.txt) with ground truth OUT/poses/NN.txt and no "

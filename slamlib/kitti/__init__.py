@@ -69,7 +69,7 @@ from slamlib.kitti.trajectory_io import (
     write_times,
     write_tum,
 )
-from slamlib.kitti.velodyne import read_velodyne_scan, write_velodyne_scan
+from slamlib.kitti.velodyne import SYNTH_MARKER, read_velodyne_scan, scans_swept, write_velodyne_scan
 
 __all__ = [
     "KittiRawDrive", "Frame", "ImuArrays", "drive_folder_name", "KittiOdometrySequence", "OdometryFrame",
@@ -77,7 +77,7 @@ __all__ = [
     "OXTS_FIELDS", "OxtsPacket", "read_oxts_packet", "write_oxts_packet", "parse_oxts_line", "format_oxts_packet",
     "mercator_scale", "enu_pose_from_packet", "poses_from_packets",
     "read_timestamps_ns", "write_timestamps_ns", "parse_timestamp_ns", "format_timestamp_ns",
-    "read_velodyne_scan", "write_velodyne_scan",
+    "read_velodyne_scan", "write_velodyne_scan", "scans_swept", "SYNTH_MARKER",
     "REQUIRED_KEYS", "read_calib_file", "read_rigid", "check_calibration", "load_T_velo_imu",
     "read_kitti_poses", "write_kitti_poses", "read_tum", "write_tum", "read_times", "write_times",
 ]

@@ -32,7 +32,7 @@ from slamlib.kitti.calib import check_calibration, check_calibration_for_pykitti
 from slamlib.kitti.oxts import OXTS_FIELDS as _FIELDS
 from slamlib.kitti.oxts import OxtsPacket, check_oxts_for_pykitti, poses_from_packets, read_oxts_packet
 from slamlib.kitti.timestamps import check_timestamps_for_pykitti, read_timestamps_ns
-from slamlib.kitti.velodyne import read_velodyne_scan
+from slamlib.kitti.velodyne import read_velodyne_scan, scans_swept
 
 __all__ = ["Frame", "ImuArrays", "KittiRawDrive", "drive_folder_name"]
 
@@ -84,6 +84,10 @@ class Frame:
         The scan's own timestamp (mid-sweep, ``velodyne_points/timestamps.txt``) minus the frame's OXTS timestamp,
         in seconds: about -12 to -24 ms on KITTI (the sweep is centred that long before the pose); 0.0 when the drive
         has no Velodyne timestamps.
+    swept : bool
+        Whether the scan was taken over a sweep and wants de-skewing (the drive's
+        :func:`~slamlib.kitti.velodyne.scans_swept`: real KITTI scans are; a synthetic drive's only when written
+        with ``distortion``).
     """
 
     index: int
@@ -100,6 +104,7 @@ class Frame:
     T_w_velo: np.ndarray = field(repr=False)
     velodyne_path: Path = field(repr=False)
     scan_time_offset_s: float = 0.0
+    swept: bool = True
 
 
 @dataclass(frozen=True, eq=False)
@@ -192,6 +197,10 @@ class KittiRawDrive:
         The selected frame numbers.
     n_drive_frames : int
         Frames in the whole drive (= OXTS timestamps).
+    swept : bool
+        Whether the scans were taken over a sweep (:func:`~slamlib.kitti.velodyne.scans_swept`: real drives; a
+        synthetic one written with ``distortion``): the filter de-skews them unless told otherwise
+        (:attr:`slamlib.slam3d.config.ScanConfig.deskew`).
 
     Examples
     --------
@@ -218,6 +227,7 @@ class KittiRawDrive:
         check_calibration(self.calib_dir)
         self.T_velo_imu = load_T_velo_imu(self.calib_dir)
         self.T_imu_velo = np.linalg.inv(self.T_velo_imu)  # general inverse, as T_w_velo = T_w_imu @ inv(T_velo_imu)
+        self.swept = scans_swept(self.path)  # real scans are; a synthetic drive's only if written with distortion
 
         self.oxts_dir = self.path / "oxts" / "data"
         self.velo_dir = self.path / "velodyne_points" / "data"
@@ -325,6 +335,7 @@ class KittiRawDrive:
             velodyne_path=self.velodyne_path(index),
             scan_time_offset_s=(0.0 if self.all_velo_timestamps_ns is None
                                 else (int(self.all_velo_timestamps_ns[index]) - ts) * 1e-9),
+            swept=self.swept,
         )
 
     def __getitem__(self, pos: int) -> Frame:

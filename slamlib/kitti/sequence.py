@@ -35,7 +35,7 @@ import numpy as np
 from slamlib.errors import DataFormatError
 from slamlib.kitti.calib import read_calib_file, rigid_transform
 from slamlib.kitti.trajectory_io import read_kitti_poses, read_times
-from slamlib.kitti.velodyne import read_velodyne_scan
+from slamlib.kitti.velodyne import read_velodyne_scan, scans_swept
 
 __all__ = ["OdometryFrame", "KittiOdometrySequence", "sequence_name", "CALIB_KEYS", "SCAN_DIGITS"]
 
@@ -74,6 +74,9 @@ class OdometryFrame:
         (:func:`slamlib.slam3d.steps.read_imu`).
     velodyne_path : Path
         The scan file.
+    swept : bool
+        Whether the scan was taken over a sweep and wants de-skewing (the sequence's
+        :func:`~slamlib.kitti.velodyne.scans_swept`).
     """
 
     index: int
@@ -84,6 +87,7 @@ class OdometryFrame:
     velodyne_path: Path = field(repr=False)
     velocity: None = None
     angular_rate: None = None
+    swept: bool = True
 
 
 class KittiOdometrySequence:
@@ -116,6 +120,8 @@ class KittiOdometrySequence:
         ``T_w_body`` of every frame (module docstring), when a poses file is there.
     poses_path : Path or None
         The ground-truth file read.
+    swept : bool
+        Whether the scans were taken over a sweep (:func:`~slamlib.kitti.velodyne.scans_swept`).
     """
 
     def __init__(self, basedir, sequence: str | int, frames=None, poses=None, progress: bool = False):
@@ -135,6 +141,7 @@ class KittiOdometrySequence:
         Tr = calib["Tr"].reshape(3, 4)
         self.Tr = rigid_transform(self.path / "calib.txt", Tr[:, :3], Tr[:, 3], "Tr's 3x3 block", "Tr's offset")
         self.T_velo_imu = np.eye(4)
+        self.swept = scans_swept(self.path)  # real scans are; a synthetic sequence's only if written with distortion
         times_path = self.path / "times.txt"
         if not times_path.is_file():
             raise DataFormatError(times_path, "times file not found (one time in seconds per frame; the odometry "
@@ -173,7 +180,7 @@ class KittiOdometrySequence:
         return OdometryFrame(index=index, time_s=float(self.times[index]), dt=dt,
                              scan=read_velodyne_scan(self.velodyne_path(index)),
                              T_w_body=None if self.ground_truth is None else self.ground_truth[index],
-                             velodyne_path=self.velodyne_path(index))
+                             velodyne_path=self.velodyne_path(index), swept=self.swept)
 
     def __getitem__(self, pos: int) -> OdometryFrame:
         """Frame at position ``pos`` of the selection (negative counts from the end)."""

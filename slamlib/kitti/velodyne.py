@@ -7,13 +7,16 @@ x forward, y left, z up) and ``reflectance`` (0..1). The file size must therefor
 
 from __future__ import annotations
 
+import json
 import os
+from pathlib import Path
 
 import numpy as np
 
 from slamlib.errors import DataFormatError
 
-__all__ = ["POINT_BYTES", "SWEEP_PERIOD_S", "read_velodyne_scan", "write_velodyne_scan"]
+__all__ = ["POINT_BYTES", "SWEEP_PERIOD_S", "SYNTH_MARKER", "read_velodyne_scan", "write_velodyne_scan",
+           "scans_swept"]
 
 #: Bytes per point: 4 float32 values.
 POINT_BYTES = 16
@@ -21,6 +24,25 @@ POINT_BYTES = 16
 #: (``../shared/notes/kitti-sensor-facts.md``); the scans are also this far apart. Every module that needs the
 #: sweep (generator, de-skewing, the real samples, KISS-ICP's pose times) takes it from here.
 SWEEP_PERIOD_S = 0.10315
+#: The file a complete :mod:`slamlib.synth` drive or sequence folder holds: the generator's parameters (JSON),
+#: among them ``"distortion": true`` when its scans were cast over a sweep (:func:`scans_swept`).
+SYNTH_MARKER = ".slamlib_synth.json"
+
+
+def scans_swept(folder: str | os.PathLike) -> bool:
+    """Whether the scans of a drive or sequence ``folder`` were taken over a sweep, as a spinning LIDAR takes them
+    (each column at its own instant, the car moving in between), and so want de-skewing.
+
+    True for real KITTI data: neither the raw "sync" scans nor the odometry benchmark's are motion-compensated.
+    False for a :mod:`slamlib.synth` folder written without ``distortion`` (its :data:`SYNTH_MARKER` says so):
+    each of its scans was cast from one pose, and de-skewing would add the error it removes elsewhere. A marker
+    that cannot be read counts as real data.
+    """
+    try:
+        params = json.loads((Path(folder) / SYNTH_MARKER).read_text(encoding="ascii"))
+    except (OSError, ValueError):  # no marker: real data
+        return True
+    return not isinstance(params, dict) or bool(params.get("distortion", False))
 
 
 def read_velodyne_scan(path: str | os.PathLike) -> np.ndarray:

@@ -75,10 +75,12 @@ class ScanConfig:
     downsample_voxel : float
         Edge of the scan's down-sampling voxel, metres (one point kept per voxel; 0 = off). Not the map's voxel
         (:attr:`MapConfig.params` ``voxel_size``).
-    deskew : bool
-        Motion-compensate each scan (:func:`slamlib.slam3d.steps.deskew_scan`) with the frame's motion: on for
-        scans taken over a sweep (real KITTI, synthetic drives written with ``distortion=True``); off for scans
-        cast from one pose (the default synthetic drive), where it would add the very error it removes.
+    deskew : bool or None
+        Motion-compensate each scan (:func:`slamlib.slam3d.steps.deskew_scan`) with the frame's motion. ``None``
+        (the default): for the scans taken over a sweep, the frames whose ``swept`` says so
+        (:func:`slamlib.slam3d.steps.should_deskew`: real KITTI data and synthetic drives written with
+        ``distortion``, the default drive among them), not for scans cast from one pose, where it would add the
+        very error it removes. ``True`` / ``False``: every frame / none.
     sweep_period : float
         Seconds one sweep takes (KITTI's HDL-64E: 0.10315 s, measured on raw drive 0001).
     """
@@ -86,7 +88,7 @@ class ScanConfig:
     min_range: float = 3.0
     max_range: float = 60.0
     downsample_voxel: float = 0.25
-    deskew: bool = False
+    deskew: bool | None = None
     sweep_period: float = SWEEP_PERIOD_S
 
     def __post_init__(self):
@@ -97,8 +99,8 @@ class ScanConfig:
             raise ValueError(f"downsample_voxel must be >= 0 (0 = off), got {self.downsample_voxel}")
         if not _finite("sweep_period", self.sweep_period) > 0:
             raise ValueError(f"sweep_period must be > 0 s, got {self.sweep_period}")
-        if not isinstance(self.deskew, (bool, np.bool_)):
-            raise ValueError(f"deskew must be True or False, got {self.deskew!r}")
+        if self.deskew is not None and not isinstance(self.deskew, (bool, np.bool_)):
+            raise ValueError(f"deskew must be True, False or None (when the scans are swept), got {self.deskew!r}")
 
 
 #: Step 3's motion sources: the IMU's velocities and rates, or the filter's own last estimated motion held

@@ -108,6 +108,7 @@ class ParticleSLAM3D:
     poses : list of (4, 4) SLAM estimates ``T_world_body``, one per registered frame.
     dr_poses : list of (4, 4) dead-reckoning poses from the same IMU samples.
     n_resampled : number of frames in which step 11 resampled.
+    n_deskewed : number of frames whose scan step 2 de-skewed (:func:`~slamlib.slam3d.steps.should_deskew`).
     n_skipped_frames : number of frames skipped for scoring, with fewer than :data:`MIN_SCAN_POINTS` points
         (module docstring, "Degenerate frames").
     archive : list of (K, 3) float32 points pruned from the map (``keep_pruned``); see :meth:`map_points`.
@@ -137,6 +138,7 @@ class ParticleSLAM3D:
         self.poses: list[np.ndarray] = []
         self.dr_poses: list[np.ndarray] = []
         self.n_resampled = 0
+        self.n_deskewed = 0
         self.n_skipped_frames = 0
         self.archive: list[np.ndarray] = []
         self.last: dict = {}
@@ -167,9 +169,10 @@ class ParticleSLAM3D:
         tilt = cfg.filter.tilt_sigma and not self.lidar_only  # 3's accelerometer, for step 8's tilt prior
         force = steps.read_specific_force(frame) if tilt else None
         dt = steps.read_timing(frame)                                                              # 4
-        if cfg.scan.deskew:  # step 2's motion compensation, with the motion step 3 read, to the pose's time
+        if steps.should_deskew(frame, cfg.scan):  # step 2's motion compensation, with step 3's motion, to the pose time
             points = steps.deskew_scan(points, imu, cfg.scan, self.T_body_velo,
                                        steps.read_scan_time_offset(frame, cfg.scan))
+            self.n_deskewed += 1
         if self.imu_prev is None:  # first frame: the map starts at the start pose
             return self._start(points, imu, dt)
         increment = steps.motion_increment(imu, dt, prev)  # once: steps 5 and 6 and the dead-reckoning twin

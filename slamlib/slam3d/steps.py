@@ -68,7 +68,7 @@ from slamlib.slam3d.config import MotionConfig, ScanConfig
 from slamlib.slam3d.preprocess import crop_and_downsample, deskew, sweep_times
 
 __all__ = [
-    "Particles3D", "initialise_particles", "read_scan", "deskew_scan", "read_imu", "read_timing",
+    "Particles3D", "initialise_particles", "read_scan", "should_deskew", "deskew_scan", "read_imu", "read_timing",
     "read_scan_time_offset", "read_specific_force", "motion_increment", "tilt_log_prior",
     "motion_noise_sigma", "offset_by_motion", "perturb_with_noise", "transform_scan", "score_particles",
     "pick_best_particle", "merge_scan", "resample_particles", "weighted_mean_pose", "project_to_rotation",
@@ -150,6 +150,16 @@ def read_scan(frame, scan_config: ScanConfig = ScanConfig(), T_body_velo=None) -
         T = np.asarray(T_body_velo, dtype=np.float64)
         pts = (pts.astype(np.float64) @ T[:3, :3].T + T[:3, 3]).astype(np.float32)
     return np.ascontiguousarray(pts)
+
+
+def should_deskew(frame, scan_config: ScanConfig = ScanConfig()) -> bool:
+    """Step 2's choice: de-skew this frame's scan? ``scan_config.deskew`` when set; by default (``None``) whether
+    the scan was taken over a sweep, ``frame.swept`` (:func:`slamlib.kitti.velodyne.scans_swept`: real KITTI scans
+    and synthetic ones written with ``distortion``). Frames without ``swept`` (simulated, hand-made) count as
+    cast from one pose."""
+    if scan_config.deskew is not None:
+        return bool(scan_config.deskew)
+    return bool(getattr(frame, "swept", False))
 
 
 def deskew_scan(points, imu, scan_config: ScanConfig = ScanConfig(), T_body_velo=None,

@@ -10,7 +10,8 @@ Quick start::
 Modules: :mod:`~slamlib.synth.routes` (trajectories), :mod:`~slamlib.synth.oxts` (30-field packets, IMU
 noise), :mod:`~slamlib.synth.scene` (town mesh), :mod:`~slamlib.synth.lidar` (ray casting),
 :mod:`~slamlib.synth.writer` (files), :mod:`~slamlib.synth.drive` (whole drives, cache),
-:mod:`~slamlib.synth.traffic` (moving cars, cyclists and pedestrians; off by default).
+:mod:`~slamlib.synth.traffic` (moving cars, cyclists and pedestrians). The default drive has traffic, swept scans and
+wandering IMU biases; ``default_drive(realism=False)`` is the still one.
 """
 
 from slamlib.synth.drive import (DEFAULT_FRAMES, GENERATOR_VERSION, default_drive, drive_traffic, resolve_route,

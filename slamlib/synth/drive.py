@@ -19,10 +19,10 @@ import numpy as np
 from slamlib.geometry import invert_pose
 from slamlib.paths import cache_dir
 from slamlib.synth.lidar import Hdl64, ray_directions, simulate_scan
-from slamlib.synth.oxts import ImuNoise, oxts_packets
+from slamlib.synth.oxts import WANDERING_BIASES, ImuNoise, oxts_packets
 from slamlib.synth.routes import Route, get_route
 from slamlib.synth.scene import build_scene
-from slamlib.synth.traffic import TrafficConfig, build_traffic
+from slamlib.synth.traffic import KITTI_CITY, TrafficConfig, build_traffic
 from slamlib.synth.writer import (_SAMPLE, MARKER, PARTIAL_MARKER, SCAN_PERIOD, check_calib, drive_dir,
                                   frame_timestamps_ns, is_own_drive, own_files, own_sequence_files, read_marker,
                                   write_calib, write_marker, write_odometry_calib, write_odometry_scan, write_oxts,
@@ -282,18 +282,29 @@ def write_sequence(basedir, route="07", sequence: int | str = 7, frames=DEFAULT_
 
 
 def default_drive(frames=DEFAULT_FRAMES, seed: int = 0, full: bool = False, route: str = "07",
-                  noise: ImuNoise = ImuNoise(), lidar: Hdl64 = Hdl64(), scans: bool = True,
-                  progress: bool = True) -> tuple[Path, str, int]:
+                  noise: ImuNoise | None = None, lidar: Hdl64 = Hdl64(), scans: bool = True,
+                  progress: bool = True, realism: bool = True) -> tuple[Path, str, int]:
     """The default synthetic drive (KITTI 07 route, key frames ``frames``), generated once into the cache.
 
-    ``full=True`` takes the whole 07 route (~1,100 frames, a few minutes to generate). The cache folder is
-    ``cache_dir()/synth/<hash of the parameters and GENERATOR_VERSION>``; a drive whose completion marker is
-    missing or differs is regenerated. Returns ``(basedir, date, drive)``.
+    ``realism`` (on by default) makes it a drive as a real one is: scans swept column by column as KITTI's HDL-64E
+    (``distortion``), moving cars, cyclists and pedestrians at a KITTI city drive's density
+    (:data:`~slamlib.synth.traffic.KITTI_CITY`) and wandering IMU biases
+    (:data:`~slamlib.synth.oxts.WANDERING_BIASES`, when ``noise`` is not given). ``realism=False``: a still town,
+    each scan cast from one pose, constant biases (``noise`` default :class:`~slamlib.synth.oxts.ImuNoise`), the
+    drive the book's first chapters explain SLAM on. ``full=True`` takes the whole 07 route (~1,100 frames, a few
+    minutes to generate). The cache folder is ``cache_dir()/synth/<hash of the parameters and
+    GENERATOR_VERSION>``; a drive whose completion marker is missing or differs is regenerated. Returns
+    ``(basedir, date, drive)``.
     """
     if full:
         frames = (0, None)
+    if noise is None:
+        noise = WANDERING_BIASES if realism else ImuNoise()
+    traffic = KITTI_CITY if realism else None
     params = {"version": GENERATOR_VERSION, "route": route, "frames": list(frames) if frames else None,
               "seed": seed, "noise": noise.as_dict(), "lidar": lidar.as_dict(), "scans": scans}
+    if realism:  # a still drive keeps the key (and the cached files) it had before drives could be realistic
+        params.update(distortion=True, traffic=traffic.as_dict())
     key = hashlib.sha1(json.dumps(params, sort_keys=True).encode()).hexdigest()[:12]
     basedir = cache_dir() / "synth" / key
     date, drive = "2011_09_26", 1
@@ -301,5 +312,5 @@ def default_drive(frames=DEFAULT_FRAMES, seed: int = 0, full: bool = False, rout
     _, n = resolve_route(route, frames)
     if marker is None or marker.get("version") != GENERATOR_VERSION or marker.get("frames") != n:
         write_drive(basedir, route, date, drive, frames=frames, seed=seed, noise=noise, lidar=lidar,
-                    scans=scans, progress=progress)
+                    scans=scans, progress=progress, distortion=realism, traffic=traffic)
     return basedir, date, drive

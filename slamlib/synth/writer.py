@@ -41,7 +41,7 @@ import numpy as np
 
 from slamlib.kitti.oxts import format_oxts_packet
 from slamlib.kitti.timestamps import write_timestamps_ns
-from slamlib.kitti.velodyne import SWEEP_PERIOD_S
+from slamlib.kitti.velodyne import SWEEP_PERIOD_S, SYNTH_MARKER
 from slamlib.paths import kitti_sample_dir
 
 __all__ = ["CALIB_FILES", "MARKER", "PARTIAL_MARKER", "drive_dir", "is_own_drive", "own_files", "check_calib",
@@ -49,7 +49,7 @@ __all__ = ["CALIB_FILES", "MARKER", "PARTIAL_MARKER", "drive_dir", "is_own_drive
            "odometry_calib", "write_odometry_calib", "write_odometry_scan", "own_sequence_files"]
 
 CALIB_FILES = ("calib_imu_to_velo.txt", "calib_velo_to_cam.txt", "calib_cam_to_cam.txt")
-MARKER = ".slamlib_synth.json"
+MARKER = SYNTH_MARKER
 #: Written before anything else of a drive and removed after :data:`MARKER`: an interrupted drive keeps it.
 PARTIAL_MARKER = ".slamlib_synth.partial.json"
 #: The files the generator writes in a drive folder (besides the frame files matched by :data:`_FRAME_FILES`).

@@ -86,18 +86,37 @@ def test_write_drive_with_distortion_records_it_and_changes_only_the_scans(tmp_p
     assert (da.swept, da[1].swept, db.swept, db[1].swept) == (False, False, True, True)
 
 
-def test_scans_count_as_swept_unless_a_synthetic_marker_says_otherwise(tmp_path):
-    """Real data (no marker) and an unreadable marker: swept; a marker without ``distortion`` or with it false:
-    not; ``"distortion": true``: swept."""
+def test_scans_count_as_swept_as_the_synthetic_marker_says_or_as_real_data_of_their_layout(tmp_path):
+    """A marker without ``distortion`` or with it false: not swept; ``"distortion": true``: swept; real data (no
+    marker) and an unreadable marker: ``unmarked`` (True for raw drives, False for odometry sequences, whose real
+    scans KITTI motion-compensated). The shipped real raw scans are swept."""
     import json
 
     from slamlib.kitti import SYNTH_MARKER, scans_swept
+    from slamlib.kitti.sample import real_scan_frames
 
-    assert scans_swept(tmp_path / "nowhere") and scans_swept(tmp_path)
-    for text, swept in (("{not json", True), ("[1, 2]", True), (json.dumps({"seed": 1}), False),
-                        (json.dumps({"distortion": False}), False), (json.dumps({"distortion": True}), True)):
-        (tmp_path / SYNTH_MARKER).write_text(text, encoding="ascii")
-        assert scans_swept(tmp_path) is swept, text
+    for unmarked in (True, False):
+        (tmp_path / SYNTH_MARKER).unlink(missing_ok=True)
+        assert scans_swept(tmp_path / "nowhere", unmarked) is unmarked and scans_swept(tmp_path, unmarked) is unmarked
+        for text, swept in (("{not json", unmarked), ("[1, 2]", unmarked), (json.dumps({"seed": 1}), False),
+                            (json.dumps({"distortion": False}), False), (json.dumps({"distortion": True}), True)):
+            (tmp_path / SYNTH_MARKER).write_text(text, encoding="ascii")
+            assert scans_swept(tmp_path, unmarked) is swept, (text, unmarked)
+    assert scans_swept(tmp_path / "nowhere")  # raw drives by default
+    assert all(f.swept for f in real_scan_frames(range(2)))
+
+
+def test_odometry_sequences_are_swept_only_when_written_with_distortion(tmp_path):
+    from slamlib.kitti import KittiOdometrySequence
+    from slamlib.kitti.velodyne import SYNTH_MARKER
+    from slamlib.synth import write_sequence
+
+    still = KittiOdometrySequence(*write_sequence(tmp_path / "a", "loop", frames=2, lidar=LIDAR, progress=False))
+    swept = KittiOdometrySequence(*write_sequence(tmp_path / "b", "loop", frames=2, lidar=LIDAR, progress=False,
+                                                  distortion=True))
+    assert (still.swept, still[1].swept, swept.swept, swept[1].swept) == (False, False, True, True)
+    (swept.path / SYNTH_MARKER).unlink()  # as a real odometry sequence: motion-compensated by KITTI
+    assert KittiOdometrySequence(swept.basedir, swept.sequence).swept is False
 
 
 def test_should_deskew_follows_the_frame_unless_the_config_says():

@@ -110,6 +110,7 @@ def real_scan_path(k: int) -> Path:
 def real_scan_frames(frames=range(REAL_SCANS), period: float = NOMINAL_SCAN_PERIOD) -> list:
     """The shipped real scans as LIDAR-only frames (:class:`slamlib.kitti.OdometryFrame`, no IMU, no ground
     truth), ``period`` seconds apart (nominal: their timestamps are not shipped). For ``slamlib.slam3d.run_drive``.
+    They are raw scans, not motion-compensated: ``swept`` is True (the filter de-skews them by default).
     """
     from slamlib.kitti.sequence import OdometryFrame
 
@@ -117,5 +118,5 @@ def real_scan_frames(frames=range(REAL_SCANS), period: float = NOMINAL_SCAN_PERI
     for pos, k in enumerate(frames):
         out.append(OdometryFrame(index=int(k), time_s=float(k) * period, dt=0.0 if pos == 0 else
                                  float(k - frames[pos - 1]) * period, scan=read_velodyne_scan(real_scan_path(k)),
-                                 T_w_body=None, velodyne_path=real_scan_path(k)))
+                                 T_w_body=None, velodyne_path=real_scan_path(k), swept=True))
     return out

@@ -75,8 +75,9 @@ class OdometryFrame:
     velodyne_path : Path
         The scan file.
     swept : bool
-        Whether the scan was taken over a sweep and wants de-skewing (the sequence's
-        :func:`~slamlib.kitti.velodyne.scans_swept`).
+        Whether the scan was taken over a sweep and wants de-skewing (the sequence's ``swept``; default False, as the
+        odometry benchmark's scans are motion-compensated; the shipped real raw scans,
+        :func:`slamlib.kitti.sample.real_scan_frames`, are swept).
     """
 
     index: int
@@ -87,7 +88,7 @@ class OdometryFrame:
     velodyne_path: Path = field(repr=False)
     velocity: None = None
     angular_rate: None = None
-    swept: bool = True
+    swept: bool = False
 
 
 class KittiOdometrySequence:
@@ -121,7 +122,9 @@ class KittiOdometrySequence:
     poses_path : Path or None
         The ground-truth file read.
     swept : bool
-        Whether the scans were taken over a sweep (:func:`~slamlib.kitti.velodyne.scans_swept`).
+        Whether the scans were taken over a sweep and are not yet motion-compensated
+        (:func:`~slamlib.kitti.velodyne.scans_swept`): not the real odometry benchmark's (KITTI compensated them), a
+        synthetic sequence's when written with ``distortion``.
     """
 
     def __init__(self, basedir, sequence: str | int, frames=None, poses=None, progress: bool = False):
@@ -141,7 +144,8 @@ class KittiOdometrySequence:
         Tr = calib["Tr"].reshape(3, 4)
         self.Tr = rigid_transform(self.path / "calib.txt", Tr[:, :3], Tr[:, 3], "Tr's 3x3 block", "Tr's offset")
         self.T_velo_imu = np.eye(4)
-        self.swept = scans_swept(self.path)  # real scans are; a synthetic sequence's only if written with distortion
+        # the odometry benchmark's scans are motion-compensated; a synthetic sequence's are swept if written so
+        self.swept = scans_swept(self.path, unmarked=False)
         times_path = self.path / "times.txt"
         if not times_path.is_file():
             raise DataFormatError(times_path, "times file not found (one time in seconds per frame; the odometry "

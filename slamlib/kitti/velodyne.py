@@ -29,20 +29,23 @@ SWEEP_PERIOD_S = 0.10315
 SYNTH_MARKER = ".slamlib_synth.json"
 
 
-def scans_swept(folder: str | os.PathLike) -> bool:
+def scans_swept(folder: str | os.PathLike, unmarked: bool = True) -> bool:
     """Whether the scans of a drive or sequence ``folder`` were taken over a sweep, as a spinning LIDAR takes them
-    (each column at its own instant, the car moving in between), and so want de-skewing.
+    (each column at its own instant, the car moving in between), and still are: they want de-skewing.
 
-    True for real KITTI data: neither the raw "sync" scans nor the odometry benchmark's are motion-compensated.
-    False for a :mod:`slamlib.synth` folder written without ``distortion`` (its :data:`SYNTH_MARKER` says so):
-    each of its scans was cast from one pose, and de-skewing would add the error it removes elsewhere. A marker
-    that cannot be read counts as real data.
+    A :mod:`slamlib.synth` folder says so in its :data:`SYNTH_MARKER` (``"distortion": true``; without it each scan
+    was cast from one pose, and de-skewing would add the error it removes elsewhere). A folder without the marker
+    (real data, or a marker that cannot be read) gets ``unmarked``: ``True`` for KITTI raw drives, whose "sync"
+    scans are not motion-compensated, ``False`` for the KITTI odometry benchmark, whose scans are ("This effect has
+    been eliminated from this postprocessed data by compensating for the egomotion", its devkit readme).
     """
     try:
         params = json.loads((Path(folder) / SYNTH_MARKER).read_text(encoding="ascii"))
     except (OSError, ValueError):  # no marker: real data
-        return True
-    return not isinstance(params, dict) or bool(params.get("distortion", False))
+        return unmarked
+    if not isinstance(params, dict):
+        return unmarked
+    return bool(params.get("distortion", False))
 
 
 def read_velodyne_scan(path: str | os.PathLike) -> np.ndarray:

@@ -78,9 +78,10 @@ class ScanConfig:
     deskew : bool or None
         Motion-compensate each scan (:func:`slamlib.slam3d.steps.deskew_scan`) with the frame's motion. ``None``
         (the default): for the scans taken over a sweep, the frames whose ``swept`` says so
-        (:func:`slamlib.slam3d.steps.should_deskew`: real KITTI data and synthetic drives written with
-        ``distortion``, the default drive among them), not for scans cast from one pose, where it would add the
-        very error it removes. ``True`` / ``False``: every frame / none.
+        (:func:`slamlib.slam3d.steps.should_deskew`: real KITTI raw drives and synthetic drives written with
+        ``distortion``, the default drive among them), not for scans cast from one pose or already
+        motion-compensated (the KITTI odometry benchmark's), where it would add the very error it removes.
+        ``True`` / ``False``: every frame / none.
     sweep_period : float
         Seconds one sweep takes (KITTI's HDL-64E: 0.10315 s, measured on raw drive 0001).
     """

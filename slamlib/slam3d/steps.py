@@ -154,9 +154,10 @@ def read_scan(frame, scan_config: ScanConfig = ScanConfig(), T_body_velo=None) -
 
 def should_deskew(frame, scan_config: ScanConfig = ScanConfig()) -> bool:
     """Step 2's choice: de-skew this frame's scan? ``scan_config.deskew`` when set; by default (``None``) whether
-    the scan was taken over a sweep, ``frame.swept`` (:func:`slamlib.kitti.velodyne.scans_swept`: real KITTI scans
-    and synthetic ones written with ``distortion``). Frames without ``swept`` (simulated, hand-made) count as
-    cast from one pose."""
+    the scan was taken over a sweep and is not yet motion-compensated, ``frame.swept``
+    (:func:`slamlib.kitti.velodyne.scans_swept`: real KITTI raw scans and synthetic ones written with
+    ``distortion``; not the KITTI odometry benchmark's). Frames without ``swept`` (simulated, hand-made) count
+    as cast from one pose."""
     if scan_config.deskew is not None:
         return bool(scan_config.deskew)
     return bool(getattr(frame, "swept", False))

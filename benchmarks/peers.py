@@ -3,7 +3,8 @@
 KISS-ICP (Vizzo et al., "KISS-ICP: In Defense of Point-to-Point ICP", RA-L 2023; ``pip install kiss-icp``, MIT
 licence) registers each full scan against a local voxel map with point-to-point ICP and an adaptive threshold.
 It uses the LIDAR only; slamlib's filter uses the LIDAR and the IMU. Both run here on the same frames of the
-still default synthetic drive (``default_drive(realism=False)``; the realistic drives are ``slamlib sweep``'s), one after the other in one process, and are scored with the same metrics
+still default synthetic drive (``default_drive(realism=False)``; the realistic drives are ``slamlib sweep``'s),
+one after the other in one process, and are scored with the same metrics
 (:func:`slamlib.metrics.trajectory_metrics`) against the same ground truth:
 
 * KISS-ICP gets the raw Velodyne scan (``x, y, z`` float64, its default configuration, de-skewing off since the
@@ -73,6 +74,7 @@ def run(quick: bool = False) -> dict:
     _compare(KittiRawDrive(*source, frames=range(0, 5)))  # JIT compilation and caches, untimed
     drives = {f"default drive {DEFAULT_FRAMES}": _compare(drive)}
     if not quick:
-        drives["whole route (full=True)"] = _compare(KittiRawDrive(*default_drive(full=True, progress=False, realism=False)))
+        whole = default_drive(full=True, progress=False, realism=False)
+        drives["whole route (full=True)"] = _compare(KittiRawDrive(*whole))
     return {"kiss_icp_version": version("kiss-icp"), "numba_threads": int(numba.get_num_threads()),
             "drives": drives}

@@ -1,12 +1,13 @@
 """``slamlib bench scaling``: how the cost of the 3D particle SLAM grows, with fitted slopes.
 
-Three sweeps over the still default synthetic drive (:func:`slamlib.synth.default_drive` with ``realism=False``), default
-:class:`slamlib.slam3d.SLAM3DConfig` (hashed NDT voxel map, Numba CPU backend) except the swept setting:
+Three sweeps over the still default synthetic drive (:func:`slamlib.synth.default_drive` with
+``realism=False``), default :class:`slamlib.slam3d.SLAM3DConfig` (hashed NDT voxel map, Numba CPU backend) except
+the swept setting:
 
 * ``particles``: frames ``SWEEP_FRAMES`` for ``P`` in :data:`PARTICLES` (100 ... 3000);
 * ``points``: the same frames for ``scored_points`` ``N`` in :data:`POINTS` (points per particle in step 8);
-* ``route``: the whole route (``default_drive(full=True, realism=False)``, ~1,100 frames, ~690 m) with the default settings,
-  per-frame ``register_frame`` times and the map's size every :data:`ROUTE_SNAPSHOT_EVERY` frames: is the time
+* ``route``: the whole route (``default_drive(full=True, realism=False)``, ~1,100 frames, ~690 m) with the default
+  settings, per-frame ``register_frame`` times and the map's size every :data:`ROUTE_SNAPSHOT_EVERY` frames: is the time
   per frame flat while the map grows?
 
 Per configuration: ``frame_ms_median`` (the median of the per-frame ``register_frame`` times, steps 2-11 without
@@ -93,7 +94,8 @@ def run(quick: bool = False) -> dict:
     snaps = [(int(pos), int(len(pts))) for pos, pts, _ in r.snapshots]
     m = evaluate(r)
     route = {
-        "drive": "slamlib.synth.default_drive(realism=False)" if quick else "slamlib.synth.default_drive(full=True, realism=False)",
+        "drive": ("slamlib.synth.default_drive(realism=False)" if quick
+                  else "slamlib.synth.default_drive(full=True, realism=False)"),
         "frames": int(len(ms)), "path_length_m": round(float(m["path_length_m"]), 1),
         "particles": default.filter.particles, "points": default.filter.scored_points, "map": default.map.kind,
         "fps": round(r.fps, 2), "ate_rmse_m": round(float(m["slam"]["ate_rmse_m"]), 4),
@@ -105,8 +107,9 @@ def run(quick: bool = False) -> dict:
     }
     print({k_: v for k_, v in route.items() if k_ != "frame_ms"}, flush=True)
     return {
-        "workload": {"drive": "slamlib.synth.default_drive(realism=False)", "frames": [a, b], "backend": default.backend,
-                     "numba_threads": int(numba.get_num_threads()), "config": default.as_dict()},
+        "workload": {"drive": "slamlib.synth.default_drive(realism=False)", "frames": [a, b],
+                     "backend": default.backend, "numba_threads": int(numba.get_num_threads()),
+                     "config": default.as_dict()},
         "particles": particles,
         "fit_ms_vs_particles": _fit([r_["particles"] for r_ in particles], [r_["frame_ms_median"] for r_ in particles]),
         "points": points,

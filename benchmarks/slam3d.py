@@ -1,10 +1,10 @@
-"""``slamlib bench slam3d``: frames/s and accuracy of the 3D particle SLAM on the default synthetic drive.
+"""``slamlib bench slam3d``: frames/s and accuracy of the 3D particle SLAM on the still default synthetic drive.
 
 Workload: the still default synthetic drive (:func:`slamlib.synth.default_drive` with ``realism=False``: no sweep
 distortion, traffic or bias walk, so that the timings stay comparable with the committed history; KITTI 07 route,
-~100,000-point HDL-64E scans), frames ``FRAMES`` (``QUICK_FRAMES`` with ``--quick``), default :class:`SLAM3DConfig` except
-the number of particles (100, 300, 1000) and the map kind (``voxel_hash``, ``morton_bvh``), Numba CPU backend. Each
-configuration runs once after a short untimed warm-up (JIT caches, page cache).
+~100,000-point HDL-64E scans), frames ``FRAMES`` (``QUICK_FRAMES`` with ``--quick``), default :class:`SLAM3DConfig`
+except the number of particles (100, 300, 1000) and the map kind (``voxel_hash``, ``morton_bvh``), Numba CPU
+backend. Each configuration runs once after a short untimed warm-up (JIT caches, page cache).
 
 Reported per configuration:
 
@@ -15,8 +15,9 @@ Reported per configuration:
 * ``ate_rmse_m`` of SLAM and of dead reckoning from the same IMU data, their ratio, and the KITTI translational
   error (%) when the range is over 100 m.
 
-``long``: the default configuration over the whole synthetic route (``default_drive(full=True, realism=False)``, ~1,100 frames,
-~690 m, generated on first use), for the KITTI metric on a drive of more than 500 m (skipped with ``--quick``).
+``long``: the default configuration over the whole synthetic route (``default_drive(full=True, realism=False)``,
+~1,100 frames, ~690 m, generated on first use), for the KITTI metric on a drive of more than 500 m (skipped with
+``--quick``).
 """
 
 from __future__ import annotations

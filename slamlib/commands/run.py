@@ -57,9 +57,9 @@ def add_arguments(parser) -> None:
                         "without an IMU (the odometry layout, where it is always on)")
     f.add_argument("--deskew", action=argparse.BooleanOptionalAction, default=None,
                    help="motion-compensate each scan to the frame's pose time, or not (ScanConfig.deskew; default: "
-                        "when the scans were taken over a sweep and not yet motion-compensated, as those of real KITTI raw "
-                        "drives and the default drive are; not the KITTI odometry benchmark's, which KITTI "
-                        "compensated, nor synthetic drives written without --distortion)")
+                        "when the scans were taken over a sweep and not yet motion-compensated, as those of real "
+                        "KITTI raw drives and the default drive are; not the KITTI odometry benchmark's, which "
+                        "KITTI compensated, nor synthetic drives written without --distortion)")
     f.add_argument("--noise", type=float, default=1.0, metavar="SCALE",
                    help="scale of step 6's motion noise (all six sigmas; default 1.0 = the tuned defaults)")
     f.add_argument("--temperature", type=float, default=FilterConfig.temperature,

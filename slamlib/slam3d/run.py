@@ -221,7 +221,8 @@ def save_run(run: SLAMRun, out_dir, map_format: str = "ply", plots: bool = True,
       pruned on the way, :meth:`ParticleSLAM3D.map_points`), world frame;
     * ``metrics.json``: frames/s, settings, ``n_deskewed_frames`` (scans step 2 de-skewed), ``n_skipped_frames``
       (frames skipped for scoring, with a ``warnings`` entry when there were any; :mod:`slamlib.slam3d.pipeline`)
-      and, with ground truth, :func:`evaluate` (ATE, RPE, KITTI metric). Always valid JSON: a non-finite number is written ``null`` (:func:`slamlib.metrics.json_safe`);
+      and, with ground truth, :func:`evaluate` (ATE, RPE, KITTI metric). Always valid JSON: a non-finite number
+      is written ``null`` (:func:`slamlib.metrics.json_safe`);
     * ``trajectory.png`` (with and without SLAM vs ground truth) and ``map_topdown.png`` (coloured by height).
 
     The files are written into a temporary folder beside ``out_dir`` first (``.NAME.XXXX.partial``): a new

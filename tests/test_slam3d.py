@@ -539,6 +539,11 @@ def test_slamlib_run_default_drive_is_realistic_unless_still(tiny_drive, tmp_pat
                      "--out", str(tmp_path / str(realism))] + flags) == 0
         assert asked[-1]["realism"] is realism
         assert ("default drive (still)" in capsys.readouterr().out) is not realism
+    base, date, drive = tiny_drive
+    for flag in ("--still-default", "--full-default"):  # not silently ignored beside a given drive
+        with pytest.raises(SystemExit, match=f"{flag} chooses among the synthetic default drives"):
+            main(["run", "--basedir", str(base), "--date", date, "--drive", str(drive), flag,
+                  "--out", str(tmp_path / "x")])
 
 
 def test_crop_and_downsample_equals_crop_then_downsample():

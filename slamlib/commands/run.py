@@ -136,6 +136,10 @@ def main(args) -> int:
     if odometry and any(given):
         raise SystemExit("slamlib run: give either a raw drive (--basedir, --date, --drive) or an odometry sequence "
                          "(--odometry-dir, --sequence), not both")
+    for flag, on in (("--full-default", args.full_default), ("--still-default", args.still_default)):
+        if on and (odometry or any(given)):
+            raise SystemExit(f"slamlib run: {flag} chooses among the synthetic default drives; it does not apply to "
+                             "a drive given by --basedir or --odometry-dir")
     import math
 
     for option, value in (("--particles", args.particles), ("--points", args.points)):

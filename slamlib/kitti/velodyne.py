@@ -16,7 +16,7 @@ import numpy as np
 from slamlib.errors import DataFormatError
 
 __all__ = ["POINT_BYTES", "SWEEP_PERIOD_S", "SYNTH_MARKER", "read_velodyne_scan", "write_velodyne_scan",
-           "scans_swept"]
+           "scans_swept", "read_synth_marker"]
 
 #: Bytes per point: 4 float32 values.
 POINT_BYTES = 16
@@ -39,13 +39,19 @@ def scans_swept(folder: str | os.PathLike, unmarked: bool = True) -> bool:
     scans are not motion-compensated, ``False`` for the KITTI odometry benchmark, whose scans are ("This effect has
     been eliminated from this postprocessed data by compensating for the egomotion", its devkit readme).
     """
-    try:
-        params = json.loads((Path(folder) / SYNTH_MARKER).read_text(encoding="ascii"))
-    except (OSError, ValueError):  # no marker: real data
-        return unmarked
-    if not isinstance(params, dict):
+    params = read_synth_marker(folder)
+    if not isinstance(params, dict):  # no marker (real data) or an unreadable one
         return unmarked
     return bool(params.get("distortion", False))
+
+
+def read_synth_marker(folder: str | os.PathLike):
+    """The parsed :data:`SYNTH_MARKER` of ``folder`` (the generator's parameters), or None when it is missing or
+    not JSON."""
+    try:
+        return json.loads((Path(folder) / SYNTH_MARKER).read_text(encoding="ascii"))
+    except (OSError, ValueError):
+        return None
 
 
 def read_velodyne_scan(path: str | os.PathLike) -> np.ndarray:

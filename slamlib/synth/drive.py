@@ -110,11 +110,7 @@ def write_drive(basedir, route="07", date: str = "2011_09_26", drive: int = 1, f
     _check_own_folder(ddir, "basedir, date or drive")
     check_calib(basedir, date)
     params = {"version": GENERATOR_VERSION, "route": r.name, "frames": n, "seed": seed,
-              "noise": noise.as_dict(), "lidar": lidar.as_dict(), "scans": scans}
-    if distortion:
-        params["distortion"] = True
-    if traffic is not None:
-        params["traffic"] = traffic.as_dict()
+              "noise": noise.as_dict(), "lidar": lidar.as_dict(), "scans": scans, **_realism(distortion, traffic)}
     _begin(ddir, params, own_files(ddir))
     date_dir = write_calib(basedir, date)
     ts, t_route = _frame_times(r, n, date, rng_time)
@@ -161,6 +157,14 @@ def _frame_times(r: Route, n: int, date: str, rng_time):
 def _route_time(r: Route, ts: dict, which: str) -> np.ndarray:
     """Route time (s) of the stamps ``ts[which]`` (``"oxts"``, ``"velo"``, ...), the first OXTS stamp at ``r.t0``."""
     return r.t0 + (ts[which] - ts["oxts"][0]) * 1e-9
+
+
+def _realism(distortion: bool, traffic: TrafficConfig | None) -> dict:
+    """The marker's (and the default drive's cache key's) record of a drive's realism: ``distortion`` and ``traffic``
+    only when on, so that a still drive's parameters, and the cache keys made from them, are those it had before
+    drives could be realistic."""
+    return {**({"distortion": True} if distortion else {}),
+            **({"traffic": traffic.as_dict()} if traffic is not None else {})}
 
 
 def _streams(seed: int):
@@ -256,11 +260,7 @@ def write_sequence(basedir, route="07", sequence: int | str = 7, frames=DEFAULT_
         raise FileExistsError(f"{poses_path} exists and was not written by slamlib synth; choose another basedir "
                               "or sequence")
     params = {"version": GENERATOR_VERSION, "layout": "odometry", "route": r.name, "frames": n, "seed": seed,
-              "lidar": lidar.as_dict()}
-    if distortion:
-        params["distortion"] = True
-    if traffic is not None:
-        params["traffic"] = traffic.as_dict()
+              "lidar": lidar.as_dict(), **_realism(distortion, traffic)}
     _begin(sdir, params, own_sequence_files(sdir) + ([poses_path] if poses_path.is_file() else []))
     ts, t_route = _frame_times(r, n, "2011_09_26", rng_time)
     T_imu_velo = invert_pose(load_T_velo_imu(_SAMPLE))
@@ -302,9 +302,8 @@ def default_drive(frames=DEFAULT_FRAMES, seed: int = 0, full: bool = False, rout
         noise = WANDERING_BIASES if realism else ImuNoise()
     traffic = KITTI_CITY if realism else None
     params = {"version": GENERATOR_VERSION, "route": route, "frames": list(frames) if frames else None,
-              "seed": seed, "noise": noise.as_dict(), "lidar": lidar.as_dict(), "scans": scans}
-    if realism:  # a still drive keeps the key (and the cached files) it had before drives could be realistic
-        params.update(distortion=True, traffic=traffic.as_dict())
+              "seed": seed, "noise": noise.as_dict(), "lidar": lidar.as_dict(), "scans": scans,
+              **_realism(realism, traffic)}
     key = hashlib.sha1(json.dumps(params, sort_keys=True).encode()).hexdigest()[:12]
     basedir = cache_dir() / "synth" / key
     date, drive = "2011_09_26", 1

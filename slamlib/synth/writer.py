@@ -41,7 +41,7 @@ import numpy as np
 
 from slamlib.kitti.oxts import format_oxts_packet
 from slamlib.kitti.timestamps import write_timestamps_ns
-from slamlib.kitti.velodyne import SWEEP_PERIOD_S, SYNTH_MARKER
+from slamlib.kitti.velodyne import SWEEP_PERIOD_S, SYNTH_MARKER, read_synth_marker
 from slamlib.paths import kitti_sample_dir
 
 __all__ = ["CALIB_FILES", "MARKER", "PARTIAL_MARKER", "drive_dir", "is_own_drive", "own_files", "check_calib",
@@ -155,12 +155,8 @@ def write_marker(ddir: Path, params: dict) -> None:
     (Path(ddir) / MARKER).write_text(json.dumps(params, indent=1, sort_keys=True), encoding="ascii")
 
 
-def read_marker(ddir: Path) -> dict | None:
-    p = Path(ddir) / MARKER
-    try:
-        return json.loads(p.read_text(encoding="ascii"))
-    except (OSError, ValueError):
-        return None
+#: The marker of a drive or sequence folder, parsed (None when missing or not JSON); the readers use it too.
+read_marker = read_synth_marker
 
 
 # ------------------------------------------------------------------------------------------ odometry layout

@@ -6,7 +6,7 @@ Examples::
     slamlib sweep --out sweeps/all --routes 00,05,07 --frames 0: --seeds 0,1       # the whole routes
     slamlib sweep --out sweeps/lidar --layouts odometry --particles 300,1000      # LIDAR-only, two settings
     slamlib sweep --out sweeps/real --routes 00,05,07 --frames 0: --distortion --traffic --bias-walk \\
-        --deskew --refine 2 --tilt-sigma 0.005                       # realistic drives, the filter at its best
+        --deskew --refine 2 --tilt-sigma 0.003                       # realistic drives, the filter at its best
     slamlib sweep --out sweeps/x --scheduler tcp://10.0.0.5:8786                  # on an existing Dask cluster
 
 Writes ``OUT/sweep.csv`` (one row per run: route, frames, seed, layout, method, settings, path length, KITTI

@@ -191,6 +191,13 @@ def test_cli_runs_an_odometry_sequence(odo, tmp_path):
     assert info["config"]["motion"]["model"] == "constant_velocity" and info["sequence"] == "07"
     assert "dead_reckoning" not in info["metrics"] and not (out / "dead_reckoning_poses.txt").exists()
     assert len((out / "slam_poses.txt").read_text().splitlines()) == N
+    # LIDAR-only, every frame after the first is scan-matched by default; --no-scan-match turns it off
+    assert info["config"]["filter"]["scan_match"] is None and info["n_matched_frames"] == N - 1
+    r = _run("--odometry-dir", str(odo), "--sequence", "07", "--particles", "50", "--frames", "0:4",
+             "--no-scan-match", "--out", str(tmp_path / "off"))
+    assert r.returncode == 0, r.stderr
+    info = json.loads((tmp_path / "off" / "metrics.json").read_text())
+    assert info["config"]["filter"]["scan_match"] is False and info["n_matched_frames"] == 0
 
 
 @pytest.mark.parametrize("damage, pattern", [

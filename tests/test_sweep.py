@@ -158,10 +158,11 @@ def test_the_sweep_command_writes_its_table_plot_and_provenance(cluster, tmp_pat
     out = tmp_path / "out"
     assert main(["sweep", "--out", str(out), "--data", str(tmp_path / "data"), "--routes", "loop", "--frames", "4",
                  "--seeds", "0", "--methods", "slamlib", "--particles", "20", "--refine", "1",
-                 "--tilt-sigma", "0.01", "--no-progress", "--scheduler", cluster.scheduler_address]) == 0
+                 "--tilt-sigma", "0.01", "--scan-match", "--no-progress",
+                 "--scheduler", cluster.scheduler_address]) == 0
     rows = read_table(out / "sweep.csv")
     assert [(r["route"], r["seed"], r["method"], r["frames"]) for r in rows] == [("loop", 0, "slamlib", 4)]
-    assert json.loads(rows[0]["settings"]) == {"particles": 20, "refine": 1, "tilt_sigma": 0.01}
+    assert json.loads(rows[0]["settings"]) == {"particles": 20, "refine": 1, "tilt_sigma": 0.01, "scan_match": True}
     info = json.loads((out / "sweep.json").read_text())
     assert info["command"].startswith("slamlib sweep ") and "--particles 20" in info["command"]
     assert info["generator_version"] == GENERATOR_VERSION and info["scheduler"] == cluster.scheduler_address

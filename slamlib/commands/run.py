@@ -60,6 +60,9 @@ def add_arguments(parser) -> None:
                         "when the scans were taken over a sweep and not yet motion-compensated, as those of real "
                         "KITTI raw drives and the default drive are; not the KITTI odometry benchmark's, which "
                         "KITTI compensated, nor synthetic drives written without --distortion)")
+    f.add_argument("--scan-match", action=argparse.BooleanOptionalAction, default=None,
+                   help="after step 9, Gauss-Newton the best pose to the map score's nearest peak on the whole scan "
+                        "and move the particles with it, or not (FilterConfig.scan_match; default: LIDAR-only)")
     f.add_argument("--noise", type=float, default=1.0, metavar="SCALE",
                    help="scale of step 6's motion noise (all six sigmas; default 1.0 = the tuned defaults)")
     f.add_argument("--temperature", type=float, default=FilterConfig.temperature,
@@ -166,7 +169,7 @@ def main(args) -> int:
     try:
         cfg = SLAM3DConfig.of(particles=args.particles, scored_points=args.points, kind=kind, backend=args.backend,
                               seed=args.seed, refine=args.refine, temperature=args.temperature, deskew=args.deskew,
-                              tilt_sigma=args.tilt_sigma, transient_span=args.transient_span)
+                              scan_match=args.scan_match, tilt_sigma=args.tilt_sigma, transient_span=args.transient_span)
         cfg = replace(cfg, motion=replace(cfg.motion.scaled(float(args.noise)),
                                           model="constant_velocity" if args.lidar_only or odometry else "imu"))
     except ValueError as exc:

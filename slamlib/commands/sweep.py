@@ -55,6 +55,9 @@ def add_arguments(parser) -> None:
                         help="slamlib de-skews every scan with the frame's motion, or none (ScanConfig.deskew; "
                              "default: the swept scans, those of drives with --distortion; KISS-ICP de-skews "
                              "whenever the drives have --distortion)")
+    parser.add_argument("--scan-match", action=argparse.BooleanOptionalAction, default=None,
+                        help="slamlib scan-matches its best pose after step 9, or never (FilterConfig.scan_match; "
+                             "default: LIDAR-only runs)")
     real = parser.add_argument_group("drive realism (default: a still town, unswept scans, constant IMU biases)")
     real.add_argument("--distortion", action="store_true",
                       help="scans swept column by column as a real HDL-64E (slamlib.synth.lidar)")
@@ -138,6 +141,8 @@ def main(args) -> int:
         settings = [dict(s, tilt_sigma=args.tilt_sigma) for s in settings]
     if args.deskew is not None:
         settings = [dict(s, deskew=args.deskew) for s in settings]
+    if args.scan_match is not None:
+        settings = [dict(s, scan_match=args.scan_match) for s in settings]
     if args.workers is not None and args.workers < 1:
         _fail(f"--workers must be >= 1, got {args.workers}")
     frames = set()

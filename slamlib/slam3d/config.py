@@ -34,6 +34,9 @@ MAX_SCORED_POINTS = 1_000_000
 MAX_POINT_SCORES = 10_000_000_000
 #: Most annealing rounds per frame (each one costs a whole scoring pass).
 MAX_REFINE = 100
+#: Most Gauss-Newton steps of the scan matcher per frame (``FilterConfig.scan_match_iterations``; each a pass over
+#: the whole down-sampled scan).
+MAX_SCAN_MATCH_ITERATIONS = 100
 #: Most frames the LIDAR-only velocity is averaged over (``MotionConfig.cv_window``; 10 frames = 1 s at 10 Hz).
 MAX_CV_WINDOW = 10
 #: Map constructor parameters that must be finite and > 0 (:class:`slamlib.maps.VoxelHashMap`,
@@ -296,6 +299,14 @@ class FilterConfig:
     tilt_heading_bins : int
         Sectors of heading that weigh alike in that fit (:func:`slamlib.odometry.balance_heading_bins`), so that a
         long straight does not pass its share of the map's tilt to the bias; 1 = every frame alike.
+    scan_match : bool or None
+        After step 9, move the best particle's pose to the nearest peak of the map score with Gauss-Newton on the
+        whole down-sampled scan (:func:`slamlib.slam3d.match.match_scan`), and the particles with it (the
+        improved proposal of Grisetti et al. 2007). ``None`` (default): on LIDAR-only, where the constant-velocity
+        prior leaves the filter the most to find, off with an IMU; True / False force it. Voxel hash map only
+        (other maps are left as they are).
+    scan_match_iterations : int
+        Most Gauss-Newton steps per frame (each one only if it lowers the cost).
     """
 
     particles: int = 300
@@ -311,6 +322,8 @@ class FilterConfig:
     tilt_bias_sigma: float = 0.01
     tilt_world_sigma: float = 0.0
     tilt_heading_bins: int = 8
+    scan_match: bool | None = None
+    scan_match_iterations: int = 5
 
     def __post_init__(self):
         if int(self.particles) < 1 or int(self.scored_points) < 1:
@@ -333,6 +346,9 @@ class FilterConfig:
             raise ValueError(f"need tilt_sigma >= 0 (0 = off) and tilt_window > 0, got {self.tilt_sigma}, "
                              f"{self.tilt_window}")
         _integer("tilt_heading_bins", self.tilt_heading_bins, 1)
+        if self.scan_match is not None and not isinstance(self.scan_match, (bool, np.bool_)):
+            raise ValueError(f"scan_match must be True, False or None (LIDAR-only), got {self.scan_match!r}")
+        _integer("scan_match_iterations", self.scan_match_iterations, 1, MAX_SCAN_MATCH_ITERATIONS)
         for name in ("tilt_bias_sigma", "tilt_world_sigma"):
             if not _finite(name, getattr(self, name)) >= 0:
                 raise ValueError(f"need {name} >= 0 (0 = held at 0), got {getattr(self, name)}")

@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["crop_range", "voxel_downsample", "crop_and_downsample", "sample_points", "thin_ground", "GROUND_BAND_M",
+__all__ = ["crop_range", "voxel_downsample", "crop_and_downsample", "sample_points", "road_mask", "thin_ground", "GROUND_BAND_M",
            "GROUND_PERCENTILE", "sweep_times", "deskew"]
 
 #: Height above the scan's road surface (its :data:`GROUND_PERCENTILE` of z, body frame) below which a point counts
@@ -184,6 +184,15 @@ def sample_points(points, n: int, rng: np.random.Generator) -> np.ndarray:
     return pts[rng.choice(len(pts), size=int(n), replace=False)]
 
 
+def road_mask(points) -> np.ndarray:
+    """Which body-frame ``points (N, 3)`` lie on the road: at most :data:`GROUND_BAND_M` above the road surface, the
+    :data:`GROUND_PERCENTILE` of z (N,) bool; all False for no points."""
+    pts = np.asarray(points)
+    if len(pts) == 0:
+        return np.zeros(0, dtype=bool)
+    return pts[:, 2] <= np.percentile(pts[:, 2], GROUND_PERCENTILE) + GROUND_BAND_M
+
+
 def thin_ground(points, share: float, rng: np.random.Generator) -> np.ndarray:
     """The body-frame ``points (N, 3)`` with the road thinned to ``share`` of the result: every point more than
     :data:`GROUND_BAND_M` above the road surface (the :data:`GROUND_PERCENTILE` of z), and of the road points a
@@ -198,7 +207,7 @@ def thin_ground(points, share: float, rng: np.random.Generator) -> np.ndarray:
     pts = np.asarray(points)
     if share >= 1 or len(pts) == 0:
         return pts
-    low = pts[:, 2] <= np.percentile(pts[:, 2], GROUND_PERCENTILE) + GROUND_BAND_M
+    low = road_mask(pts)
     above, road = pts[~low], pts[low]
     if len(above) < 10:
         return pts

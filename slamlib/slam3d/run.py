@@ -219,7 +219,8 @@ def save_run(run: SLAMRun, out_dir, map_format: str = "ply", plots: bool = True,
     * ``times.txt``: seconds since the first processed frame (KITTI odometry ``times.txt``);
     * ``map.ply`` or ``map.pcd`` (open3d): the map's points (voxel means or stored points, including the parts
       pruned on the way, :meth:`ParticleSLAM3D.map_points`), world frame;
-    * ``metrics.json``: frames/s, settings, ``n_deskewed_frames`` (scans step 2 de-skewed), ``n_skipped_frames``
+    * ``metrics.json``: frames/s, settings, ``n_deskewed_frames`` (scans step 2 de-skewed), ``n_matched_frames``
+      (poses scan-matched after step 9), ``n_skipped_frames``
       (frames skipped for scoring, with a ``warnings`` entry when there were any; :mod:`slamlib.slam3d.pipeline`)
       and, with ground truth, :func:`evaluate` (ATE, RPE, KITTI metric). Always valid JSON: a non-finite number
       is written ``null`` (:func:`slamlib.metrics.json_safe`);
@@ -305,6 +306,7 @@ def _write_results(run: SLAMRun, out, map_format: str, plots: bool, extra: dict 
     skipped = int(getattr(run.slam, "n_skipped_frames", 0))
     info["n_skipped_frames"] = skipped
     info["n_deskewed_frames"] = int(run.slam.n_deskewed)  # ScanConfig.deskew None: the frames whose scans were swept
+    info["n_matched_frames"] = int(run.slam.n_matched)  # FilterConfig.scan_match None: every LIDAR-only frame
     if skipped:
         from slamlib.slam3d.pipeline import MIN_SCAN_POINTS
 

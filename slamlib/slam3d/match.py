@@ -1,0 +1,194 @@
+"""Scan matching: the best particle's pose moved to the nearest peak of the NDT map score (Gauss-Newton).
+
+The particle filter finds the basin of the map score; with a few hundred particles in six dimensions its best
+particle is still centimetres and tenths of a degree from the peak (see "Coarse to fine" in
+:mod:`slamlib.slam3d.pipeline`). Scan matching climbs the rest of the way, as the *improved proposal* of Grisetti,
+Stachniss & Burgard ("Improved techniques for grid mapping with Rao-Blackwellized particle filters", IEEE T-RO 2007)
+does: the pose is refined by a local optimiser on the same likelihood, and the particles are drawn around the result.
+
+The cost is the filter's own map score, negated (:mod:`slamlib.maps.base`, the voxel hash's trilinear NDT): for the
+body points ``p_j`` (N, 3) and the pose ``T = [R, t]``, world points ``q_j = R p_j + t``, and each of the 8 voxels
+``c`` whose centres surround ``q_j`` (trilinear weight ``w_jc``, mean ``mu_c``, inverse covariance ``A_c``),
+
+    E(T) = sum_j sum_c  w_jc * 0.5 * min(m_jc, m_max),     m_jc = d^T A_c d,  d = q_j - mu_c,
+
+so ``E = -score`` of :func:`slamlib.slam3d.steps.score_particles` for that one pose (a missing voxel costs
+``0.5 m_max``, like a truncated term). Gauss-Newton on the untruncated terms (Biber & Strasser 2003; Magnusson,
+"The three-dimensional normal-distributions transform", 2009), with the trilinear weights held fixed within one
+step, and the update ``R <- Exp(omega) R``, ``t <- t + v`` (a rotation about the pose's own position, so that the
+normal equations stay well conditioned kilometres from the origin)::
+
+    J_j = d q_j / d(omega, v) = [ -[R p_j]_x  |  I_3 ]                     (3, 6)
+    H = sum w_jc J_j^T A_c J_j,   g = sum w_jc J_j^T A_c d,   (H + lambda I) delta = -g.
+
+A step that does not lower ``E`` is not taken (the iteration stops there), so the result never scores worse than
+the start. ``lambda = MATCH_DAMPING * trace(H)`` keeps the solve defined on degenerate scenes (a flat plane alone
+fixes only three of the six coordinates: the damping leaves the others where they are).
+
+Road points
+-----------
+The road's returns lie on the LIDAR's rings, which stay in place relative to the sensor: matched against a map that
+holds the last scans' rings, they pull a slowly moving scan toward no motion at all (the *ring artifact*,
+:func:`slamlib.slam3d.preprocess.thin_ground`). LIDAR-only, nothing outweighs that pull. What the road does tell is
+the height and the tilt. So points marked ``road`` enter with only the vertical row of ``J`` (the other two rows
+zero): the step may move them up and down, through ``v_z``, ``omega_x`` and ``omega_y``, but their pull along the
+road does not count. They hold the pose to the road's plane and leave yaw and the horizontal position to what
+stands above it.
+
+Only the voxel hash map is matched (the Morton map's nearest-neighbour term has no per-voxel Gaussian);
+:func:`match_scan` returns the pose unchanged for any other map.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from slamlib.kernels.device import VOXEL_GRID_LIMIT
+from slamlib.maps.base import KIND_VOXEL_HASH
+from slamlib.maps.codes import AXIS_OFFSET_I64, find_slot_nb, in_range_nb, pack_key_nb
+
+__all__ = ["match_scan", "normal_equations", "so3_exp", "MATCH_DAMPING", "MATCH_TOLERANCE"]
+
+#: Levenberg damping of the Gauss-Newton solve, relative to ``trace(H)``: small enough not to slow a well
+#: constrained step, large enough to leave the unconstrained directions of a degenerate scene in place.
+MATCH_DAMPING = 1e-6
+#: Stop when a step moves the pose by less than this (radians and metres alike: 1e-5 rad at 50 m is 0.5 mm).
+MATCH_TOLERANCE = 1e-5
+
+
+@njit(cache=True)
+def _normal_equations_nb(R, t, pts, road, keys, mean, icov, inv_h, log2_capacity, max_probe, m_max):
+    H = np.zeros((6, 6))
+    g = np.zeros(6)
+    J = np.zeros((3, 6))
+    AJ = np.zeros((3, 6))
+    cost = 0.0
+    for j in range(pts.shape[0]):
+        x, y, z = np.float64(pts[j, 0]), np.float64(pts[j, 1]), np.float64(pts[j, 2])
+        rx = R[0, 0] * x + R[0, 1] * y + R[0, 2] * z
+        ry = R[1, 0] * x + R[1, 1] * y + R[1, 2] * z
+        rz = R[2, 0] * x + R[2, 1] * y + R[2, 2] * z
+        wx, wy, wz = rx + t[0], ry + t[1], rz + t[2]
+        # the corners and weights of the score's voxel_term (slamlib.kernels.device)
+        gx, gy, gz = wx * inv_h - 0.5, wy * inv_h - 0.5, wz * inv_h - 0.5
+        if not (abs(gx) <= VOXEL_GRID_LIMIT and abs(gy) <= VOXEL_GRID_LIMIT and abs(gz) <= VOXEL_GRID_LIMIT):
+            cost += 0.5 * m_max
+            continue
+        bx, by, bz = math.floor(gx), math.floor(gy), math.floor(gz)
+        fx, fy, fz = gx - bx, gy - by, gz - bz
+        ux0 = np.int64(bx) + AXIS_OFFSET_I64
+        uy0 = np.int64(by) + AXIS_OFFSET_I64
+        uz0 = np.int64(bz) + AXIS_OFFSET_I64
+        # d q / d omega = -[r]_x, d q / d v = I; a road point keeps only the vertical row (module docstring)
+        across = 0.0 if road[j] else 1.0
+        J[0, 1], J[0, 2], J[0, 3] = rz * across, -ry * across, across
+        J[1, 0], J[1, 2], J[1, 4] = -rz * across, rx * across, across
+        J[2, 0], J[2, 1], J[2, 5] = ry, -rx, 1.0
+        for dx in range(2):
+            wgx = fx if dx == 1 else 1.0 - fx
+            for dy in range(2):
+                wgy = fy if dy == 1 else 1.0 - fy
+                for dz in range(2):
+                    w = wgx * wgy * (fz if dz == 1 else 1.0 - fz)
+                    ux, uy, uz = ux0 + dx, uy0 + dy, uz0 + dz
+                    s = -1
+                    if in_range_nb(ux) and in_range_nb(uy) and in_range_nb(uz):
+                        s = find_slot_nb(keys, pack_key_nb(ux, uy, uz), log2_capacity, max_probe)
+                    if s < 0:
+                        cost += 0.5 * w * m_max
+                        continue
+                    e0 = wx - np.float64(mean[s, 0])
+                    e1 = wy - np.float64(mean[s, 1])
+                    e2 = wz - np.float64(mean[s, 2])
+                    a0, a1, a2 = np.float64(icov[s, 0]), np.float64(icov[s, 1]), np.float64(icov[s, 2])
+                    a3, a4, a5 = np.float64(icov[s, 3]), np.float64(icov[s, 4]), np.float64(icov[s, 5])
+                    d0 = a0 * e0 + a1 * e1 + a2 * e2  # A d
+                    d1 = a1 * e0 + a3 * e1 + a4 * e2
+                    d2 = a2 * e0 + a4 * e1 + a5 * e2
+                    m = e0 * d0 + e1 * d1 + e2 * d2
+                    if m >= m_max:  # truncated: constant, no gradient
+                        cost += 0.5 * w * m_max
+                        continue
+                    cost += 0.5 * w * m
+                    for c in range(6):
+                        AJ[0, c] = a0 * J[0, c] + a1 * J[1, c] + a2 * J[2, c]
+                        AJ[1, c] = a1 * J[0, c] + a3 * J[1, c] + a4 * J[2, c]
+                        AJ[2, c] = a2 * J[0, c] + a4 * J[1, c] + a5 * J[2, c]
+                        g[c] += w * (J[0, c] * d0 + J[1, c] * d1 + J[2, c] * d2)
+                    for c in range(6):
+                        for k in range(c, 6):
+                            H[c, k] += w * (J[0, c] * AJ[0, k] + J[1, c] * AJ[1, k] + J[2, c] * AJ[2, k])
+    for c in range(6):
+        for k in range(c):
+            H[c, k] = H[k, c]
+    return H, g, cost
+
+
+def _road(road, n):
+    """The road mask as a contiguous (n,) bool array (all False when None)."""
+    if road is None:
+        return np.zeros(n, dtype=np.bool_)
+    road = np.ascontiguousarray(road, dtype=np.bool_)
+    if road.shape != (n,):
+        raise ValueError(f"road must be a (N,) mask of the {n} points, got shape {road.shape}")
+    return road
+
+
+def _lookup_args(lookup):
+    return (lookup.keys, lookup.mean, lookup.icov, float(lookup.inv_voxel_size), int(lookup.log2_capacity),
+            int(lookup.max_probe), float(lookup.m_max))
+
+
+def normal_equations(pose, points, lookup, road=None) -> tuple[np.ndarray, np.ndarray, float]:
+    """``(H (6, 6), g (6,), E)`` of the module docstring at ``pose`` (4, 4) ``T_world_body`` for body ``points``
+    (N, 3) against a :class:`~slamlib.maps.base.VoxelHashLookup`; ``E = -score`` of that pose. ``road`` (N,) bool
+    (default none) marks the points whose Jacobian keeps only the height, roll and pitch columns."""
+    T = np.asarray(pose, dtype=np.float64)
+    pts = np.ascontiguousarray(points, dtype=np.float32)
+    return _normal_equations_nb(np.ascontiguousarray(T[:3, :3]), np.ascontiguousarray(T[:3, 3]), pts,
+                                _road(road, len(pts)), *_lookup_args(lookup))
+
+
+def so3_exp(omega) -> np.ndarray:
+    """Rodrigues' formula: the rotation (3, 3) of the rotation vector ``omega`` (3,) radians."""
+    w = np.asarray(omega, dtype=np.float64)
+    th = float(np.linalg.norm(w))
+    K = np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
+    if th < 1e-12:
+        return np.eye(3) + K
+    return np.eye(3) + math.sin(th) / th * K + (1.0 - math.cos(th)) / th**2 * (K @ K)
+
+
+def match_scan(pose, points, map_, iterations: int, road=None) -> np.ndarray:
+    """``pose`` (4, 4) ``T_world_body`` moved by at most ``iterations`` Gauss-Newton steps to the nearest peak of
+    ``map_``'s score for the body ``points`` (N, 3) (module docstring). Each step is taken only if it lowers the
+    cost; the iteration stops at the first that does not, or that moves less than :data:`MATCH_TOLERANCE`.
+    ``road`` (N,) bool marks road points (:func:`slamlib.slam3d.preprocess.road_mask`), which then pull only on the
+    height, roll and pitch (module docstring, "Road points"). Returns a new (4, 4) array; a copy of ``pose`` when
+    the map is not a voxel hash, empty, or ``iterations`` is 0.
+    """
+    T = np.array(pose, dtype=np.float64)
+    if iterations <= 0 or len(map_) == 0 or len(points) == 0:
+        return T
+    lookup = map_.lookup()
+    if lookup.kind != KIND_VOXEL_HASH:
+        return T
+    pts = np.ascontiguousarray(points, dtype=np.float32)
+    args = (_road(road, len(pts)),) + _lookup_args(lookup)
+    R, t = np.ascontiguousarray(T[:3, :3]), np.ascontiguousarray(T[:3, 3])
+    H, g, cost = _normal_equations_nb(R, t, pts, *args)
+    for _ in range(iterations):
+        damping = MATCH_DAMPING * max(float(np.trace(H)), np.finfo(float).tiny)
+        delta = -np.linalg.solve(H + damping * np.eye(6), g)
+        R2, t2 = so3_exp(delta[:3]) @ R, t + delta[3:]
+        H2, g2, cost2 = _normal_equations_nb(R2, t2, pts, *args)
+        if not cost2 < cost:
+            break
+        R, t, H, g, cost = R2, t2, H2, g2, cost2
+        if np.linalg.norm(delta) < MATCH_TOLERANCE:
+            break
+    T[:3, :3], T[:3, 3] = R, t
+    return T

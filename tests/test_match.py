@@ -1,0 +1,215 @@
+"""Scan matching (:mod:`slamlib.slam3d.match`): its cost is the filter's map score, its gradient that cost's,
+it finds a known pose and never makes the pose worse, a plane fixes what a plane can, and the pipeline matches
+LIDAR-only by default."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from slamlib.geometry import make_pose, rpy_to_matrix
+from slamlib.maps import MortonBVHMap, VoxelHashMap
+from slamlib.slam3d import SLAM3DConfig, run_drive, steps
+from slamlib.slam3d.match import match_scan, normal_equations, so3_exp
+
+
+def _room(rng, n=20000):
+    """Points on a floor, four walls and two boxes (every pose coordinate constrained), metres, body frame."""
+    u = rng.uniform(-1.0, 1.0, (n, 2))
+    face = rng.integers(0, 7, n)
+    p = np.zeros((n, 3))
+    p[face == 0] = np.c_[12 * u[face == 0, 0], 9 * u[face == 0, 1], np.zeros((face == 0).sum())]  # floor
+    for k, (axis, c) in enumerate(((0, 12.0), (0, -12.0), (1, 9.0), (1, -9.0)), start=1):  # walls
+        sel = face == k
+        other = 1 - axis
+        p[sel, axis] = c
+        p[sel, other] = (12.0 if other == 0 else 9.0) * u[sel, 0]
+        p[sel, 2] = 1.5 + 1.5 * u[sel, 1]
+    for k, (cx, cy) in enumerate(((4.0, 3.0), (-5.0, -2.0)), start=5):  # a box's two faces each
+        sel = face == k
+        half = sel & (u[:, 0] > 0)
+        p[half] = np.c_[np.full(half.sum(), cx), cy + u[half, 0], 1 + u[half, 1]]
+        p[sel & ~half] = np.c_[cx + u[sel & ~half, 0], np.full((sel & ~half).sum(), cy), 1 + u[sel & ~half, 1]]
+    return (p + rng.normal(0.0, 0.01, p.shape)).astype(np.float32)
+
+
+def _map(points, kind=VoxelHashMap):
+    m = kind(voxel_size=0.5, capacity=2**15) if kind is VoxelHashMap else kind(radius=0.5)
+    m.merge(points)
+    return m
+
+
+def _error(T, truth):
+    D = np.linalg.inv(truth) @ T
+    angle = np.arccos(np.clip((np.trace(D[:3, :3]) - 1) / 2, -1, 1))
+    return np.linalg.norm(D[:3, 3]), angle
+
+
+def test_cost_is_the_negated_map_score_of_that_pose():
+    rng = np.random.default_rng(0)
+    world = _room(rng)
+    m = _map(world)
+    scan = world[rng.choice(len(world), 3000, replace=False)]
+    for k in range(4):
+        T = make_pose(rpy_to_matrix(rng.normal(0, 0.02, 3)), rng.normal(0, 0.2, 3))
+        H, g, E = normal_equations(T, scan, m.lookup())
+        particles = steps.Particles3D(T[None, :3, :3].copy(), T[None, :3, 3].copy())
+        for backend in ("numpy", "cpu"):
+            score = steps.score_particles(particles, scan, m, backend)[0]
+            assert E == pytest.approx(-score, rel=1e-9, abs=1e-6), (backend, E, score)
+        np.testing.assert_allclose(H, H.T)
+        assert np.linalg.eigvalsh(H).min() >= -1e-9 * np.trace(H)  # J^T A J with A positive definite
+
+
+def _frozen_cost(T, scan, lookup, road=None):
+    """E as a function of the step (omega, v) with each point's 8 voxels and trilinear weights frozen at ``T``
+    (numpy, from the lookup's fields as documented on VoxelHashLookup): the function g and H are derived from.
+    ``road`` points move only by the vertical part of the step's displacement."""
+    from slamlib.maps.codes import axis_indices, pack_keys
+
+    occupied = np.flatnonzero(lookup.keys >= 0)
+    order = np.argsort(lookup.keys[occupied])
+    stored, occupied = lookup.keys[occupied][order], occupied[order]
+    r = scan.astype(np.float64) @ T[:3, :3].T
+    g = (r + T[:3, 3]) * lookup.inv_voxel_size - 0.5
+    base = np.floor(g)
+    f = g - base
+    corners = []
+    for corner in np.ndindex(2, 2, 2):
+        d = np.asarray(corner)
+        u, ok = axis_indices(base + d, 1.0)
+        keys = pack_keys(np.where(ok[:, None], u, 0))
+        pos = np.minimum(np.searchsorted(stored, keys), stored.size - 1)
+        hit = ok & (stored[pos] == keys)
+        corners.append((np.prod(np.where(d == 1, f, 1.0 - f), axis=1), hit, occupied[pos]))
+
+    vertical_only = np.zeros(len(scan), bool) if road is None else road
+
+    def cost(step):
+        q = r @ so3_exp(step[:3]).T + T[:3, 3] + step[3:]
+        q0 = r + T[:3, 3]
+        q[vertical_only, :2] = q0[vertical_only, :2]
+        total = 0.0
+        for w, hit, slot in corners:
+            e = q - lookup.mean[slot].astype(np.float64)
+            a = lookup.icov[slot].astype(np.float64)
+            A = a[:, [0, 1, 2, 1, 3, 4, 2, 4, 5]].reshape(-1, 3, 3)
+            m = np.where(hit, np.einsum("ni,nij,nj->n", e, A, e), lookup.m_max)
+            total += np.sum(w * 0.5 * np.minimum(m, lookup.m_max))
+        return total
+    return cost
+
+
+def test_gradient_is_the_derivative_of_the_cost_with_the_voxels_held():
+    """g is dE/d(omega, v) with each point's voxels and trilinear weights held (Gauss-Newton's model); central
+    differences of that cost, written independently in numpy, agree."""
+    rng = np.random.default_rng(1)
+    world = _room(rng)
+    m = _map(world)
+    scan = world[:5000]
+    T = make_pose(rpy_to_matrix([0.004, -0.003, 0.01]), np.array([0.06, -0.04, 0.03]))
+    for road in (None, rng.random(len(scan)) < 0.5):  # road points: the vertical part of the motion only
+        _, g, E = normal_equations(T, scan, m.lookup(), road)
+        cost = _frozen_cost(T, scan, m.lookup(), road)
+        assert cost(np.zeros(6)) == pytest.approx(E, rel=1e-9)
+        h = 1e-6
+        numeric = np.array([(cost(h * e) - cost(-h * e)) / (2 * h) for e in np.eye(6)])
+        np.testing.assert_allclose(g, numeric, rtol=1e-4, atol=1e-6 * np.abs(g).max())
+
+
+def test_recovers_a_known_pose_and_never_scores_worse():
+    rng = np.random.default_rng(2)
+    world = _room(rng)
+    m = _map(world)
+    truth = np.eye(4)
+    scan = world[rng.choice(len(world), 8000, replace=False)]
+    for k in range(5):
+        start = make_pose(rpy_to_matrix(rng.normal(0, 0.01, 3)), rng.normal(0, 0.1, 3))
+        found = match_scan(start, scan, m, iterations=20)
+        dt, da = _error(found, truth)
+        assert dt < 0.01 and da < 1e-3, (k, dt, da, _error(start, truth))
+        E0 = normal_equations(start, scan, m.lookup())[2]
+        E1 = normal_equations(found, scan, m.lookup())[2]
+        assert E1 <= E0
+
+
+def test_a_plane_alone_brings_back_height_roll_and_pitch():
+    """A flat floor fixes the three coordinates it can (height, roll, pitch), and the damped solve stays defined
+    where the others are (nearly) free."""
+    rng = np.random.default_rng(3)
+    floor = np.c_[rng.uniform(-15, 15, (20000, 2)), rng.normal(0, 0.01, 20000)].astype(np.float32)
+    m = _map(floor)
+    start = make_pose(rpy_to_matrix([0.01, -0.008, 0.02]), np.array([0.3, -0.2, 0.15]))
+    found = match_scan(start, floor, m, iterations=20)
+    assert np.all(np.isfinite(found))
+    assert abs(found[2, 3]) < 0.01  # height
+    assert np.abs(found[2, :3] - [0, 0, 1]).max() < 2e-3  # the body's z stands up again: roll, pitch
+
+
+def _rings(rng, height=1.73, per_ring=3000):
+    """Road returns of a spinning LIDAR at ``height`` m: circles around the sensor, one per laser (body frame)."""
+    radii = height / np.tan(np.radians([6.0, 7.5, 9.0, 11.0, 13.5, 17.0, 22.0]))
+    a = rng.uniform(0, 2 * np.pi, (len(radii), per_ring))
+    r = radii[:, None] + rng.normal(0, 0.01, a.shape)
+    return np.c_[(r * np.cos(a)).ravel(), (r * np.sin(a)).ravel(), np.full(a.size, -height)]
+
+
+def test_road_points_do_not_pull_a_moving_scan_back_onto_the_rings():
+    """The ring artifact: the road's rings move with the sensor, so matched against the last scan's rings they
+    pull toward no motion. Marked as road they hold only height and tilt, and the walls find the true motion."""
+    from slamlib.slam3d.preprocess import road_mask
+
+    rng = np.random.default_rng(6)
+    walls = _room(rng, 6000).astype(np.float64)
+    walls = walls[walls[:, 2] > 0.3]  # the room without its floor: the road is the rings
+    step = np.array([0.3, 0.0, 0.0])  # the car moved 30 cm forward between the scans
+    scan0 = np.r_[walls, _rings(rng)].astype(np.float32)
+    scan1 = np.r_[walls - step, _rings(rng)].astype(np.float32)
+    m = _map(scan0)
+    truth = make_pose(np.eye(3), step)
+    road = road_mask(scan1)
+    assert road.sum() == len(scan1) - len(walls)  # the rings, and only they, are road
+    found = {name: match_scan(truth, scan1, m, 20, mask) for name, mask in (("all", None), ("road", road))}
+    assert abs(found["road"][0, 3] - step[0]) < 0.02, found["road"][:3, 3]
+    assert found["all"][0, 3] < step[0] - 0.05, found["all"][:3, 3]  # pulled back toward the rings
+    assert abs(found["road"][2, 3]) < 0.01  # the road still holds the height
+
+
+def test_leaves_the_pose_alone_where_it_cannot_match():
+    rng = np.random.default_rng(4)
+    world = _room(rng, 2000)
+    T = make_pose(rpy_to_matrix([0.0, 0.0, 0.1]), np.array([0.2, 0.0, 0.0]))
+    np.testing.assert_array_equal(match_scan(T, world, _map(world, MortonBVHMap), 5), T)  # no voxel Gaussians
+    np.testing.assert_array_equal(match_scan(T, world, VoxelHashMap(), 5), T)  # empty map
+    np.testing.assert_array_equal(match_scan(T, world, _map(world), 0), T)  # asked for none
+    np.testing.assert_array_equal(match_scan(T, world[:0], _map(world), 5), T)  # no points
+
+
+def test_so3_exp_is_rodrigues():
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(5)
+    for w in (rng.normal(0, 1, 3), rng.normal(0, 1e-7, 3), np.zeros(3)):
+        np.testing.assert_allclose(so3_exp(w), Rotation.from_rotvec(w).as_matrix(), atol=1e-12)
+
+
+def test_pipeline_matches_lidar_only_by_default_and_with_an_imu_when_asked(tmp_path):
+    from slamlib.kitti import KittiOdometrySequence, KittiRawDrive
+    from slamlib.synth import Hdl64, write_drive, write_sequence
+
+    fast = Hdl64(columns=500, beam_stride=2)
+    write_sequence(tmp_path, "07", 7, frames=(0, 6), seed=1, lidar=fast, progress=False)
+    write_drive(tmp_path / "raw", "07", frames=(0, 6), seed=1, lidar=fast, progress=False)
+    seq, raw = KittiOdometrySequence(tmp_path, 7), KittiRawDrive(tmp_path / "raw", "2011_09_26", 1)
+    slam = run_drive(seq, SLAM3DConfig.of(particles=50), progress=False).slam
+    assert slam.lidar_only and slam.n_matched == 5
+    assert run_drive(seq, SLAM3DConfig.of(particles=50, scan_match=False), progress=False).slam.n_matched == 0
+    assert run_drive(raw, SLAM3DConfig.of(particles=50), progress=False).slam.n_matched == 0
+    assert run_drive(raw, SLAM3DConfig.of(particles=50, scan_match=True), progress=False).slam.n_matched == 5
+
+
+@pytest.mark.parametrize("bad", [dict(scan_match="yes"), dict(scan_match=1), dict(scan_match_iterations=0),
+                                 dict(scan_match_iterations=1.5), dict(scan_match_iterations=10**6)])
+def test_config_rejects_bad_scan_match_settings(bad):
+    with pytest.raises(ValueError, match="scan_match"):
+        SLAM3DConfig.of(**bad)

@@ -306,7 +306,9 @@ class FilterConfig:
         prior leaves the filter the most to find, off with an IMU; True / False force it. Voxel hash map only
         (other maps are left as they are).
     scan_match_iterations : int
-        Most Gauss-Newton steps per frame (each one only if it lowers the cost).
+        Most Gauss-Newton steps per frame (each one only if it lowers the cost; the iteration also stops once a step
+        is tiny). 15: on the whole synthetic route 05, LIDAR-only, 5 steps stopped short of the peak (KITTI error
+        0.148 against 0.117 %, ``slamlib bench lidar_only``).
     """
 
     particles: int = 300
@@ -323,7 +325,7 @@ class FilterConfig:
     tilt_world_sigma: float = 0.0
     tilt_heading_bins: int = 8
     scan_match: bool | None = None
-    scan_match_iterations: int = 5
+    scan_match_iterations: int = 15
 
     def __post_init__(self):
         if int(self.particles) < 1 or int(self.scored_points) < 1:

@@ -53,15 +53,20 @@ def test_particles_quick_writes_rates_beside_the_seed(results):
     assert main(["bench", "particles", "--quick"]) == 0
     d = json.loads((results / "particles-quick.json").read_text())
     assert d["seed_particles_per_s"] == 1.6e8
-    variants = {"lut_fused", "lut_fused_seed_tables", "lut_fused_1thread", "lut_fused_alloc", "lut_drawn",
-                "numpy_drawn", "philox_drawn"}
+    variants = {"lut_fused", "lut_fused_seed_tables", "lut_fused_1thread", "lut_fused_alloc", "lut_fused_soa",
+                "lut_fused_soa32", "lut_fused_soa32_1thread", "lut_drawn", "numpy_drawn", "philox_drawn"}
+    assert d["copy"]["particles"] == 10000 and d["copy_gb_per_s"] == pytest.approx(d["copy"]["gb_per_s"])
     for P in (1000, 10000):
         rows = {r["variant"]: r for r in d["rows"] if r["particles"] == P}
         assert set(rows) == variants
         for r in rows.values():
             assert r["particles_per_s"] == pytest.approx(P / r["median_s"])
             assert r["ratio_to_seed"] == pytest.approx(r["particles_per_s"] / 1.6e8)
+            moved = 2 * r["pose_bytes"] + (96 if r["noise_array"] else 0)
+            assert r["limit_particles_per_s"] == pytest.approx(d["copy_gb_per_s"] * 1e9 / moved)
         assert rows["lut_fused_seed_tables"]["table_entries"] == 256 and rows["lut_fused"]["table_entries"] == 4096
+        assert rows["lut_fused_soa32"]["pose_bytes"] == 48 and rows["lut_fused_soa"]["pose_bytes"] == 96
+        assert rows["lut_fused_soa"]["layout"] == "component-major" and rows["lut_fused"]["layout"] == "particle-major"
 
 
 def test_both_are_registered():

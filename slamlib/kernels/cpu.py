@@ -6,10 +6,14 @@ roll/pitch/yaw, motion update, point transform, NDT voxel term, hash / find-slot
 written here: it is the ``njit(inline="always")`` build of :func:`slamlib.kernels.device.make_point_functions`,
 the same source the CUDA backend compiles with ``cuda.jit(device=True)``. This module arranges the loops:
 
-* ``move_particles``: ``prange`` over blocks of ``PARTICLE_BLOCK`` particles (3x3 scratch allocated once per
-  block, not per particle); ``out=`` (in place with ``out=(R, t)``); with a :class:`slamlib.noise.LutNoise` the
-  draws are made inside the kernel (one counter hash per particle) from per-call tables of ``sigma * value``
-  and of ``cos``/``sin`` of the rotation draws, with the values of the unfused path bit for bit.
+* ``move_particles``: ``prange`` over blocks of ``PARTICLE_BLOCK`` particles; each particle's update is kept
+  in registers (the row primitives of :mod:`slamlib.kernels.device`) on flat arrays with unsigned indexes, so
+  LLVM vectorises the loop (SIMD lanes over consecutive particles, table reads as gathers); ``out=`` (in place
+  with ``out=(R, t)``); with a :class:`slamlib.noise.LutNoise` the draws are made inside the kernel (one
+  counter hash per particle) from per-call tables of ``sigma * value`` and of ``cos``/``sin`` of the rotation
+  draws, with the values of the unfused path bit for bit. ``move_particles_soa`` is the same for particles
+  stored component-major (``R (3, 3, P)``, ``t (3, P)``, float64 or float32): the layout whose loads are
+  contiguous per component, and float32 halves the bytes per particle.
 * ``transform_points``: ``prange`` over spans of ``TRANSFORM_CHUNK`` points of the flat float32 array, unsigned
   indexes so that LLVM vectorises the span's loop; float32 arithmetic (like
   :func:`slamlib.geometry.transform_points`) with contraction into FMAs only (``fastmath={"contract"}``), so it
@@ -43,10 +47,9 @@ from slamlib.noise import N_COMPONENTS, LutNoise, frame_key, make_lut_functions
 # (rm -rf "$NUMBA_CACHE_DIR", _cache/numba in the Makefile) or the cached kernels keep the old math.
 _F = make_point_functions(njit(inline="always"))
 _rpy_matrix = _F["rpy_matrix"]
-_rpy_matrix_cs = _F["rpy_matrix_cs"]
-_pose_times = _F["pose_times"]
-_compose_rotation = _F["compose_rotation"]
-_compose_translation = _F["compose_translation"]
+_rpy_rotation_cs = _F["rpy_rotation_cs"]
+_row_times = _F["row_times"]
+_row_step = _F["row_step"]
 _world_point = _F["world_point"]
 _voxel_term = _F["voxel_term"]
 _hash_slot = _F["hash_slot"]
@@ -60,6 +63,8 @@ _L = make_lut_functions(njit(inline="always"))
 _frame_key = _L["frame_key"]
 _thread_hash = _L["thread_hash"]
 _hash_index = _L["hash_index"]
+# unsigned index arithmetic: no negative-index wrap-around test in the loops, so LLVM vectorises them
+_U1, _U2, _U3, _U4, _U5, _U6, _U9 = (np.uint64(k) for k in (1, 2, 3, 4, 5, 6, 9))
 
 @njit(cache=True, inline="always")
 def _ceil_div(n, chunk):
@@ -74,26 +79,29 @@ PARTICLE_CHUNK = 64
 
 
 # --------------------------------------------------------------------------------------------- move particles
-#: Particles per parallel task of ``move_particles`` (each task allocates its 3x3 scratch matrices once).
+#: Particles per parallel task of ``move_particles``.
 PARTICLE_BLOCK = 1024
 #: With LUT noise and more than ``LUT_TRIG_TABLE_RATIO * T`` particles (``T`` table entries), ``move_particles``
 #: tabulates ``cos``/``sin`` of the table's rotation draws once per call (6 T calls) instead of 6 calls per particle.
 LUT_TRIG_TABLE_RATIO = 1
 
 
-@njit(parallel=True, cache=True)
-def _move_nb(R, t, dR, trans_delta, noise, sigma, R_new, t_new, block):
-    P = R.shape[0]
-    for b in prange(_ceil_div(P, block)):
-        N = np.empty_like(dR)  # 3x3 scratch, once per block
-        A = np.empty_like(dR)
-        for i in range(b * block, min(P, (b + 1) * block)):
-            _rpy_matrix(sigma[3] * noise[i, 3], sigma[4] * noise[i, 4], sigma[5] * noise[i, 5], N)
-            _pose_times(R, i, dR, A)  # A = R_i dR (read before R_new[i] is written: R_new may be R)
-            _compose_rotation(A, N, R_new, i)
-            _compose_translation(t, A, trans_delta[0] + sigma[0] * noise[i, 0],
-                                 trans_delta[1] + sigma[1] * noise[i, 1], trans_delta[2] + sigma[2] * noise[i, 2],
-                                 t_new, i)
+@njit(cache=True, inline="always")
+def _move_particle(R, t, R_new, t_new, r, rs, cs, q, ts, d, n, sx, sy, sz):
+    """One particle of the fused move on flat arrays: ``R_new = R_i dR N``, ``t_new = t_i + R_i dR s``.
+
+    ``R[r + a rs + b cs]`` is ``R_i[a, b]`` and ``t[q + a ts]`` is ``t_i[a]`` (unsigned indexes: particle-major
+    ``(P, 3, 3)`` has ``r = 9 i, rs = 3, cs = 1``, component-major ``(3, 3, P)`` has ``r = i, rs = 3 P, cs = P``);
+    ``d``, ``n`` are ``dR`` and ``N`` as row-major 9-tuples, ``s = (sx, sy, sz)`` the body-frame step. Row ``a``
+    of the result needs row ``a`` of ``R_i`` only, so ``R_new`` may be ``R`` (in place)."""
+    for a in range(3):
+        k = r + rs * np.uint64(a)
+        a0, a1, a2 = _row_times(R[k], R[k + cs], R[k + cs + cs], d[0], d[1], d[2], d[3], d[4], d[5], d[6], d[7],
+                                d[8])
+        R_new[k], R_new[k + cs], R_new[k + cs + cs] = _row_times(a0, a1, a2, n[0], n[1], n[2], n[3], n[4], n[5],
+                                                                 n[6], n[7], n[8])
+        m = q + ts * np.uint64(a)
+        t_new[m] = _row_step(t[m], a0, a1, a2, sx, sy, sz)
 
 
 @njit(parallel=True, cache=True)
@@ -111,29 +119,60 @@ def _lut_tables_nb(normal, sigma, step_tab, trig_tab, with_trig):
                 trig_tab[k, j, 1] = math.sin(a)
 
 
-@njit(parallel=True, cache=True)
-def _move_lut_nb(R, t, dR, trans_delta, sigma, key, perm, bits, normal, step_tab, trig_tab, with_trig, R_new, t_new,
-                 block):
-    P = R.shape[0]
-    for b in prange(_ceil_div(P, block)):
-        N = np.empty_like(dR)  # 3x3 scratch, once per block
-        A = np.empty_like(dR)
-        for i in range(b * block, min(P, (b + 1) * block)):
-            h = _thread_hash(i, key)  # one hash per particle; the six table indexes come from it
-            i3 = _hash_index(h, 3, perm, bits)
-            i4 = _hash_index(h, 4, perm, bits)
-            i5 = _hash_index(h, 5, perm, bits)
-            if with_trig:
-                _rpy_matrix_cs(trig_tab[0, i3, 0], trig_tab[0, i3, 1], trig_tab[1, i4, 0], trig_tab[1, i4, 1],
-                               trig_tab[2, i5, 0], trig_tab[2, i5, 1], N)
-            else:
-                _rpy_matrix(sigma[3] * np.float64(normal[i3]), sigma[4] * np.float64(normal[i4]),
-                            sigma[5] * np.float64(normal[i5]), N)
-            _pose_times(R, i, dR, A)
-            _compose_rotation(A, N, R_new, i)
-            _compose_translation(t, A, trans_delta[0] + step_tab[0, _hash_index(h, 0, perm, bits)],
-                                 trans_delta[1] + step_tab[1, _hash_index(h, 1, perm, bits)],
-                                 trans_delta[2] + step_tab[2, _hash_index(h, 2, perm, bits)], t_new, i)
+def _make_move_kernels(soa: bool):
+    """The two fused move kernels (drawn noise, LUT noise) for one particle layout, ``soa`` a constant of the
+    build: a layout test inside the loop would stop LLVM from vectorising it (one build per layout, each cached)."""
+
+    @njit(parallel=True, cache=True)
+    def _move_nb(R, t, d, trans_delta, noise, sigma, R_new, t_new, P, block):
+        """The fused move with drawn ``noise`` (flat: ``(P, 6)``, or ``(6, P)`` when ``soa``) over flat particles."""
+        p = np.uint64(P)
+        for b in prange(_ceil_div(P, block)):
+            for i in range(np.uint64(b * block), np.uint64(min(P, (b + 1) * block))):
+                e, es = (i, p) if soa else (_U6 * i, _U1)  # noise[i, k] = noise[e + k es]
+                r, q, y = sigma[3] * noise[e + _U3 * es], sigma[4] * noise[e + _U4 * es], sigma[5] * noise[e + _U5 * es]
+                n = _rpy_rotation_cs(math.cos(r), math.sin(r), math.cos(q), math.sin(q), math.cos(y), math.sin(y))
+                sx = trans_delta[0] + sigma[0] * noise[e]
+                sy = trans_delta[1] + sigma[1] * noise[e + es]
+                sz = trans_delta[2] + sigma[2] * noise[e + _U2 * es]
+                if soa:
+                    _move_particle(R, t, R_new, t_new, i, _U3 * p, p, i, p, d, n, sx, sy, sz)
+                else:
+                    _move_particle(R, t, R_new, t_new, _U9 * i, _U3, _U1, _U3 * i, _U1, d, n, sx, sy, sz)
+
+    def make_lut(with_trig):
+        @njit(parallel=True, cache=True)
+        def _move_lut_nb(R, t, d, trans_delta, sigma, key, perm, bits, normal, step_tab, trig_tab, R_new, t_new, P,
+                         block):
+            """The fused move with LUT noise drawn in the loop (one counter hash per particle) over flat particles."""
+            p = np.uint64(P)
+            for b in prange(_ceil_div(P, block)):
+                for i in range(np.uint64(b * block), np.uint64(min(P, (b + 1) * block))):
+                    h = _thread_hash(i, key)  # one hash per particle; the six table indexes come from it
+                    i3 = _hash_index(h, 3, perm, bits)
+                    i4 = _hash_index(h, 4, perm, bits)
+                    i5 = _hash_index(h, 5, perm, bits)
+                    if with_trig:  # a constant of the build, like soa
+                        n = _rpy_rotation_cs(trig_tab[0, i3, 0], trig_tab[0, i3, 1], trig_tab[1, i4, 0],
+                                             trig_tab[1, i4, 1], trig_tab[2, i5, 0], trig_tab[2, i5, 1])
+                    else:
+                        r, q, y = sigma[3] * normal[i3], sigma[4] * normal[i4], sigma[5] * normal[i5]
+                        n = _rpy_rotation_cs(math.cos(r), math.sin(r), math.cos(q), math.sin(q), math.cos(y), math.sin(y))
+                    sx = trans_delta[0] + step_tab[0, _hash_index(h, 0, perm, bits)]
+                    sy = trans_delta[1] + step_tab[1, _hash_index(h, 1, perm, bits)]
+                    sz = trans_delta[2] + step_tab[2, _hash_index(h, 2, perm, bits)]
+                    if soa:
+                        _move_particle(R, t, R_new, t_new, i, _U3 * p, p, i, p, d, n, sx, sy, sz)
+                    else:
+                        _move_particle(R, t, R_new, t_new, _U9 * i, _U3, _U1, _U3 * i, _U1, d, n, sx, sy, sz)
+        return _move_lut_nb
+
+    return _move_nb, make_lut(True), make_lut(False)
+
+
+#: ``_MOVE[soa] = (drawn noise, LUT noise with the trig table, LUT noise calling cos/sin)``: particle-major
+#: ``R (P, 3, 3), t (P, 3)`` (``soa=False``) and component-major ``R (3, 3, P), t (3, P)``.
+_MOVE = {soa: _make_move_kernels(soa) for soa in (False, True)}
 
 
 def _launch(kernel, n, chunk, *args):
@@ -194,16 +233,48 @@ def move_particles(R, t, rpy_delta, trans_delta, noise, sigma, out=None):
     particles in place: particle ``i`` is read before it is written); returns ``(R_new, t_new)``.
     """
     R, t = _check_particles(R, t)
-    P = R.shape[0]
+    return _move(R, t, R.shape[0], rpy_delta, trans_delta, noise, sigma, out, soa=False)
+
+
+def move_particles_soa(R, t, rpy_delta, trans_delta, noise, sigma, out=None):
+    """:func:`move_particles` for particles stored component-major (structure of arrays): ``R (3, 3, P)``,
+    ``t (3, P)``, float64 or float32 (kept: a float32 pair computes in float32), noise ``(6, P)`` or a
+    :class:`slamlib.noise.LutNoise` (the same draws for particle ``i``).
+
+    The same math per particle (``R[:, :, i]`` is ``R_i``); the layout is what differs. Consecutive particles
+    sit side by side in each of the 12 component arrays, so the loop runs on SIMD lanes, and float32 halves the
+    bytes a particle moves (96 read and written in place, against 192 for a float64 ``(P, 3, 3)`` pose):
+    ``slamlib bench particles`` measures both. ``out=(R_out, t_out)`` as in :func:`move_particles`.
+    """
+    R, t = _check_particles_soa(R, t)
+    return _move(R, t, R.shape[2], rpy_delta, trans_delta, noise, sigma, out, soa=True)
+
+
+def _check_particles_soa(R, t):
+    dtype = np.float32 if getattr(R, "dtype", None) == np.float32 and getattr(t, "dtype", None) == np.float32 \
+        else np.float64
+    R = np.ascontiguousarray(R, dtype=dtype)
+    t = np.ascontiguousarray(t, dtype=dtype)
+    if R.ndim != 3 or R.shape[:2] != (3, 3) or t.shape != (3, R.shape[2]):
+        raise ValueError(f"component-major particles need R (3, 3, P) and t (3, P), got {R.shape} and {t.shape}")
+    return R, t
+
+
+def _move(R, t, P, rpy_delta, trans_delta, noise, sigma, out, soa):
+    """The checks and launch shared by both layouts; arithmetic in ``R.dtype``."""
+    dtype = R.dtype
     sigma = _vector(sigma, 6, "sigma")
     rpy = _vector(rpy_delta, 3, "rpy_delta")
-    trans = _vector(trans_delta, 3, "trans_delta")
+    trans = _vector(trans_delta, 3, "trans_delta").astype(dtype)
     dR = np.empty((3, 3))
     _rpy_matrix(rpy[0], rpy[1], rpy[2], dR)
+    d = tuple(dR.astype(dtype).ravel())  # dR as a row-major 9-tuple: registers, not memory, in the loop
     if out is None:
         R_new, t_new = np.empty_like(R), np.empty_like(t)
     else:
         R_new, t_new = _check_out(out[0], R, "out[0]"), _check_out(out[1], t, "out[1]")
+    flat = (R.reshape(-1), t.reshape(-1))
+    flat_new = (R_new.reshape(-1), t_new.reshape(-1))
     if isinstance(noise, LutNoise):
         if noise.step < 0 or noise.seed < 0:
             raise ValueError("LutNoise step and seed must be >= 0")
@@ -213,16 +284,19 @@ def move_particles(R, t, rpy_delta, trans_delta, noise, sigma, out=None):
             raise ValueError("LutNoise tables need normal (T,) and perm (6, T) with T = 2**bits")
         with_trig = P > LUT_TRIG_TABLE_RATIO * T
         step_tab = np.empty((3, T))
-        trig_tab = np.empty((3, T, 2) if with_trig else (3, 1, 2))
+        trig_tab = np.zeros((3, T, 2) if with_trig else (3, 1, 2))
         _lut_tables_nb(tables.normal, sigma, step_tab, trig_tab, with_trig)
         key = np.uint64(frame_key(np.uint64(noise.step), np.uint64(noise.seed)))
-        _launch(_move_lut_nb, P, PARTICLE_BLOCK, R, t, dR, trans, sigma, key, tables.perm, np.int64(tables.bits),
-                tables.normal, step_tab, trig_tab, with_trig, R_new, t_new)
+        _launch(_MOVE[soa][1 if with_trig else 2], P, PARTICLE_BLOCK, *flat, d, trans, sigma.astype(dtype), key,
+                tables.perm, np.int64(tables.bits), tables.normal, step_tab.astype(dtype), trig_tab.astype(dtype),
+                *flat_new, P)
         return R_new, t_new
-    noise = np.ascontiguousarray(noise, dtype=np.float64)
-    if noise.shape != (P, 6):
-        raise ValueError(f"noise must have shape (P, 6) = ({P}, 6), got {noise.shape}")
-    _launch(_move_nb, P, PARTICLE_BLOCK, R, t, dR, trans, noise, sigma, R_new, t_new)
+    shape = (6, P) if soa else (P, 6)
+    noise = np.ascontiguousarray(noise, dtype=dtype)
+    if noise.shape != shape:
+        raise ValueError(f"noise must have shape {'(6, P)' if soa else '(P, 6)'} = {shape}, got {noise.shape}")
+    _launch(_MOVE[soa][0], P, PARTICLE_BLOCK, *flat, d, trans, noise.reshape(-1),
+            sigma.astype(dtype), *flat_new, P)
     return R_new, t_new
 
 
@@ -230,9 +304,6 @@ def move_particles(R, t, rpy_delta, trans_delta, noise, sigma, out=None):
 #: Points per parallel task of ``transform_points``: a contiguous span of ``3 * TRANSFORM_CHUNK`` floats whose
 #: loop LLVM vectorises (AVX2: 8 points per step, de-interleaved with shuffles).
 TRANSFORM_CHUNK = 1 << 14
-_U1 = np.uint64(1)
-_U2 = np.uint64(2)
-_U3 = np.uint64(3)
 
 
 @njit(parallel=True, cache=True, fastmath={"contract"})

@@ -56,8 +56,16 @@ def make_point_functions(deco: Callable = _identity) -> dict:
     ``rpy_matrix_cs(cr, sr, cp, sp, cy, sy, out)``
         The same matrix from the cosines and sines of roll, pitch and yaw (``rpy_matrix`` calls it), for
         kernels that read them from a per-frame table instead of calling ``cos``/``sin`` per particle.
+    ``rpy_rotation_cs(cr, sr, cp, sp, cy, sy)``
+        That matrix as a row-major 9-tuple (``rpy_matrix_cs`` writes it): for kernels that keep it in registers.
+    ``row_times(r0, r1, r2, m00, m01, ..., m22)``
+        The row vector ``r M`` as a 3-tuple (``M`` row-major, as scalars): one row of a 3x3 product, summed in the
+        order ``r0 m0b + r1 m1b + r2 m2b``. The motion update of one particle is three rows of
+        ``R_i dR`` then of ``(R_i dR) N``.
+    ``row_step(t0, a0, a1, a2, sx, sy, sz)``
+        ``t0 + a0 sx + a1 sy + a2 sz``: one component of ``t_i + A s``.
     ``pose_times(R, i, M, A)``
-        ``A = R[i] M`` for ``R`` (P, 3, 3) and ``M``, ``A`` (3, 3).
+        ``A = R[i] M`` for ``R`` (P, 3, 3) and ``M``, ``A`` (3, 3) (``row_times`` of each row).
     ``compose_rotation(A, N, R_new, i)``
         ``R_new[i] = A N`` (3x3 product).
     ``compose_translation(t, A, sx, sy, sz, t_new, i)``
@@ -86,35 +94,46 @@ def make_point_functions(deco: Callable = _identity) -> dict:
     in_range, pack_key, find_slot = F["in_range"], F["pack_key"], F["find_slot"]
     morton, find_cell = F["morton"], F["find_cell"]
 
+    def rpy_rotation_cs(cr, sr, cp, sp, cy, sy):
+        return (cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr,
+                sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr,
+                -sp, cp * sr, cp * cr)
+
+    rpy_rotation_cs = deco(rpy_rotation_cs)
+
     def rpy_matrix_cs(cr, sr, cp, sp, cy, sy, out):
-        out[0, 0] = cy * cp
-        out[0, 1] = cy * sp * sr - sy * cr
-        out[0, 2] = cy * sp * cr + sy * sr
-        out[1, 0] = sy * cp
-        out[1, 1] = sy * sp * sr + cy * cr
-        out[1, 2] = sy * sp * cr - cy * sr
-        out[2, 0] = -sp
-        out[2, 1] = cp * sr
-        out[2, 2] = cp * cr
+        (out[0, 0], out[0, 1], out[0, 2], out[1, 0], out[1, 1], out[1, 2],
+         out[2, 0], out[2, 1], out[2, 2]) = rpy_rotation_cs(cr, sr, cp, sp, cy, sy)
 
     rpy_matrix_cs = deco(rpy_matrix_cs)
 
     def rpy_matrix(r, p, y, out):
         rpy_matrix_cs(math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), math.sin(y), out)
 
+    def row_times(r0, r1, r2, m00, m01, m02, m10, m11, m12, m20, m21, m22):
+        return (r0 * m00 + r1 * m10 + r2 * m20, r0 * m01 + r1 * m11 + r2 * m21, r0 * m02 + r1 * m12 + r2 * m22)
+
+    row_times = deco(row_times)
+
+    def row_step(t0, a0, a1, a2, sx, sy, sz):
+        return t0 + a0 * sx + a1 * sy + a2 * sz
+
+    row_step = deco(row_step)
+
     def pose_times(R, i, M, A):
         for a in range(3):
-            for b in range(3):
-                A[a, b] = R[i, a, 0] * M[0, b] + R[i, a, 1] * M[1, b] + R[i, a, 2] * M[2, b]
+            A[a, 0], A[a, 1], A[a, 2] = row_times(R[i, a, 0], R[i, a, 1], R[i, a, 2], M[0, 0], M[0, 1], M[0, 2],
+                                                  M[1, 0], M[1, 1], M[1, 2], M[2, 0], M[2, 1], M[2, 2])
 
     def compose_rotation(A, N, R_new, i):
         for a in range(3):
-            for b in range(3):
-                R_new[i, a, b] = A[a, 0] * N[0, b] + A[a, 1] * N[1, b] + A[a, 2] * N[2, b]
+            R_new[i, a, 0], R_new[i, a, 1], R_new[i, a, 2] = row_times(
+                A[a, 0], A[a, 1], A[a, 2], N[0, 0], N[0, 1], N[0, 2], N[1, 0], N[1, 1], N[1, 2], N[2, 0], N[2, 1],
+                N[2, 2])
 
     def compose_translation(t, A, sx, sy, sz, t_new, i):
         for a in range(3):
-            t_new[i, a] = t[i, a] + A[a, 0] * sx + A[a, 1] * sy + A[a, 2] * sz
+            t_new[i, a] = row_step(t[i, a], A[a, 0], A[a, 1], A[a, 2], sx, sy, sz)
 
     def world_point(R, t, i, x, y, z):
         return (R[i, 0, 0] * x + R[i, 0, 1] * y + R[i, 0, 2] * z + t[i, 0],
@@ -217,7 +236,8 @@ def make_point_functions(deco: Callable = _identity) -> dict:
         return best
 
     out = dict(F)
-    out.update({"rpy_matrix": deco(rpy_matrix), "rpy_matrix_cs": rpy_matrix_cs, "pose_times": deco(pose_times),
+    out.update({"rpy_matrix": deco(rpy_matrix), "rpy_matrix_cs": rpy_matrix_cs, "rpy_rotation_cs": rpy_rotation_cs,
+                "row_times": row_times, "row_step": row_step, "pose_times": deco(pose_times),
                 "compose_rotation": deco(compose_rotation), "compose_translation": deco(compose_translation),
                 "world_point": deco(world_point), "voxel_term": deco(voxel_term), "cells_per_axis": cells_per_axis,
                 "cell_block": cell_block, "nearest_in_run": nearest_in_run, "morton_d2": deco(morton_d2)})

@@ -362,6 +362,39 @@ def test_systematic_resample_rejects_bad_weights(backend):
         backend.systematic_resample(np.ones(3), 1.0)
 
 
+def test_voxel_scores_are_the_sum_of_voxel_term_bit_for_bit():
+    """The CPU voxel kernel looks each block's 8 corner slots up once for consecutive particles in it: the scores are
+    still the plain sum of device.voxel_term, bit for bit (per chunk of POINT_CHUNK points in order, then the
+    chunks in order), for particles spread over many blocks, a NaN point, one far outside and a point whose block
+    starts below the key range (index -1)."""
+    from slamlib.kernels import cpu
+    from slamlib.kernels.device import PY
+
+    rng = np.random.default_rng(8)
+    vmap = _maps(rng)[0]
+    lk = vmap.lookup()
+    R, t = _particles(rng, 70, spread=0.05)
+    t = t * 0.2
+    pts = np.vstack([rng.uniform(-6, 6, (150, 3)), [[np.nan, 0, 0], [1e9, 0, 0]]]).astype(np.float32)
+    far = VoxelHashMap(voxel_size=0.001, capacity=16, min_sigma=0.001)
+    corner = np.float32(-(2**20) * 0.001 + 0.0004)
+    far.merge(np.array([[corner, corner, corner], [corner + 0.0001, corner, corner]], np.float32))
+    cases = [(R, t, pts, lk), (np.eye(3)[None].repeat(3, 0), np.zeros((3, 3)) + [[0, 0, 0], [2e-4, 0, 0], [0, 1e-4, 0]],
+                               np.array([[corner, corner, corner]], np.float32), far.lookup())]
+    for R_, t_, p_, lk_ in cases:
+        got = CPU.score_particles(R_, t_, p_, lk_)
+        for i in range(len(R_)):
+            total = 0.0
+            for c in range(0, len(p_), cpu.POINT_CHUNK):
+                acc = 0.0
+                for x, y, z in p_[c:c + cpu.POINT_CHUNK].astype(np.float64):
+                    wx, wy, wz = PY["world_point"](R_, t_, i, x, y, z)
+                    acc += PY["voxel_term"](wx, wy, wz, lk_.keys, lk_.mean, lk_.icov, lk_.inv_voxel_size,
+                                            lk_.log2_capacity, lk_.max_probe, lk_.m_max)
+                total += acc
+            assert got[i] == total, (i, got[i], total)
+
+
 def test_shared_point_math_python_and_numba_builds_agree_bit_for_bit():
     """slamlib.kernels.device is one source compiled per target: its plain-Python build (the specification; the
     CUDA simulator runs the same code) and the njit build inside the CPU backend give identical bits."""

@@ -51,7 +51,10 @@ _rpy_rotation_cs = _F["rpy_rotation_cs"]
 _row_times = _F["row_times"]
 _row_step = _F["row_step"]
 _world_point = _F["world_point"]
-_voxel_term = _F["voxel_term"]
+_voxel_cell = _F["voxel_cell"]
+_corner_slot = _F["corner_slot"]
+_corner_weight = _F["corner_weight"]
+_slot_term = _F["slot_term"]
 _hash_slot = _F["hash_slot"]
 _morton = _F["morton"]
 _find_cell = _F["find_cell"]
@@ -385,19 +388,37 @@ def _sum_chunks(partial):
     return out
 
 
+#: An index no voxel block has (``voxel_cell``'s indexes stay within about ``2**22`` of zero, below it too).
+_NO_BLOCK = np.int64(-(2**62))
+
+
 @njit(parallel=True, cache=True)
 def _score_voxel_nb(R, t, pts, keys, mean, icov, inv_h, log2_capacity, max_probe, m_max, pt_chunk, part_chunk):
     P = R.shape[0]
     N = pts.shape[0]
     npc, nqc = _n_chunks(N, P, pt_chunk, part_chunk)
     partial = np.zeros((npc, P))
+    miss = -0.5 * m_max
     for task in prange(npc * nqc):
         c, j0, j1, i0, i1 = _task_span(task, nqc, N, P, pt_chunk, part_chunk)
+        slots = np.empty(8, np.int64)  # the 8 corner slots of the block (cx, cy, cz), looked up once per block
+        cx = cy = cz = _NO_BLOCK  # no block yet
         for j in range(j0, j1):
             x, y, z = np.float64(pts[j, 0]), np.float64(pts[j, 1]), np.float64(pts[j, 2])
-            for i in range(i0, i1):  # the particles' copies of point j hit the same few voxels: cache-friendly
+            for i in range(i0, i1):  # the particles' copies of point j fall in the same few blocks of voxels
                 wx, wy, wz = _world_point(R, t, i, x, y, z)
-                partial[c, i] += _voxel_term(wx, wy, wz, keys, mean, icov, inv_h, log2_capacity, max_probe, m_max)
+                ux0, uy0, uz0, fx, fy, fz, ok = _voxel_cell(wx, wy, wz, inv_h)
+                if not ok:
+                    partial[c, i] += miss
+                    continue
+                if ux0 != cx or uy0 != cy or uz0 != cz:
+                    cx, cy, cz = ux0, uy0, uz0
+                    for k in range(8):
+                        slots[k] = _corner_slot(cx, cy, cz, k, keys, log2_capacity, max_probe)
+                total = 0.0  # voxel_term's sum, in its corner order: the same bits
+                for k in range(8):
+                    total += _corner_weight(fx, fy, fz, k) * _slot_term(wx, wy, wz, slots[k], mean, icov, m_max)
+                partial[c, i] += total
     return _sum_chunks(partial)
 
 

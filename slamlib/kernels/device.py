@@ -76,7 +76,19 @@ def make_point_functions(deco: Callable = _identity) -> dict:
     ``voxel_term(wx, wy, wz, keys, mean, icov, inv_h, log2_capacity, max_probe, m_max)``
         Trilinear NDT term of the world point in a :class:`~slamlib.maps.base.VoxelHashLookup` (float64):
         ``sum w_c T_c(p)`` over the 8 voxels whose centres surround ``p``; ``T_c = -0.5 min(d^T A d, m_max)``
-        when found, ``-0.5 m_max`` when not (Biber & Strasser 2003; Magnusson 2009).
+        when found, ``-0.5 m_max`` when not (Biber & Strasser 2003; Magnusson 2009). Built from the four below.
+    ``voxel_cell(wx, wy, wz, inv_h)``
+        ``(ux0, uy0, uz0, fx, fy, fz, ok)``: the offset int64 indexes of the lowest of the 8 voxels whose centres
+        surround the point and its fractional position among them; ``ok`` False when the point is beyond the
+        key range or NaN (every corner a miss).
+    ``corner_slot(ux0, uy0, uz0, k, keys, log2_capacity, max_probe)``
+        Hash slot (int64, -1 if absent) of corner ``k = 4 dx + 2 dy + dz`` (0..7) of that block.
+    ``corner_weight(fx, fy, fz, k)``
+        Its trilinear weight ``w_x w_y w_z`` (``f`` for the upper corner along an axis, ``1 - f`` for the lower).
+    ``slot_term(wx, wy, wz, s, mean, icov, m_max)``
+        ``T_c(p)`` of the voxel in slot ``s``, ``-0.5 m_max`` for ``s < 0``. A kernel whose neighbouring
+        queries share a block looks its 8 slots up once (``corner_slot``) and sums ``corner_weight * slot_term``
+        in corner order, which is ``voxel_term`` bit for bit.
     ``cell_block(wx, wy, wz, quantum, cell_level)``
         ``(ux, uy, uz, cx0, cy0, cz0, ok)``: the point in quanta offset by ``2**20`` (float64), and the lowest
         corner (int64) of the 2x2x2 block of level-``cell_level`` cells nearest it (the cells whose centres
@@ -140,46 +152,60 @@ def make_point_functions(deco: Callable = _identity) -> dict:
                 R[i, 1, 0] * x + R[i, 1, 1] * y + R[i, 1, 2] * z + t[i, 1],
                 R[i, 2, 0] * x + R[i, 2, 1] * y + R[i, 2, 2] * z + t[i, 2])
 
-    def voxel_term(wx, wy, wz, keys, mean, icov, inv_h, log2_capacity, max_probe, m_max):
-        miss = -0.5 * m_max
+    def voxel_cell(wx, wy, wz, inv_h):
         gx = wx * inv_h - 0.5  # voxel centres at integers
         gy = wy * inv_h - 0.5
         gz = wz * inv_h - 0.5
         if not (abs(gx) <= VOXEL_GRID_LIMIT and abs(gy) <= VOXEL_GRID_LIMIT and abs(gz) <= VOXEL_GRID_LIMIT):
-            return miss  # far outside the key range, or NaN (checked before floor: see the module docstring)
+            # far outside the key range, or NaN (checked before floor: see the module docstring)
+            return AXIS_OFFSET_I64, AXIS_OFFSET_I64, AXIS_OFFSET_I64, 0.0, 0.0, 0.0, False
         bx = math.floor(gx)
         by = math.floor(gy)
         bz = math.floor(gz)
-        fx = gx - bx
-        fy = gy - by
-        fz = gz - bz
-        ux0 = np.int64(bx) + AXIS_OFFSET_I64
-        uy0 = np.int64(by) + AXIS_OFFSET_I64
-        uz0 = np.int64(bz) + AXIS_OFFSET_I64
+        return (np.int64(bx) + AXIS_OFFSET_I64, np.int64(by) + AXIS_OFFSET_I64, np.int64(bz) + AXIS_OFFSET_I64,
+                gx - bx, gy - by, gz - bz, True)
+
+    voxel_cell = deco(voxel_cell)
+
+    def corner_slot(ux0, uy0, uz0, k, keys, log2_capacity, max_probe):
+        ux = ux0 + (k >> 2)
+        uy = uy0 + ((k >> 1) & 1)
+        uz = uz0 + (k & 1)
+        if in_range(ux) and in_range(uy) and in_range(uz):
+            return find_slot(keys, pack_key(ux, uy, uz), log2_capacity, max_probe)
+        return np.int64(-1)
+
+    corner_slot = deco(corner_slot)
+
+    def corner_weight(fx, fy, fz, k):
+        wgx = fx if (k >> 2) == 1 else 1.0 - fx
+        wgy = fy if ((k >> 1) & 1) == 1 else 1.0 - fy
+        return wgx * wgy * (fz if (k & 1) == 1 else 1.0 - fz)
+
+    corner_weight = deco(corner_weight)
+
+    def slot_term(wx, wy, wz, s, mean, icov, m_max):
+        if s < 0:
+            return -0.5 * m_max
+        ex = wx - np.float64(mean[s, 0])
+        ey = wy - np.float64(mean[s, 1])
+        ez = wz - np.float64(mean[s, 2])
+        m = (np.float64(icov[s, 0]) * ex * ex + np.float64(icov[s, 3]) * ey * ey
+             + np.float64(icov[s, 5]) * ez * ez
+             + 2.0 * (np.float64(icov[s, 1]) * ex * ey + np.float64(icov[s, 2]) * ex * ez
+                      + np.float64(icov[s, 4]) * ey * ez))
+        return -0.5 * min(m, m_max)
+
+    slot_term = deco(slot_term)
+
+    def voxel_term(wx, wy, wz, keys, mean, icov, inv_h, log2_capacity, max_probe, m_max):
+        ux0, uy0, uz0, fx, fy, fz, ok = voxel_cell(wx, wy, wz, inv_h)
+        if not ok:
+            return -0.5 * m_max
         total = 0.0
-        for dx in range(2):
-            ux = ux0 + dx
-            wgx = fx if dx == 1 else 1.0 - fx
-            for dy in range(2):
-                uy = uy0 + dy
-                wgy = fy if dy == 1 else 1.0 - fy
-                for dz in range(2):
-                    uz = uz0 + dz
-                    w = wgx * wgy * (fz if dz == 1 else 1.0 - fz)
-                    s = -1
-                    if in_range(ux) and in_range(uy) and in_range(uz):
-                        s = find_slot(keys, pack_key(ux, uy, uz), log2_capacity, max_probe)
-                    if s < 0:
-                        total += w * miss
-                        continue
-                    ex = wx - np.float64(mean[s, 0])
-                    ey = wy - np.float64(mean[s, 1])
-                    ez = wz - np.float64(mean[s, 2])
-                    m = (np.float64(icov[s, 0]) * ex * ex + np.float64(icov[s, 3]) * ey * ey
-                         + np.float64(icov[s, 5]) * ez * ez
-                         + 2.0 * (np.float64(icov[s, 1]) * ex * ey + np.float64(icov[s, 2]) * ex * ez
-                                  + np.float64(icov[s, 4]) * ey * ez))
-                    total += w * (-0.5 * min(m, m_max))
+        for k in range(8):
+            s = corner_slot(ux0, uy0, uz0, k, keys, log2_capacity, max_probe)
+            total += corner_weight(fx, fy, fz, k) * slot_term(wx, wy, wz, s, mean, icov, m_max)
         return total
 
     def cells_per_axis(cell_level):
@@ -239,7 +265,8 @@ def make_point_functions(deco: Callable = _identity) -> dict:
     out.update({"rpy_matrix": deco(rpy_matrix), "rpy_matrix_cs": rpy_matrix_cs, "rpy_rotation_cs": rpy_rotation_cs,
                 "row_times": row_times, "row_step": row_step, "pose_times": deco(pose_times),
                 "compose_rotation": deco(compose_rotation), "compose_translation": deco(compose_translation),
-                "world_point": deco(world_point), "voxel_term": deco(voxel_term), "cells_per_axis": cells_per_axis,
+                "world_point": deco(world_point), "voxel_term": deco(voxel_term), "voxel_cell": voxel_cell,
+                "corner_slot": corner_slot, "corner_weight": corner_weight, "slot_term": slot_term, "cells_per_axis": cells_per_axis,
                 "cell_block": cell_block, "nearest_in_run": nearest_in_run, "morton_d2": deco(morton_d2)})
     return out
 

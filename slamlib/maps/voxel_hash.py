@@ -119,9 +119,9 @@ def _merge_nb(points, keys, count, s1, s2, mean, icov, first, last, stamp, voxel
         s2[s, 4] += ly * lz
         s2[s, 5] += lz * lz
         slots[j] = s
-    for j in range(n):  # refresh the field of every touched voxel (repeats are cheap and harmless)
-        s = slots[j]
-        if s >= 0:
+    for j in range(n):  # refresh the field of every touched voxel (a repeat gives the same field: skip the
+        s = slots[j]      # previous point's voxel, which the next points of a ring often share)
+        if s >= 0 and (j == 0 or s != slots[j - 1]):
             key = keys[s]
             ux = key & AXIS_MASK
             uy = (key >> KEY_SHIFT_Y) & AXIS_MASK

@@ -105,10 +105,10 @@ def crop_and_downsample(points, min_range: float = 0.0, max_range: float = np.in
         raise ValueError(f"points must have shape (N, 3) or (N, 4), got {pts.shape}")
     if len(pts) == 0:
         return pts
-    xyz = np.ascontiguousarray(pts[:, :3])
     h = float(voxel_size) if voxel_size > 0 else 0.0
     log2_capacity = max(4, int(np.ceil(np.log2(2 * len(pts)))))
-    keep = _crop_downsample_nb(xyz, float(min_range) ** 2, float(max_range) ** 2, h, log2_capacity)
+    # the x, y, z columns as a strided view: Numba reads the scan in place (a contiguous copy cost a third more)
+    keep = _crop_downsample_nb(pts[:, :3], float(min_range) ** 2, float(max_range) ** 2, h, log2_capacity)
     if len(keep) == 1 and keep[0] == _OUT_OF_RANGE:
         return voxel_downsample(crop_range(pts, min_range, max_range), voxel_size)
     return pts[keep]

@@ -160,7 +160,8 @@ def _make_move_kernels(soa: bool):
                                              trig_tab[1, i4, 1], trig_tab[2, i5, 0], trig_tab[2, i5, 1])
                     else:
                         r, q, y = sigma[3] * normal[i3], sigma[4] * normal[i4], sigma[5] * normal[i5]
-                        n = _rpy_rotation_cs(math.cos(r), math.sin(r), math.cos(q), math.sin(q), math.cos(y), math.sin(y))
+                        n = _rpy_rotation_cs(math.cos(r), math.sin(r), math.cos(q), math.sin(q), math.cos(y),
+                                             math.sin(y))
                     sx = trans_delta[0] + step_tab[0, _hash_index(h, 0, perm, bits)]
                     sy = trans_delta[1] + step_tab[1, _hash_index(h, 1, perm, bits)]
                     sz = trans_delta[2] + step_tab[2, _hash_index(h, 2, perm, bits)]

@@ -266,7 +266,8 @@ def make_point_functions(deco: Callable = _identity) -> dict:
                 "row_times": row_times, "row_step": row_step, "pose_times": deco(pose_times),
                 "compose_rotation": deco(compose_rotation), "compose_translation": deco(compose_translation),
                 "world_point": deco(world_point), "voxel_term": deco(voxel_term), "voxel_cell": voxel_cell,
-                "corner_slot": corner_slot, "corner_weight": corner_weight, "slot_term": slot_term, "cells_per_axis": cells_per_axis,
+                "corner_slot": corner_slot, "corner_weight": corner_weight, "slot_term": slot_term,
+                "cells_per_axis": cells_per_axis,
                 "cell_block": cell_block, "nearest_in_run": nearest_in_run, "morton_d2": deco(morton_d2)})
     return out
 

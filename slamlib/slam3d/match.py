@@ -46,9 +46,8 @@ import math
 import numpy as np
 from numba import njit
 
-from slamlib.kernels.device import VOXEL_GRID_LIMIT
+from slamlib.kernels.device import make_point_functions
 from slamlib.maps.base import KIND_VOXEL_HASH
-from slamlib.maps.codes import AXIS_OFFSET_I64, find_slot_nb, in_range_nb, pack_key_nb
 
 __all__ = ["match_scan", "normal_equations", "so3_exp", "MATCH_DAMPING", "MATCH_TOLERANCE"]
 
@@ -57,6 +56,13 @@ __all__ = ["match_scan", "normal_equations", "so3_exp", "MATCH_DAMPING", "MATCH_
 MATCH_DAMPING = 1e-6
 #: Stop when a step moves the pose by less than this (radians and metres alike: 1e-5 rad at 50 m is 0.5 mm).
 MATCH_TOLERANCE = 1e-5
+
+# The score's voxel pieces, inlined (the pattern of slamlib.kernels.cpu; after editing slamlib/kernels/device.py
+# clear Numba's cache, which is keyed on this file's timestamp only).
+_F = make_point_functions(njit(inline="always"))
+_voxel_cell = _F["voxel_cell"]
+_corner_slot = _F["corner_slot"]
+_corner_weight = _F["corner_weight"]
 
 
 @njit(cache=True)
@@ -72,55 +78,43 @@ def _normal_equations_nb(R, t, pts, road, keys, mean, icov, inv_h, log2_capacity
         ry = R[1, 0] * x + R[1, 1] * y + R[1, 2] * z
         rz = R[2, 0] * x + R[2, 1] * y + R[2, 2] * z
         wx, wy, wz = rx + t[0], ry + t[1], rz + t[2]
-        # the corners and weights of the score's voxel_term (slamlib.kernels.device)
-        gx, gy, gz = wx * inv_h - 0.5, wy * inv_h - 0.5, wz * inv_h - 0.5
-        if not (abs(gx) <= VOXEL_GRID_LIMIT and abs(gy) <= VOXEL_GRID_LIMIT and abs(gz) <= VOXEL_GRID_LIMIT):
+        # the block, corners and weights of the score's voxel_term (slamlib.kernels.device)
+        ux0, uy0, uz0, fx, fy, fz, ok = _voxel_cell(wx, wy, wz, inv_h)
+        if not ok:
             cost += 0.5 * m_max
             continue
-        bx, by, bz = math.floor(gx), math.floor(gy), math.floor(gz)
-        fx, fy, fz = gx - bx, gy - by, gz - bz
-        ux0 = np.int64(bx) + AXIS_OFFSET_I64
-        uy0 = np.int64(by) + AXIS_OFFSET_I64
-        uz0 = np.int64(bz) + AXIS_OFFSET_I64
         # d q / d omega = -[r]_x, d q / d v = I; a road point keeps only the vertical row (module docstring)
         across = 0.0 if road[j] else 1.0
         J[0, 1], J[0, 2], J[0, 3] = rz * across, -ry * across, across
         J[1, 0], J[1, 2], J[1, 4] = -rz * across, rx * across, across
         J[2, 0], J[2, 1], J[2, 5] = ry, -rx, 1.0
-        for dx in range(2):
-            wgx = fx if dx == 1 else 1.0 - fx
-            for dy in range(2):
-                wgy = fy if dy == 1 else 1.0 - fy
-                for dz in range(2):
-                    w = wgx * wgy * (fz if dz == 1 else 1.0 - fz)
-                    ux, uy, uz = ux0 + dx, uy0 + dy, uz0 + dz
-                    s = -1
-                    if in_range_nb(ux) and in_range_nb(uy) and in_range_nb(uz):
-                        s = find_slot_nb(keys, pack_key_nb(ux, uy, uz), log2_capacity, max_probe)
-                    if s < 0:
-                        cost += 0.5 * w * m_max
-                        continue
-                    e0 = wx - np.float64(mean[s, 0])
-                    e1 = wy - np.float64(mean[s, 1])
-                    e2 = wz - np.float64(mean[s, 2])
-                    a0, a1, a2 = np.float64(icov[s, 0]), np.float64(icov[s, 1]), np.float64(icov[s, 2])
-                    a3, a4, a5 = np.float64(icov[s, 3]), np.float64(icov[s, 4]), np.float64(icov[s, 5])
-                    d0 = a0 * e0 + a1 * e1 + a2 * e2  # A d
-                    d1 = a1 * e0 + a3 * e1 + a4 * e2
-                    d2 = a2 * e0 + a4 * e1 + a5 * e2
-                    m = e0 * d0 + e1 * d1 + e2 * d2
-                    if m >= m_max:  # truncated: constant, no gradient
-                        cost += 0.5 * w * m_max
-                        continue
-                    cost += 0.5 * w * m
-                    for c in range(6):
-                        AJ[0, c] = a0 * J[0, c] + a1 * J[1, c] + a2 * J[2, c]
-                        AJ[1, c] = a1 * J[0, c] + a3 * J[1, c] + a4 * J[2, c]
-                        AJ[2, c] = a2 * J[0, c] + a4 * J[1, c] + a5 * J[2, c]
-                        g[c] += w * (J[0, c] * d0 + J[1, c] * d1 + J[2, c] * d2)
-                    for c in range(6):
-                        for k in range(c, 6):
-                            H[c, k] += w * (J[0, c] * AJ[0, k] + J[1, c] * AJ[1, k] + J[2, c] * AJ[2, k])
+        for corner in range(8):
+            w = _corner_weight(fx, fy, fz, corner)
+            s = _corner_slot(ux0, uy0, uz0, corner, keys, log2_capacity, max_probe)
+            if s < 0:
+                cost += 0.5 * w * m_max
+                continue
+            e0 = wx - np.float64(mean[s, 0])
+            e1 = wy - np.float64(mean[s, 1])
+            e2 = wz - np.float64(mean[s, 2])
+            a0, a1, a2 = np.float64(icov[s, 0]), np.float64(icov[s, 1]), np.float64(icov[s, 2])
+            a3, a4, a5 = np.float64(icov[s, 3]), np.float64(icov[s, 4]), np.float64(icov[s, 5])
+            d0 = a0 * e0 + a1 * e1 + a2 * e2  # A d
+            d1 = a1 * e0 + a3 * e1 + a4 * e2
+            d2 = a2 * e0 + a4 * e1 + a5 * e2
+            m = e0 * d0 + e1 * d1 + e2 * d2
+            if m >= m_max:  # truncated: constant, no gradient
+                cost += 0.5 * w * m_max
+                continue
+            cost += 0.5 * w * m
+            for c in range(6):
+                AJ[0, c] = a0 * J[0, c] + a1 * J[1, c] + a2 * J[2, c]
+                AJ[1, c] = a1 * J[0, c] + a3 * J[1, c] + a4 * J[2, c]
+                AJ[2, c] = a2 * J[0, c] + a4 * J[1, c] + a5 * J[2, c]
+                g[c] += w * (J[0, c] * d0 + J[1, c] * d1 + J[2, c] * d2)
+            for c in range(6):
+                for k in range(c, 6):
+                    H[c, k] += w * (J[0, c] * AJ[0, k] + J[1, c] * AJ[1, k] + J[2, c] * AJ[2, k])
     for c in range(6):
         for k in range(c):
             H[c, k] = H[k, c]

@@ -46,8 +46,8 @@ from slamlib.noise import N_COMPONENTS, LutNoise, frame_key, make_lut_functions
 # timestamp only, so after editing slamlib/kernels/device.py or slamlib/maps/codes.py clear it
 # (rm -rf "$NUMBA_CACHE_DIR", _cache/numba in the Makefile) or the cached kernels keep the old math.
 _F = make_point_functions(njit(inline="always"))
-_rpy_matrix = _F["rpy_matrix"]
 _rpy_rotation_cs = _F["rpy_rotation_cs"]
+_rpy_rotation = _F["rpy_rotation"]
 _row_times = _F["row_times"]
 _row_step = _F["row_step"]
 _world_point = _F["world_point"]
@@ -123,8 +123,17 @@ def _lut_tables_nb(normal, sigma, step_tab, trig_tab, with_trig):
 
 
 def _make_move_kernels(soa: bool):
-    """The two fused move kernels (drawn noise, LUT noise) for one particle layout, ``soa`` a constant of the
-    build: a layout test inside the loop would stop LLVM from vectorising it (one build per layout, each cached)."""
+    """The fused move kernels (drawn noise, LUT noise with and without the trig table) for one particle layout,
+    ``soa`` a constant of the build: a layout test inside the loop would stop LLVM from vectorising it (one build
+    per layout, each cached)."""
+
+    @njit(inline="always")
+    def move_one(R, t, R_new, t_new, i, p, d, n, sx, sy, sz):
+        """Particle ``i`` of ``p`` in this build's layout (:func:`_move_particle`)."""
+        if soa:
+            _move_particle(R, t, R_new, t_new, i, _U3 * p, p, i, p, d, n, sx, sy, sz)
+        else:
+            _move_particle(R, t, R_new, t_new, _U9 * i, _U3, _U1, _U3 * i, _U1, d, n, sx, sy, sz)
 
     @njit(parallel=True, cache=True)
     def _move_nb(R, t, d, trans_delta, noise, sigma, R_new, t_new, P, block):
@@ -133,15 +142,10 @@ def _make_move_kernels(soa: bool):
         for b in prange(_ceil_div(P, block)):
             for i in range(np.uint64(b * block), np.uint64(min(P, (b + 1) * block))):
                 e, es = (i, p) if soa else (_U6 * i, _U1)  # noise[i, k] = noise[e + k es]
-                r, q, y = sigma[3] * noise[e + _U3 * es], sigma[4] * noise[e + _U4 * es], sigma[5] * noise[e + _U5 * es]
-                n = _rpy_rotation_cs(math.cos(r), math.sin(r), math.cos(q), math.sin(q), math.cos(y), math.sin(y))
-                sx = trans_delta[0] + sigma[0] * noise[e]
-                sy = trans_delta[1] + sigma[1] * noise[e + es]
-                sz = trans_delta[2] + sigma[2] * noise[e + _U2 * es]
-                if soa:
-                    _move_particle(R, t, R_new, t_new, i, _U3 * p, p, i, p, d, n, sx, sy, sz)
-                else:
-                    _move_particle(R, t, R_new, t_new, _U9 * i, _U3, _U1, _U3 * i, _U1, d, n, sx, sy, sz)
+                n = _rpy_rotation(sigma[3] * noise[e + _U3 * es], sigma[4] * noise[e + _U4 * es],
+                                  sigma[5] * noise[e + _U5 * es])
+                move_one(R, t, R_new, t_new, i, p, d, n, trans_delta[0] + sigma[0] * noise[e],
+                         trans_delta[1] + sigma[1] * noise[e + es], trans_delta[2] + sigma[2] * noise[e + _U2 * es])
 
     def make_lut(with_trig):
         @njit(parallel=True, cache=True)
@@ -159,16 +163,11 @@ def _make_move_kernels(soa: bool):
                         n = _rpy_rotation_cs(trig_tab[0, i3, 0], trig_tab[0, i3, 1], trig_tab[1, i4, 0],
                                              trig_tab[1, i4, 1], trig_tab[2, i5, 0], trig_tab[2, i5, 1])
                     else:
-                        r, q, y = sigma[3] * normal[i3], sigma[4] * normal[i4], sigma[5] * normal[i5]
-                        n = _rpy_rotation_cs(math.cos(r), math.sin(r), math.cos(q), math.sin(q), math.cos(y),
-                                             math.sin(y))
-                    sx = trans_delta[0] + step_tab[0, _hash_index(h, 0, perm, bits)]
-                    sy = trans_delta[1] + step_tab[1, _hash_index(h, 1, perm, bits)]
-                    sz = trans_delta[2] + step_tab[2, _hash_index(h, 2, perm, bits)]
-                    if soa:
-                        _move_particle(R, t, R_new, t_new, i, _U3 * p, p, i, p, d, n, sx, sy, sz)
-                    else:
-                        _move_particle(R, t, R_new, t_new, _U9 * i, _U3, _U1, _U3 * i, _U1, d, n, sx, sy, sz)
+                        n = _rpy_rotation(sigma[3] * normal[i3], sigma[4] * normal[i4], sigma[5] * normal[i5])
+                    move_one(R, t, R_new, t_new, i, p, d, n,
+                             trans_delta[0] + step_tab[0, _hash_index(h, 0, perm, bits)],
+                             trans_delta[1] + step_tab[1, _hash_index(h, 1, perm, bits)],
+                             trans_delta[2] + step_tab[2, _hash_index(h, 2, perm, bits)])
         return _move_lut_nb
 
     return _move_nb, make_lut(True), make_lut(False)
@@ -270,9 +269,7 @@ def _move(R, t, P, rpy_delta, trans_delta, noise, sigma, out, soa):
     sigma = _vector(sigma, 6, "sigma")
     rpy = _vector(rpy_delta, 3, "rpy_delta")
     trans = _vector(trans_delta, 3, "trans_delta").astype(dtype)
-    dR = np.empty((3, 3))
-    _rpy_matrix(rpy[0], rpy[1], rpy[2], dR)
-    d = tuple(dR.astype(dtype).ravel())  # dR as a row-major 9-tuple: registers, not memory, in the loop
+    d = tuple(np.asarray(_rpy_rotation(*rpy), dtype))  # dR as a row-major 9-tuple: registers in the loop
     if out is None:
         R_new, t_new = np.empty_like(R), np.empty_like(t)
     else:

@@ -56,7 +56,7 @@ def make_point_functions(deco: Callable = _identity) -> dict:
     ``rpy_matrix_cs(cr, sr, cp, sp, cy, sy, out)``
         The same matrix from the cosines and sines of roll, pitch and yaw (``rpy_matrix`` calls it), for
         kernels that read them from a per-frame table instead of calling ``cos``/``sin`` per particle.
-    ``rpy_rotation_cs(cr, sr, cp, sp, cy, sy)``
+    ``rpy_rotation_cs(cr, sr, cp, sp, cy, sy)``, ``rpy_rotation(r, p, y)``
         That matrix as a row-major 9-tuple (``rpy_matrix_cs`` writes it): for kernels that keep it in registers.
     ``row_times(r0, r1, r2, m00, m01, ..., m22)``
         The row vector ``r M`` as a 3-tuple (``M`` row-major, as scalars): one row of a 3x3 product, summed in the
@@ -118,6 +118,11 @@ def make_point_functions(deco: Callable = _identity) -> dict:
          out[2, 0], out[2, 1], out[2, 2]) = rpy_rotation_cs(cr, sr, cp, sp, cy, sy)
 
     rpy_matrix_cs = deco(rpy_matrix_cs)
+
+    def rpy_rotation(r, p, y):
+        return rpy_rotation_cs(math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), math.sin(y))
+
+    rpy_rotation = deco(rpy_rotation)
 
     def rpy_matrix(r, p, y, out):
         rpy_matrix_cs(math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), math.sin(y), out)
@@ -263,6 +268,7 @@ def make_point_functions(deco: Callable = _identity) -> dict:
 
     out = dict(F)
     out.update({"rpy_matrix": deco(rpy_matrix), "rpy_matrix_cs": rpy_matrix_cs, "rpy_rotation_cs": rpy_rotation_cs,
+                "rpy_rotation": rpy_rotation,
                 "row_times": row_times, "row_step": row_step, "pose_times": deco(pose_times),
                 "compose_rotation": deco(compose_rotation), "compose_translation": deco(compose_translation),
                 "world_point": deco(world_point), "voxel_term": deco(voxel_term), "voxel_cell": voxel_cell,

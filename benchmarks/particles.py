@@ -89,8 +89,8 @@ def run(quick: bool) -> dict:
                "lut_drawn": lambda: move(N.lut_normal_nb(tables, P, 3, 7)),
                "numpy_drawn": lambda: move(pcg.standard_normal((P, 6))),
                "philox_drawn": lambda: move(philox.standard_normal((P, 6)))}
-        copy = {"copyto": lambda: np.copyto(R_copy, R)} if P == sizes[-1] else {}
-        R_copy = np.empty_like(R)
+        R_copy = np.empty_like(R) if P == sizes[-1] else None  # the copy limit, at the largest size
+        copy = {"copyto": lambda: np.copyto(R_copy, R)} if R_copy is not None else {}
         res = _rounds({**fns, **copy}, 3 if quick else (7 if P >= 10**7 else (15 if P >= 10**6 else 31)))
         if copy:
             st = res.pop("copyto")

@@ -23,8 +23,8 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["crop_range", "voxel_downsample", "crop_and_downsample", "sample_points", "road_mask", "thin_ground", "GROUND_BAND_M",
-           "GROUND_PERCENTILE", "sweep_times", "deskew"]
+__all__ = ["crop_range", "voxel_downsample", "crop_and_downsample", "sample_points", "road_mask", "thin_ground",
+           "GROUND_BAND_M", "GROUND_PERCENTILE", "sweep_times", "deskew"]
 
 #: Height above the scan's road surface (its :data:`GROUND_PERCENTILE` of z, body frame) below which a point counts
 #: as road for :func:`thin_ground`: 0.8 m also takes the curbs, the road's slope within the crop, and the lower

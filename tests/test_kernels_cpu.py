@@ -121,6 +121,111 @@ def test_transform_points_out_and_in_place_equal_the_allocating_call(N):
         assert np.isfinite(out).all()
 
 
+def _float_slices(n, raw_len=None):
+    """``(raw, [(offset, out)])``: NaN-filled float32 ``raw`` and (n, 3) views into it starting at each of the 16
+    float offsets from a 64-byte line boundary, so every output alignment a float32 array can have is covered."""
+    raw = np.full(3 * n + 64, np.nan, np.float32)
+    base = (-(raw.__array_interface__["data"][0] // 4)) % 16
+    return raw, [(base + o, raw[base + o:base + o + 3 * n].reshape(n, 3)) for o in range(16)]
+
+
+@pytest.mark.parametrize("N", [0, 1, 15, 16, 17, 40, 333])
+def test_streaming_transform_equals_the_plain_kernel_at_every_alignment(N):
+    """The non-temporal kernel (head and tail plain, whole lines between) writes exactly the plain kernel's
+    floats, at all 16 output alignments, with small task sizes so that many tasks and partial groups occur,
+    and nothing outside ``out``."""
+    from slamlib.kernels import cpu
+
+    rng = np.random.default_rng(N)
+    T = geometry.make_pose(geometry.rpy_to_matrix(rng.uniform(-3, 3, 3)), rng.normal(0, 50, 3))
+    R32, t32 = T[None, :3, :3].astype(np.float32), T[None, :3, 3].astype(np.float32)
+    pts = rng.normal(0.0, 30.0, (N, 3)).astype(np.float32)
+    want = np.empty_like(pts)
+    cpu._transform_nb(R32, t32, pts.reshape(-1), want.reshape(-1), 7)
+    raw, outs = _float_slices(N)
+    for start, out in outs:
+        raw[:] = np.nan
+        head = cpu._stream_head(out)
+        assert (out.__array_interface__["data"][0] + 12 * head) % 64 == 0
+        for chunk in (1, 2, 1000):
+            cpu._transform_stream_nb(R32, t32, pts.reshape(-1), out.reshape(-1), head, chunk)
+            assert np.array_equal(out, want), (start, chunk)
+        outside = np.r_[raw[:start], raw[start + 3 * N:]]
+        assert np.isnan(outside).all()
+
+
+def test_transform_points_streams_large_outputs_with_the_plain_results(monkeypatch):
+    """Above ``STREAM_MIN_POINTS`` ``out=`` goes through the streaming kernel (its threshold lowered here, and
+    once at its real size): the same floats as the plain kernel, at every alignment; in place unchanged."""
+    from slamlib.kernels import cpu
+
+    rng = np.random.default_rng(7)
+    T = geometry.make_pose(geometry.rpy_to_matrix(rng.uniform(-3, 3, 3)), rng.normal(0, 50, 3))
+    pts = rng.normal(0.0, 30.0, (3000, 3)).astype(np.float32)
+    want = CPU.transform_points(T, pts)
+    calls = []
+    real = cpu._transform_stream_nb
+    monkeypatch.setattr(cpu, "_transform_stream_nb", lambda *a: (calls.append(a[4]), real(*a)))
+    monkeypatch.setattr(cpu, "STREAM_MIN_POINTS", 1000)
+    for _, out in _float_slices(len(pts))[1]:
+        assert CPU.transform_points(T, pts, out=out) is out and np.array_equal(out, want)
+    assert len(calls) == 16 and sorted(set(calls)) == list(range(16))  # every head length taken
+    monkeypatch.undo()
+    big = rng.normal(0.0, 30.0, (cpu.STREAM_MIN_POINTS + 5, 3)).astype(np.float32)
+    plain = np.empty_like(big)
+    cpu._transform_nb(T[None, :3, :3].astype(np.float32), T[None, :3, 3].astype(np.float32), big.reshape(-1),
+                      plain.reshape(-1), cpu.TRANSFORM_CHUNK)
+    assert np.array_equal(CPU.transform_points(T, big), plain)
+    assert np.array_equal(CPU.transform_points(T, big, out=big), plain)
+
+
+@pytest.mark.skipif(__import__("platform").machine() not in ("x86_64", "AMD64"), reason="x86-64 mnemonics")
+def test_streaming_kernels_carry_their_memory_hints():
+    """The hints survive compilation: non-temporal stores and a fence in the streaming kernel, prefetches in
+    it and in the in-place kernel (LLVM would drop ``!nontemporal`` silently, e.g. on a misaligned store)."""
+    import re
+
+    from numba import njit
+
+    from slamlib.kernels import cpu
+
+    x, y = np.zeros(300, np.float32), np.zeros(300, np.float32)
+    R, t = np.eye(3, dtype=np.float32)[None], np.zeros((1, 3), np.float32)
+    asm = {}
+    head = cpu._stream_head(y)  # a wrong head would fault: non-temporal vector stores need aligned lines
+    for name, args in (("_transform_stream_nb", (R, t, x, y, head, 1)), ("_transform_inplace_nb", (R, t, x, 1))):
+        # compiled afresh: Numba returns no code for a kernel loaded from its on-disk cache
+        fresh = njit(parallel=True, fastmath={"contract"})(getattr(cpu, name).py_func)
+        fresh(*args)
+        asm[name] = "\n".join(fresh.inspect_asm().values())
+    assert re.search(r"\bv?movntp[sd]\b", asm["_transform_stream_nb"])
+    assert re.search(r"\bsfence\b", asm["_transform_stream_nb"])
+    assert all(re.search(r"\bprefetcht0\b", a) for a in asm.values())
+
+
+def test_memory_hints_as_python_mean_what_the_compiled_hints_do():
+    """Each hint's Python meaning (used with the JIT disabled) and its compiled form give the same array."""
+    from numba import njit
+
+    from slamlib.kernels import memory_hints as mh
+
+    @njit
+    def line_and_fence(dst, i, src, j):
+        mh.prefetch(src, j)
+        mh.stream_line(dst, i, src, j)
+        mh.store_fence()
+
+    src = np.arange(40, dtype=np.float32)
+    raw, outs = _float_slices(16)
+    start, dst = outs[0]
+    a, b = dst.reshape(-1).copy(), dst.reshape(-1)
+    mh.prefetch(src, 3)
+    mh.stream_line(a, 0, src, 5)
+    mh.store_fence()
+    line_and_fence(b, np.uint64(0), src, np.uint64(5))
+    assert np.array_equal(a[:16], src[5:21]) and np.array_equal(b[:16], a[:16]) and np.isnan(b[16:]).all()
+
+
 def test_transform_points_out_is_checked():
     pts = np.ones((10, 3), np.float32)
     with pytest.raises(ValueError, match="out"):

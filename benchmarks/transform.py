@@ -8,11 +8,15 @@ thread. This benchmark measures, for the numpy reference, the Numba CPU backend 
   Variants: ``alloc`` (``transform_points(T, pts)``: the output is a fresh ``np.empty``, whose pages fault in
   and are zeroed by the OS during the kernel, as a caller pays it), ``out`` (into a preallocated, already
   touched buffer, ``out=``) and ``inplace`` (``out=pts``); for the CPU also ``out_1thread`` and
-  ``inplace_1thread`` (Numba on one thread, like ``numpy.copyto``: comparable even when another job holds a core). Beside each row, the physical limit measured in the
-  same rounds: streaming the same bytes (``12 N`` read, ``12 N`` written) by ``numpy.copyto`` (memcpy, one
-  thread) and by a Numba ``prange`` copy (all threads), into a touched buffer; ``ratio_to_copyto`` and
-  ``ratio_to_fastest_copy`` are median / median (``best_ratio_*``: best / best). Every round times all rows of
-  one size back to back, so the ratios compare like with like on a shared machine.
+  ``inplace_1thread`` (Numba on one thread, like ``numpy.copyto``: comparable even when another job holds a
+  core). Beside each row, the physical limit measured in the same rounds: streaming the same bytes (``12 N``
+  read, ``12 N`` written) by ``numpy.copyto`` (memcpy, one thread) and by a Numba ``prange`` copy (all
+  threads), into a touched buffer; ``ratio_to_copyto`` and ``ratio_to_fastest_copy`` are median / median
+  (``best_ratio_*``: best / best). Every round times its rows of one size back to back, so the ratios compare
+  like with like on a shared machine. The rows that allocate (``alloc``, for every backend) have rounds of
+  their own (``"rounds": "fresh"``, the others ``"reuse"``), with the copies timed again in them: freeing a
+  1.2 GB output each call leaves the OS reclaiming pages in the background, which slowed the rows timed after
+  them (the ``out=`` median at 1e8 by 15 %, its best not at all). ``copy_rows`` are the ``reuse`` rounds'.
 * ``program_rows``: whole programs as the seed measured them, one fresh interpreter per run
   (:mod:`benchmarks.transform_program`): start-up (interpreter, imports, JIT or cache load) as its own column,
   then allocate + fill, transfer, kernel, copy back, the outer wall time of the subprocess, and its peak RSS
@@ -108,40 +112,52 @@ def kernel_rows(sizes, repeat_for, backends) -> tuple[list, list]:
         out[...] = 0.0  # touched: the ``out`` and copy rows pay no page faults
         work = pts.copy()  # the in-place rows transform this one (values drift; the time does not)
         flat_in, flat_out = pts.reshape(-1), out.reshape(-1)
-        fns = {("copy", "numpy.copyto"): lambda: np.copyto(out, pts),
-               ("copy", "numba_parallel_copy"): lambda: pcopy(flat_in, flat_out)}
+        copy_fns = {("copy", "numpy.copyto"): lambda: np.copyto(out, pts),
+                    ("copy", "numba_parallel_copy"): lambda: pcopy(flat_in, flat_out)}
+        reuse, fresh = dict(copy_fns), dict(copy_fns)
         for name, be in backends.items():
-            fns[(name, "alloc")] = lambda be=be: be.transform_points(T, pts)
+            fresh[(name, "alloc")] = lambda be=be: be.transform_points(T, pts)
             if name != "numpy":
-                fns[(name, "out")] = lambda be=be: be.transform_points(T, pts, out=out)
-                fns[(name, "inplace")] = lambda be=be: be.transform_points(T, work, out=work)
+                reuse[(name, "out")] = lambda be=be: be.transform_points(T, pts, out=out)
+                reuse[(name, "inplace")] = lambda be=be: be.transform_points(T, work, out=work)
             if name == "cpu":  # one thread, like memcpy: a like-for-like pair even when another job holds a core
-                fns[(name, "out_1thread")] = lambda be=be: _one_thread(be.transform_points, T, pts, out=out)
-                fns[(name, "inplace_1thread")] = lambda be=be: _one_thread(be.transform_points, T, work, out=work)
-        res = _rounds(fns, repeat_for(n))
-        ct, pc = res[("copy", "numpy.copyto")], res[("copy", "numba_parallel_copy")]
-        fastest_med = min(ct["median_s"], pc["median_s"])
-        fastest_min = min(ct["min_s"], pc["min_s"])
+                reuse[(name, "out_1thread")] = lambda be=be: _one_thread(be.transform_points, T, pts, out=out)
+                reuse[(name, "inplace_1thread")] = lambda be=be: _one_thread(be.transform_points, T, work, out=work)
         nbytes = BYTES_PER_POINT * n
-        for method, st in (("numpy.copyto", ct), ("numba_parallel_copy", pc)):
-            copies.append({"n": n, "method": method, "bytes_moved": nbytes, **st,
-                           "gb_per_s": nbytes / st["median_s"] / 1e9})
-        for (name, variant), st in res.items():
-            if name == "copy":
-                continue
-            rows.append({"backend": name, "variant": variant, "n": n, "bytes_moved": nbytes, **st,
-                         "points_per_s": n / st["median_s"], "gb_per_s": nbytes / st["median_s"] / 1e9,
-                         "copyto_median_s": ct["median_s"], "copyto_min_s": ct["min_s"],
-                         "parallel_copy_median_s": pc["median_s"], "parallel_copy_min_s": pc["min_s"],
-                         "ratio_to_copyto": st["median_s"] / ct["median_s"],
-                         "ratio_to_fastest_copy": st["median_s"] / fastest_med,
-                         "best_ratio_to_copyto": st["min_s"] / ct["min_s"],
-                         "best_ratio_to_fastest_copy": st["min_s"] / fastest_min})
-            print(f"kernel n={n:>10d} {name:6s} {variant:8s} {st['median_s'] * 1e3:10.3f} ms "
-                  f"(best {st['min_s'] * 1e3:.3f}) x{rows[-1]['ratio_to_fastest_copy']:.2f} of the fastest copy "
-                  f"({fastest_med * 1e3:.3f} ms)", flush=True)
-        del pts, out, work, flat_in, flat_out, fns
+        # Rows that allocate (and free) their output each call leave the OS reclaiming gigabytes of pages in the
+        # background, which slows whatever runs next: they get rounds of their own, with the copies timed again.
+        for group, fns in (("reuse", reuse), ("fresh", fresh)):
+            res = _rounds(fns, repeat_for(n))
+            rows += _kernel_records(res, n, nbytes, group)
+            if group == "reuse":
+                copies += [{"n": n, "method": method, "bytes_moved": nbytes, **res[("copy", method)],
+                            "gb_per_s": nbytes / res[("copy", method)]["median_s"] / 1e9}
+                           for method in ("numpy.copyto", "numba_parallel_copy")]
+        del pts, out, work, flat_in, flat_out, reuse, fresh, copy_fns
     return rows, copies
+
+
+def _kernel_records(res: dict, n: int, nbytes: int, group: str) -> list:
+    """The JSON rows of one group of rounds: each kernel row beside the copies timed in the same rounds."""
+    ct, pc = res[("copy", "numpy.copyto")], res[("copy", "numba_parallel_copy")]
+    fastest_med = min(ct["median_s"], pc["median_s"])
+    fastest_min = min(ct["min_s"], pc["min_s"])
+    rows = []
+    for (name, variant), st in res.items():
+        if name == "copy":
+            continue
+        rows.append({"backend": name, "variant": variant, "n": n, "rounds": group, "bytes_moved": nbytes, **st,
+                     "points_per_s": n / st["median_s"], "gb_per_s": nbytes / st["median_s"] / 1e9,
+                     "copyto_median_s": ct["median_s"], "copyto_min_s": ct["min_s"],
+                     "parallel_copy_median_s": pc["median_s"], "parallel_copy_min_s": pc["min_s"],
+                     "ratio_to_copyto": st["median_s"] / ct["median_s"],
+                     "ratio_to_fastest_copy": st["median_s"] / fastest_med,
+                     "best_ratio_to_copyto": st["min_s"] / ct["min_s"],
+                     "best_ratio_to_fastest_copy": st["min_s"] / fastest_min})
+        print(f"kernel n={n:>10d} {name:6s} {variant:8s} {st['median_s'] * 1e3:10.3f} ms "
+              f"(best {st['min_s'] * 1e3:.3f}) x{rows[-1]['ratio_to_fastest_copy']:.2f} of the fastest copy "
+              f"({fastest_med * 1e3:.3f} ms)", flush=True)
+    return rows
 
 
 def _budget(backend: str, mode: str, n: int) -> int:

@@ -28,6 +28,7 @@ def test_transform_quick_writes_kernel_copy_program_and_gpu_rows(results):
         assert {r["method"] for r in d["copy_rows"] if r["n"] == n} == {"numpy.copyto", "numba_parallel_copy"}
     for r in d["kernel_rows"]:
         assert r["bytes_moved"] == 24 * r["n"] and 0 < r["min_s"] <= r["median_s"]
+        assert r["rounds"] == ("fresh" if r["variant"] == "alloc" else "reuse"), r  # allocating rows apart
         fastest = min(r["copyto_median_s"], r["parallel_copy_median_s"])
         assert r["ratio_to_fastest_copy"] == pytest.approx(r["median_s"] / fastest)
         assert r["ratio_to_copyto"] == pytest.approx(r["median_s"] / r["copyto_median_s"])

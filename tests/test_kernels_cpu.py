@@ -156,7 +156,8 @@ def test_streaming_transform_equals_the_plain_kernel_at_every_alignment(N):
 
 def test_transform_points_streams_large_outputs_with_the_plain_results(monkeypatch):
     """Above ``STREAM_MIN_POINTS`` ``out=`` goes through the streaming kernel (its threshold lowered here, and
-    once at its real size): the same floats as the plain kernel, at every alignment; in place unchanged."""
+    once at its real size): the same floats as the plain kernel, at every alignment; a fresh output and in
+    place do not stream."""
     from slamlib.kernels import cpu
 
     rng = np.random.default_rng(7)
@@ -170,6 +171,7 @@ def test_transform_points_streams_large_outputs_with_the_plain_results(monkeypat
     for _, out in _float_slices(len(pts))[1]:
         assert CPU.transform_points(T, pts, out=out) is out and np.array_equal(out, want)
     assert len(calls) == 16 and sorted(set(calls)) == list(range(16))  # every head length taken
+    assert np.array_equal(CPU.transform_points(T, pts), want) and len(calls) == 16  # a fresh output: plain stores
     monkeypatch.undo()
     big = rng.normal(0.0, 30.0, (cpu.STREAM_MIN_POINTS + 5, 3)).astype(np.float32)
     plain = np.empty_like(big)

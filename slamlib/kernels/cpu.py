@@ -18,8 +18,8 @@ the same source the CUDA backend compiles with ``cuda.jit(device=True)``. This m
   indexes so that LLVM vectorises the span's loop; float32 arithmetic (like
   :func:`slamlib.geometry.transform_points`) with contraction into FMAs only (``fastmath={"contract"}``), so it
   agrees with the other backends to float32 rounding, not bit for bit; ``out=`` (in place with ``out=points``).
-  Outputs of ``STREAM_MIN_POINTS`` or more are written in whole cache lines with non-temporal stores, which
-  skip the read of each destination line before it is written, and the large loops prefetch their input
+  ``out=`` buffers of ``STREAM_MIN_POINTS`` or more are written in whole cache lines with non-temporal stores,
+  which skip the read of each destination line before it is written, and the large loops prefetch their input
   (:mod:`slamlib.kernels.memory_hints`): the same floats, a third less memory traffic out of place.
 * ``score_particles`` is fused: each task takes a chunk of ``POINT_CHUNK`` scan points and a chunk of
   ``PARTICLE_CHUNK`` particles; for each point it loops over the particles (their copies of the point land in
@@ -312,10 +312,11 @@ TRANSFORM_CHUNK = 1 << 14
 #: Points per group of the streaming kernels: 16 points are 48 float32, exactly 3 whole 64-byte lines (48 is
 #: the least common multiple of 3 floats per point and 16 per line).
 STREAM_GROUP = LINE_F32
-#: Outputs of at least this many points (48 MiB) are written by the streaming kernel, with non-temporal
-#: whole-line stores (see :mod:`slamlib.kernels.memory_hints`); smaller ones with plain stores, which leave the
-#: result in cache for its reader. Measured crossover on the 2-core Xeon (480 MiB shared L3): plain stores
-#: faster up to 2e6 points, streaming from 4e6 (8e6 when ``out`` was just written and is still cached).
+#: ``out=`` buffers of at least this many points (48 MiB) are written by the streaming kernel, with
+#: non-temporal whole-line stores (see :mod:`slamlib.kernels.memory_hints`); smaller ones, and fresh outputs,
+#: with plain stores, which leave the result in cache for its reader. Measured crossover on the 2-core Xeon
+#: (480 MiB shared L3): plain stores faster up to 2e6 points, streaming from 4e6 (8e6 when ``out`` was just
+#: written and is still cached).
 STREAM_MIN_POINTS = 1 << 22
 #: Software-prefetch distance of the streaming kernels, in floats ahead of the group being read (2 KiB;
 #: measured in place at 1e8 points on the Xeon: 1 and 2 KiB best, 4 and 8 KiB half the gain, 32 KiB none).
@@ -415,9 +416,10 @@ def transform_points(T, points, out=None):
     ``out`` (N, 3) float32, C-contiguous, receives the result and is returned (no allocation: a caller that
     reuses a buffer pays no page faults); ``out=points`` transforms in place (when ``points`` is already a
     C-contiguous float32 array). Parallel over spans of ``TRANSFORM_CHUNK`` points; the arithmetic is float32
-    with contraction into FMAs (agrees with the reference to float32 rounding, not bit for bit). Outputs of
-    ``STREAM_MIN_POINTS`` points or more bypass the cache (non-temporal stores: memory traffic 24 instead of 36
-    bytes per point), so a large result is not in cache afterwards; the floats are the same either way.
+    with contraction into FMAs (agrees with the reference to float32 rounding, not bit for bit). An ``out``
+    buffer of ``STREAM_MIN_POINTS`` points or more is written past the cache (non-temporal stores: memory
+    traffic 24 instead of 36 bytes per point), so a large result is not in cache afterwards; the floats are the
+    same either way.
     """
     T = np.asarray(T)  # cast to float32 below
     pts = np.ascontiguousarray(points, dtype=np.float32)
@@ -426,7 +428,8 @@ def transform_points(T, points, out=None):
     # the pose as a batch of one particle: R (1, 3, 3), t (1, 3) float32
     R32 = np.ascontiguousarray(T[None, :3, :3], dtype=np.float32)
     t32 = np.ascontiguousarray(T[None, :3, 3], dtype=np.float32)
-    if out is None:
+    fresh = out is None
+    if fresh:
         out = np.empty_like(pts)
     elif out is pts or (isinstance(out, np.ndarray) and out.shape == pts.shape and _same_memory(out, pts)):
         _check_out(out, pts, "out")
@@ -434,7 +437,9 @@ def transform_points(T, points, out=None):
         return out
     else:
         _check_out(out, pts, "out")
-    head = _stream_head(out) if len(pts) >= STREAM_MIN_POINTS else None
+    # a fresh array's pages are zeroed by the OS as they fault in, which leaves each in cache: plain stores then
+    # hit, where non-temporal ones would first have to push the line out (measured 1.3x slower at 1e7 and 1e8)
+    head = _stream_head(out) if len(pts) >= STREAM_MIN_POINTS and not fresh else None
     if head is None:
         _launch(_transform_nb, len(pts), TRANSFORM_CHUNK, R32, t32, pts.reshape(-1), out.reshape(-1))
     else:

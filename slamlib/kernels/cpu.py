@@ -321,6 +321,8 @@ STREAM_MIN_POINTS = 1 << 22
 #: Software-prefetch distance of the streaming kernels, in floats ahead of the group being read (2 KiB;
 #: measured in place at 1e8 points on the Xeon: 1 and 2 KiB best, 4 and 8 KiB half the gain, 32 KiB none).
 PREFETCH_AHEAD = 512
+#: Bytes of one point of ``transform_points``: x, y, z float32.
+_POINT_BYTES = 3 * np.dtype(np.float32).itemsize
 
 
 @njit(parallel=True, cache=True, fastmath={"contract"})
@@ -394,20 +396,15 @@ def _transform_inplace_nb(R, t, x, chunk):
         end = min(n, (c + 1) * chunk)
         for a in range(c * chunk, end, STREAM_GROUP):
             _prefetch_group(x, _U3 * np.uint64(a))
-            for j in range(a, min(end, a + STREAM_GROUP)):
-                k = _U3 * np.uint64(j)
-                wx, wy, wz = _world_point(R, t, 0, x[k], x[k + _U1], x[k + _U2])
-                x[k] = wx
-                x[k + _U1] = wy
-                x[k + _U2] = wz
+            _transform_span(R, t, x, x, a, min(end, a + STREAM_GROUP))
 
 
 def _stream_head(y):
     """Points before the first one whose output starts a cache line: ``h`` in [0, 16) with
     ``address(y) + 12 h = 0 (mod 64)`` (one exists for any 4-byte aligned ``y``: 3 is invertible mod 16);
-    None for a misaligned ``y``."""
+    None for a misaligned ``y``. ``y`` is the float32 output, (N, 3) or flat (3N,)."""
     address = y.__array_interface__["data"][0]
-    return next((h for h in range(STREAM_GROUP) if (address + 12 * h) % LINE_BYTES == 0), None)
+    return next((h for h in range(STREAM_GROUP) if (address + _POINT_BYTES * h) % LINE_BYTES == 0), None)
 
 
 def transform_points(T, points, out=None):

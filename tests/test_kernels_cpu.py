@@ -121,7 +121,7 @@ def test_transform_points_out_and_in_place_equal_the_allocating_call(N):
         assert np.isfinite(out).all()
 
 
-def _float_slices(n, raw_len=None):
+def _float_slices(n):
     """``(raw, [(offset, out)])``: NaN-filled float32 ``raw`` and (n, 3) views into it starting at each of the 16
     float offsets from a 64-byte line boundary, so every output alignment a float32 array can have is covered."""
     raw = np.full(3 * n + 64, np.nan, np.float32)

@@ -14,7 +14,7 @@ export NUMBA_CACHE_DIR ?= $(CURDIR)/_cache/numba
 SYSTEM_PACKAGES := libusb-1.0-0 libvulkan1 mesa-vulkan-drivers
 SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 
-.PHONY: all setup system-packages book test test-unit test-notebooks bench clean mathjax browser-check lab mutate mutate-run planted
+.PHONY: all setup system-packages book test lint test-unit test-notebooks bench clean mathjax browser-check lab mutate mutate-run planted
 
 all: book
 
@@ -42,8 +42,13 @@ book: setup mathjax
 	@echo "book: open _build/html/index.html"
 
 # The whole test suite: unit tests, then every notebook executed by nbval (each ends with assert cells).
-test: setup
+test: setup lint
 	$(BIN)/python -m pytest -p no:dash --nbval-lax tests notebooks
+
+# The formatter and linter ([tool.ruff] in pyproject.toml): fails on unformatted code or a lint finding.
+lint: setup
+	$(BIN)/ruff format --check slamlib tests benchmarks notebooks
+	$(BIN)/ruff check slamlib tests benchmarks notebooks
 
 test-unit: setup
 	$(BIN)/python -m pytest -p no:dash tests

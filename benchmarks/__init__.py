@@ -12,7 +12,7 @@ meaningful even on a shared, noisy machine; absolute numbers are not.
 from __future__ import annotations
 
 import time
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 

@@ -39,7 +39,12 @@ def _no_gpu_reason() -> str | None:
     return None
 
 
-def run(quick: bool = False, allow_simulator: bool = False, sizes: dict | None = None, static: bool = False) -> dict:
+def run(
+    quick: bool = False,
+    allow_simulator: bool = False,
+    sizes: dict | None = None,
+    static: bool = False,
+) -> dict:
     """Time the kernels; ``SystemExit`` (non-zero) when no GPU. ``allow_simulator`` / ``sizes`` exist only for
     the smoke test of this code in the simulator (its numbers are then marked ``"simulator": true``).
 
@@ -55,18 +60,31 @@ def run(quick: bool = False, allow_simulator: bool = False, sizes: dict | None =
         raise SystemExit(f"slamlib bench cuda: no GPU, nothing measured ({reason})")
     from numba import cuda
 
+    from benchmarks import median_time
     from slamlib import geometry
     from slamlib import noise as N
-    from benchmarks import median_time
-    from slamlib.synth.street import street_scene
     from slamlib.kernels import cuda as kc
     from slamlib.maps import VoxelHashMap
+    from slamlib.synth.street import street_scene
 
     if sizes is None:
-        sizes = ({"P": [300, 1000, 10000], "N": [10000], "points": [10**6], "resample": [10**4, 10**6], "map": 100_000}
-                 if quick else
-                 {"P": [300, 1000, 10000, 100000], "N": [1000, 10000, 120000], "points": [10**6, 10**7],
-                  "resample": [10**3, 10**4, 10**6], "map": 400_000})
+        sizes = (
+            {
+                "P": [300, 1000, 10000],
+                "N": [10000],
+                "points": [10**6],
+                "resample": [10**4, 10**6],
+                "map": 100_000,
+            }
+            if quick
+            else {
+                "P": [300, 1000, 10000, 100000],
+                "N": [1000, 10000, 120000],
+                "points": [10**6, 10**7],
+                "resample": [10**3, 10**4, 10**6],
+                "map": 400_000,
+            }
+        )
     repeat = 3 if (quick or simulator) else 7
     rng = np.random.default_rng(0)
     rows = []
@@ -86,14 +104,24 @@ def run(quick: bool = False, allow_simulator: bool = False, sizes: dict | None =
         t = kc.to_device(rng.normal(0, 0.3, (P, 3)))
         noise_d = kc.to_device(rng.standard_normal((P, 6)))
         lut = N.LutNoise(tables, 3, 7)
-        timed("move_particles", P, lambda: kc.move_particles(R, t, [0, 0, 0.01], [1, 0, 0], lut, sigma),
-              noise="LUT on device")
-        timed("move_particles", P, lambda: kc.move_particles(R, t, [0, 0, 0.01], [1, 0, 0], noise_d, sigma),
-              noise="array on device")
+        timed(
+            "move_particles",
+            P,
+            lambda: kc.move_particles(R, t, [0, 0, 0.01], [1, 0, 0], lut, sigma),
+            noise="LUT on device",
+        )
+        timed(
+            "move_particles",
+            P,
+            lambda: kc.move_particles(R, t, [0, 0, 0.01], [1, 0, 0], noise_d, sigma),
+            noise="array on device",
+        )
         timed("lut_noise_fill", P * 6, lambda: kc.lut_normal_device(lut, P))
     for n in sizes["points"]:
         pts = kc.to_device(rng.normal(0, 20, (n, 3)).astype(np.float32))
-        T = geometry.make_pose(geometry.rpy_to_matrix(np.array([0.01, 0.02, 0.3])), np.array([1.0, 2.0, 0.1]))
+        T = geometry.make_pose(
+            geometry.rpy_to_matrix(np.array([0.01, 0.02, 0.3])), np.array([1.0, 2.0, 0.1])
+        )
         timed("transform_points", n, lambda: kc.transform_points(T, pts))
     world = street_scene(np.random.default_rng(1), sizes["map"])
     vmap = VoxelHashMap()
@@ -104,13 +132,27 @@ def run(quick: bool = False, allow_simulator: bool = False, sizes: dict | None =
         t = kc.to_device(rng.normal(0, 0.3, (P, 3)))
         for n in sizes["N"]:
             pts = kc.to_device(world[rng.choice(len(world), n)])
-            for layout in kc.SCORE_LAYOUTS:  # one block per particle, or particle x point tiles
-                timed("score_particles", P * n, lambda: kc.score_particles(R, t, pts, lookup_d, layout=layout),
-                      P=P, N=n, map="voxel_hash", layout=layout, unit="point lookups")
+            for (
+                layout
+            ) in kc.SCORE_LAYOUTS:  # one block per particle, or particle x point tiles
+                timed(
+                    "score_particles",
+                    P * n,
+                    lambda: kc.score_particles(R, t, pts, lookup_d, layout=layout),
+                    P=P,
+                    N=n,
+                    map="voxel_hash",
+                    layout=layout,
+                    unit="point lookups",
+                )
     for P in sizes["resample"]:
         w = kc.to_device(rng.random(P))
         timed("systematic_resample", P, lambda: kc.systematic_resample(w, 0.5))
     name = getattr(cuda.get_current_device(), "name", "CUDA simulator")
     name = name.decode() if isinstance(name, bytes) else str(name)
-    return {"gpu": name, "simulator": simulator, "rows": rows,
-            "note": "device arrays in and out (copies excluded); medians of synchronised calls"}
+    return {
+        "gpu": name,
+        "simulator": simulator,
+        "rows": rows,
+        "note": "device arrays in and out (copies excluded); medians of synchronised calls",
+    }

@@ -32,11 +32,28 @@ def run_static() -> dict:
     report = cs.static_report(cs.DEFAULT_CCS, BLOCK_SIZES, fill_sizes=sizes)
     rows = []
     for r in report["results"]:
-        row = {"kernel": r["kernel"], "wrapper": r["wrapper"], "threads": r["block"], "gpu": r["gpu"],
-               "arch": f"sm_{r['cc'][0]}{r['cc'][1]}", "ok": r["ok"]}
+        row = {
+            "kernel": r["kernel"],
+            "wrapper": r["wrapper"],
+            "threads": r["block"],
+            "gpu": r["gpu"],
+            "arch": f"sm_{r['cc'][0]}{r['cc'][1]}",
+            "ok": r["ok"],
+        }
         if r["ok"]:
-            row.update({k: r[k] for k in ("registers", "stack_bytes", "shared_bytes", "local_bytes",
-                                          "spill_stores_bytes", "spill_loads_bytes")})
+            row.update(
+                {
+                    k: r[k]
+                    for k in (
+                        "registers",
+                        "stack_bytes",
+                        "shared_bytes",
+                        "local_bytes",
+                        "spill_stores_bytes",
+                        "spill_loads_bytes",
+                    )
+                }
+            )
             row.update({f"occ_{k}": v for k, v in r["occupancy"].items()})
             if "fill" in r:
                 row.update({f"default_{k}": v for k, v in r["fill"].items()})
@@ -45,12 +62,20 @@ def run_static() -> dict:
         rows.append(row)
     failed = [f"{r['kernel']} {r['arch']}" for r in rows if not r["ok"]]
     if failed:
-        raise SystemExit(f"slamlib bench cuda --static: kernels that do not compile: {', '.join(failed)}")
-    return {"static_analysis": True,
-            "note": "static analysis (NVVM + ptxas via nvJitLink, no GPU): registers, memory and theoretical "
-                    "occupancy from the documented per-SM limits; nothing here is a measured time",
-            "toolchain": report["toolchain"], "gpus": {k: dict(v, cc=list(v["cc"])) for k, v in cs.GPUS.items()},
-            "default_sizes": sizes, "block_sizes": list(BLOCK_SIZES),
-            "argument_types": [{k: launch[k] for k in ("kernel", "threads", "wrapper", "args")}
-                               for launch in report["launches"]],
-            "rows": rows}
+        raise SystemExit(
+            f"slamlib bench cuda --static: kernels that do not compile: {', '.join(failed)}"
+        )
+    return {
+        "static_analysis": True,
+        "note": "static analysis (NVVM + ptxas via nvJitLink, no GPU): registers, memory and theoretical "
+        "occupancy from the documented per-SM limits; nothing here is a measured time",
+        "toolchain": report["toolchain"],
+        "gpus": {k: dict(v, cc=list(v["cc"])) for k, v in cs.GPUS.items()},
+        "default_sizes": sizes,
+        "block_sizes": list(BLOCK_SIZES),
+        "argument_types": [
+            {k: launch[k] for k in ("kernel", "threads", "wrapper", "args")}
+            for launch in report["launches"]
+        ],
+        "rows": rows,
+    }

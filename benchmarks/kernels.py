@@ -16,7 +16,13 @@ HELP = "transform_points (1e3..1e7 points) and move_particles (1e3..1e6 particle
 
 
 def _row(kind, n, backend, tm):
-    return {"kernel": kind, "n": int(n), "backend": backend, **tm, "per_s": n / tm["median_s"]}
+    return {
+        "kernel": kind,
+        "n": int(n),
+        "backend": backend,
+        **tm,
+        "per_s": n / tm["median_s"],
+    }
 
 
 def run(quick: bool) -> dict:
@@ -45,8 +51,12 @@ def run(quick: bool) -> dict:
         noise = rng.standard_normal((n, 6))
         sigma = np.array([0.1, 0.05, 0.02, 0.002, 0.002, 0.01])
         for name, b in backends.items():
-            tm = median_time(lambda: b.move_particles(R, t, [0.0, 0.0, 0.05], [1.0, 0.0, 0.0], noise, sigma),
-                             repeat=repeat)
+            tm = median_time(
+                lambda: b.move_particles(
+                    R, t, [0.0, 0.0, 0.05], [1.0, 0.0, 0.0], noise, sigma
+                ),
+                repeat=repeat,
+            )
             rows.append(_row("move_particles", n, name, tm))
             print(f"move_particles   n={n:>9d} {name:6s} {tm['median_s'] * 1e3:9.3f} ms")
         w = rng.random(n)

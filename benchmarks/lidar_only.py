@@ -39,7 +39,9 @@ def _sequence(route: str, frames):
     from slamlib.synth import GENERATOR_VERSION, write_sequence
     from slamlib.synth.writer import read_marker
 
-    key = hashlib.sha1(json.dumps([GENERATOR_VERSION, route, frames, SEED]).encode()).hexdigest()[:12]
+    key = hashlib.sha1(
+        json.dumps([GENERATOR_VERSION, route, frames, SEED]).encode()
+    ).hexdigest()[:12]
     base = cache_dir() / "synth" / f"odometry-{key}"
     marker = read_marker(base / "sequences" / route)
     if marker is None or marker.get("version") != GENERATOR_VERSION:
@@ -51,9 +53,13 @@ def _row(poses, seconds, gt) -> dict:
     from slamlib.metrics import trajectory_metrics
 
     m = trajectory_metrics(poses, gt)
-    return {"kitti_t_err_percent": round(float(m.get("kitti_t_err_percent", float("nan"))), 4),
-            "ate_rmse_m": round(float(m["ate_rmse_m"]), 4),
-            "fps_median": round(float(1.0 / np.median(seconds[1:])), 2)}
+    return {
+        "kitti_t_err_percent": round(
+            float(m.get("kitti_t_err_percent", float("nan"))), 4
+        ),
+        "ate_rmse_m": round(float(m["ate_rmse_m"]), 4),
+        "fps_median": round(float(1.0 / np.median(seconds[1:])), 2),
+    }
 
 
 def run(quick: bool = False) -> dict:
@@ -66,16 +72,28 @@ def run(quick: bool = False) -> dict:
     from slamlib.slam3d import SLAM3DConfig, run_drive
 
     routes = {}
-    for route in (("07",) if quick else ROUTES):
+    for route in ("07",) if quick else ROUTES:
         seq = _sequence(route, QUICK_FRAMES if quick else (0, None))
         gt = seq.ground_truth_poses()
         slam = run_drive(seq, SLAM3DConfig(), progress=True, desc=f"slamlib {route}")
         kiss, kiss_seconds = kiss_icp_poses(seq)
-        row = {"frames": len(seq), "path_length_m": round(float(trajectory_distances(gt)[-1]), 1),
-               "slamlib": _row(slam.poses, slam.frame_seconds, gt), "kiss_icp": _row(kiss, kiss_seconds, gt)}
-        row["t_err_ratio_slamlib_over_kiss"] = round(row["slamlib"]["kitti_t_err_percent"]
-                                                     / row["kiss_icp"]["kitti_t_err_percent"], 3)
+        row = {
+            "frames": len(seq),
+            "path_length_m": round(float(trajectory_distances(gt)[-1]), 1),
+            "slamlib": _row(slam.poses, slam.frame_seconds, gt),
+            "kiss_icp": _row(kiss, kiss_seconds, gt),
+        }
+        row["t_err_ratio_slamlib_over_kiss"] = round(
+            row["slamlib"]["kitti_t_err_percent"]
+            / row["kiss_icp"]["kitti_t_err_percent"],
+            3,
+        )
         routes[route] = row
         print(route, row, flush=True)
-    return {"seed": SEED, "kiss_icp_version": version("kiss-icp"), "numba_threads": int(numba.get_num_threads()),
-            "config": SLAM3DConfig().as_dict(), "routes": routes}
+    return {
+        "seed": SEED,
+        "kiss_icp_version": version("kiss-icp"),
+        "numba_threads": int(numba.get_num_threads()),
+        "config": SLAM3DConfig().as_dict(),
+        "routes": routes,
+    }

@@ -44,39 +44,74 @@ def run(quick: bool) -> dict:
     for name, factory in (("voxel_hash", VoxelHashMap), ("morton_bvh", MortonBVHMap)):
         m = factory()
         for k in range(0, n_map, merge_n):
-            m.merge(world[k:k + merge_n])
+            m.merge(world[k : k + merge_n])
         lookup = m.lookup()
-        entry = {"map": name, "elements": len(m), "memory_bytes": m.memory_bytes(), "score": []}
+        entry = {
+            "map": name,
+            "elements": len(m),
+            "memory_bytes": m.memory_bytes(),
+            "score": [],
+        }
         for P in particles:
             R = rpy_to_matrix(np.deg2rad(rng.uniform(-1, 1, (P, 3)))) @ R_true
             t = t_true + rng.uniform(-0.5, 0.5, (P, 3))
             for n in scan_sizes:
-                tm = median_time(lambda: cpu.score_particles(R, t, scans[n], lookup), repeat=repeat)
-                entry["score"].append({"P": P, "N": n, **tm, "lookups_per_s": P * n / tm["median_s"]})
-                print(f"{name:10s} score P={P:5d} N={n:5d}: {tm['median_s'] * 1e3:8.2f} ms")
+                tm = median_time(
+                    lambda: cpu.score_particles(R, t, scans[n], lookup), repeat=repeat
+                )
+                entry["score"].append(
+                    {"P": P, "N": n, **tm, "lookups_per_s": P * n / tm["median_s"]}
+                )
+                print(
+                    f"{name:10s} score P={P:5d} N={n:5d}: {tm['median_s'] * 1e3:8.2f} ms"
+                )
 
         n1 = 1000 if 1000 in scans else scan_sizes[-1]
         # a converged filter: particles within +-0.1 m / +-0.2 deg (their look-ups share cache lines)
         Rc = rpy_to_matrix(np.deg2rad(rng.uniform(-0.2, 0.2, (300, 3)))) @ R_true
         tc = t_true + rng.uniform(-0.1, 0.1, (300, 3))
-        tm = median_time(lambda: cpu.score_particles(Rc, tc, scans[n1], lookup), repeat=repeat)
-        entry["score_clustered"] = {"P": 300, "N": n1, "spread_m": 0.1, "spread_deg": 0.2, **tm}
-        print(f"{name:10s} score P=300 N={n1} clustered (+-0.1 m): {tm['median_s'] * 1e3:.2f} ms")
+        tm = median_time(
+            lambda: cpu.score_particles(Rc, tc, scans[n1], lookup), repeat=repeat
+        )
+        entry["score_clustered"] = {
+            "P": 300,
+            "N": n1,
+            "spread_m": 0.1,
+            "spread_deg": 0.2,
+            **tm,
+        }
+        print(
+            f"{name:10s} score P=300 N={n1} clustered (+-0.1 m): {tm['median_s'] * 1e3:.2f} ms"
+        )
 
         R = rpy_to_matrix(np.deg2rad(rng.uniform(-1, 1, (300, 3)))) @ R_true
         t = t_true + rng.uniform(-0.5, 0.5, (300, 3))
         threads = numba.get_num_threads()
         numba.set_num_threads(1)
         try:
-            tm = median_time(lambda: cpu.score_particles(R, t, scans[n1], lookup), repeat=repeat)
+            tm = median_time(
+                lambda: cpu.score_particles(R, t, scans[n1], lookup), repeat=repeat
+            )
         finally:
             numba.set_num_threads(threads)
         entry["score_one_thread"] = {"P": 300, "N": n1, **tm}
         print(f"{name:10s} score P=300 N={n1} on 1 thread: {tm['median_s'] * 1e3:.2f} ms")
 
-        fresh = iter([street_scene(rng, merge_n) for _ in range(repeat + 1)])  # a new scan per merge
-        entry["merge"] = {"points": merge_n, **median_time(lambda: m.merge(next(fresh)), repeat=repeat)}
-        print(f"{name:10s} merge {merge_n} points: {entry['merge']['median_s'] * 1e3:.2f} ms; "
-              f"{len(m)} elements, {m.memory_bytes() / 1e6:.1f} MB")
+        fresh = iter(
+            [street_scene(rng, merge_n) for _ in range(repeat + 1)]
+        )  # a new scan per merge
+        entry["merge"] = {
+            "points": merge_n,
+            **median_time(lambda: m.merge(next(fresh)), repeat=repeat),
+        }
+        print(
+            f"{name:10s} merge {merge_n} points: {entry['merge']['median_s'] * 1e3:.2f} ms; "
+            f"{len(m)} elements, {m.memory_bytes() / 1e6:.1f} MB"
+        )
         rows.append(entry)
-    return {"map_points": n_map, "merge_points": merge_n, "threads": int(numba.get_num_threads()), "maps": rows}
+    return {
+        "map_points": n_map,
+        "merge_points": merge_n,
+        "threads": int(numba.get_num_threads()),
+        "maps": rows,
+    }

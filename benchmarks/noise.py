@@ -16,7 +16,12 @@ from __future__ import annotations
 import numpy as np
 
 from slamlib import noise as N
-from slamlib.noise_quality import SOURCES, dead_reckoning_spread, filter_1d, source_quality
+from slamlib.noise_quality import (
+    SOURCES,
+    dead_reckoning_spread,
+    filter_1d,
+    source_quality,
+)
 
 HELP = "lookup-table Gaussian noise vs numpy / Numba / xoroshiro128+: samples per second and quality"
 
@@ -62,35 +67,81 @@ def run(quick: bool = False) -> dict:
 
     def add(name, fn, note=""):
         t = median_time(fn, repeat=repeat)
-        rows.append({"source": name, "n_particles": n, "samples": n * 6, **t,
-                     "samples_per_s": n * 6 / t["median_s"], "note": note})
+        rows.append(
+            {
+                "source": name,
+                "n_particles": n,
+                "samples": n * 6,
+                **t,
+                "samples_per_s": n * 6 / t["median_s"],
+                "note": note,
+            }
+        )
 
     rng = np.random.default_rng(0)
-    add("numpy Generator (float32)", lambda: rng.standard_normal((n, 6), dtype=np.float32), "PCG64 + ziggurat")
+    add(
+        "numpy Generator (float32)",
+        lambda: rng.standard_normal((n, 6), dtype=np.float32),
+        "PCG64 + ziggurat",
+    )
     add("LUT numpy", lambda: N.lut_normal(tables, n, 3, 7), "T = 4096, vectorised")
     add("LUT Numba prange", lambda: N.lut_normal_nb(tables, n, 3, 7), "T = 4096")
-    add("seed LUT numpy", lambda: N.seed_lut_normal(t8, n), "T = 256, index = thread & 0xFF (broken)")
+    add(
+        "seed LUT numpy",
+        lambda: N.seed_lut_normal(t8, n),
+        "T = 256, index = thread & 0xFF (broken)",
+    )
     fill = _numba_rng_fill()
-    add("Numba CPU RNG prange", lambda: fill(out), "np.random inside @njit(parallel): per-thread MT19937")
+    add(
+        "Numba CPU RNG prange",
+        lambda: fill(out),
+        "np.random inside @njit(parallel): per-thread MT19937",
+    )
     xo = {}
     if not getattr(numba_config, "ENABLE_CUDASIM", False):
         from numba.cuda.random import init_xoroshiro128p_states_cpu, xoroshiro128p_dtype
 
         states = np.empty(n, dtype=xoroshiro128p_dtype)
-        xo["init_s"] = median_time(lambda: init_xoroshiro128p_states_cpu(states, 1, 0), repeat=1)["median_s"]
+        xo["init_s"] = median_time(
+            lambda: init_xoroshiro128p_states_cpu(states, 1, 0), repeat=1
+        )["median_s"]
         xfill = _xoroshiro_fill()
-        add("xoroshiro128+ Numba prange", lambda: xfill(states, out), "numba.cuda.random on the CPU; Box-Muller")
-    quality = {name: source_quality(name, P=512 if name != "xoroshiro" else 256, steps=60 if quick else 100)
-               for name in SOURCES}
+        add(
+            "xoroshiro128+ Numba prange",
+            lambda: xfill(states, out),
+            "numba.cuda.random on the CPU; Box-Muller",
+        )
+    quality = {
+        name: source_quality(
+            name, P=512 if name != "xoroshiro" else 256, steps=60 if quick else 100
+        )
+        for name in SOURCES
+    }
     runs = 3 if quick else 10
     filt = {}
     for name in SOURCES:
-        res = [filter_1d(name, P=128, steps=60 if quick else 100, seed=s) for s in range(runs)]
+        res = [
+            filter_1d(name, P=128, steps=60 if quick else 100, seed=s)
+            for s in range(runs)
+        ]
         filt[name] = {key: float(np.mean([r[key] for r in res])) for key in res[0]}
         filt[name]["runs"] = runs
     steps = 60 if quick else 100
-    spread = {name: float(dead_reckoning_spread(name, P=256, steps=steps)[-1]) for name in SOURCES}
-    return {"n_particles": n, "rows": rows, "xoroshiro_state_init_s": xo.get("init_s"), "quality": quality,
-            "filter_1d": {"P": 128, "q": 0.3, "r": 1.0, "results": filt},
-            "dead_reckoning": {"P": 256, "q": 0.3, "steps": steps, "expected_spread": 0.3 * float(np.sqrt(steps)),
-                               "spread": spread}}
+    spread = {
+        name: float(dead_reckoning_spread(name, P=256, steps=steps)[-1])
+        for name in SOURCES
+    }
+    return {
+        "n_particles": n,
+        "rows": rows,
+        "xoroshiro_state_init_s": xo.get("init_s"),
+        "quality": quality,
+        "filter_1d": {"P": 128, "q": 0.3, "r": 1.0, "results": filt},
+        "dead_reckoning": {
+            "P": 256,
+            "q": 0.3,
+            "steps": steps,
+            "expected_spread": 0.3 * float(np.sqrt(steps)),
+            "spread": spread,
+        },
+    }

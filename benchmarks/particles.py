@@ -26,7 +26,6 @@ Rates are ``P / median`` (and ``P / best``) in particles per second, beside the 
 
 from __future__ import annotations
 
-
 import os
 
 import numpy as np
@@ -51,9 +50,8 @@ def run(quick: bool) -> dict:
     from benchmarks.transform import _one_thread, _rounds
     from slamlib import noise as N
     from slamlib.geometry import rpy_to_matrix
-    from slamlib.kernels import get_backend
-
     from slamlib.kernels import cpu as cpu_module
+    from slamlib.kernels import get_backend
 
     cpu = get_backend("cpu")
     sizes = [10**k for k in range(3, 5 if quick else 8)]
@@ -70,49 +68,97 @@ def run(quick: bool) -> dict:
         philox = np.random.Generator(np.random.Philox(1))
         lut = N.LutNoise(tables, 3, 7)
         lut_seed = N.LutNoise(seed_tables, 3, 7)
-        Rs, ts = np.ascontiguousarray(R.transpose(1, 2, 0)), np.ascontiguousarray(t.T)  # component-major
+        Rs, ts = (
+            np.ascontiguousarray(R.transpose(1, 2, 0)),
+            np.ascontiguousarray(t.T),
+        )  # component-major
         Rs32, ts32 = Rs.astype(np.float32), ts.astype(np.float32)
 
         def move_soa(Rc, tc):
-            return cpu_module.move_particles_soa(Rc, tc, RPY_DELTA, TRANS_DELTA, lut, sigma, out=(Rc, tc))
+            return cpu_module.move_particles_soa(
+                Rc, tc, RPY_DELTA, TRANS_DELTA, lut, sigma, out=(Rc, tc)
+            )
 
         def move(noise, out=(R, t)):
             return cpu.move_particles(R, t, RPY_DELTA, TRANS_DELTA, noise, sigma, out=out)
 
-        fns = {"lut_fused": lambda: move(lut),
-               "lut_fused_seed_tables": lambda: move(lut_seed),
-               "lut_fused_1thread": lambda: _one_thread(move, lut),
-               "lut_fused_alloc": lambda: move(lut, out=None),
-               "lut_fused_soa": lambda: move_soa(Rs, ts),
-               "lut_fused_soa32": lambda: move_soa(Rs32, ts32),
-               "lut_fused_soa32_1thread": lambda: _one_thread(move_soa, Rs32, ts32),
-               "lut_drawn": lambda: move(N.lut_normal_nb(tables, P, 3, 7)),
-               "numpy_drawn": lambda: move(pcg.standard_normal((P, 6))),
-               "philox_drawn": lambda: move(philox.standard_normal((P, 6)))}
-        R_copy = np.empty_like(R) if P == sizes[-1] else None  # the copy limit, at the largest size
+        fns = {
+            "lut_fused": lambda: move(lut),
+            "lut_fused_seed_tables": lambda: move(lut_seed),
+            "lut_fused_1thread": lambda: _one_thread(move, lut),
+            "lut_fused_alloc": lambda: move(lut, out=None),
+            "lut_fused_soa": lambda: move_soa(Rs, ts),
+            "lut_fused_soa32": lambda: move_soa(Rs32, ts32),
+            "lut_fused_soa32_1thread": lambda: _one_thread(move_soa, Rs32, ts32),
+            "lut_drawn": lambda: move(N.lut_normal_nb(tables, P, 3, 7)),
+            "numpy_drawn": lambda: move(pcg.standard_normal((P, 6))),
+            "philox_drawn": lambda: move(philox.standard_normal((P, 6))),
+        }
+        R_copy = (
+            np.empty_like(R) if P == sizes[-1] else None
+        )  # the copy limit, at the largest size
         copy = {"copyto": lambda: np.copyto(R_copy, R)} if R_copy is not None else {}
-        res = _rounds({**fns, **copy}, 3 if quick else (7 if P >= 10**7 else (15 if P >= 10**6 else 31)))
+        res = _rounds(
+            {**fns, **copy},
+            3 if quick else (7 if P >= 10**7 else (15 if P >= 10**6 else 31)),
+        )
         if copy:
             st = res.pop("copyto")
             copy_gb_per_s = 2 * R.nbytes / st["median_s"] / 1e9
-            copy_row = {"particles": P, "bytes_moved": 2 * R.nbytes, **st, "gb_per_s": copy_gb_per_s}
+            copy_row = {
+                "particles": P,
+                "bytes_moved": 2 * R.nbytes,
+                **st,
+                "gb_per_s": copy_gb_per_s,
+            }
         for name, st in res.items():
             rate = P / st["median_s"]
-            rows.append({"variant": name, "particles": P, **st, "particles_per_s": rate,
-                         "best_particles_per_s": P / st["min_s"], "ratio_to_seed": rate / SEED_PARTICLES_PER_S,
-                         "best_ratio_to_seed": P / st["min_s"] / SEED_PARTICLES_PER_S,
-                         "noise_array": name.endswith("drawn"), "in_place": name != "lut_fused_alloc",
-                         "threads": 1 if name.endswith("1thread") else int(numba.get_num_threads()),
-                         "pose_bytes": POSE_BYTES // 2 if name in FLOAT32_VARIANTS else POSE_BYTES,
-                         "layout": "component-major" if "soa" in name else "particle-major",
-                         "table_entries": (1 << seed_tables.bits) if name == "lut_fused_seed_tables"
-                         else ((1 << tables.bits) if name.startswith("lut") else None)})
-            print(f"P={P:>9d} {name:22s} {st['median_s'] * 1e3:10.3f} ms  {rate:.3g} particles/s "
-                  f"(best {P / st['min_s']:.3g}; seed {SEED_PARTICLES_PER_S:.2g})", flush=True)
-        del R, t, fns, Rs, ts, Rs32, ts32, R_copy
-    return {"threads": int(numba.get_num_threads()), "seed_particles_per_s": SEED_PARTICLES_PER_S,
-            "pose_bytes": POSE_BYTES, "sigma": list(SIGMA), "copy": copy_row, "copy_gb_per_s": copy_gb_per_s,
-            "load_average_1min": {"start": load_before[0], "end": os.getloadavg()[0]},
-            "rows": [{**r, "limit_particles_per_s": copy_gb_per_s * 1e9 / (2 * r["pose_bytes"]
-                                                                          + (96 if r["noise_array"] else 0))}
-                     for r in rows]}
+            rows.append(
+                {
+                    "variant": name,
+                    "particles": P,
+                    **st,
+                    "particles_per_s": rate,
+                    "best_particles_per_s": P / st["min_s"],
+                    "ratio_to_seed": rate / SEED_PARTICLES_PER_S,
+                    "best_ratio_to_seed": P / st["min_s"] / SEED_PARTICLES_PER_S,
+                    "noise_array": name.endswith("drawn"),
+                    "in_place": name != "lut_fused_alloc",
+                    "threads": 1
+                    if name.endswith("1thread")
+                    else int(numba.get_num_threads()),
+                    "pose_bytes": POSE_BYTES // 2
+                    if name in FLOAT32_VARIANTS
+                    else POSE_BYTES,
+                    "layout": "component-major" if "soa" in name else "particle-major",
+                    "table_entries": (1 << seed_tables.bits)
+                    if name == "lut_fused_seed_tables"
+                    else ((1 << tables.bits) if name.startswith("lut") else None),
+                }
+            )
+            print(
+                f"P={P:>9d} {name:22s} {st['median_s'] * 1e3:10.3f} ms  {rate:.3g} particles/s "
+                f"(best {P / st['min_s']:.3g}; seed {SEED_PARTICLES_PER_S:.2g})",
+                flush=True,
+            )
+        R = t = fns = Rs = ts = Rs32 = ts32 = R_copy = (
+            None  # free this size before the next
+        )
+    return {
+        "threads": int(numba.get_num_threads()),
+        "seed_particles_per_s": SEED_PARTICLES_PER_S,
+        "pose_bytes": POSE_BYTES,
+        "sigma": list(SIGMA),
+        "copy": copy_row,
+        "copy_gb_per_s": copy_gb_per_s,
+        "load_average_1min": {"start": load_before[0], "end": os.getloadavg()[0]},
+        "rows": [
+            {
+                **r,
+                "limit_particles_per_s": copy_gb_per_s
+                * 1e9
+                / (2 * r["pose_bytes"] + (96 if r["noise_array"] else 0)),
+            }
+            for r in rows
+        ],
+    }

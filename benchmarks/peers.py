@@ -38,7 +38,11 @@ def _kiss_icp(drive) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     from slamlib.peers import kiss_icp_poses
 
     poses, seconds = kiss_icp_poses(drive, drive.T_velo_imu, deskew=False)
-    return poses, seconds, np.asarray([len(drive[k].scan) for k in range(0, len(drive), 25)])
+    return (
+        poses,
+        seconds,
+        np.asarray([len(drive[k].scan) for k in range(0, len(drive), 25)]),
+    )
 
 
 def _compare(drive, repeats: int = 1) -> dict:
@@ -49,7 +53,10 @@ def _compare(drive, repeats: int = 1) -> dict:
     from slamlib.slam3d import SLAM3DConfig, run_drive
 
     medians = {"kiss_icp": [], "slamlib": []}
-    spread = {"kiss_icp": 0.0, "slamlib": 0.0}  # largest difference of a repeat's poses from the first's
+    spread = {
+        "kiss_icp": 0.0,
+        "slamlib": 0.0,
+    }  # largest difference of a repeat's poses from the first's
     for r in range(repeats):
         slam = run_drive(drive, SLAM3DConfig(), progress=False)
         kiss_poses, kiss_seconds, n_points = _kiss_icp(drive)
@@ -57,24 +64,42 @@ def _compare(drive, repeats: int = 1) -> dict:
             first = {"kiss_icp": kiss_poses, "slamlib": np.asarray(slam.poses)}
         else:  # slamlib repeats bit for bit; KISS-ICP's parallel sums may differ in the last bits
             for name, poses in (("kiss_icp", kiss_poses), ("slamlib", slam.poses)):
-                spread[name] = max(spread[name], float(np.max(np.abs(np.asarray(poses) - first[name]))))
+                spread[name] = max(
+                    spread[name], float(np.max(np.abs(np.asarray(poses) - first[name])))
+                )
         medians["slamlib"].append(float(np.median(slam.frame_seconds[1:])))
         medians["kiss_icp"].append(float(np.median(kiss_seconds[1:])))
     gt = slam.ground_truth
     rows = {}
     for name in ("kiss_icp", "slamlib"):
         median = float(np.median(medians[name]))
-        rows[name] = {"frame_ms_median": round(median * 1e3, 2), "fps_median": round(1.0 / median, 1),
-                      "frame_ms_median_per_repeat": [round(m * 1e3, 2) for m in medians[name]],
-                      "repeat_pose_difference_max": spread[name],
-                      **{k: round(float(v), 5) for k, v in trajectory_metrics(first[name], gt).items()}}
-    rows["dead_reckoning"] = {k: round(float(v), 5)
-                              for k, v in trajectory_metrics(slam.dead_reckoning, gt).items()}
+        rows[name] = {
+            "frame_ms_median": round(median * 1e3, 2),
+            "fps_median": round(1.0 / median, 1),
+            "frame_ms_median_per_repeat": [round(m * 1e3, 2) for m in medians[name]],
+            "repeat_pose_difference_max": spread[name],
+            **{
+                k: round(float(v), 5)
+                for k, v in trajectory_metrics(first[name], gt).items()
+            },
+        }
+    rows["dead_reckoning"] = {
+        k: round(float(v), 5)
+        for k, v in trajectory_metrics(slam.dead_reckoning, gt).items()
+    }
     ratios = [k / s for k, s in zip(medians["kiss_icp"], medians["slamlib"])]
-    out = {"frames": int(len(gt)), "path_length_m": round(float(trajectory_distances(gt)[-1]), 1),
-           "scan_points_median": int(np.median(n_points)), "repeats": repeats,
-           "speed_ratio_per_repeat": [round(x, 3) for x in ratios], **rows}
-    print({k: v for k, v in out.items() if k in ("frames", "speed_ratio_per_repeat")}, flush=True)
+    out = {
+        "frames": int(len(gt)),
+        "path_length_m": round(float(trajectory_distances(gt)[-1]), 1),
+        "scan_points_median": int(np.median(n_points)),
+        "repeats": repeats,
+        "speed_ratio_per_repeat": [round(x, 3) for x in ratios],
+        **rows,
+    }
+    print(
+        {k: v for k, v in out.items() if k in ("frames", "speed_ratio_per_repeat")},
+        flush=True,
+    )
     return out
 
 
@@ -83,19 +108,25 @@ def run(quick: bool = False) -> dict:
         import kiss_icp  # noqa: F401
     except ImportError:
         raise SystemExit(INSTALL_HINT) from None
-    import numba
     from importlib.metadata import version
+
+    import numba
 
     from slamlib.kitti import KittiRawDrive
     from slamlib.synth import DEFAULT_FRAMES, default_drive
 
     source = default_drive(progress=False, realism=False)
     drive = KittiRawDrive(*source, frames=range(0, 60) if quick else None)
-    _compare(KittiRawDrive(*source, frames=range(0, 5)))  # JIT compilation and caches, untimed
+    _compare(
+        KittiRawDrive(*source, frames=range(0, 5))
+    )  # JIT compilation and caches, untimed
     repeats = 1 if quick else REPEATS
     drives = {f"default drive {DEFAULT_FRAMES}": _compare(drive, repeats)}
     if not quick:
         whole = default_drive(full=True, progress=False, realism=False)
         drives["whole route (full=True)"] = _compare(KittiRawDrive(*whole), repeats)
-    return {"kiss_icp_version": version("kiss-icp"), "numba_threads": int(numba.get_num_threads()),
-            "drives": drives}
+    return {
+        "kiss_icp_version": version("kiss-icp"),
+        "numba_threads": int(numba.get_num_threads()),
+        "drives": drives,
+    }

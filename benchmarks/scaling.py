@@ -48,17 +48,24 @@ def _fit(x, y) -> dict:
     slope, intercept = np.polyfit(x, y, 1)
     resid = y - (intercept + slope * x)
     total = np.sum((y - y.mean()) ** 2)
-    return {"intercept": float(intercept), "slope": float(slope),
-            "r2": float(1.0 - np.sum(resid ** 2) / total) if total > 0 else 1.0}
+    return {
+        "intercept": float(intercept),
+        "slope": float(slope),
+        "r2": float(1.0 - np.sum(resid**2) / total) if total > 0 else 1.0,
+    }
 
 
 def _row(run, evaluate, **settings) -> dict:
     ms = run.frame_seconds[SKIP_FRAMES:] * 1e3
     m = evaluate(run)
     row = dict(settings)
-    row.update(frames=int(len(run.poses)), frame_ms_median=round(float(np.median(ms)), 3),
-               frame_ms_best=round(float(ms.min()), 3), fps=round(run.fps, 2),
-               ate_rmse_m=round(float(m["slam"]["ate_rmse_m"]), 4))
+    row.update(
+        frames=int(len(run.poses)),
+        frame_ms_median=round(float(np.median(ms)), 3),
+        frame_ms_best=round(float(ms.min()), 3),
+        fps=round(run.fps, 2),
+        ate_rmse_m=round(float(m["slam"]["ate_rmse_m"]), 4),
+    )
     print(row, flush=True)
     return row
 
@@ -76,44 +83,83 @@ def run(quick: bool = False) -> dict:
     basedir, date, drive_id = default_drive(progress=False, realism=False)
     a, b = QUICK_FRAMES if quick else SWEEP_FRAMES
     drive = KittiRawDrive(basedir, date, drive_id, frames=range(a, b))
-    run_drive(KittiRawDrive(basedir, date, drive_id, frames=range(0, 5)), SLAM3DConfig.of(particles=50),
-              progress=False)   # JIT / cache warm-up
+    run_drive(
+        KittiRawDrive(basedir, date, drive_id, frames=range(0, 5)),
+        SLAM3DConfig.of(particles=50),
+        progress=False,
+    )  # JIT / cache warm-up
     default = SLAM3DConfig()
 
-    particles = [_row(run_drive(drive, SLAM3DConfig.of(particles=P), progress=False), evaluate,
-                      particles=P, points=default.filter.scored_points)
-                 for P in (QUICK_PARTICLES if quick else PARTICLES)]
-    points = [_row(run_drive(drive, SLAM3DConfig.of(scored_points=N), progress=False), evaluate,
-                   particles=default.filter.particles, points=N)
-              for N in (QUICK_POINTS if quick else POINTS)]
+    particles = [
+        _row(
+            run_drive(drive, SLAM3DConfig.of(particles=P), progress=False),
+            evaluate,
+            particles=P,
+            points=default.filter.scored_points,
+        )
+        for P in (QUICK_PARTICLES if quick else PARTICLES)
+    ]
+    points = [
+        _row(
+            run_drive(drive, SLAM3DConfig.of(scored_points=N), progress=False),
+            evaluate,
+            particles=default.filter.particles,
+            points=N,
+        )
+        for N in (QUICK_POINTS if quick else POINTS)
+    ]
 
-    route_drive = drive if quick else KittiRawDrive(*default_drive(full=True, progress=False, realism=False))
-    r = run_drive(route_drive, default, progress=False, snapshot_every=ROUTE_SNAPSHOT_EVERY)
+    route_drive = (
+        drive
+        if quick
+        else KittiRawDrive(*default_drive(full=True, progress=False, realism=False))
+    )
+    r = run_drive(
+        route_drive, default, progress=False, snapshot_every=ROUTE_SNAPSHOT_EVERY
+    )
     ms = r.frame_seconds * 1e3
     k = np.arange(len(ms))
     snaps = [(int(pos), int(len(pts))) for pos, pts, _ in r.snapshots]
     m = evaluate(r)
     route = {
-        "drive": ("slamlib.synth.default_drive(realism=False)" if quick
-                  else "slamlib.synth.default_drive(full=True, realism=False)"),
-        "frames": int(len(ms)), "path_length_m": round(float(m["path_length_m"]), 1),
-        "particles": default.filter.particles, "points": default.filter.scored_points, "map": default.map.kind,
-        "fps": round(r.fps, 2), "ate_rmse_m": round(float(m["slam"]["ate_rmse_m"]), 4),
+        "drive": (
+            "slamlib.synth.default_drive(realism=False)"
+            if quick
+            else "slamlib.synth.default_drive(full=True, realism=False)"
+        ),
+        "frames": int(len(ms)),
+        "path_length_m": round(float(m["path_length_m"]), 1),
+        "particles": default.filter.particles,
+        "points": default.filter.scored_points,
+        "map": default.map.kind,
+        "fps": round(r.fps, 2),
+        "ate_rmse_m": round(float(m["slam"]["ate_rmse_m"]), 4),
         "frame_ms": [round(float(x), 3) for x in ms],
-        "map_elements": snaps,   # (frame position, map elements after it)
+        "map_elements": snaps,  # (frame position, map elements after it)
         "fit_frame_ms_vs_frame": _fit(k[SKIP_FRAMES:], ms[SKIP_FRAMES:]),
-        "first_tenth_ms_median": round(float(np.median(ms[SKIP_FRAMES:max(SKIP_FRAMES + 1, len(ms) // 10)])), 3),
-        "last_tenth_ms_median": round(float(np.median(ms[-max(1, len(ms) // 10):])), 3),
+        "first_tenth_ms_median": round(
+            float(np.median(ms[SKIP_FRAMES : max(SKIP_FRAMES + 1, len(ms) // 10)])), 3
+        ),
+        "last_tenth_ms_median": round(float(np.median(ms[-max(1, len(ms) // 10) :])), 3),
     }
     print({k_: v for k_, v in route.items() if k_ != "frame_ms"}, flush=True)
     return {
-        "workload": {"drive": "slamlib.synth.default_drive(realism=False)", "frames": [a, b],
-                     "backend": default.backend, "numba_threads": int(numba.get_num_threads()),
-                     "config": default.as_dict()},
+        "workload": {
+            "drive": "slamlib.synth.default_drive(realism=False)",
+            "frames": [a, b],
+            "backend": default.backend,
+            "numba_threads": int(numba.get_num_threads()),
+            "config": default.as_dict(),
+        },
         "particles": particles,
-        "fit_ms_vs_particles": _fit([r_["particles"] for r_ in particles], [r_["frame_ms_median"] for r_ in particles]),
+        "fit_ms_vs_particles": _fit(
+            [r_["particles"] for r_ in particles],
+            [r_["frame_ms_median"] for r_ in particles],
+        ),
         "points": points,
-        "fit_ms_vs_points": _fit([r_["points"] for r_ in points], [r_["frame_ms_median"] for r_ in points]),
+        "fit_ms_vs_points": _fit(
+            [r_["points"] for r_ in points], [r_["frame_ms_median"] for r_ in points]
+        ),
         "route": route,
         # other jobs on the machine slow every row: the 1-minute load average before and after the run
         "load_average_1min": {"start": load_before, "end": os.getloadavg()[0]},

@@ -24,13 +24,16 @@ from __future__ import annotations
 
 import numpy as np
 
-HELP = "3D particle SLAM on the default synthetic drive: frames/s for 100/300/1000 particles x voxel_hash/morton_bvh, ATE"
+HELP = (
+    "3D particle SLAM on the default synthetic drive: frames/s for 100/300/1000 particles"
+    " x voxel_hash/morton_bvh, ATE"
+)
 
 FRAMES = (0, 300)
 QUICK_FRAMES = (0, 40)
 PARTICLES = (100, 300, 1000)
 QUICK_PARTICLES = (100, 300)
-MAPS = ("voxel_hash", "morton_bvh")   # slamlib.slam3d.MAP_KINDS
+MAPS = ("voxel_hash", "morton_bvh")  # slamlib.slam3d.MAP_KINDS
 
 
 def run(quick: bool = False) -> dict:
@@ -46,31 +49,44 @@ def run(quick: bool = False) -> dict:
     warm = KittiRawDrive(basedir, date, drive_id, frames=range(0, 5))
     rows = []
     for kind in MAPS:
-        run_drive(warm, SLAM3DConfig.of(kind=kind, particles=50), progress=False)  # JIT / cache warm-up
-        for P in (QUICK_PARTICLES if quick else PARTICLES):
+        run_drive(
+            warm, SLAM3DConfig.of(kind=kind, particles=50), progress=False
+        )  # JIT / cache warm-up
+        for P in QUICK_PARTICLES if quick else PARTICLES:
             cfg = SLAM3DConfig.of(particles=P, kind=kind)
             r = run_drive(drive, cfg, progress=False)
             m = evaluate(r)
             row = {
-                "map": kind, "particles": P, "points": cfg.filter.scored_points, "frames": m["frames"],
+                "map": kind,
+                "particles": P,
+                "points": cfg.filter.scored_points,
+                "frames": m["frames"],
                 "fps": round(r.fps, 2),
                 "fps_median": round(float(1.0 / np.median(r.frame_seconds[1:])), 2),
                 "ate_rmse_m": round(m["slam"]["ate_rmse_m"], 4),
                 "dead_reckoning_ate_rmse_m": round(m["dead_reckoning"]["ate_rmse_m"], 4),
             }
-            row["ate_ratio_dr_over_slam"] = round(row["dead_reckoning_ate_rmse_m"] / row["ate_rmse_m"], 1)
+            row["ate_ratio_dr_over_slam"] = round(
+                row["dead_reckoning_ate_rmse_m"] / row["ate_rmse_m"], 1
+            )
             if "kitti_t_err_percent" in m["slam"]:
                 row["kitti_t_err_percent"] = round(m["slam"]["kitti_t_err_percent"], 3)
-                row["dead_reckoning_kitti_t_err_percent"] = round(m["dead_reckoning"]["kitti_t_err_percent"], 3)
+                row["dead_reckoning_kitti_t_err_percent"] = round(
+                    m["dead_reckoning"]["kitti_t_err_percent"], 3
+                )
             rows.append(row)
             print(row, flush=True)
     long = None if quick else _long_run()
     return {
         "long": long,
-        "workload": {"drive": "slamlib.synth.default_drive(realism=False)", "frames": [a, b],
-                     "path_length_m": round(m["path_length_m"], 1), "backend": "cpu",
-                     "numba_threads": int(numba.get_num_threads()),
-                     "config": SLAM3DConfig().as_dict()},   # the rows change filter.particles and map.kind
+        "workload": {
+            "drive": "slamlib.synth.default_drive(realism=False)",
+            "frames": [a, b],
+            "path_length_m": round(m["path_length_m"], 1),
+            "backend": "cpu",
+            "numba_threads": int(numba.get_num_threads()),
+            "config": SLAM3DConfig().as_dict(),
+        },  # the rows change filter.particles and map.kind
         "results": rows,
     }
 
@@ -85,10 +101,20 @@ def _long_run() -> dict:
     cfg = SLAM3DConfig()
     r = run_drive(drive, cfg, progress=False)
     m = evaluate(r)
-    out = {"drive": "slamlib.synth.default_drive(full=True, realism=False)", "frames": m["frames"],
-           "path_length_m": round(m["path_length_m"], 1), "particles": cfg.filter.particles, "map": cfg.map.kind,
-           "fps": round(r.fps, 2), "fps_median": round(float(1.0 / np.median(r.frame_seconds[1:])), 2)}
+    out = {
+        "drive": "slamlib.synth.default_drive(full=True, realism=False)",
+        "frames": m["frames"],
+        "path_length_m": round(m["path_length_m"], 1),
+        "particles": cfg.filter.particles,
+        "map": cfg.map.kind,
+        "fps": round(r.fps, 2),
+        "fps_median": round(float(1.0 / np.median(r.frame_seconds[1:])), 2),
+    }
     for key in ("slam", "dead_reckoning"):
-        out[key] = {k: round(float(v), 5) for k, v in m[key].items() if isinstance(v, (int, float))}
+        out[key] = {
+            k: round(float(v), 5)
+            for k, v in m[key].items()
+            if isinstance(v, (int, float))
+        }
     print({"long": out}, flush=True)
     return out

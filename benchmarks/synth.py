@@ -43,7 +43,14 @@ def run(quick: bool = False) -> dict:
     from slamlib.geometry import invert_pose
     from slamlib.kitti.calib import load_T_velo_imu
     from slamlib.paths import kitti_sample_dir
-    from slamlib.synth import Hdl64, build_scene, ray_directions, resolve_route, simulate_scan, write_drive
+    from slamlib.synth import (
+        Hdl64,
+        build_scene,
+        ray_directions,
+        resolve_route,
+        simulate_scan,
+        write_drive,
+    )
     from slamlib.synth.writer import SCAN_PERIOD
 
     n_frames = QUICK_FRAMES if quick else FRAMES
@@ -51,7 +58,9 @@ def run(quick: bool = False) -> dict:
     lidar = Hdl64()
     route, n = resolve_route(ROUTE, (0, n_frames))
     t = route.t0 + SCAN_PERIOD * np.arange(n)
-    dense_t = np.linspace(t[0], t[-1], max(2, int((t[-1] - t[0]) * 20) + 2))   # as write_drive samples the route
+    dense_t = np.linspace(
+        t[0], t[-1], max(2, int((t[-1] - t[0]) * 20) + 2)
+    )  # as write_drive samples the route
     positions = route.position(dense_t)
 
     def make_scene():
@@ -60,7 +69,9 @@ def run(quick: bool = False) -> dict:
 
     scene, rc = make_scene()
     scene_time = median_time(make_scene, repeat=3 if quick else 5)
-    print(f"scene: {scene.n_triangles:,} triangles, build + BVH {scene_time['median_s'] * 1e3:.0f} ms")
+    print(
+        f"scene: {scene.n_triangles:,} triangles, build + BVH {scene_time['median_s'] * 1e3:.0f} ms"
+    )
 
     T_velo_imu = load_T_velo_imu(kitti_sample_dir() / "raw" / "2011_09_26")
     T_w_velo = route.pose(t) @ invert_pose(T_velo_imu)
@@ -75,22 +86,40 @@ def run(quick: bool = False) -> dict:
 
     scan_time = median_time(one_scan, repeat=repeat)
     scan_counts = counts[1:]  # the warm-up scan is not timed
-    print(f"one scan: {len(dirs):,} rays -> {np.mean(scan_counts):,.0f} points, {scan_time['median_s'] * 1e3:.0f} ms")
+    print(
+        f"one scan: {len(dirs):,} rays -> {np.mean(scan_counts):,.0f} points, {scan_time['median_s'] * 1e3:.0f} ms"
+    )
 
     with tempfile.TemporaryDirectory(prefix="slamlib-bench-synth-") as tmp:
         t0 = time.perf_counter()
         write_drive(tmp, ROUTE, frames=(0, n_frames), seed=0, lidar=lidar, progress=False)
         drive_s = time.perf_counter() - t0
         written = _folder_bytes(Path(tmp))
-    print(f"drive: {n} frames in {drive_s:.1f} s ({n / drive_s:.1f} frames/s), {written / 1e6:.0f} MB")
+    print(
+        f"drive: {n} frames in {drive_s:.1f} s ({n / drive_s:.1f} frames/s), {written / 1e6:.0f} MB"
+    )
 
     return {
-        "route": ROUTE, "frames": int(n), "columns": lidar.columns, "beams": 64 // lidar.beam_stride,
-        "rays_per_scan": int(len(dirs)), "threads": os.cpu_count(), "open3d": o3d.__version__,
+        "route": ROUTE,
+        "frames": int(n),
+        "columns": lidar.columns,
+        "beams": 64 // lidar.beam_stride,
+        "rays_per_scan": int(len(dirs)),
+        "threads": os.cpu_count(),
+        "open3d": o3d.__version__,
         "scene": {**scene_time, "triangles": int(scene.n_triangles)},
-        "scan": {**scan_time, "points_mean": float(np.mean(scan_counts)), "points_min": int(np.min(scan_counts)),
-                 "points_max": int(np.max(scan_counts)),
-                 "points_per_s": float(np.mean(scan_counts) / scan_time["median_s"])},
-        "drive": {"seconds": float(drive_s), "per_frame_s": float(drive_s / n), "frames_per_s": float(n / drive_s),
-                  "bytes": int(written), "runs": 1},
+        "scan": {
+            **scan_time,
+            "points_mean": float(np.mean(scan_counts)),
+            "points_min": int(np.min(scan_counts)),
+            "points_max": int(np.max(scan_counts)),
+            "points_per_s": float(np.mean(scan_counts) / scan_time["median_s"]),
+        },
+        "drive": {
+            "seconds": float(drive_s),
+            "per_frame_s": float(drive_s / n),
+            "frames_per_s": float(n / drive_s),
+            "bytes": int(written),
+            "runs": 1,
+        },
     }

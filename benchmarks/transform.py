@@ -40,8 +40,14 @@ import numpy as np
 HELP = "transform 1e3..1e8 float32 points: kernel and whole-program times vs the copy limit and the seed's table"
 
 #: The seed's whole-program table (K40, 2017), seconds; None: out of memory.
-SEED_WHOLE_PROGRAM_S = {10**3: 0.220224, 10**4: 0.223580, 10**5: 0.227155, 10**6: 0.247954, 10**7: 0.374841,
-                        10**8: None}
+SEED_WHOLE_PROGRAM_S = {
+    10**3: 0.220224,
+    10**4: 0.223580,
+    10**5: 0.227155,
+    10**6: 0.247954,
+    10**7: 0.374841,
+    10**8: None,
+}
 #: The seed's final report, 1e7 points: the K40 kernel alone, and one CPU thread (Xeon E5-2620).
 SEED_K40_KERNEL_1E7_S = 0.007
 SEED_CPU_THREAD_1E7_S = 0.041
@@ -80,7 +86,12 @@ def _one_thread(fn, *args, **kwargs):
 
 def _stats(times) -> dict:
     a = np.asarray(times)
-    return {"median_s": float(np.median(a)), "min_s": float(a.min()), "max_s": float(a.max()), "repeat": int(a.size)}
+    return {
+        "median_s": float(np.median(a)),
+        "min_s": float(a.min()),
+        "max_s": float(a.max()),
+        "repeat": int(a.size),
+    }
 
 
 def _rounds(fns: dict, repeat: int) -> dict:
@@ -105,24 +116,42 @@ def kernel_rows(sizes, repeat_for, backends) -> tuple[list, list]:
     rows, copies = [], []
     for n in sizes:
         pts = np.empty((n, 3), np.float32)
-        block = np.random.default_rng(0).normal(0.0, 20.0, (min(n, BLOCK), 3)).astype(np.float32)
-        for a in range(0, n, BLOCK):  # a random block tiled over the array (cheap at 1e8; touches every page)
-            pts[a:a + BLOCK] = block[:min(BLOCK, n - a)]
+        block = (
+            np.random.default_rng(0)
+            .normal(0.0, 20.0, (min(n, BLOCK), 3))
+            .astype(np.float32)
+        )
+        for a in range(
+            0, n, BLOCK
+        ):  # a random block tiled over the array (cheap at 1e8; touches every page)
+            pts[a : a + BLOCK] = block[: min(BLOCK, n - a)]
         out = np.empty_like(pts)
         out[...] = 0.0  # touched: the ``out`` and copy rows pay no page faults
-        work = pts.copy()  # the in-place rows transform this one (values drift; the time does not)
+        work = (
+            pts.copy()
+        )  # the in-place rows transform this one (values drift; the time does not)
         flat_in, flat_out = pts.reshape(-1), out.reshape(-1)
-        copy_fns = {("copy", "numpy.copyto"): lambda: np.copyto(out, pts),
-                    ("copy", "numba_parallel_copy"): lambda: pcopy(flat_in, flat_out)}
+        copy_fns = {
+            ("copy", "numpy.copyto"): lambda: np.copyto(out, pts),
+            ("copy", "numba_parallel_copy"): lambda: pcopy(flat_in, flat_out),
+        }
         reuse, fresh = dict(copy_fns), dict(copy_fns)
         for name, be in backends.items():
             fresh[(name, "alloc")] = lambda be=be: be.transform_points(T, pts)
             if name != "numpy":
                 reuse[(name, "out")] = lambda be=be: be.transform_points(T, pts, out=out)
-                reuse[(name, "inplace")] = lambda be=be: be.transform_points(T, work, out=work)
-            if name == "cpu":  # one thread, like memcpy: a like-for-like pair even when another job holds a core
-                reuse[(name, "out_1thread")] = lambda be=be: _one_thread(be.transform_points, T, pts, out=out)
-                reuse[(name, "inplace_1thread")] = lambda be=be: _one_thread(be.transform_points, T, work, out=work)
+                reuse[(name, "inplace")] = lambda be=be: be.transform_points(
+                    T, work, out=work
+                )
+            if (
+                name == "cpu"
+            ):  # one thread, like memcpy: a like-for-like pair even when another job holds a core
+                reuse[(name, "out_1thread")] = lambda be=be: _one_thread(
+                    be.transform_points, T, pts, out=out
+                )
+                reuse[(name, "inplace_1thread")] = lambda be=be: _one_thread(
+                    be.transform_points, T, work, out=work
+                )
         nbytes = BYTES_PER_POINT * n
         # Rows that allocate (and free) their output each call leave the OS reclaiming gigabytes of pages in the
         # background, which slows whatever runs next: they get rounds of their own, with the copies timed again.
@@ -130,10 +159,19 @@ def kernel_rows(sizes, repeat_for, backends) -> tuple[list, list]:
             res = _rounds(fns, repeat_for(n))
             rows += _kernel_records(res, n, nbytes, group)
             if group == "reuse":
-                copies += [{"n": n, "method": method, "bytes_moved": nbytes, **res[("copy", method)],
-                            "gb_per_s": nbytes / res[("copy", method)]["median_s"] / 1e9}
-                           for method in ("numpy.copyto", "numba_parallel_copy")]
-        del pts, out, work, flat_in, flat_out, reuse, fresh, copy_fns
+                copies += [
+                    {
+                        "n": n,
+                        "method": method,
+                        "bytes_moved": nbytes,
+                        **res[("copy", method)],
+                        "gb_per_s": nbytes / res[("copy", method)]["median_s"] / 1e9,
+                    }
+                    for method in ("numpy.copyto", "numba_parallel_copy")
+                ]
+        pts = out = work = flat_in = flat_out = reuse = fresh = copy_fns = (
+            None  # free this size
+        )
     return rows, copies
 
 
@@ -146,17 +184,32 @@ def _kernel_records(res: dict, n: int, nbytes: int, group: str) -> list:
     for (name, variant), st in res.items():
         if name == "copy":
             continue
-        rows.append({"backend": name, "variant": variant, "n": n, "rounds": group, "bytes_moved": nbytes, **st,
-                     "points_per_s": n / st["median_s"], "gb_per_s": nbytes / st["median_s"] / 1e9,
-                     "copyto_median_s": ct["median_s"], "copyto_min_s": ct["min_s"],
-                     "parallel_copy_median_s": pc["median_s"], "parallel_copy_min_s": pc["min_s"],
-                     "ratio_to_copyto": st["median_s"] / ct["median_s"],
-                     "ratio_to_fastest_copy": st["median_s"] / fastest_med,
-                     "best_ratio_to_copyto": st["min_s"] / ct["min_s"],
-                     "best_ratio_to_fastest_copy": st["min_s"] / fastest_min})
-        print(f"kernel n={n:>10d} {name:6s} {variant:8s} {st['median_s'] * 1e3:10.3f} ms "
-              f"(best {st['min_s'] * 1e3:.3f}) x{rows[-1]['ratio_to_fastest_copy']:.2f} of the fastest copy "
-              f"({fastest_med * 1e3:.3f} ms)", flush=True)
+        rows.append(
+            {
+                "backend": name,
+                "variant": variant,
+                "n": n,
+                "rounds": group,
+                "bytes_moved": nbytes,
+                **st,
+                "points_per_s": n / st["median_s"],
+                "gb_per_s": nbytes / st["median_s"] / 1e9,
+                "copyto_median_s": ct["median_s"],
+                "copyto_min_s": ct["min_s"],
+                "parallel_copy_median_s": pc["median_s"],
+                "parallel_copy_min_s": pc["min_s"],
+                "ratio_to_copyto": st["median_s"] / ct["median_s"],
+                "ratio_to_fastest_copy": st["median_s"] / fastest_med,
+                "best_ratio_to_copyto": st["min_s"] / ct["min_s"],
+                "best_ratio_to_fastest_copy": st["min_s"] / fastest_min,
+            }
+        )
+        print(
+            f"kernel n={n:>10d} {name:6s} {variant:8s} {st['median_s'] * 1e3:10.3f} ms "
+            f"(best {st['min_s'] * 1e3:.3f}) x{rows[-1]['ratio_to_fastest_copy']:.2f} of the fastest copy "
+            f"({fastest_med * 1e3:.3f} ms)",
+            flush=True,
+        )
     return rows
 
 
@@ -174,34 +227,68 @@ def program_rows(configs, sizes, runs: int) -> list:
     script = Path(__file__).with_name("transform_program.py")
     rows = []
     for backend, mode in configs:
-        subprocess.run([sys.executable, str(script), backend, "8", mode], check=True, capture_output=True)  # cache
+        subprocess.run(
+            [sys.executable, str(script), backend, "8", mode],
+            check=True,
+            capture_output=True,
+        )  # cache
         for n in sizes:
             reports, walls = [], []
             for _ in range(runs):
                 env = dict(os.environ, SLAMLIB_LAUNCH_TIME=repr(time.time()))
                 t0 = time.perf_counter()
-                res = subprocess.run([sys.executable, str(script), backend, str(n), mode], env=env,
-                                     capture_output=True, text=True)
+                res = subprocess.run(
+                    [sys.executable, str(script), backend, str(n), mode],
+                    env=env,
+                    capture_output=True,
+                    text=True,
+                )
                 walls.append(time.perf_counter() - t0)
                 if res.returncode != 0:
-                    raise RuntimeError(f"transform_program {backend} {n} {mode} failed:\n{res.stderr}")
+                    raise RuntimeError(
+                        f"transform_program {backend} {n} {mode} failed:\n{res.stderr}"
+                    )
                 reports.append(json.loads(res.stdout.strip().splitlines()[-1]))
-            med = {k: float(np.median([r[k] for r in reports])) for k in
-                   ("interpreter_s", "import_s", "jit_s", "allocate_fill_s", "transfer_s", "kernel_s", "copy_back_s")}
+            med = {
+                k: float(np.median([r[k] for r in reports]))
+                for k in (
+                    "interpreter_s",
+                    "import_s",
+                    "jit_s",
+                    "allocate_fill_s",
+                    "transfer_s",
+                    "kernel_s",
+                    "copy_back_s",
+                )
+            }
             startup = [r["interpreter_s"] + r["import_s"] + r["jit_s"] for r in reports]
             rss = max(r["peak_rss_bytes"] for r in reports)
             budget = _budget(backend, mode, n)
-            row = {"backend": backend, "mode": mode, "n": n, "runs": runs,
-                   "wall_s": float(np.median(walls)), "wall_min_s": float(np.min(walls)),
-                   "startup_s": float(np.median(startup)), **med,
-                   "after_startup_s": float(np.median([w - s for w, s in zip(walls, startup)])),
-                   "peak_rss_bytes": int(rss), "budget_bytes": int(budget), "within_budget": bool(rss <= budget),
-                   "ok": all(r["ok"] for r in reports), "seed_wall_s": SEED_WHOLE_PROGRAM_S.get(n)}
+            row = {
+                "backend": backend,
+                "mode": mode,
+                "n": n,
+                "runs": runs,
+                "wall_s": float(np.median(walls)),
+                "wall_min_s": float(np.min(walls)),
+                "startup_s": float(np.median(startup)),
+                **med,
+                "after_startup_s": float(
+                    np.median([w - s for w, s in zip(walls, startup)])
+                ),
+                "peak_rss_bytes": int(rss),
+                "budget_bytes": int(budget),
+                "within_budget": bool(rss <= budget),
+                "ok": all(r["ok"] for r in reports),
+                "seed_wall_s": SEED_WHOLE_PROGRAM_S.get(n),
+            }
             rows.append(row)
-            print(f"program {backend:5s} {mode:7s} n={n:>10d} wall {row['wall_s']:.3f} s (start-up "
-                  f"{row['startup_s']:.3f}, alloc+fill {row['allocate_fill_s']:.3f}, kernel {row['kernel_s']:.4f}) "
-                  f"peak {rss / 2**20:.0f} MiB / budget {budget / 2**20:.0f} MiB; seed {row['seed_wall_s']}",
-                  flush=True)
+            print(
+                f"program {backend:5s} {mode:7s} n={n:>10d} wall {row['wall_s']:.3f} s (start-up "
+                f"{row['startup_s']:.3f}, alloc+fill {row['allocate_fill_s']:.3f}, kernel {row['kernel_s']:.4f}) "
+                f"peak {rss / 2**20:.0f} MiB / budget {budget / 2**20:.0f} MiB; seed {row['seed_wall_s']}",
+                flush=True,
+            )
     return rows
 
 
@@ -210,7 +297,9 @@ def gpu_rows(sizes, repeat: int) -> list:
     try:
         from numba import cuda
 
-        available = bool(cuda.is_available()) and os.environ.get("NUMBA_ENABLE_CUDASIM") != "1"
+        available = (
+            bool(cuda.is_available()) and os.environ.get("NUMBA_ENABLE_CUDASIM") != "1"
+        )
     except ImportError:
         available = False
     rows = []
@@ -231,15 +320,33 @@ def gpu_rows(sizes, repeat: int) -> list:
                 cuda.synchronize()
 
             st = median_time(call, repeat=repeat)
-            rows.append({"backend": "cuda", "n": n, "card": card, "bytes_moved": BYTES_PER_POINT * n, **st,
-                         "kernel_s": st["median_s"], "projected": False})
+            rows.append(
+                {
+                    "backend": "cuda",
+                    "n": n,
+                    "card": card,
+                    "bytes_moved": BYTES_PER_POINT * n,
+                    **st,
+                    "kernel_s": st["median_s"],
+                    "projected": False,
+                }
+            )
             del d
         return rows
     for n in sizes:
         for card, bw in CARDS.items():
-            rows.append({"backend": "cuda", "n": n, "card": card, "bytes_moved": BYTES_PER_POINT * n,
-                         "bandwidth_bytes_per_s": bw, "kernel_s": BYTES_PER_POINT * n / bw, "projected": True,
-                         "label": "projected, not measured"})
+            rows.append(
+                {
+                    "backend": "cuda",
+                    "n": n,
+                    "card": card,
+                    "bytes_moved": BYTES_PER_POINT * n,
+                    "bandwidth_bytes_per_s": bw,
+                    "kernel_s": BYTES_PER_POINT * n / bw,
+                    "projected": True,
+                    "label": "projected, not measured",
+                }
+            )
     return rows
 
 
@@ -258,11 +365,20 @@ def run(quick: bool) -> dict:
     krows, copies = kernel_rows(sizes, repeat_for, backends)
     configs = [("cpu", "inplace"), ("cpu", "out"), ("numpy", "inplace")]
     prows = program_rows(configs, sizes, 1 if quick else 3)
-    return {"threads": int(numba.get_num_threads()), "sizes": sizes,
-            "seed": {"whole_program_s": {str(k): v for k, v in SEED_WHOLE_PROGRAM_S.items()},
-                     "k40_kernel_1e7_s": SEED_K40_KERNEL_1E7_S, "cpu_one_thread_1e7_s": SEED_CPU_THREAD_1E7_S,
-                     "note": "K40 (2017) whole programs; 1e8: out of memory"},
-            "bytes_per_point": BYTES_PER_POINT, "runtime_allowance_bytes": RUNTIME_ALLOWANCE,
-            "kernel_rows": krows, "copy_rows": copies, "program_rows": prows,
-            "gpu_rows": gpu_rows(sizes, 3 if quick else 7),
-            "load_average_1min": {"start": load_before[0], "end": os.getloadavg()[0]}}
+    return {
+        "threads": int(numba.get_num_threads()),
+        "sizes": sizes,
+        "seed": {
+            "whole_program_s": {str(k): v for k, v in SEED_WHOLE_PROGRAM_S.items()},
+            "k40_kernel_1e7_s": SEED_K40_KERNEL_1E7_S,
+            "cpu_one_thread_1e7_s": SEED_CPU_THREAD_1E7_S,
+            "note": "K40 (2017) whole programs; 1e8: out of memory",
+        },
+        "bytes_per_point": BYTES_PER_POINT,
+        "runtime_allowance_bytes": RUNTIME_ALLOWANCE,
+        "kernel_rows": krows,
+        "copy_rows": copies,
+        "program_rows": prows,
+        "gpu_rows": gpu_rows(sizes, 3 if quick else 7),
+        "load_average_1min": {"start": load_before[0], "end": os.getloadavg()[0]},
+    }

@@ -56,14 +56,20 @@ def main(argv) -> dict:
     T[:3, :3] = [[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]
     T[:3, 3] = TRANSLATION
     t1 = time.time()
-    warm = np.zeros((8, 3), np.float32)  # JIT (cache load or compile) of the very kernel timed below
-    be.transform_points(T, warm, **({"out": warm} if mode == "inplace" and backend != "cuda" else {}))
+    warm = np.zeros(
+        (8, 3), np.float32
+    )  # JIT (cache load or compile) of the very kernel timed below
+    be.transform_points(
+        T, warm, **({"out": warm} if mode == "inplace" and backend != "cuda" else {})
+    )
     t2 = time.time()
     pts = np.empty((n, 3), np.float32)
     pts[...] = POINT
     t3 = time.time()
     transfer = copy_back = 0.0
-    if backend == "cuda":  # the seed's program: copy in, kernel, copy back (a new device array for the result)
+    if (
+        backend == "cuda"
+    ):  # the seed's program: copy in, kernel, copy back (a new device array for the result)
         d_pts = cuda.to_device(pts)
         cuda.synchronize()
         t4 = time.time()
@@ -79,15 +85,33 @@ def main(argv) -> dict:
         if backend == "numpy":
             res = pts if mode == "inplace" else np.empty_like(pts)
             for a in range(0, n, NUMPY_CHUNK):
-                be.transform_points(T, pts[a:a + NUMPY_CHUNK], out=res[a:a + NUMPY_CHUNK])
+                be.transform_points(
+                    T, pts[a : a + NUMPY_CHUNK], out=res[a : a + NUMPY_CHUNK]
+                )
         else:
             res = be.transform_points(T, pts, out=pts if mode == "inplace" else None)
         kernel = time.time() - t4
-    expect = np.array([TRANSLATION[0] - POINT[1], TRANSLATION[1] + POINT[0], TRANSLATION[2] + POINT[2]], np.float32)
-    ok = bool(n == 0 or (np.array_equal(res[0], expect) and np.array_equal(res[-1], expect)))
-    return {"backend": backend, "n": n, "mode": mode, "interpreter_s": T_START - launch, "import_s": t1 - t0,
-            "jit_s": t2 - t1, "allocate_fill_s": t3 - t2, "transfer_s": transfer, "kernel_s": kernel,
-            "copy_back_s": copy_back, "peak_rss_bytes": peak_rss(), "ok": ok}
+    expect = np.array(
+        [TRANSLATION[0] - POINT[1], TRANSLATION[1] + POINT[0], TRANSLATION[2] + POINT[2]],
+        np.float32,
+    )
+    ok = bool(
+        n == 0 or (np.array_equal(res[0], expect) and np.array_equal(res[-1], expect))
+    )
+    return {
+        "backend": backend,
+        "n": n,
+        "mode": mode,
+        "interpreter_s": T_START - launch,
+        "import_s": t1 - t0,
+        "jit_s": t2 - t1,
+        "allocate_fill_s": t3 - t2,
+        "transfer_s": transfer,
+        "kernel_s": kernel,
+        "copy_back_s": copy_back,
+        "peak_rss_bytes": peak_rss(),
+        "ok": ok,
+    }
 
 
 def peak_rss() -> int:

@@ -27,19 +27,29 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _check_single_values(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+def _check_single_values(
+    parser: argparse.ArgumentParser, args: argparse.Namespace
+) -> None:
     """Exit with argparse's usage error naming the option when a one-value option came back as a list: Python
     3.11's argparse turns ``--option=--`` into ``[]``, which the commands would otherwise fail on with a
     TypeError far from the command line."""
     for action in parser._actions:
-        if action.option_strings and action.nargs is None and isinstance(getattr(args, action.dest, None), list):
-            parser.error(f"argument {'/'.join(action.option_strings)}: expected one value")
+        if (
+            action.option_strings
+            and action.nargs is None
+            and isinstance(getattr(args, action.dest, None), list)
+        ):
+            parser.error(
+                f"argument {'/'.join(action.option_strings)}: expected one value"
+            )
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    args.argv = list(sys.argv[1:] if argv is None else argv)  # as typed, for results that record their command
+    args.argv = list(
+        sys.argv[1:] if argv is None else argv
+    )  # as typed, for results that record their command
     if args.command is None:
         parser.print_help()
         return 0

@@ -55,26 +55,73 @@ class StepSpec:
 
 #: The contract: steps 1-11 as functions; step 12 is the filter object's per-frame method that calls them in order.
 STEPS: tuple[StepSpec, ...] = (
-    StepSpec(1, "initialise_particles", ("n_particles", "pose0"), "(particles, log_weights)",
-             "P copies of the start pose (default: the world origin), uniform log-weights -log P"),
-    StepSpec(2, "read_scan", ("frame",), "points",
-             "the frame's scan in the body frame (preprocessed: cropped, down-sampled)"),
-    StepSpec(3, "read_imu", ("frame",), "imu", "the IMU's body velocities (and angular rates)"),
+    StepSpec(
+        1,
+        "initialise_particles",
+        ("n_particles", "pose0"),
+        "(particles, log_weights)",
+        "P copies of the start pose (default: the world origin), uniform log-weights -log P",
+    ),
+    StepSpec(
+        2,
+        "read_scan",
+        ("frame",),
+        "points",
+        "the frame's scan in the body frame (preprocessed: cropped, down-sampled)",
+    ),
+    StepSpec(
+        3, "read_imu", ("frame",), "imu", "the IMU's body velocities (and angular rates)"
+    ),
     StepSpec(4, "read_timing", ("frame",), "dt", "seconds since the previous frame"),
-    StepSpec(5, "offset_by_motion", ("particles", "imu", "dt"), "particles",
-             "every particle moved by the IMU's motion over dt, in its own body frame"),
-    StepSpec(6, "perturb_with_noise", ("particles", "sigma", "rng"), "particles",
-             "every particle moved by its own Gaussian draw scaled by sigma"),
-    StepSpec(7, "transform_scan", ("particles", "points"), "world points",
-             "the body-frame scan placed in the world by each particle's pose (or one pose)"),
-    StepSpec(8, "score_particles", ("particles", "points", "world_map"), "scores (P,) log-likelihoods",
-             "how well each particle's transformed scan fits the map (steps 7 + 8, fused where it pays)"),
-    StepSpec(9, "pick_best_particle", ("particles", "log_weights"), "(pose, index)",
-             "the estimate of this frame: the highest-weight particle's pose and its index"),
-    StepSpec(10, "merge_scan", ("world_map", "pose", "points"), "world_map (changed in place)",
-             "the scan, placed by the chosen pose, added to the map"),
-    StepSpec(11, "resample_particles", ("particles", "log_weights", "rng"), "(particles, log_weights, resampled)",
-             "systematic resampling when the effective sample size drops (slamlib.resampling.resample_indexes)"),
+    StepSpec(
+        5,
+        "offset_by_motion",
+        ("particles", "imu", "dt"),
+        "particles",
+        "every particle moved by the IMU's motion over dt, in its own body frame",
+    ),
+    StepSpec(
+        6,
+        "perturb_with_noise",
+        ("particles", "sigma", "rng"),
+        "particles",
+        "every particle moved by its own Gaussian draw scaled by sigma",
+    ),
+    StepSpec(
+        7,
+        "transform_scan",
+        ("particles", "points"),
+        "world points",
+        "the body-frame scan placed in the world by each particle's pose (or one pose)",
+    ),
+    StepSpec(
+        8,
+        "score_particles",
+        ("particles", "points", "world_map"),
+        "scores (P,) log-likelihoods",
+        "how well each particle's transformed scan fits the map (steps 7 + 8, fused where it pays)",
+    ),
+    StepSpec(
+        9,
+        "pick_best_particle",
+        ("particles", "log_weights"),
+        "(pose, index)",
+        "the estimate of this frame: the highest-weight particle's pose and its index",
+    ),
+    StepSpec(
+        10,
+        "merge_scan",
+        ("world_map", "pose", "points"),
+        "world_map (changed in place)",
+        "the scan, placed by the chosen pose, added to the map",
+    ),
+    StepSpec(
+        11,
+        "resample_particles",
+        ("particles", "log_weights", "rng"),
+        "(particles, log_weights, resampled)",
+        "systematic resampling when the effective sample size drops (slamlib.resampling.resample_indexes)",
+    ),
 )
 
 
@@ -88,14 +135,24 @@ def check_steps_module(module: ModuleType) -> list[str]:
     for spec in STEPS:
         fn = getattr(module, spec.name, None)
         if not callable(fn):
-            problems.append(f"{module.__name__}: step {spec.number} {spec.name} is missing")
+            problems.append(
+                f"{module.__name__}: step {spec.number} {spec.name} is missing"
+            )
             continue
         params = list(inspect.signature(fn).parameters.values())
-        lead = tuple(p.name for p in params[:len(spec.params)])
+        lead = tuple(p.name for p in params[: len(spec.params)])
         if lead != spec.params:
-            problems.append(f"{module.__name__}.{spec.name}: leading parameters {lead}, contract {spec.params}")
-        extra = [p.name for p in params[len(spec.params):] if p.default is inspect.Parameter.empty
-                 and p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD)]
+            problems.append(
+                f"{module.__name__}.{spec.name}: leading parameters {lead}, contract {spec.params}"
+            )
+        extra = [
+            p.name
+            for p in params[len(spec.params) :]
+            if p.default is inspect.Parameter.empty
+            and p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD)
+        ]
         if extra:
-            problems.append(f"{module.__name__}.{spec.name}: extra parameters without defaults: {extra}")
+            problems.append(
+                f"{module.__name__}.{spec.name}: extra parameters without defaults: {extra}"
+            )
     return problems

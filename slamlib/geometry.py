@@ -5,7 +5,8 @@ Conventions (used everywhere in slamlib):
 * Angles in radians. ``rpy = (roll, pitch, yaw)`` about the body x, y, z axes.
 * ``R = Rz(yaw) @ Ry(pitch) @ Rx(roll)``: the KITTI OXTS / pykitti convention (intrinsic z-y'-x'',
   equivalently extrinsic x-y-z), where
-  ``Rx(a) = [[1,0,0],[0,c,-s],[0,s,c]]``, ``Ry(a) = [[c,0,s],[0,1,0],[-s,0,c]]``, ``Rz(a) = [[c,-s,0],[s,c,0],[0,0,1]]``.
+  ``Rx(a) = [[1,0,0],[0,c,-s],[0,s,c]]``, ``Ry(a) = [[c,0,s],[0,1,0],[-s,0,c]]``,
+  ``Rz(a) = [[c,-s,0],[s,c,0],[0,0,1]]``.
 * A pose ``T_a_b`` is a 4x4 float64 homogeneous matrix that maps points from frame ``b`` into frame ``a``:
   ``p_a = T_a_b @ p_b`` (``p`` homogeneous). ``T_a_c = T_a_b @ T_b_c``.
 * Points are ``(N, 3)`` arrays (float32 for scans); batches of poses are ``(P, 4, 4)``.
@@ -48,7 +49,14 @@ def rpy_to_matrix(rpy) -> np.ndarray:
     """
     rpy = np.asarray(rpy, dtype=np.float64)
     r, p, y = rpy[..., 0], rpy[..., 1], rpy[..., 2]
-    cr, sr, cp, sp, cy, sy = np.cos(r), np.sin(r), np.cos(p), np.sin(p), np.cos(y), np.sin(y)
+    cr, sr, cp, sp, cy, sy = (
+        np.cos(r),
+        np.sin(r),
+        np.cos(p),
+        np.sin(p),
+        np.cos(y),
+        np.sin(y),
+    )
     R = np.empty(rpy.shape[:-1] + (3, 3))
     R[..., 0, 0] = cy * cp
     R[..., 0, 1] = cy * sp * sr - sy * cr

@@ -25,8 +25,11 @@ def _gpu_name() -> str | None:
         from numba import cuda
 
         if cuda.is_available():
-            return cuda.get_current_device().name.decode() if isinstance(
-                cuda.get_current_device().name, bytes) else str(cuda.get_current_device().name)
+            return (
+                cuda.get_current_device().name.decode()
+                if isinstance(cuda.get_current_device().name, bytes)
+                else str(cuda.get_current_device().name)
+            )
     except Exception:  # noqa: BLE001 - any driver problem means "no usable GPU"
         return None
     return None

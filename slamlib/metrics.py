@@ -57,7 +57,9 @@ KITTI_LENGTHS = (100.0, 200.0, 300.0, 400.0, 500.0, 600.0, 700.0, 800.0)
 def _as_poses(T, name: str) -> np.ndarray:
     T = np.asarray(T, dtype=np.float64)
     if T.ndim != 3 or T.shape[1:] not in ((4, 4), (3, 4)):
-        raise ValueError(f"{name} must be (N, 4, 4) or (N, 3, 4) poses, got shape {T.shape}")
+        raise ValueError(
+            f"{name} must be (N, 4, 4) or (N, 3, 4) poses, got shape {T.shape}"
+        )
     if T.shape[1] == 3:
         full = np.zeros((T.shape[0], 4, 4))
         full[:, :3] = T
@@ -72,12 +74,16 @@ def _as_positions(x, name: str) -> np.ndarray:
         return x[:, :3, 3]
     if x.ndim == 2 and x.shape[1] == 3:
         return x
-    raise ValueError(f"{name} must be (N, 4, 4) poses or (N, 3) positions, got shape {x.shape}")
+    raise ValueError(
+        f"{name} must be (N, 4, 4) poses or (N, 3) positions, got shape {x.shape}"
+    )
 
 
 def _same_length(a: np.ndarray, b: np.ndarray) -> None:
     if a.shape[0] != b.shape[0]:
-        raise ValueError(f"estimate has {a.shape[0]} poses but ground truth has {b.shape[0]}; associate them first")
+        raise ValueError(
+            f"estimate has {a.shape[0]} poses but ground truth has {b.shape[0]}; associate them first"
+        )
 
 
 def rotation_angle(R) -> np.ndarray:
@@ -87,7 +93,9 @@ def rotation_angle(R) -> np.ndarray:
     return np.arccos(np.clip(c, -1.0, 1.0))
 
 
-def umeyama_alignment(src, dst, with_scale: bool = False) -> tuple[np.ndarray, np.ndarray, float]:
+def umeyama_alignment(
+    src, dst, with_scale: bool = False
+) -> tuple[np.ndarray, np.ndarray, float]:
     """Least-squares ``(R, t, s)`` minimising ``sum_i |dst_i - (s R src_i + t)|^2`` (Umeyama 1991).
 
     With means ``mu_s, mu_d``, covariance ``C = (1/N) sum (dst_i - mu_d)(src_i - mu_s)^T = U D V^T`` and
@@ -98,7 +106,9 @@ def umeyama_alignment(src, dst, with_scale: bool = False) -> tuple[np.ndarray, n
     src = np.asarray(src, dtype=np.float64)
     dst = np.asarray(dst, dtype=np.float64)
     if src.shape != dst.shape or src.ndim != 2 or src.shape[1] != 3:
-        raise ValueError(f"src and dst must both be (N, 3), got {src.shape} and {dst.shape}")
+        raise ValueError(
+            f"src and dst must both be (N, 3), got {src.shape} and {dst.shape}"
+        )
     if src.shape[0] == 0:
         raise ValueError("cannot align empty trajectories")
     mu_s, mu_d = src.mean(axis=0), dst.mean(axis=0)
@@ -145,7 +155,9 @@ class ATEResult:
     scale: float = 1.0
 
 
-def absolute_trajectory_error(estimate, ground_truth, align: bool | str = False) -> ATEResult:
+def absolute_trajectory_error(
+    estimate, ground_truth, align: bool | str = False
+) -> ATEResult:
     """ATE of ``estimate`` vs ``ground_truth`` (both ``(N, 4, 4)`` poses or ``(N, 3)`` positions, row-aligned).
 
     ``align``: ``False``/``"none"`` compares positions as they are (both in the same world frame, e.g. the
@@ -157,17 +169,29 @@ def absolute_trajectory_error(estimate, ground_truth, align: bool | str = False)
     _same_length(pe, pg)
     if pe.shape[0] == 0:
         raise ValueError("empty trajectories")
-    mode = {False: "none", True: "se3"}.get(align, align) if isinstance(align, bool) else str(align).lower()
+    mode = (
+        {False: "none", True: "se3"}.get(align, align)
+        if isinstance(align, bool)
+        else str(align).lower()
+    )
     if mode == "none":
         R, t, s = np.eye(3), np.zeros(3), 1.0
     elif mode in ("se3", "sim3"):
         R, t, s = umeyama_alignment(pe, pg, with_scale=(mode == "sim3"))
     else:
-        raise ValueError(f"align must be False, True, 'none', 'se3' or 'sim3', got {align!r}")
+        raise ValueError(
+            f"align must be False, True, 'none', 'se3' or 'sim3', got {align!r}"
+        )
     e = np.linalg.norm(pg - (s * pe @ R.T + t), axis=1)
     return ATEResult(
-        rmse=float(np.sqrt(np.mean(e**2))), mean=float(e.mean()), median=float(np.median(e)), max=float(e.max()),
-        errors=e, rotation=R, translation=t, scale=float(s),
+        rmse=float(np.sqrt(np.mean(e**2))),
+        mean=float(e.mean()),
+        median=float(np.median(e)),
+        max=float(e.max()),
+        errors=e,
+        rotation=R,
+        translation=t,
+        scale=float(s),
     )
 
 
@@ -199,7 +223,9 @@ def _relative_errors(est, gt, first, last, rigid_inverse: bool = False):
     return inv(d_est) @ d_gt
 
 
-def relative_pose_error(estimate, ground_truth, delta: float = 1, unit: str = "frames") -> RPEResult:
+def relative_pose_error(
+    estimate, ground_truth, delta: float = 1, unit: str = "frames"
+) -> RPEResult:
     """RPE over pairs ``delta`` frames apart (``unit="frames"``, ``j = i + delta``) or ``delta`` metres of
     ground-truth path apart (``unit="m"``: ``j`` = first frame with ``d_j - d_i >= delta``).
 
@@ -225,14 +251,21 @@ def relative_pose_error(estimate, ground_truth, delta: float = 1, unit: str = "f
     else:
         raise ValueError(f"unit must be 'frames' or 'm', got {unit!r}")
     if first.size == 0:
-        raise ValueError(f"no pose pair {delta} {unit} apart in a trajectory of {n} poses")
+        raise ValueError(
+            f"no pose pair {delta} {unit} apart in a trajectory of {n} poses"
+        )
     E = _relative_errors(est, gt, first, last)
     te = np.linalg.norm(E[:, :3, 3], axis=1)
     re = rotation_angle(E[:, :3, :3])
     return RPEResult(
-        trans_rmse=float(np.sqrt(np.mean(te**2))), rot_rmse=float(np.sqrt(np.mean(re**2))),
-        trans_mean=float(te.mean()), rot_mean=float(re.mean()),
-        trans_errors=te, rot_errors=re, first=first, last=last,
+        trans_rmse=float(np.sqrt(np.mean(te**2))),
+        rot_rmse=float(np.sqrt(np.mean(re**2))),
+        trans_mean=float(te.mean()),
+        rot_mean=float(re.mean()),
+        trans_errors=te,
+        rot_errors=re,
+        first=first,
+        last=last,
     )
 
 
@@ -259,8 +292,13 @@ class KittiOdometryResult:
     speed: np.ndarray = field(repr=False)
 
 
-def kitti_odometry_error(estimate, ground_truth, lengths=KITTI_LENGTHS, step: int = 10,
-                         rigid_inverse: bool = False) -> KittiOdometryResult:
+def kitti_odometry_error(
+    estimate,
+    ground_truth,
+    lengths=KITTI_LENGTHS,
+    step: int = 10,
+    rigid_inverse: bool = False,
+) -> KittiOdometryResult:
     """KITTI odometry translational (%) and rotational (deg/m) error, as ``evaluate_odometry.cpp``.
 
     For each first frame ``f = 0, step, 2 step, ...`` and length ``L``: ``l`` = the first frame with
@@ -288,11 +326,15 @@ def kitti_odometry_error(estimate, ground_truth, lengths=KITTI_LENGTHS, step: in
     L = np.asarray(lengths, dtype=np.float64)
     first = np.repeat(starts, L.size)
     length = np.tile(L, starts.size)
-    last = np.searchsorted(d, d[first] + length, side="right")  # first index with d > d_f + L
+    last = np.searchsorted(
+        d, d[first] + length, side="right"
+    )  # first index with d > d_f + L
     ok = last < n
     first, last, length = first[ok], last[ok], length[ok]
     if first.size == 0:
-        raise ValueError(f"trajectory ({d[-1]:.1f} m) is shorter than the shortest segment ({L.min():g} m)")
+        raise ValueError(
+            f"trajectory ({d[-1]:.1f} m) is shorter than the shortest segment ({L.min():g} m)"
+        )
     E = _relative_errors(est, gt, first, last, rigid_inverse)
     t_err = np.linalg.norm(E[:, :3, 3], axis=1) / length
     r_err = rotation_angle(E[:, :3, :3]) / length
@@ -301,11 +343,22 @@ def kitti_odometry_error(estimate, ground_truth, lengths=KITTI_LENGTHS, step: in
     for Lk in L:
         m = length == Lk
         if m.any():
-            per_length[float(Lk)] = (float(t_err[m].mean() * 100.0), float(np.degrees(r_err[m].mean())), int(m.sum()))
+            per_length[float(Lk)] = (
+                float(t_err[m].mean() * 100.0),
+                float(np.degrees(r_err[m].mean())),
+                int(m.sum()),
+            )
     return KittiOdometryResult(
-        t_err_percent=float(t_err.mean() * 100.0), r_err_deg_per_m=float(np.degrees(r_err.mean())),
-        n_segments=int(first.size), per_length=per_length,
-        first=first, last=last, length=length, t_err=t_err, r_err=r_err, speed=speed,
+        t_err_percent=float(t_err.mean() * 100.0),
+        r_err_deg_per_m=float(np.degrees(r_err.mean())),
+        n_segments=int(first.size),
+        per_length=per_length,
+        first=first,
+        last=last,
+        length=length,
+        t_err=t_err,
+        r_err=r_err,
+        speed=speed,
     )
 
 
@@ -318,14 +371,24 @@ def trajectory_metrics(estimate, ground_truth) -> dict:
     ``kitti_r_err_deg_per_m`` and ``kitti_segments`` (:func:`kitti_odometry_error`).
     """
     ate = absolute_trajectory_error(estimate, ground_truth)
-    out = {"ate_rmse_m": ate.rmse, "ate_max_m": ate.max, "final_error_m": float(ate.errors[-1])}
+    out = {
+        "ate_rmse_m": ate.rmse,
+        "ate_max_m": ate.max,
+        "final_error_m": float(ate.errors[-1]),
+    }
     if len(ate.errors) > 10:
         rpe = relative_pose_error(estimate, ground_truth, delta=10)
-        out.update(rpe_10f_trans_rmse_m=rpe.trans_rmse, rpe_10f_rot_rmse_deg=float(np.degrees(rpe.rot_rmse)))
+        out.update(
+            rpe_10f_trans_rmse_m=rpe.trans_rmse,
+            rpe_10f_rot_rmse_deg=float(np.degrees(rpe.rot_rmse)),
+        )
     if trajectory_distances(ground_truth)[-1] > 100.0:
         k = kitti_odometry_error(estimate, ground_truth)
-        out.update(kitti_t_err_percent=k.t_err_percent, kitti_r_err_deg_per_m=k.r_err_deg_per_m,
-                   kitti_segments=k.n_segments)
+        out.update(
+            kitti_t_err_percent=k.t_err_percent,
+            kitti_r_err_deg_per_m=k.r_err_deg_per_m,
+            kitti_segments=k.n_segments,
+        )
     return out
 
 

@@ -47,8 +47,9 @@ easy as 1, 2, 3", SC 2011 (counter-based generators); Vigna, xoroshiro128+ (the 
 
 from __future__ import annotations
 
-from functools import lru_cache
-from typing import Callable, NamedTuple
+from collections.abc import Callable
+from functools import cache
+from typing import NamedTuple
 
 import numpy as np
 
@@ -183,8 +184,15 @@ def make_lut_functions(deco: Callable = _identity) -> dict:
         return normal[lut_index(thread, step, seed, k, perm, bits)]
 
     lut_draw = deco(lut_draw)
-    return {"fmix32": fmix32, "frame_key": frame_key, "thread_hash": thread_hash, "counter_hash": counter_hash,
-            "hash_index": hash_index, "lut_index": lut_index, "lut_draw": lut_draw}
+    return {
+        "fmix32": fmix32,
+        "frame_key": frame_key,
+        "thread_hash": thread_hash,
+        "counter_hash": counter_hash,
+        "hash_index": hash_index,
+        "lut_index": lut_index,
+        "lut_draw": lut_draw,
+    }
 
 
 _NP = make_lut_functions()
@@ -198,11 +206,17 @@ lut_index = _NP["lut_index"]
 def _check(tables: NoiseTables, n: int, step: int, seed: int):
     if n < 0 or step < 0 or seed < 0:
         raise ValueError(f"n, step and seed must be >= 0, got {n}, {step}, {seed}")
-    if tables.perm.shape != (N_COMPONENTS, 1 << tables.bits) or tables.normal.shape != (1 << tables.bits,):
-        raise ValueError("tables.perm must be (6, T) and tables.normal (T,) with T = 2**bits")
+    if tables.perm.shape != (N_COMPONENTS, 1 << tables.bits) or tables.normal.shape != (
+        1 << tables.bits,
+    ):
+        raise ValueError(
+            "tables.perm must be (6, T) and tables.normal (T,) with T = 2**bits"
+        )
 
 
-def lut_normal(tables: NoiseTables, n: int, step: int, seed: int, start: int = 0) -> np.ndarray:
+def lut_normal(
+    tables: NoiseTables, n: int, step: int, seed: int, start: int = 0
+) -> np.ndarray:
     """Standard-normal draws (n, 6) float32 for threads ``start .. start+n-1`` at frame ``step`` (numpy).
 
     Row ``i`` is component ``k = 0..5`` of :func:`lut_index` with ``thread = start + i``; the CUDA kernels
@@ -213,11 +227,15 @@ def lut_normal(tables: NoiseTables, n: int, step: int, seed: int, start: int = 0
     thread = np.arange(start, start + n, dtype=np.uint64)
     out = np.empty((n, N_COMPONENTS), np.float32)
     for k in range(N_COMPONENTS):
-        out[:, k] = tables.normal[lut_index(thread, step, seed, k, tables.perm, tables.bits)]
+        out[:, k] = tables.normal[
+            lut_index(thread, step, seed, k, tables.perm, tables.bits)
+        ]
     return out
 
 
-def seed_lut_normal(tables: NoiseTables, n: int, step: int = 0, seed: int = 0) -> np.ndarray:
+def seed_lut_normal(
+    tables: NoiseTables, n: int, step: int = 0, seed: int = 0
+) -> np.ndarray:
     """The seed project's variant (n, 6) float32: ``normal[perm[k, i & 0xFF]]``, the same at every ``step``.
 
     ``step`` and ``seed`` are accepted (and ignored) so the two variants can be swapped in experiments; use
@@ -225,7 +243,9 @@ def seed_lut_normal(tables: NoiseTables, n: int, step: int = 0, seed: int = 0) -
     """
     _check(tables, n, step, seed)
     if tables.bits < SEED_BITS:
-        raise ValueError("the seed variant needs tables with at least 256 entries (bits >= 8)")
+        raise ValueError(
+            "the seed variant needs tables with at least 256 entries (bits >= 8)"
+        )
     thread = np.arange(n, dtype=np.uint64)
     out = np.empty((n, N_COMPONENTS), np.float32)
     for k in range(N_COMPONENTS):
@@ -250,7 +270,7 @@ class LutNoise(NamedTuple):
 
 
 # ----------------------------------------------------------------------------------------------- Numba CPU
-@lru_cache(maxsize=None)
+@cache
 def numba_functions() -> dict:
     """The ``@njit`` builds of :func:`make_lut_functions` plus a ``prange`` ``fill`` kernel (built once: a
     compile cache of pure functions, not state)."""
@@ -277,8 +297,14 @@ def lut_normal_nb(tables: NoiseTables, n: int, step: int, seed: int) -> np.ndarr
     """:func:`lut_normal` computed by a Numba ``prange`` kernel (same values, bit for bit)."""
     _check(tables, n, step, seed)
     out = np.empty((n, N_COMPONENTS), np.float32)
-    numba_functions()["fill"](tables.normal, tables.perm, np.int64(tables.bits), np.int64(step), np.int64(seed),
-                              out)
+    numba_functions()["fill"](
+        tables.normal,
+        tables.perm,
+        np.int64(tables.bits),
+        np.int64(step),
+        np.int64(seed),
+        out,
+    )
     return out
 
 
@@ -294,8 +320,13 @@ def noise_statistics(samples: np.ndarray) -> dict:
     x = np.asarray(samples, dtype=np.float64).ravel()
     m = x.mean()
     v = x.var()
-    return {"n": int(x.size), "mean": float(m), "var": float(v),
-            "kurtosis": float(np.mean((x - m) ** 4) / v**2), "ks": float(stats.kstest(x, "norm").statistic)}
+    return {
+        "n": int(x.size),
+        "mean": float(m),
+        "var": float(v),
+        "kurtosis": float(np.mean((x - m) ** 4) / v**2),
+        "ks": float(stats.kstest(x, "norm").statistic),
+    }
 
 
 def lag_correlation(series: np.ndarray, lag: int = 1, axis: int = 0) -> float:

@@ -12,7 +12,7 @@ source (RMSE of the estimate, and how often the truth lies inside the particle c
 from __future__ import annotations
 
 import warnings
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 from numba.core.errors import NumbaWarning
@@ -38,7 +38,11 @@ def make_source(name: str, P: int, seed: int) -> Callable[[int], np.ndarray]:
         rng = np.random.default_rng(seed)
         return lambda step: rng.standard_normal(P)
     if name == "xoroshiro":
-        from numba.cuda.random import init_xoroshiro128p_states_cpu, xoroshiro128p_dtype, xoroshiro128p_normal_float32
+        from numba.cuda.random import (
+            init_xoroshiro128p_states_cpu,
+            xoroshiro128p_dtype,
+            xoroshiro128p_normal_float32,
+        )
 
         states = np.empty(P, dtype=xoroshiro128p_dtype)
         # Under the CUDA simulator these run as plain Python on numpy uint64 scalars: the seeding (splitmix64)
@@ -50,7 +54,10 @@ def make_source(name: str, P: int, seed: int) -> Callable[[int], np.ndarray]:
         def draw(step):
             with warnings.catch_warnings(), np.errstate(over="ignore"):
                 warnings.simplefilter("ignore", NumbaWarning)
-                return np.array([xoroshiro128p_normal_float32(states, i) for i in range(P)], np.float64)
+                return np.array(
+                    [xoroshiro128p_normal_float32(states, i) for i in range(P)],
+                    np.float64,
+                )
 
         return draw
     raise ValueError(f"unknown noise source {name!r}")
@@ -74,8 +81,15 @@ def source_quality(name: str, P: int = 256, steps: int = 100, seed: int = 0) -> 
     return out
 
 
-def filter_1d(source: str, P: int = 200, steps: int = 100, seed: int = 0, q: float = 0.3, r: float = 1.0,
-              u: float = 1.0) -> dict:
+def filter_1d(
+    source: str,
+    P: int = 200,
+    steps: int = 100,
+    seed: int = 0,
+    q: float = 0.3,
+    r: float = 1.0,
+    u: float = 1.0,
+) -> dict:
     """Bootstrap particle filter on a 1D random walk, with the motion noise from ``source``.
 
     Truth ``x_k = x_{k-1} + u + q w_k``, measurement ``z_k = x_k + r v_k`` (``w, v`` standard normal from a
@@ -105,11 +119,16 @@ def filter_1d(source: str, P: int = 200, steps: int = 100, seed: int = 0, q: flo
         err.append(np.sum(w * particles) / w.sum() - x_true)
         particles = particles[systematic_resample(w, rng.random())]
     err = np.asarray(err)
-    return {"rmse": float(np.sqrt(np.mean(err**2))), "coverage": float(np.mean(inside)),
-            "spread": float(np.mean(spread))}
+    return {
+        "rmse": float(np.sqrt(np.mean(err**2))),
+        "coverage": float(np.mean(inside)),
+        "spread": float(np.mean(spread)),
+    }
 
 
-def dead_reckoning_spread(source: str, P: int = 200, steps: int = 100, seed: int = 0, q: float = 0.3) -> np.ndarray:
+def dead_reckoning_spread(
+    source: str, P: int = 200, steps: int = 100, seed: int = 0, q: float = 0.3
+) -> np.ndarray:
     """Std of the particle cloud after each of ``steps`` prediction-only steps ``x_i <- x_i + q n_i`` (k,).
 
     With independent noise the cloud spreads like a random walk, ``q sqrt(k)``; with the seed project's noise

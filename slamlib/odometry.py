@@ -34,10 +34,24 @@ from scipy.spatial.transform import Rotation
 
 from slamlib.geometry import make_pose, matrix_to_rpy, rpy_to_matrix
 
-__all__ = ["imu_increment", "imu_increments", "increment_matrix", "dead_reckon", "so3_left_jacobian", "twist_between",
-           "gravity_up", "GRAVITY", "tilt_calibration_prior", "tilt_calibration_update", "tilt_calibration",
-           "heading_bin", "balance_heading_bins", "tilt_calibration_bins", "tilt_calibration_add",
-           "tilt_calibration_estimate"]
+__all__ = [
+    "imu_increment",
+    "imu_increments",
+    "increment_matrix",
+    "dead_reckon",
+    "so3_left_jacobian",
+    "twist_between",
+    "gravity_up",
+    "GRAVITY",
+    "tilt_calibration_prior",
+    "tilt_calibration_update",
+    "tilt_calibration",
+    "heading_bin",
+    "balance_heading_bins",
+    "tilt_calibration_bins",
+    "tilt_calibration_add",
+    "tilt_calibration_estimate",
+]
 
 #: Gravity (m/s^2) in the accelerometer model ``f_b = R^T (a + g e_z)`` of the generator and of :func:`gravity_up`.
 GRAVITY = 9.81
@@ -70,17 +84,27 @@ def so3_left_jacobian(phi) -> np.ndarray:
 
 def imu_increments(v_prev, w_prev, v_cur, w_cur, dt) -> tuple[np.ndarray, np.ndarray]:
     """Vectorised :func:`imu_increment`: ``v_*, w_* (..., 3)``, ``dt (...)`` -> ``rpy_delta, trans_delta (..., 3)``."""
-    v_bar = 0.5 * (np.asarray(v_prev, dtype=np.float64) + np.asarray(v_cur, dtype=np.float64))
-    w_bar = 0.5 * (np.asarray(w_prev, dtype=np.float64) + np.asarray(w_cur, dtype=np.float64))
+    v_bar = 0.5 * (
+        np.asarray(v_prev, dtype=np.float64) + np.asarray(v_cur, dtype=np.float64)
+    )
+    w_bar = 0.5 * (
+        np.asarray(w_prev, dtype=np.float64) + np.asarray(w_cur, dtype=np.float64)
+    )
     dt = np.asarray(dt, dtype=np.float64)[..., None]
     phi = w_bar * dt
-    dR = Rotation.from_rotvec(phi.reshape(-1, 3)).as_matrix().reshape(phi.shape[:-1] + (3, 3))
+    dR = (
+        Rotation.from_rotvec(phi.reshape(-1, 3))
+        .as_matrix()
+        .reshape(phi.shape[:-1] + (3, 3))
+    )
     rpy = matrix_to_rpy(dR)
     trans = np.einsum("...ij,...j->...i", so3_left_jacobian(phi), v_bar * dt)
     return rpy, trans
 
 
-def imu_increment(v_prev, w_prev, v_cur, w_cur, dt: float) -> tuple[np.ndarray, np.ndarray]:
+def imu_increment(
+    v_prev, w_prev, v_cur, w_cur, dt: float
+) -> tuple[np.ndarray, np.ndarray]:
     """Motion increment between two IMU samples (see the module docstring for the math).
 
     Parameters
@@ -142,7 +166,9 @@ def twist_between(T_a, T_b, dt: float) -> tuple[np.ndarray, np.ndarray]:
     dt = float(dt)
     if not (np.isfinite(dt) and dt > 0):
         return np.zeros(3), np.zeros(3)
-    T_rel = np.linalg.solve(np.asarray(T_a, dtype=np.float64), np.asarray(T_b, dtype=np.float64))
+    T_rel = np.linalg.solve(
+        np.asarray(T_a, dtype=np.float64), np.asarray(T_b, dtype=np.float64)
+    )
     phi = Rotation.from_matrix(T_rel[:3, :3]).as_rotvec()
     v = np.linalg.solve(so3_left_jacobian(phi), T_rel[:3, 3])
     return v / dt, phi / dt
@@ -191,7 +217,9 @@ def gravity_up(rotations, specific_force, velocity, dts) -> np.ndarray | None:
 TILT_CALIBRATION_UNKNOWNS = ("world_up_x", "world_up_y", "bias_x", "bias_y")
 
 
-def tilt_calibration_prior(sigma_world: float, sigma_bias: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def tilt_calibration_prior(
+    sigma_world: float, sigma_bias: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The tilt calibration's prior in information form ``(Lambda (4, 4), eta (4,), free (4,) bool)``: zero mean,
     standard deviations ``sigma_world`` for the world's up (rad: how far from level the first body pose, which
     defines the world, may stand) and ``sigma_bias`` for the accelerometer's bias (rad, ``b / g``). A sigma of 0
@@ -199,14 +227,18 @@ def tilt_calibration_prior(sigma_world: float, sigma_bias: float) -> tuple[np.nd
     :data:`TILT_CALIBRATION_UNKNOWNS`."""
     sig = np.repeat(np.array([sigma_world, sigma_bias], dtype=np.float64), 2)
     if not np.all(np.isfinite(sig)) or np.any(sig < 0):
-        raise ValueError(f"need finite sigma_world, sigma_bias >= 0, got {sigma_world}, {sigma_bias}")
+        raise ValueError(
+            f"need finite sigma_world, sigma_bias >= 0, got {sigma_world}, {sigma_bias}"
+        )
     free = sig > 0
     info = np.zeros(4)
     info[free] = 1.0 / sig[free] ** 2
     return np.diag(info), np.zeros(4), free
 
 
-def tilt_calibration_update(info, eta, R, up, weight: float) -> tuple[np.ndarray, np.ndarray]:
+def tilt_calibration_update(
+    info, eta, R, up, weight: float
+) -> tuple[np.ndarray, np.ndarray]:
     """Add one frame to the tilt calibration (recursive least squares, information form; returns new arrays).
 
     A measured up ``u`` (body frame, :func:`gravity_up`) of a body with rotation ``R`` (body to world) is, to
@@ -221,7 +253,9 @@ def tilt_calibration_update(info, eta, R, up, weight: float) -> tuple[np.ndarray
     ``eta += w H^T y`` with ``weight w = 1 / sigma_u^2`` times the frame's share of an independent sample.
     """
     R = np.asarray(R, dtype=np.float64)
-    H = np.column_stack([R[0], R[1], np.eye(3)[:, 0], np.eye(3)[:, 1]])  # rows of R: R^T e_x, R^T e_y
+    H = np.column_stack(
+        [R[0], R[1], np.eye(3)[:, 0], np.eye(3)[:, 1]]
+    )  # rows of R: R^T e_x, R^T e_y
     y = np.asarray(up, dtype=np.float64) - R[2]
     return info + weight * H.T @ H, eta + weight * H.T @ y
 
@@ -263,7 +297,9 @@ def balance_heading_bins(infos, etas, weights) -> tuple[np.ndarray, np.ndarray]:
         return np.zeros((4, 4)), np.zeros(4)
     scale = np.zeros_like(weights)
     scale[used] = weights.sum() / (used.sum() * weights[used])
-    return np.einsum("b,bij->ij", scale, infos), scale @ np.asarray(etas, dtype=np.float64)
+    return np.einsum("b,bij->ij", scale, infos), scale @ np.asarray(
+        etas, dtype=np.float64
+    )
 
 
 def tilt_calibration_bins(bins: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

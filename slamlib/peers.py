@@ -29,9 +29,17 @@ import numpy as np
 from slamlib.kitti.velodyne import SWEEP_PERIOD_S
 from slamlib.odometry import imu_increment, increment_matrix, twist_between
 
-__all__ = ["kiss_icp_poses", "kiss_icp_available", "move_along", "pose_time_fraction", "INSTALL_HINT"]
+__all__ = [
+    "kiss_icp_poses",
+    "kiss_icp_available",
+    "move_along",
+    "pose_time_fraction",
+    "INSTALL_HINT",
+]
 
-INSTALL_HINT = "KISS-ICP is not installed: pip install kiss-icp (or pip install -e '.[peers]')"
+INSTALL_HINT = (
+    "KISS-ICP is not installed: pip install kiss-icp (or pip install -e '.[peers]')"
+)
 
 
 def kiss_icp_available() -> bool:
@@ -50,10 +58,14 @@ def move_along(pose, motion, fraction: float) -> np.ndarray:
     :func:`~slamlib.odometry.imu_increment` with equal samples (Sola, Deray, Atchuthan, "A micro Lie theory for
     state estimation in robotics", 2018, eqs. 172-174)."""
     v, w = twist_between(np.eye(4), motion, 1.0)
-    return np.asarray(pose, dtype=np.float64) @ increment_matrix(*imu_increment(v, w, v, w, float(fraction)))
+    return np.asarray(pose, dtype=np.float64) @ increment_matrix(
+        *imu_increment(v, w, v, w, float(fraction))
+    )
 
 
-def pose_time_fraction(scan_time_offset_s: float, deskew: bool, sweep_period: float = SWEEP_PERIOD_S) -> float:
+def pose_time_fraction(
+    scan_time_offset_s: float, deskew: bool, sweep_period: float = SWEEP_PERIOD_S
+) -> float:
     """How many sweeps after KISS-ICP's pose of a scan the frame's pose is: ``(t_pose - t_kiss) / T``.
 
     ``t_kiss`` is the sweep's end with ``deskew`` (the scan stamp ``+ T / 2``), the scan's mid-sweep stamp without;
@@ -64,8 +76,13 @@ def pose_time_fraction(scan_time_offset_s: float, deskew: bool, sweep_period: fl
     return (-float(scan_time_offset_s) - t_kiss) / sweep_period
 
 
-def kiss_icp_poses(frames, T_velo_imu=None, deskew: bool = False, pose_times: bool = False,
-                   sweep_period: float = SWEEP_PERIOD_S) -> tuple[np.ndarray, np.ndarray]:
+def kiss_icp_poses(
+    frames,
+    T_velo_imu=None,
+    deskew: bool = False,
+    pose_times: bool = False,
+    sweep_period: float = SWEEP_PERIOD_S,
+) -> tuple[np.ndarray, np.ndarray]:
     """Run KISS-ICP (its default configuration) over ``frames`` (each with ``.scan`` (N, 4), Velodyne frame).
 
     ``T_velo_imu`` (4, 4): the calibration to express the poses in the body frame (default: the frames'
@@ -90,18 +107,26 @@ def kiss_icp_poses(frames, T_velo_imu=None, deskew: bool = False, pose_times: bo
     odometry = KissICP(config)
     if T_velo_imu is None:
         T_velo_imu = getattr(frames, "T_velo_imu", None)
-    T_velo_imu = np.eye(4) if T_velo_imu is None else np.asarray(T_velo_imu, dtype=np.float64)
+    T_velo_imu = (
+        np.eye(4) if T_velo_imu is None else np.asarray(T_velo_imu, dtype=np.float64)
+    )
     T_imu_velo = np.linalg.inv(T_velo_imu)
     poses, seconds = [], []
     for frame in frames:
         points = np.asarray(frame.scan[:, :3], dtype=np.float64)
-        stamps = (0.5 * (1.0 - np.arctan2(points[:, 1], points[:, 0]) / np.pi) if deskew else np.zeros(0))
+        stamps = (
+            0.5 * (1.0 - np.arctan2(points[:, 1], points[:, 0]) / np.pi)
+            if deskew
+            else np.zeros(0)
+        )
         t0 = time.perf_counter()
         odometry.register_frame(points, stamps)
         seconds.append(time.perf_counter() - t0)
         pose = odometry.last_pose
         if pose_times:
-            fraction = pose_time_fraction(getattr(frame, "scan_time_offset_s", 0.0), deskew, sweep_period)
+            fraction = pose_time_fraction(
+                getattr(frame, "scan_time_offset_s", 0.0), deskew, sweep_period
+            )
             pose = move_along(pose, odometry.last_delta, fraction)
         poses.append(T_imu_velo @ pose @ T_velo_imu)
     return np.asarray(poses).reshape(-1, 4, 4), np.asarray(seconds)

@@ -13,7 +13,13 @@ from __future__ import annotations
 import re
 import warnings
 
-__all__ = ["BOOK_DPI", "BOOK_RCPARAMS", "MAX_FIGURE_WIDTH_IN", "animation_html", "book_style"]
+__all__ = [
+    "BOOK_DPI",
+    "BOOK_RCPARAMS",
+    "MAX_FIGURE_WIDTH_IN",
+    "animation_html",
+    "book_style",
+]
 
 #: Widest figure (inches at 100 dpi) that the book's ~690 px column shows without shrinking the fonts below 10 pt.
 MAX_FIGURE_WIDTH_IN = 7.0
@@ -22,9 +28,16 @@ MAX_FIGURE_WIDTH_IN = 7.0
 BOOK_DPI = 100
 
 #: Matplotlib settings of the book's figures (points; 11 pt text, 10.5 pt ticks and legends).
-BOOK_RCPARAMS = {"figure.dpi": BOOK_DPI, "font.size": 11, "axes.titlesize": 11, "axes.labelsize": 11,
-                 "xtick.labelsize": 10.5, "ytick.labelsize": 10.5, "legend.fontsize": 10.5,
-                 "figure.titlesize": 11}
+BOOK_RCPARAMS = {
+    "figure.dpi": BOOK_DPI,
+    "font.size": 11,
+    "axes.titlesize": 11,
+    "axes.labelsize": 11,
+    "xtick.labelsize": 10.5,
+    "ytick.labelsize": 10.5,
+    "legend.fontsize": 10.5,
+    "figure.titlesize": 11,
+}
 
 
 def book_style() -> None:
@@ -32,12 +45,18 @@ def book_style() -> None:
     import matplotlib.pyplot as plt
 
     plt.rcParams.update(BOOK_RCPARAMS)
-    warnings.filterwarnings("ignore", message='Creating legend with loc="best" can be slow', category=UserWarning)
+    warnings.filterwarnings(
+        "ignore",
+        message='Creating legend with loc="best" can be slow',
+        category=UserWarning,
+    )
 
 
 #: The stylesheet link matplotlib's ``to_jshtml`` adds for its player icons (Font Awesome 4.4 from a CDN). The
 #: book's theme already ships Font Awesome 6, which draws the same icons, and a CDN request fails offline.
-_JSHTML_CDN_CSS = re.compile(r'<link rel="stylesheet"\s+href="https://[^"]*font-awesome[^"]*"\s*/?>\s*')
+_JSHTML_CDN_CSS = re.compile(
+    r'<link rel="stylesheet"\s+href="https://[^"]*font-awesome[^"]*"\s*/?>\s*'
+)
 
 
 def animation_html(anim, **kwargs) -> str:

@@ -54,20 +54,28 @@ def _check_weights(weights) -> np.ndarray:
     """
     w = np.asarray(weights, dtype=np.float64)
     if w.ndim != 1:
-        raise ValueError(f"weights must be a 1-D array of shape (P,), got shape {w.shape}")
+        raise ValueError(
+            f"weights must be a 1-D array of shape (P,), got shape {w.shape}"
+        )
     if w.size == 0:
         raise ValueError("weights is empty: need at least one particle")
     if np.isnan(w).any():
-        raise ValueError(f"weights contain NaN at index {int(np.flatnonzero(np.isnan(w))[0])}")
+        raise ValueError(
+            f"weights contain NaN at index {int(np.flatnonzero(np.isnan(w))[0])}"
+        )
     if not np.isfinite(w).all():
-        raise ValueError(f"weights contain inf at index {int(np.flatnonzero(~np.isfinite(w))[0])}; "
-                         "pass log-weights through weights_from_log_weights first")
+        raise ValueError(
+            f"weights contain inf at index {int(np.flatnonzero(~np.isfinite(w))[0])}; "
+            "pass log-weights through weights_from_log_weights first"
+        )
     if (w < 0).any():
         i = int(np.flatnonzero(w < 0)[0])
         raise ValueError(f"weights must be non-negative, got {w[i]!r} at index {i}")
     with np.errstate(over="ignore"):  # an overflowing sum is handled just below
         total = w.sum()
-    if not np.isfinite(total):  # finite weights near 1e308 overflow their sum: divide by the largest first
+    if not np.isfinite(
+        total
+    ):  # finite weights near 1e308 overflow their sum: divide by the largest first
         w = w / w.max()
         total = w.sum()
     if not total > 0:
@@ -85,7 +93,7 @@ def _cumulative(w: np.ndarray) -> np.ndarray:
     (the first ``j`` with ``u < c[j]``) is always a particle with positive weight.
     """
     c = np.cumsum(w)
-    c[np.flatnonzero(w > 0)[-1]:] = 1.0
+    c[np.flatnonzero(w > 0)[-1] :] = 1.0
     return c
 
 
@@ -96,7 +104,9 @@ def _pointers(positions: np.ndarray) -> np.ndarray:
 
 def _check_rng(rng) -> np.random.Generator:
     if not isinstance(rng, np.random.Generator):
-        raise TypeError(f"rng must be a numpy.random.Generator (np.random.default_rng(seed)), got {type(rng)!r}")
+        raise TypeError(
+            f"rng must be a numpy.random.Generator (np.random.default_rng(seed)), got {type(rng)!r}"
+        )
     return rng
 
 
@@ -183,7 +193,9 @@ def multinomial_resample(weights, rng: np.random.Generator) -> np.ndarray:
     """
     w = _check_weights(weights)
     rng = _check_rng(rng)
-    return np.searchsorted(_cumulative(w), rng.random(w.size), side="right").astype(np.int64)
+    return np.searchsorted(_cumulative(w), rng.random(w.size), side="right").astype(
+        np.int64
+    )
 
 
 def residual_resample(weights, rng: np.random.Generator) -> np.ndarray:
@@ -215,9 +227,13 @@ def residual_resample(weights, rng: np.random.Generator) -> np.ndarray:
         residual_sum = residual.sum()
         if residual_sum > 0:
             c = _cumulative(residual / residual_sum)
-            extra = np.searchsorted(c, rng.random(remaining), side="right").astype(np.int64)
+            extra = np.searchsorted(c, rng.random(remaining), side="right").astype(
+                np.int64
+            )
         else:  # round-off only: floor(P w) summed to P - tiny; fill from the weights themselves
-            extra = np.searchsorted(_cumulative(w), rng.random(remaining), side="right").astype(np.int64)
+            extra = np.searchsorted(
+                _cumulative(w), rng.random(remaining), side="right"
+            ).astype(np.int64)
         indexes = np.concatenate([indexes, extra])
     return indexes
 
@@ -246,13 +262,21 @@ def _check_log_weights(log_weights) -> np.ndarray:
     """``log_weights`` as a float64 ``(P,)`` array, or a ``ValueError`` naming what is wrong with it."""
     lw = np.asarray(log_weights, dtype=np.float64)
     if lw.ndim != 1 or lw.size == 0:
-        raise ValueError(f"log_weights must be a non-empty 1-D array of shape (P,), got shape {lw.shape}")
+        raise ValueError(
+            f"log_weights must be a non-empty 1-D array of shape (P,), got shape {lw.shape}"
+        )
     if np.isnan(lw).any():
-        raise ValueError(f"log_weights contain NaN at index {int(np.flatnonzero(np.isnan(lw))[0])}")
+        raise ValueError(
+            f"log_weights contain NaN at index {int(np.flatnonzero(np.isnan(lw))[0])}"
+        )
     if np.isposinf(lw).any():
-        raise ValueError(f"log_weights contain +inf at index {int(np.flatnonzero(np.isposinf(lw))[0])}")
+        raise ValueError(
+            f"log_weights contain +inf at index {int(np.flatnonzero(np.isposinf(lw))[0])}"
+        )
     if np.isneginf(lw.max()):
-        raise ValueError("all log_weights are -inf: every particle has zero likelihood (the filter diverged)")
+        raise ValueError(
+            "all log_weights are -inf: every particle has zero likelihood (the filter diverged)"
+        )
     return lw
 
 
@@ -281,7 +305,9 @@ def weights_from_log_weights(log_weights) -> np.ndarray:
         possible: the filter has diverged).
     """
     lw = _check_log_weights(log_weights)
-    with np.errstate(over="ignore"):  # e.g. -1e308 - 1e308 = -inf, whose exp is the right 0
+    with np.errstate(
+        over="ignore"
+    ):  # e.g. -1e308 - 1e308 = -inf, whose exp is the right 0
         w = np.exp(lw - lw.max())
     return w / w.sum()
 
@@ -303,8 +329,12 @@ def uniform_log_weights(n: int) -> np.ndarray:
     return np.full(int(n), -np.log(int(n)))
 
 
-def resample_indexes(log_weights, rng: np.random.Generator, ess_fraction: float | None = 0.5,
-                     sampler=systematic_resample) -> np.ndarray | None:
+def resample_indexes(
+    log_weights,
+    rng: np.random.Generator,
+    ess_fraction: float | None = 0.5,
+    sampler=systematic_resample,
+) -> np.ndarray | None:
     """Step 11's decision and draw, shared by every dimension: indexes of the survivors, or ``None`` (keep all).
 
     Resample when ``ess_fraction`` is ``None`` (always) or when the effective sample size
@@ -314,6 +344,9 @@ def resample_indexes(log_weights, rng: np.random.Generator, ess_fraction: float 
     backend's ``systematic_resample`` (same signature). Nothing is drawn from ``rng`` when no resampling is due.
     """
     w = weights_from_log_weights(log_weights)
-    if ess_fraction is not None and not effective_sample_size(w) < float(ess_fraction) * w.size:
+    if (
+        ess_fraction is not None
+        and not effective_sample_size(w) < float(ess_fraction) * w.size
+    ):
         return None
     return np.asarray(sampler(w, float(rng.random())), dtype=np.int64)

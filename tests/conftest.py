@@ -23,10 +23,15 @@ def street_maps():
     from slamlib.maps import MortonBVHMap, VoxelHashMap
 
     rng = np.random.default_rng(5)
-    world = np.concatenate([rng.normal(0, 3, (1500, 3)), rng.uniform(-4, 4, (1500, 3)) * [1, 1, 0.02]])
+    world = np.concatenate(
+        [rng.normal(0, 3, (1500, 3)), rng.uniform(-4, 4, (1500, 3)) * [1, 1, 0.02]]
+    )
     world = world.astype(np.float32)
     out = []
-    for m in (VoxelHashMap(voxel_size=1.0, capacity=2**12), MortonBVHMap(radius=0.5, sigma=0.2, quantum=0.01)):
+    for m in (
+        VoxelHashMap(voxel_size=1.0, capacity=2**12),
+        MortonBVHMap(radius=0.5, sigma=0.2, quantum=0.01),
+    ):
         m.merge(world)
         out.append(m.lookup())
     return world, out
@@ -48,7 +53,9 @@ def drive_dir(tmp_path):
     """A tiny KITTI raw drive written under ``tmp_path``: the path of its ``DATE_drive_XXXX_sync`` folder."""
     from slamlib.kitti.sample import make_tiny_drive
 
-    return make_tiny_drive(tmp_path, n_frames=TINY_DRIVE_FRAMES, point_stride=TINY_DRIVE_POINT_STRIDE)
+    return make_tiny_drive(
+        tmp_path, n_frames=TINY_DRIVE_FRAMES, point_stride=TINY_DRIVE_POINT_STRIDE
+    )
 
 
 @pytest.fixture
@@ -57,4 +64,6 @@ def open_drive(drive_dir):
     from slamlib.kitti import KittiRawDrive
     from slamlib.kitti.sample import SAMPLE_DATE, SAMPLE_DRIVE
 
-    return lambda **kw: KittiRawDrive(drive_dir.parent.parent, SAMPLE_DATE, SAMPLE_DRIVE, **kw)
+    return lambda **kw: KittiRawDrive(
+        drive_dir.parent.parent, SAMPLE_DATE, SAMPLE_DRIVE, **kw
+    )

@@ -12,17 +12,37 @@ from slamlib import paths
 from slamlib.cli import main
 from slamlib.commands.bench import load_benchmarks
 
-NAMES = ("kernels", "maps", "noise", "cuda", "slam3d", "synth", "peers", "transform", "particles", "scaling",
-         "lidar_only")
+NAMES = (
+    "kernels",
+    "maps",
+    "noise",
+    "cuda",
+    "slam3d",
+    "synth",
+    "peers",
+    "transform",
+    "particles",
+    "scaling",
+    "lidar_only",
+)
 
 
 def test_list_shows_every_benchmark_from_any_folder(tmp_path):
-    res = subprocess.run([sys.executable, "-m", "slamlib.cli", "bench", "--list"], cwd=tmp_path,
-                         capture_output=True, text=True, timeout=300)
+    res = subprocess.run(
+        [sys.executable, "-m", "slamlib.cli", "bench", "--list"],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert res.returncode == 0, res.stderr
     listed = [line.split()[0] for line in res.stdout.splitlines() if line.strip()]
     assert listed == list(NAMES)
-    assert all(len(line.split(maxsplit=1)) == 2 for line in res.stdout.splitlines() if line.strip())  # with HELP
+    assert all(
+        len(line.split(maxsplit=1)) == 2
+        for line in res.stdout.splitlines()
+        if line.strip()
+    )  # with HELP
 
 
 def test_benchmarks_package_is_the_one_beside_slamlib():
@@ -34,7 +54,9 @@ def test_benchmarks_package_is_the_one_beside_slamlib():
 
 
 def test_without_a_source_checkout_it_says_so_in_one_line(tmp_path, monkeypatch):
-    monkeypatch.setattr(paths, "SOURCE_ROOT", tmp_path)  # an installed slamlib: no benchmarks/ beside it
+    monkeypatch.setattr(
+        paths, "SOURCE_ROOT", tmp_path
+    )  # an installed slamlib: no benchmarks/ beside it
     with pytest.raises(SystemExit) as exc:
         main(["bench", "--list"])
     message = str(exc.value.code)
@@ -44,14 +66,20 @@ def test_without_a_source_checkout_it_says_so_in_one_line(tmp_path, monkeypatch)
 
 
 def test_unknown_benchmark_is_refused():
-    with pytest.raises(SystemExit, match="unknown benchmark 'nope'; known: kernels, maps"):
+    with pytest.raises(
+        SystemExit, match="unknown benchmark 'nope'; known: kernels, maps"
+    ):
         main(["bench", "nope"])
 
 
-def test_results_go_to_one_folder_whatever_the_current_folder(tmp_path, monkeypatch, capsys):
+def test_results_go_to_one_folder_whatever_the_current_folder(
+    tmp_path, monkeypatch, capsys
+):
     tiny = tmp_path / "mods" / "tiny_bench.py"
     tiny.parent.mkdir()
-    tiny.write_text('HELP = "a tiny benchmark"\n\ndef run(quick):\n    return {"value": 1.5, "quick_seen": quick}\n')
+    tiny.write_text(
+        'HELP = "a tiny benchmark"\n\ndef run(quick):\n    return {"value": 1.5, "quick_seen": quick}\n'
+    )
     monkeypatch.syspath_prepend(str(tiny.parent))
     monkeypatch.setitem(load_benchmarks().BENCHMARKS, "tiny", "tiny_bench")
     elsewhere = tmp_path / "elsewhere"
@@ -66,7 +94,12 @@ def test_results_go_to_one_folder_whatever_the_current_folder(tmp_path, monkeypa
 
     assert main(["bench", "tiny", "--quick"]) == 0
     d = json.loads((out / "tiny-quick.json").read_text())
-    assert d["benchmark"] == "tiny" and d["quick"] is True and d["value"] == 1.5 and d["quick_seen"] is True
+    assert (
+        d["benchmark"] == "tiny"
+        and d["quick"] is True
+        and d["value"] == 1.5
+        and d["quick_seen"] is True
+    )
     assert {"cpu", "cores", "gpu", "python", "numpy", "numba", "utc"} <= set(d["machine"])
     assert paths.load_bench_result("tiny-quick") == d
     assert paths.load_bench_result("tiny") is None
@@ -87,16 +120,25 @@ def test_the_library_never_imports_benchmarks():
     offenders = []
     for path in sorted(root.rglob("*.py")):
         for node in ast.walk(ast.parse(path.read_text(), str(path))):
-            names = ([a.name for a in node.names] if isinstance(node, ast.Import)
-                     else [node.module or ""] if isinstance(node, ast.ImportFrom) and node.level == 0 else [])
-            offenders += [f"{path}:{node.lineno}" for n in names if n.split(".")[0] == "benchmarks"]
+            names = (
+                [a.name for a in node.names]
+                if isinstance(node, ast.Import)
+                else [node.module or ""]
+                if isinstance(node, ast.ImportFrom) and node.level == 0
+                else []
+            )
+            offenders += [
+                f"{path}:{node.lineno}" for n in names if n.split(".")[0] == "benchmarks"
+            ]
     assert offenders == []
 
 
 def test_benchmarks_chapter_lists_every_benchmark():
     """notebooks/07_benchmarks.ipynb imports only slamlib, so it names the benchmarks itself: keep them in step."""
     nb = json.loads((paths.SOURCE_ROOT / "notebooks" / "07_benchmarks.ipynb").read_text())
-    source = "".join("".join(c["source"]) for c in nb["cells"] if c["cell_type"] == "code")
+    source = "".join(
+        "".join(c["source"]) for c in nb["cells"] if c["cell_type"] == "code"
+    )
     lines = source.splitlines()
     start = next(i for i, ln in enumerate(lines) if ln.startswith("BENCHMARKS = "))
     text, listed = "", None

@@ -27,7 +27,9 @@ def test_the_checker_finds_a_missing_step_a_wrong_order_and_an_extra_required_pa
     fake.merge_scan = lambda world_map, pose, points, backend: None
     problems = "\n".join(check_steps_module(fake))
     assert "step 3 read_imu is missing" in problems
-    assert "pick_best_particle: leading parameters ('log_weights', 'particles')" in problems
+    assert (
+        "pick_best_particle: leading parameters ('log_weights', 'particles')" in problems
+    )
     assert "merge_scan: extra parameters without defaults: ['backend']" in problems
 
 
@@ -43,5 +45,7 @@ def test_shared_parameters_alone_run_a_step_at_every_dimension(module):
     x = pose if module is steps1d else pose[0, 3]
     assert x == pytest.approx(1.0)  # 2 m/s for 0.5 s along x
     peaked = np.log(np.r_[1.0, np.full(7, 1e-9)])
-    out, out_log_w, resampled = module.resample_particles(moved, peaked, np.random.default_rng(0))
+    out, out_log_w, resampled = module.resample_particles(
+        moved, peaked, np.random.default_rng(0)
+    )
     assert resampled and len(out) == 8 and np.allclose(out_log_w, -np.log(8))

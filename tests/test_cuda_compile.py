@@ -21,13 +21,25 @@ def report():
 
 
 def test_every_kernel_is_launched_by_a_wrapper(report):
-    factories = {name for name, obj in vars(kc).items() if name.endswith("_kernels") and hasattr(obj, "cache_info")}
-    assert factories == set(cs.FACTORIES)  # a new per-block-size factory must be listed there
+    factories = {
+        name
+        for name, obj in vars(kc).items()
+        if name.endswith("_kernels") and hasattr(obj, "cache_info")
+    }
+    assert factories == set(
+        cs.FACTORIES
+    )  # a new per-block-size factory must be listed there
     kernels = set(cs.module_kernels(kc)) | set(cs.BLOCK_KERNELS)
     assert len(kernels) >= 12
     launched = {launch["kernel"] for launch in report["launches"]}
-    assert launched == kernels, f"kernels no wrapper launched: {sorted(kernels - launched)}"
-    sizes = {launch["threads"] for launch in report["launches"] if launch["kernel"] in cs.BLOCK_KERNELS}
+    assert launched == kernels, (
+        f"kernels no wrapper launched: {sorted(kernels - launched)}"
+    )
+    sizes = {
+        launch["threads"]
+        for launch in report["launches"]
+        if launch["kernel"] in cs.BLOCK_KERNELS
+    }
     assert sizes == set(BLOCK_SIZES)
 
 
@@ -40,14 +52,18 @@ def test_every_kernel_compiles_for_sm80_and_sm90_without_spills(report):
         if not r["ok"]:
             problems.append(f"{where} does not compile: {r['error']}")
         elif r["spill_stores_bytes"] or r["spill_loads_bytes"]:
-            problems.append(f"{where} spills registers: {r['spill_stores_bytes']} B stored, "
-                            f"{r['spill_loads_bytes']} B loaded ({r['registers']} registers)")
+            problems.append(
+                f"{where} spills registers: {r['spill_stores_bytes']} B stored, "
+                f"{r['spill_loads_bytes']} B loaded ({r['registers']} registers)"
+            )
         elif r["local_bytes"]:
             problems.append(f"{where} uses {r['local_bytes']} B of local memory")
     assert not problems, "\n".join(problems)
     for r in report["results"]:
         assert 0 < r["registers"] <= 255 and r["occupancy"]["blocks_per_sm"] >= 1
-        if r["kernel"] in cs.BLOCK_KERNELS:  # the shared float64 array of the reduction / scan
+        if (
+            r["kernel"] in cs.BLOCK_KERNELS
+        ):  # the shared float64 array of the reduction / scan
             assert r["shared_bytes"] >= 8 * r["threads"]
 
 
@@ -64,9 +80,17 @@ info    : used 255 registers, used 1 barriers, 16 stack, 1024 bytes smem, 1048 b
 
 def test_parse_ptxas_log_counts_the_spills_of_every_function():
     got = cs.parse_ptxas_log(LOG, "kern")
-    assert got == {"registers": 255, "stack_bytes": 16, "shared_bytes": 1024, "local_bytes": 0,
-                   "spill_stores_bytes": 12, "spill_loads_bytes": 16}
-    clean = LOG.replace("8 bytes spill stores, 12", "0 bytes spill stores, 0").replace("4 bytes spill", "0 bytes spill")
+    assert got == {
+        "registers": 255,
+        "stack_bytes": 16,
+        "shared_bytes": 1024,
+        "local_bytes": 0,
+        "spill_stores_bytes": 12,
+        "spill_loads_bytes": 16,
+    }
+    clean = LOG.replace("8 bytes spill stores, 12", "0 bytes spill stores, 0").replace(
+        "4 bytes spill", "0 bytes spill"
+    )
     assert cs.parse_ptxas_log(clean, "kern")["spill_stores_bytes"] == 0
     with pytest.raises(ValueError, match="no resource summary"):
         cs.parse_ptxas_log(LOG, "other")
@@ -74,16 +98,24 @@ def test_parse_ptxas_log_counts_the_spills_of_every_function():
 
 def test_occupancy_from_the_documented_limits():
     # 32 registers x 128 threads, no shared memory: 16 blocks of 4 warps fill the 64 warps
-    assert cs.occupancy(32, 0, 128, "H100") == {"blocks_per_sm": 16, "limited_by": "warps", "active_warps": 64,
-                                                 "occupancy": 1.0}
+    assert cs.occupancy(32, 0, 128, "H100") == {
+        "blocks_per_sm": 16,
+        "limited_by": "warps",
+        "active_warps": 64,
+        "occupancy": 1.0,
+    }
     # 56 registers: 56 * 32 = 1792 per warp, 65536 // 1792 = 36 warps -> 9 blocks of 4 warps
     assert cs.occupancy(56, 0, 128, "A100")["blocks_per_sm"] == 9
     assert cs.occupancy(56, 0, 128, "A100")["limited_by"] == "registers"
     # 107 registers round up to 3584 per warp: 18 warps -> 4 blocks, 16 of 64 warps
     assert cs.occupancy(107, 2048, 128, "H100")["occupancy"] == 0.25
     # 48 KB of shared memory per block: 164 KB // 49 KB = 3 blocks on an A100
-    assert cs.occupancy(16, 48 * 1024, 32, "A100") == {"blocks_per_sm": 3, "limited_by": "shared",
-                                                        "active_warps": 3, "occupancy": 3 / 64}
+    assert cs.occupancy(16, 48 * 1024, 32, "A100") == {
+        "blocks_per_sm": 3,
+        "limited_by": "shared",
+        "active_warps": 3,
+        "occupancy": 3 / 64,
+    }
     # tiny blocks: at most 32 blocks per SM
     assert cs.occupancy(16, 0, 32, "H100")["limited_by"] == "blocks"
 
@@ -91,8 +123,13 @@ def test_occupancy_from_the_documented_limits():
 def test_type_specs_round_trip():
     from numba.core import types
 
-    for t in (types.Array(types.float32, 2, "C"), types.Array(types.int64, 1, "A"), types.int64, types.float64,
-              types.boolean):
+    for t in (
+        types.Array(types.float32, 2, "C"),
+        types.Array(types.int64, 1, "A"),
+        types.int64,
+        types.float64,
+        types.boolean,
+    ):
         assert cs.spec_type(cs.type_spec(t)) == t
 
 
@@ -106,7 +143,10 @@ def test_committed_static_report_covers_every_kernel_on_both_cards():
     for gpu in cs.GPUS:
         rows = [r for r in result["rows"] if r["gpu"] == gpu]
         assert {r["kernel"] for r in rows} == kernels
-        assert all(r["ok"] and r["spill_stores_bytes"] == 0 and r["spill_loads_bytes"] == 0 for r in rows)
+        assert all(
+            r["ok"] and r["spill_stores_bytes"] == 0 and r["spill_loads_bytes"] == 0
+            for r in rows
+        )
         assert all(0 < r["occ_occupancy"] <= 1 for r in rows)
 
 
@@ -114,7 +154,20 @@ def test_bench_static_is_refused_by_benchmarks_without_it(tmp_path):
     import subprocess
     import sys
 
-    res = subprocess.run([sys.executable, "-m", "slamlib.cli", "bench", "kernels", "--static", "--out",
-                          str(tmp_path / "x.json")], capture_output=True, text=True, timeout=300)
+    res = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "slamlib.cli",
+            "bench",
+            "kernels",
+            "--static",
+            "--out",
+            str(tmp_path / "x.json"),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert res.returncode == 2 and "no --static" in res.stderr
     assert not (tmp_path / "x.json").exists()

@@ -19,8 +19,12 @@ def test_tiled_scores_equal_the_reference(street_maps, which, n, tile_points):
     P = 3
     R = geometry.rpy_to_matrix(rng.normal(0, 0.05, (P, 3)))
     t = rng.normal(0, 0.3, (P, 3))
-    pts = (world[rng.choice(len(world), n, replace=False)] + rng.normal(0, 0.05, (n, 3))).astype(np.float32)
-    got = kc.score_particles(R, t, pts, lookups[which], threads=4, layout="tiles", tile_points=tile_points)
+    pts = (
+        world[rng.choice(len(world), n, replace=False)] + rng.normal(0, 0.05, (n, 3))
+    ).astype(np.float32)
+    got = kc.score_particles(
+        R, t, pts, lookups[which], threads=4, layout="tiles", tile_points=tile_points
+    )
     want = ref.score_particles(R, t, pts, lookups[which])
     np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-9)
     blocks = kc.score_particles(R, t, pts, lookups[which], threads=4)
@@ -35,10 +39,19 @@ def test_tiled_layout_keeps_device_arrays_on_the_device(street_maps):
     R = geometry.rpy_to_matrix(rng.normal(0, 0.05, (2, 3)))
     t = rng.normal(0, 0.3, (2, 3))
     pts = world[:20]
-    dev = kc.score_particles(kc.to_device(R), kc.to_device(t), kc.to_device(pts), kc.lookup_to_device(lookups[0]),
-                             threads=4, layout="tiles", tile_points=6)
+    dev = kc.score_particles(
+        kc.to_device(R),
+        kc.to_device(t),
+        kc.to_device(pts),
+        kc.lookup_to_device(lookups[0]),
+        threads=4,
+        layout="tiles",
+        tile_points=6,
+    )
     assert kc.is_device_array(dev)
-    np.testing.assert_allclose(kc.to_host(dev), ref.score_particles(R, t, pts, lookups[0]), rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(
+        kc.to_host(dev), ref.score_particles(R, t, pts, lookups[0]), rtol=1e-9, atol=1e-9
+    )
 
 
 def test_layout_and_tile_size_are_checked(street_maps):

@@ -41,8 +41,13 @@ _LOCAL = os.environ.get("SLAMLIB_FUZZ_EXAMPLES")
 def _settings(ci_examples: int):
     """``ci_examples`` derandomised examples in CI; ``SLAMLIB_FUZZ_EXAMPLES`` random ones locally."""
     n = int(_LOCAL) if _LOCAL else ci_examples
-    return settings(max_examples=n, deadline=None, derandomize=not _LOCAL, database=None,
-                    suppress_health_check=list(HealthCheck))
+    return settings(
+        max_examples=n,
+        deadline=None,
+        derandomize=not _LOCAL,
+        database=None,
+        suppress_health_check=list(HealthCheck),
+    )
 
 
 N_FRAMES = 3
@@ -63,7 +68,9 @@ class _Copy:
         shutil.copytree(pristine, self.base)
         from slamlib.kitti.raw import drive_folder_name
 
-        self.drive = self.base / SAMPLE_DATE / drive_folder_name(SAMPLE_DATE, SAMPLE_DRIVE)
+        self.drive = (
+            self.base / SAMPLE_DATE / drive_folder_name(SAMPLE_DATE, SAMPLE_DRIVE)
+        )
 
     def __enter__(self):
         return self
@@ -73,18 +80,51 @@ class _Copy:
 
 
 # ------------------------------------------------------------------------------------------ value strategies
-ODD_NUMBERS = ["0", "-0", "-1", "nan", "NaN", "-nan", "inf", "-inf", "1e308", "-1e308", "1e400", "1e-320",
-               "99999999999999999999", "-99999999999999999999", "4294967296", "2147483648", "9223372036854775808"]
-ODD_TEXT = ["", " ", "abc", "1,5", "0x10", "1e", "-", "1.5.2", "\u00e9", "1_000", "+", "None"]
+ODD_NUMBERS = [
+    "0",
+    "-0",
+    "-1",
+    "nan",
+    "NaN",
+    "-nan",
+    "inf",
+    "-inf",
+    "1e308",
+    "-1e308",
+    "1e400",
+    "1e-320",
+    "99999999999999999999",
+    "-99999999999999999999",
+    "4294967296",
+    "2147483648",
+    "9223372036854775808",
+]
+ODD_TEXT = [
+    "",
+    " ",
+    "abc",
+    "1,5",
+    "0x10",
+    "1e",
+    "-",
+    "1.5.2",
+    "\u00e9",
+    "1_000",
+    "+",
+    "None",
+]
 
 odd_number_text = st.one_of(
     st.sampled_from(ODD_NUMBERS),
-    st.integers(-10**12, 10**12).map(str),
+    st.integers(-(10**12), 10**12).map(str),
     st.floats(allow_nan=True, allow_infinity=True).map(repr),
     st.floats(-1e6, 1e6).map(lambda x: f"{x:.6g}"),
 )
-odd_text = st.one_of(odd_number_text, st.sampled_from(ODD_TEXT),
-                     st.text(st.characters(codec="utf-8", exclude_characters="\x00"), max_size=8))
+odd_text = st.one_of(
+    odd_number_text,
+    st.sampled_from(ODD_TEXT),
+    st.text(st.characters(codec="utf-8", exclude_characters="\x00"), max_size=8),
+)
 #: ``--option=--`` is left out here: Python 3.11's argparse hands the command ``[]``, which slamlib.cli now
 #: refuses with a usage error naming the option (tests/test_fuzz_findings.py checks it).
 option_text = odd_text.filter(lambda v: v != "--")
@@ -104,7 +144,9 @@ def oxts_corruption(draw):
     frame = draw(st.integers(0, N_FRAMES - 1))
     kind = draw(st.sampled_from(["field", "drop", "extra", "empty", "garbage", "lines"]))
     if kind == "field":
-        fields = draw(st.lists(st.tuples(st.integers(0, 29), odd_text), min_size=1, max_size=3))
+        fields = draw(
+            st.lists(st.tuples(st.integers(0, 29), odd_text), min_size=1, max_size=3)
+        )
     else:
         fields = draw(st.just([]))
     extra = draw(st.integers(1, 5))
@@ -131,17 +173,33 @@ def oxts_corruption(draw):
     return f"oxts {frame} {kind} {fields or extra}", apply
 
 
-TS_FILES = {"oxts": ("oxts", "timestamps.txt"), "velo": ("velodyne_points", "timestamps.txt")}
-ODD_STAMPS = ["0001-01-01 00:00:00.000000000", "9999-12-31 23:59:59.999999999", "1969-12-31 23:59:59.000000000",
-              "2011-13-01 00:00:00.000000000", "2011-09-26 25:00:00.000000000", "2011-09-26 13:02:25",
-              "2011-09-26T13:02:25.964389445", "2011-09-26 13:02:25.9643894451234", "1e9", "",
-              "2011-09-26 13:02:nan", "2262-04-12 00:00:00.000000000", "1677-09-21 00:00:00.000000000"]
+TS_FILES = {
+    "oxts": ("oxts", "timestamps.txt"),
+    "velo": ("velodyne_points", "timestamps.txt"),
+}
+ODD_STAMPS = [
+    "0001-01-01 00:00:00.000000000",
+    "9999-12-31 23:59:59.999999999",
+    "1969-12-31 23:59:59.000000000",
+    "2011-13-01 00:00:00.000000000",
+    "2011-09-26 25:00:00.000000000",
+    "2011-09-26 13:02:25",
+    "2011-09-26T13:02:25.964389445",
+    "2011-09-26 13:02:25.9643894451234",
+    "1e9",
+    "",
+    "2011-09-26 13:02:nan",
+    "2262-04-12 00:00:00.000000000",
+    "1677-09-21 00:00:00.000000000",
+]
 
 
 @st.composite
 def timestamp_corruption(draw):
     which = draw(st.sampled_from(sorted(TS_FILES)))
-    kind = draw(st.sampled_from(["replace", "swap", "delete", "duplicate", "append", "empty"]))
+    kind = draw(
+        st.sampled_from(["replace", "swap", "delete", "duplicate", "append", "empty"])
+    )
     line = draw(st.integers(0, N_FRAMES - 1))
     value = draw(st.one_of(st.sampled_from(ODD_STAMPS), odd_text))
 
@@ -173,14 +231,18 @@ def velodyne_corruption(draw):
     kind = draw(st.sampled_from(["truncate", "extend", "empty", "values", "all"]))
     cut = draw(st.integers(0, 64))
     odd = [math.nan, math.inf, -math.inf, 3.4e38, -3.4e38, 1e30, 0.0, 1e-45]
-    values = draw(st.lists(st.tuples(st.integers(0, 10**6), st.sampled_from(odd)), min_size=1, max_size=4))
+    values = draw(
+        st.lists(
+            st.tuples(st.integers(0, 10**6), st.sampled_from(odd)), min_size=1, max_size=4
+        )
+    )
     fill = draw(st.sampled_from(odd))
 
     def apply(drive: Path) -> Path:
         path = drive / "velodyne_points" / "data" / f"{frame:010d}.bin"
         data = bytearray(path.read_bytes())
         if kind == "truncate":
-            data = data[:max(0, len(data) - 1 - cut)]
+            data = data[: max(0, len(data) - 1 - cut)]
         elif kind == "extend":
             data += bytes(1 + cut)
         elif kind == "empty":
@@ -230,25 +292,39 @@ def calib_corruption(draw):
     return f"calib {name} {kind} line {line} {value!r}", apply
 
 
-corruption = st.one_of(oxts_corruption(), timestamp_corruption(), velodyne_corruption(), calib_corruption())
+corruption = st.one_of(
+    oxts_corruption(), timestamp_corruption(), velodyne_corruption(), calib_corruption()
+)
 
 
 # ------------------------------------------------------------------------------------------ missing and unread files
 #: Files and folders of the drive (relative to the drive folder) that a user can lose, and whether the drive still reads
 #: without them. ``oxts/dataformat.txt`` (the field names) is read by neither slamlib nor pykitti, and
-#: ``velodyne_points/timestamps.txt`` is optional (scan times are informational). ``velodyne_points/timestamps_start.txt``
+#: ``velodyne_points/timestamps.txt`` is optional (scan times are informational).
+#: ``velodyne_points/timestamps_start.txt``
 #: and ``timestamps_end.txt`` are not listed: slamlib (and pykitti) never read them, so they are not fuzzed.
-REQUIRED_PATHS = (["../" + name for name in CALIBS] + ["oxts/timestamps.txt", "oxts/data", "velodyne_points/data", "oxts",
-                  "velodyne_points", "."]
-                  + [f"oxts/data/{k:010d}.txt" for k in range(N_FRAMES)]
-                  + [f"velodyne_points/data/{k:010d}.bin" for k in range(N_FRAMES)])
+REQUIRED_PATHS = (
+    ["../" + name for name in CALIBS]
+    + [
+        "oxts/timestamps.txt",
+        "oxts/data",
+        "velodyne_points/data",
+        "oxts",
+        "velodyne_points",
+        ".",
+    ]
+    + [f"oxts/data/{k:010d}.txt" for k in range(N_FRAMES)]
+    + [f"velodyne_points/data/{k:010d}.bin" for k in range(N_FRAMES)]
+)
 OPTIONAL_PATHS = ["oxts/dataformat.txt", "velodyne_points/timestamps.txt"]
 
 
 @st.composite
 def missing_file(draw):
     rel = draw(st.sampled_from(REQUIRED_PATHS + OPTIONAL_PATHS))
-    kind = draw(st.sampled_from(["delete", "folder"]))  # gone, or a folder where the file was
+    kind = draw(
+        st.sampled_from(["delete", "folder"])
+    )  # gone, or a folder where the file was
 
     def apply(drive: Path) -> Path:
         path = (drive / rel).resolve()
@@ -298,9 +374,20 @@ def _read_everything(base: Path) -> None:
 
     drive = KittiRawDrive(base, SAMPLE_DATE, SAMPLE_DRIVE)
     for frame in drive:
-        for name in ("scan", "velocity", "angular_rate", "acceleration", "T_w_imu", "T_w_velo"):
-            assert np.all(np.isfinite(getattr(frame, name))), f"non-finite {name} in frame {frame.index}"
-        assert math.isfinite(frame.dt) and frame.dt >= 0, f"dt {frame.dt} in frame {frame.index}"
+        for name in (
+            "scan",
+            "velocity",
+            "angular_rate",
+            "acceleration",
+            "T_w_imu",
+            "T_w_velo",
+        ):
+            assert np.all(np.isfinite(getattr(frame, name))), (
+                f"non-finite {name} in frame {frame.index}"
+            )
+        assert math.isfinite(frame.dt) and frame.dt >= 0, (
+            f"dt {frame.dt} in frame {frame.index}"
+        )
     assert np.all(np.isfinite(drive.ground_truth_poses())), "non-finite ground truth"
     assert np.all(np.isfinite(drive.oxts_array())), "non-finite OXTS array"
     imu = drive.imu_arrays()
@@ -326,7 +413,9 @@ def _read_case(pristine, what: str, apply, optional: bool | None = None) -> None
         try:
             _read_everything(c.base)
         except DataFormatError as exc:
-            assert optional is not True, f"{what}: the drive does not need this file, yet: {exc}"
+            assert optional is not True, (
+                f"{what}: the drive does not need this file, yet: {exc}"
+            )
             _check_data_error(exc, path, what)
             event("DataFormatError naming the file")
         except Exception as exc:  # noqa: BLE001 - the point of the test
@@ -338,7 +427,9 @@ def _read_case(pristine, what: str, apply, optional: bool | None = None) -> None
 
 @_settings(80)
 @given(corruption)
-def test_fuzz_readers_give_finite_frames_or_a_data_format_error_naming_the_file(pristine, case):
+def test_fuzz_readers_give_finite_frames_or_a_data_format_error_naming_the_file(
+    pristine, case
+):
     _read_case(pristine, *case)
 
 
@@ -349,18 +440,39 @@ def test_fuzz_readers_missing_or_unread_files_read_or_name_the_file(pristine, ca
 
 
 def _run_args(base: Path, out: Path) -> list[str]:
-    return ["run", "--basedir", str(base), "--date", SAMPLE_DATE, "--drive", SAMPLE_DRIVE, "--no-progress",
-            "--no-plots", "--particles", "8", "--points", "30", "--backend", "numpy", "--out", str(out)]
+    return [
+        "run",
+        "--basedir",
+        str(base),
+        "--date",
+        SAMPLE_DATE,
+        "--drive",
+        SAMPLE_DRIVE,
+        "--no-progress",
+        "--no-plots",
+        "--particles",
+        "8",
+        "--points",
+        "30",
+        "--backend",
+        "numpy",
+        "--out",
+        str(out),
+    ]
 
 
 def _check_outputs_finite(out: Path, what: str) -> None:
     from slamlib.kitti import read_kitti_poses
 
-    json.loads((out / "metrics.json").read_text(),
-               parse_constant=lambda c: pytest.fail(f"{what}: {c} in metrics.json"))
+    json.loads(
+        (out / "metrics.json").read_text(),
+        parse_constant=lambda c: pytest.fail(f"{what}: {c} in metrics.json"),
+    )
     for name in ("slam_poses.txt", "dead_reckoning_poses.txt"):
         if (out / name).is_file():
-            assert np.all(np.isfinite(read_kitti_poses(out / name))), f"{what}: non-finite {name}"
+            assert np.all(np.isfinite(read_kitti_poses(out / name))), (
+                f"{what}: non-finite {name}"
+            )
 
 
 def _run_case(pristine, what: str, apply, optional: bool | None = None) -> None:
@@ -375,10 +487,16 @@ def _run_case(pristine, what: str, apply, optional: bool | None = None) -> None:
             rc = main(_run_args(c.base, out))
         except SystemExit as exc:
             msg = str(exc.code)
-            assert optional is not True, f"{what}: the run does not need this file, yet: {msg!r}"
+            assert optional is not True, (
+                f"{what}: the run does not need this file, yet: {msg!r}"
+            )
             assert msg.startswith("slamlib run: "), f"{what}: {msg!r}"
-            assert path.name in msg.splitlines()[0], f"{what}: message does not name {path.name}: {msg!r}"
-            assert len(msg.splitlines()) == 1 or msg.splitlines()[1].startswith("  hint: "), f"{what}: {msg!r}"
+            assert path.name in msg.splitlines()[0], (
+                f"{what}: message does not name {path.name}: {msg!r}"
+            )
+            assert len(msg.splitlines()) == 1 or msg.splitlines()[1].startswith(
+                "  hint: "
+            ), f"{what}: {msg!r}"
             event("SystemExit naming the file")
         except Exception as exc:  # noqa: BLE001
             pytest.fail(f"{what}: foreign exception {type(exc).__name__}: {exc}")
@@ -391,13 +509,17 @@ def _run_case(pristine, what: str, apply, optional: bool | None = None) -> None:
 
 @_settings(25)
 @given(corruption)
-def test_fuzz_slamlib_run_on_corrupted_data_finishes_finite_or_names_the_file(pristine, case):
+def test_fuzz_slamlib_run_on_corrupted_data_finishes_finite_or_names_the_file(
+    pristine, case
+):
     _run_case(pristine, *case)
 
 
 @_settings(6)
 @given(unread_or_missing)
-def test_fuzz_slamlib_run_with_missing_or_unread_files_finishes_finite_or_names_the_file(pristine, case):
+def test_fuzz_slamlib_run_with_missing_or_unread_files_finishes_finite_or_names_the_file(
+    pristine, case
+):
     _run_case(pristine, *case)
 
 
@@ -411,9 +533,25 @@ def _stop(*args, **kwargs):
 
 
 OPTIONS = {
-    "run": ["--particles", "--points", "--temperature", "--refine", "--tilt-sigma", "--seed", "--noise",
-            "--frames", "--transient-span"],
-    "sim1d": ["--particles", "--frames", "--seed", "--motion-noise", "--sensor-noise", "--bias"],
+    "run": [
+        "--particles",
+        "--points",
+        "--temperature",
+        "--refine",
+        "--tilt-sigma",
+        "--seed",
+        "--noise",
+        "--frames",
+        "--transient-span",
+    ],
+    "sim1d": [
+        "--particles",
+        "--frames",
+        "--seed",
+        "--motion-noise",
+        "--sensor-noise",
+        "--bias",
+    ],
     "sim2d": ["--particles", "--laps", "--seed", "--resolution", "--beams"],
     "synth": ["--frames", "--seed", "--drive", "--columns", "--imu-noise", "--date"],
 }
@@ -422,7 +560,9 @@ OPTIONS = {
 @st.composite
 def cli_case(draw):
     command = draw(st.sampled_from(sorted(OPTIONS)))
-    names = draw(st.lists(st.sampled_from(OPTIONS[command]), min_size=1, max_size=2, unique=True))
+    names = draw(
+        st.lists(st.sampled_from(OPTIONS[command]), min_size=1, max_size=2, unique=True)
+    )
     values = [draw(option_text) for _ in names]
     return command, list(zip(names, values))
 
@@ -433,14 +573,20 @@ def _patch_long_work(monkeypatch, command: str) -> None:
     import slamlib.slam3d
     import slamlib.synth
 
-    target = {"run": (slamlib.slam3d, "run_drive"), "sim1d": (slamlib.sim1d, "simulate"),
-              "sim2d": (slamlib.sim2d, "simulate"), "synth": (slamlib.synth, "write_drive")}[command]
+    target = {
+        "run": (slamlib.slam3d, "run_drive"),
+        "sim1d": (slamlib.sim1d, "simulate"),
+        "sim2d": (slamlib.sim2d, "simulate"),
+        "synth": (slamlib.synth, "write_drive"),
+    }[command]
     monkeypatch.setattr(*target, _stop)
 
 
 @_settings(100)
 @given(case=cli_case())
-def test_fuzz_cli_options_start_or_exit_with_one_line_naming_the_option(pristine, case, capsys):
+def test_fuzz_cli_options_start_or_exit_with_one_line_naming_the_option(
+    pristine, case, capsys
+):
     from slamlib.cli import main
 
     command, options = case
@@ -448,9 +594,17 @@ def test_fuzz_cli_options_start_or_exit_with_one_line_naming_the_option(pristine
     with _Copy(pristine) as c:
         argv = _run_args(c.base, c.tmp / "out") if command == "run" else [command]
         if command == "synth":
-            argv += ["--out", str(c.tmp / "synth"), "--no-progress", "--route", "straight"]
+            argv += [
+                "--out",
+                str(c.tmp / "synth"),
+                "--no-progress",
+                "--route",
+                "straight",
+            ]
         for name, value in options:
-            argv.append(f"{name}={value}")  # '=' so that a value starting with '-' is a value
+            argv.append(
+                f"{name}={value}"
+            )  # '=' so that a value starting with '-' is a value
         capsys.readouterr()
         with pytest.MonkeyPatch.context() as mp:
             _patch_long_work(mp, command)
@@ -461,13 +615,19 @@ def test_fuzz_cli_options_start_or_exit_with_one_line_naming_the_option(pristine
                 return
             except SystemExit as exc:
                 err = capsys.readouterr().err
-                if exc.code == 2 and isinstance(exc.code, int):  # argparse: usage + the option on stderr
+                if exc.code == 2 and isinstance(
+                    exc.code, int
+                ):  # argparse: usage + the option on stderr
                     assert any(name in err for name, _ in options), f"{what}: {err!r}"
                     event(f"{command}: argparse error naming the option")
                     return
                 msg = str(exc.code)
-                assert msg.startswith(f"slamlib {command}: ") and "\n" not in msg, f"{what}: {msg!r}"
-                assert any(name in msg for name, _ in options), f"{what}: option not named: {msg!r}"
+                assert msg.startswith(f"slamlib {command}: ") and "\n" not in msg, (
+                    f"{what}: {msg!r}"
+                )
+                assert any(name in msg for name, _ in options), (
+                    f"{what}: option not named: {msg!r}"
+                )
                 event(f"{command}: SystemExit naming the option")
                 return
             except Exception as exc:  # noqa: BLE001

@@ -5,8 +5,16 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
-from slamlib.geometry import (invert_pose, make_pose, matrix_to_rpy, rot_x, rot_y, rot_z, rpy_to_matrix,
-                              transform_points)
+from slamlib.geometry import (
+    invert_pose,
+    make_pose,
+    matrix_to_rpy,
+    rot_x,
+    rot_y,
+    rot_z,
+    rpy_to_matrix,
+    transform_points,
+)
 
 angle = st.floats(-np.pi, np.pi, allow_nan=False)
 half = st.floats(-1.5, 1.5, allow_nan=False)
@@ -17,14 +25,19 @@ half = st.floats(-1.5, 1.5, allow_nan=False)
 def test_rpy_to_matrix_matches_scipy_extrinsic_xyz(r, p, y):
     expected = Rotation.from_euler("xyz", [r, p, y]).as_matrix()
     np.testing.assert_allclose(rpy_to_matrix([r, p, y]), expected, atol=1e-12)
-    np.testing.assert_allclose(rpy_to_matrix([r, p, y]), rot_z(y) @ rot_y(p) @ rot_x(r), atol=1e-12)
+    np.testing.assert_allclose(
+        rpy_to_matrix([r, p, y]), rot_z(y) @ rot_y(p) @ rot_x(r), atol=1e-12
+    )
 
 
 @given(angle, half, angle)
 @settings(max_examples=200, deadline=None)
 def test_matrix_to_rpy_round_trip(r, p, y):
-    np.testing.assert_allclose(rpy_to_matrix(matrix_to_rpy(rpy_to_matrix([r, p, y]))),
-                               rpy_to_matrix([r, p, y]), atol=1e-9)
+    np.testing.assert_allclose(
+        rpy_to_matrix(matrix_to_rpy(rpy_to_matrix([r, p, y]))),
+        rpy_to_matrix([r, p, y]),
+        atol=1e-9,
+    )
 
 
 def test_batched_rpy_to_matrix():
@@ -35,7 +48,9 @@ def test_batched_rpy_to_matrix():
     np.testing.assert_allclose(R[2, 3], rpy_to_matrix(rpy[2, 3]))
 
 
-@given(angle, half, angle, st.floats(-100, 100), st.floats(-100, 100), st.floats(-100, 100))
+@given(
+    angle, half, angle, st.floats(-100, 100), st.floats(-100, 100), st.floats(-100, 100)
+)
 @settings(max_examples=100, deadline=None)
 def test_invert_pose_and_transform(r, p, y, x, yy, z):
     T = make_pose(rpy_to_matrix([r, p, y]), [x, yy, z])
@@ -47,6 +62,7 @@ def test_invert_pose_and_transform(r, p, y, x, yy, z):
 
 # Value tests pinning the formulas (issue 15, mutation testing).
 
+
 def test_elementary_rotations_at_a_known_angle():
     a = np.pi / 6
     c, s = np.sqrt(3) / 2, 0.5
@@ -57,7 +73,10 @@ def test_elementary_rotations_at_a_known_angle():
 
 def test_matrix_to_rpy_clips_rounding_beyond_plus_minus_one():
     # R[2, 0] = -sin(pitch) one ulp beyond +-1 (rounding in a product of rotations) gives pitch -+pi/2, not NaN
-    for v, pitch in [(np.nextafter(1.0, 2.0), -np.pi / 2), (np.nextafter(-1.0, -2.0), np.pi / 2)]:
+    for v, pitch in [
+        (np.nextafter(1.0, 2.0), -np.pi / 2),
+        (np.nextafter(-1.0, -2.0), np.pi / 2),
+    ]:
         R = np.zeros((3, 3))
         R[2, 0] = v
         R[0, 0] = R[2, 2] = 1.0
@@ -80,25 +99,33 @@ def test_make_pose_and_invert_pose_values():
     np.testing.assert_array_equal(T[:3, 3], [1, 2, 3])
     Ti = invert_pose(T)
     np.testing.assert_allclose(Ti[:3, :3], R.T, atol=1e-15)
-    np.testing.assert_allclose(Ti[:3, 3], -R.T @ [1.0, 2.0, 3.0], atol=1e-15)  # (-2, 1, -3)
+    np.testing.assert_allclose(
+        Ti[:3, 3], -R.T @ [1.0, 2.0, 3.0], atol=1e-15
+    )  # (-2, 1, -3)
     np.testing.assert_array_equal(Ti[3], [0, 0, 0, 1])
     # batched: (2, 4, 4)
     Tb = make_pose(np.stack([R, R.T]), [[1.0, 0, 0], [0, 1.0, 0]])
     Tib = invert_pose(Tb)
     assert Tib.shape == (2, 4, 4)
     np.testing.assert_allclose(Tib[1], invert_pose(Tb[1]), atol=1e-15)
-    np.testing.assert_allclose(Tb @ Tib, np.broadcast_to(np.eye(4), (2, 4, 4)), atol=1e-15)
+    np.testing.assert_allclose(
+        Tb @ Tib, np.broadcast_to(np.eye(4), (2, 4, 4)), atol=1e-15
+    )
 
 
 def test_transform_points_values_and_dtype():
     T = make_pose(rot_z(np.pi / 2), [10.0, 0.0, -1.0])
     pts = np.array([[1.0, 0.0, 0.0], [0.0, 2.0, 3.0]])
     # Rz(90) maps x -> y, y -> -x
-    np.testing.assert_allclose(transform_points(T, pts), [[10.0, 1.0, -1.0], [8.0, 0.0, 2.0]], atol=1e-12)
+    np.testing.assert_allclose(
+        transform_points(T, pts), [[10.0, 1.0, -1.0], [8.0, 0.0, 2.0]], atol=1e-12
+    )
     out32 = transform_points(T, pts.astype(np.float32))
     assert out32.dtype == np.float32
     np.testing.assert_allclose(out32, [[10.0, 1.0, -1.0], [8.0, 0.0, 2.0]], atol=1e-5)
-    outi = transform_points(T, np.array([[1, 0, 0], [0, 2, 3]]))  # integer points -> float64
+    outi = transform_points(
+        T, np.array([[1, 0, 0], [0, 2, 3]])
+    )  # integer points -> float64
     assert outi.dtype == np.float64
     np.testing.assert_allclose(outi, [[10.0, 1.0, -1.0], [8.0, 0.0, 2.0]], atol=1e-12)
 
@@ -108,10 +135,16 @@ def test_float32_inputs_are_computed_in_float64():
     rpy32 = np.float32([0.3, -1.1, 2.9])
     R = rpy_to_matrix(rpy32)
     assert R.dtype == np.float64
-    np.testing.assert_allclose(R, rpy_to_matrix(rpy32.astype(np.float64)), rtol=0, atol=1e-15)
+    np.testing.assert_allclose(
+        R, rpy_to_matrix(rpy32.astype(np.float64)), rtol=0, atol=1e-15
+    )
     R32 = R.astype(np.float32)
     out = matrix_to_rpy(R32)
     assert out.dtype == np.float64
-    np.testing.assert_allclose(out, matrix_to_rpy(R32.astype(np.float64)), rtol=0, atol=1e-15)
+    np.testing.assert_allclose(
+        out, matrix_to_rpy(R32.astype(np.float64)), rtol=0, atol=1e-15
+    )
     T32 = make_pose(R, [1000.1, -2000.3, 3.7]).astype(np.float32)
-    np.testing.assert_allclose(invert_pose(T32), invert_pose(T32.astype(np.float64)), rtol=0, atol=1e-12)
+    np.testing.assert_allclose(
+        invert_pose(T32), invert_pose(T32.astype(np.float64)), rtol=0, atol=1e-12
+    )

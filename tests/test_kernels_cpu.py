@@ -42,8 +42,12 @@ finite = st.floats(-3.0, 3.0, allow_nan=False)
 
 
 @settings(max_examples=25, deadline=None)
-@given(st.integers(1, 40), st.tuples(finite, finite, finite), st.tuples(finite, finite, finite),
-       st.integers(0, 2**32 - 1))
+@given(
+    st.integers(1, 40),
+    st.tuples(finite, finite, finite),
+    st.tuples(finite, finite, finite),
+    st.integers(0, 2**32 - 1),
+)
 def test_move_particles_cpu_equals_reference(P, rpy_delta, trans_delta, seed):
     rng = np.random.default_rng(seed)
     R, t = _particles(rng, P)
@@ -54,8 +58,11 @@ def test_move_particles_cpu_equals_reference(P, rpy_delta, trans_delta, seed):
     np.testing.assert_allclose(R_cpu, R_ref, atol=1e-12)
     np.testing.assert_allclose(t_cpu, t_ref, atol=1e-10)
     # rotations stay rotations
-    np.testing.assert_allclose(np.einsum("pji,pjk->pik", R_cpu, R_cpu), np.broadcast_to(np.eye(3), R.shape),
-                               atol=1e-10)
+    np.testing.assert_allclose(
+        np.einsum("pji,pjk->pik", R_cpu, R_cpu),
+        np.broadcast_to(np.eye(3), R.shape),
+        atol=1e-10,
+    )
 
 
 def test_move_particles_is_step5_then_step6():
@@ -68,28 +75,43 @@ def test_move_particles_is_step5_then_step6():
     P = 7
     R, t = _particles(rng, P)
     rpy_delta, trans_delta = np.array([0.01, -0.03, 0.2]), np.array([1.2, 0.1, -0.05])
-    noise, sigma = rng.standard_normal((P, 6)), np.array([0.1, 0.05, 0.02, 0.01, 0.02, 0.03])
+    noise, sigma = (
+        rng.standard_normal((P, 6)),
+        np.array([0.1, 0.05, 0.02, 0.01, 0.02, 0.03]),
+    )
     dR = geometry.rpy_to_matrix(rpy_delta)
     for backend in (REF, CPU):
         R_new, t_new = backend.move_particles(R, t, rpy_delta, trans_delta, noise, sigma)
         for i in range(P):
             T = geometry.make_pose(R[i], t[i])
-            T = T @ geometry.make_pose(dR, np.zeros(3)) @ geometry.make_pose(np.eye(3), trans_delta)  # step 5
-            T = T @ geometry.make_pose(geometry.rpy_to_matrix(sigma[3:] * noise[i, 3:]),
-                                       sigma[:3] * noise[i, :3])  # step 6
-            np.testing.assert_allclose(geometry.make_pose(R_new[i], t_new[i]), T, atol=1e-12)
+            T = (
+                T
+                @ geometry.make_pose(dR, np.zeros(3))
+                @ geometry.make_pose(np.eye(3), trans_delta)
+            )  # step 5
+            T = T @ geometry.make_pose(
+                geometry.rpy_to_matrix(sigma[3:] * noise[i, 3:]), sigma[:3] * noise[i, :3]
+            )  # step 6
+            np.testing.assert_allclose(
+                geometry.make_pose(R_new[i], t_new[i]), T, atol=1e-12
+            )
             # and the formula written out
             N_i = geometry.rpy_to_matrix(sigma[3:] * noise[i, 3:])
             np.testing.assert_allclose(R_new[i], R[i] @ dR @ N_i, atol=1e-12)
-            np.testing.assert_allclose(t_new[i], t[i] + R[i] @ dR @ (trans_delta + sigma[:3] * noise[i, :3]),
-                                       atol=1e-12)
+            np.testing.assert_allclose(
+                t_new[i],
+                t[i] + R[i] @ dR @ (trans_delta + sigma[:3] * noise[i, :3]),
+                atol=1e-12,
+            )
 
 
 @settings(max_examples=20, deadline=None)
 @given(st.integers(0, 3000), st.integers(0, 2**32 - 1))
 def test_transform_points_cpu_equals_reference_and_geometry(N, seed):
     rng = np.random.default_rng(seed)
-    T = geometry.make_pose(geometry.rpy_to_matrix(rng.uniform(-3, 3, 3)), rng.normal(0, 50, 3))
+    T = geometry.make_pose(
+        geometry.rpy_to_matrix(rng.uniform(-3, 3, 3)), rng.normal(0, 50, 3)
+    )
     pts = rng.normal(0.0, 30.0, (N, 3)).astype(np.float32)
     out_cpu, out_ref = CPU.transform_points(T, pts), REF.transform_points(T, pts)
     assert out_cpu.dtype == np.float32 and out_cpu.shape == (N, 3)
@@ -98,19 +120,25 @@ def test_transform_points_cpu_equals_reference_and_geometry(N, seed):
     np.testing.assert_allclose(out_cpu, out_ref, atol=1e-4, rtol=1e-5)
 
 
-@pytest.mark.parametrize("N", [0, 1, 5, 16385, 40000])  # around and across TRANSFORM_CHUNK spans
+@pytest.mark.parametrize(
+    "N", [0, 1, 5, 16385, 40000]
+)  # around and across TRANSFORM_CHUNK spans
 def test_transform_points_out_and_in_place_equal_the_allocating_call(N):
     from slamlib.kernels import cpu
 
     rng = np.random.default_rng(N)
-    T = geometry.make_pose(geometry.rpy_to_matrix(rng.uniform(-3, 3, 3)), rng.normal(0, 50, 3))
+    T = geometry.make_pose(
+        geometry.rpy_to_matrix(rng.uniform(-3, 3, 3)), rng.normal(0, 50, 3)
+    )
     pts = rng.normal(0.0, 30.0, (N, 3)).astype(np.float32)
     keep = pts.copy()
     fresh = CPU.transform_points(T, pts)
     np.testing.assert_allclose(fresh, REF.transform_points(T, pts), atol=1e-4, rtol=1e-5)
     out = np.full_like(pts, np.nan)
     assert CPU.transform_points(T, pts, out=out) is out
-    assert np.array_equal(out, fresh) and np.array_equal(pts, keep)  # the input is untouched
+    assert np.array_equal(out, fresh) and np.array_equal(
+        pts, keep
+    )  # the input is untouched
     work = pts.copy()
     assert CPU.transform_points(T, work, out=work) is work
     assert np.array_equal(work, fresh)
@@ -126,7 +154,9 @@ def _float_slices(n):
     float offsets from a 64-byte line boundary, so every output alignment a float32 array can have is covered."""
     raw = np.full(3 * n + 64, np.nan, np.float32)
     base = (-(raw.__array_interface__["data"][0] // 4)) % 16
-    return raw, [(base + o, raw[base + o:base + o + 3 * n].reshape(n, 3)) for o in range(16)]
+    return raw, [
+        (base + o, raw[base + o : base + o + 3 * n].reshape(n, 3)) for o in range(16)
+    ]
 
 
 @pytest.mark.parametrize("N", [0, 1, 15, 16, 17, 40, 333])
@@ -137,7 +167,9 @@ def test_streaming_transform_equals_the_plain_kernel_at_every_alignment(N):
     from slamlib.kernels import cpu
 
     rng = np.random.default_rng(N)
-    T = geometry.make_pose(geometry.rpy_to_matrix(rng.uniform(-3, 3, 3)), rng.normal(0, 50, 3))
+    T = geometry.make_pose(
+        geometry.rpy_to_matrix(rng.uniform(-3, 3, 3)), rng.normal(0, 50, 3)
+    )
     R32, t32 = T[None, :3, :3].astype(np.float32), T[None, :3, 3].astype(np.float32)
     pts = rng.normal(0.0, 30.0, (N, 3)).astype(np.float32)
     want = np.empty_like(pts)
@@ -148,9 +180,11 @@ def test_streaming_transform_equals_the_plain_kernel_at_every_alignment(N):
         head = cpu._stream_head(out)
         assert (out.__array_interface__["data"][0] + 12 * head) % 64 == 0
         for chunk in (1, 2, 1000):
-            cpu._transform_stream_nb(R32, t32, pts.reshape(-1), out.reshape(-1), head, chunk)
+            cpu._transform_stream_nb(
+                R32, t32, pts.reshape(-1), out.reshape(-1), head, chunk
+            )
             assert np.array_equal(out, want), (start, chunk)
-        outside = np.r_[raw[:start], raw[start + 3 * N:]]
+        outside = np.r_[raw[:start], raw[start + 3 * N :]]
         assert np.isnan(outside).all()
 
 
@@ -161,27 +195,42 @@ def test_transform_points_streams_large_outputs_with_the_plain_results(monkeypat
     from slamlib.kernels import cpu
 
     rng = np.random.default_rng(7)
-    T = geometry.make_pose(geometry.rpy_to_matrix(rng.uniform(-3, 3, 3)), rng.normal(0, 50, 3))
+    T = geometry.make_pose(
+        geometry.rpy_to_matrix(rng.uniform(-3, 3, 3)), rng.normal(0, 50, 3)
+    )
     pts = rng.normal(0.0, 30.0, (3000, 3)).astype(np.float32)
     want = CPU.transform_points(T, pts)
     calls = []
     real = cpu._transform_stream_nb
-    monkeypatch.setattr(cpu, "_transform_stream_nb", lambda *a: (calls.append(a[4]), real(*a)))
+    monkeypatch.setattr(
+        cpu, "_transform_stream_nb", lambda *a: (calls.append(a[4]), real(*a))
+    )
     monkeypatch.setattr(cpu, "STREAM_MIN_POINTS", 1000)
     for _, out in _float_slices(len(pts))[1]:
         assert CPU.transform_points(T, pts, out=out) is out and np.array_equal(out, want)
-    assert len(calls) == 16 and sorted(set(calls)) == list(range(16))  # every head length taken
-    assert np.array_equal(CPU.transform_points(T, pts), want) and len(calls) == 16  # a fresh output: plain stores
+    assert len(calls) == 16 and sorted(set(calls)) == list(
+        range(16)
+    )  # every head length taken
+    assert (
+        np.array_equal(CPU.transform_points(T, pts), want) and len(calls) == 16
+    )  # a fresh output: plain stores
     monkeypatch.undo()
     big = rng.normal(0.0, 30.0, (cpu.STREAM_MIN_POINTS + 5, 3)).astype(np.float32)
     plain = np.empty_like(big)
-    cpu._transform_nb(T[None, :3, :3].astype(np.float32), T[None, :3, 3].astype(np.float32), big.reshape(-1),
-                      plain.reshape(-1), cpu.TRANSFORM_CHUNK)
+    cpu._transform_nb(
+        T[None, :3, :3].astype(np.float32),
+        T[None, :3, 3].astype(np.float32),
+        big.reshape(-1),
+        plain.reshape(-1),
+        cpu.TRANSFORM_CHUNK,
+    )
     assert np.array_equal(CPU.transform_points(T, big), plain)
     assert np.array_equal(CPU.transform_points(T, big, out=big), plain)
 
 
-@pytest.mark.skipif(__import__("platform").machine() not in ("x86_64", "AMD64"), reason="x86-64 mnemonics")
+@pytest.mark.skipif(
+    __import__("platform").machine() not in ("x86_64", "AMD64"), reason="x86-64 mnemonics"
+)
 def test_streaming_kernels_carry_their_memory_hints():
     """The hints survive compilation: non-temporal stores and a fence in the streaming kernel, prefetches in
     it and in the in-place kernel (LLVM would drop ``!nontemporal`` silently, e.g. on a misaligned store)."""
@@ -194,8 +243,13 @@ def test_streaming_kernels_carry_their_memory_hints():
     x, y = np.zeros(300, np.float32), np.zeros(300, np.float32)
     R, t = np.eye(3, dtype=np.float32)[None], np.zeros((1, 3), np.float32)
     asm = {}
-    head = cpu._stream_head(y)  # a wrong head would fault: non-temporal vector stores need aligned lines
-    for name, args in (("_transform_stream_nb", (R, t, x, y, head, 1)), ("_transform_inplace_nb", (R, t, x, 1))):
+    head = cpu._stream_head(
+        y
+    )  # a wrong head would fault: non-temporal vector stores need aligned lines
+    for name, args in (
+        ("_transform_stream_nb", (R, t, x, y, head, 1)),
+        ("_transform_inplace_nb", (R, t, x, 1)),
+    ):
         # compiled afresh: Numba returns no code for a kernel loaded from its on-disk cache
         fresh = njit(parallel=True, fastmath={"contract"})(getattr(cpu, name).py_func)
         fresh(*args)
@@ -225,7 +279,11 @@ def test_memory_hints_as_python_mean_what_the_compiled_hints_do():
     mh.stream_line(a, 0, src, 5)
     mh.store_fence()
     line_and_fence(b, np.uint64(0), src, np.uint64(5))
-    assert np.array_equal(a[:16], src[5:21]) and np.array_equal(b[:16], a[:16]) and np.isnan(b[16:]).all()
+    assert (
+        np.array_equal(a[:16], src[5:21])
+        and np.array_equal(b[:16], a[:16])
+        and np.isnan(b[16:]).all()
+    )
 
 
 def test_transform_points_out_is_checked():
@@ -239,7 +297,9 @@ def test_transform_points_out_is_checked():
         CPU.transform_points(np.eye(4), big[:10], out=big[1:])
 
 
-@pytest.mark.parametrize("P, bits", [(1, 4), (13, 4), (16, 4), (17, 4), (3000, 4), (3000, 12)])
+@pytest.mark.parametrize(
+    "P, bits", [(1, 4), (13, 4), (16, 4), (17, 4), (3000, 4), (3000, 12)]
+)
 def test_move_particles_with_lut_noise_is_the_same_math(P, bits):
     """LUT noise drawn inside the kernel == the same draws passed as an array (bit for bit, both with and without
     the per-call cos/sin tables: P above / below the table size 2**bits) == the reference; in place too."""
@@ -256,7 +316,9 @@ def test_move_particles_with_lut_noise_is_the_same_math(P, bits):
     R_r, t_r = REF.move_particles(R, t, *args, lut, sigma)
     np.testing.assert_allclose(R_f, R_r, atol=1e-12)
     np.testing.assert_allclose(t_f, t_r, atol=1e-10)
-    assert not np.allclose(R_f, CPU.move_particles(R, t, *args, LutNoise(lut.tables, 10, 21), sigma)[0])
+    assert not np.allclose(
+        R_f, CPU.move_particles(R, t, *args, LutNoise(lut.tables, 10, 21), sigma)[0]
+    )
     R_i, t_i = R.copy(), t.copy()
     res = CPU.move_particles(R_i, t_i, *args, lut, sigma, out=(R_i, t_i))
     assert res[0] is R_i and res[1] is t_i
@@ -289,17 +351,26 @@ def test_move_particles_soa_is_the_same_math_in_the_other_layout(P, bits):
         R_s, t_s = move_particles_soa(Rs, ts, *args, nz_soa, sigma)
         assert R_s.shape == (3, 3, P) and t_s.shape == (3, P) and R_s.dtype == np.float64
         assert np.array_equal(R_s.transpose(2, 0, 1), R_a) and np.array_equal(t_s.T, t_a)
-        R_f, t_f = move_particles_soa(Rs.astype(np.float32), ts.astype(np.float32), *args, nz_soa, sigma)
+        R_f, t_f = move_particles_soa(
+            Rs.astype(np.float32), ts.astype(np.float32), *args, nz_soa, sigma
+        )
         assert R_f.dtype == np.float32 and t_f.dtype == np.float32
         np.testing.assert_allclose(R_f.transpose(2, 0, 1), R_a, atol=3e-6)
         np.testing.assert_allclose(t_f.T, t_a, atol=3e-6 * (1 + np.abs(t_a).max()))
         R_i, t_i = Rs.copy(), ts.copy()
         res = move_particles_soa(R_i, t_i, *args, nz_soa, sigma, out=(R_i, t_i))
-        assert res[0] is R_i and res[1] is t_i and np.array_equal(R_i, R_s) and np.array_equal(t_i, t_s)
+        assert (
+            res[0] is R_i
+            and res[1] is t_i
+            and np.array_equal(R_i, R_s)
+            and np.array_equal(t_i, t_s)
+        )
     with pytest.raises(ValueError, match=r"R \(3, 3, P\) and t \(3, P\)"):
         move_particles_soa(R, t, *args, lut, sigma)
     with pytest.raises(ValueError, match=r"noise must have shape \(6, P\)"):
-        move_particles_soa(Rs, ts, *args, noise, sigma)  # (P, 6): the particle-major noise
+        move_particles_soa(
+            Rs, ts, *args, noise, sigma
+        )  # (P, 6): the particle-major noise
 
 
 def test_move_particles_soa_keeps_float64_for_mixed_or_other_types():
@@ -308,9 +379,14 @@ def test_move_particles_soa_keeps_float64_for_mixed_or_other_types():
 
     Rs = np.repeat(np.eye(3)[:, :, None], 5, axis=2)
     lut = LutNoise(make_tables(0, bits=4), 0, 0)
-    for R, t in ((Rs.astype(np.float32), np.zeros((3, 5))), (Rs, np.zeros((3, 5), np.float32)),
-                 (Rs.astype(np.float16), np.zeros((3, 5), np.float16))):
-        R_new, t_new = move_particles_soa(R, t, [0, 0, 0.1], [1, 0, 0], lut, np.full(6, 0.01))
+    for R, t in (
+        (Rs.astype(np.float32), np.zeros((3, 5))),
+        (Rs, np.zeros((3, 5), np.float32)),
+        (Rs.astype(np.float16), np.zeros((3, 5), np.float16)),
+    ):
+        R_new, t_new = move_particles_soa(
+            R, t, [0, 0, 0.1], [1, 0, 0], lut, np.full(6, 0.01)
+        )
         assert R_new.dtype == np.float64 and t_new.dtype == np.float64
         np.testing.assert_allclose(t_new[0], 1.0, atol=0.1)
 
@@ -329,12 +405,16 @@ def test_row_primitives_are_the_3x3_products():
         np.testing.assert_allclose(got[0], r @ M, rtol=1e-14, atol=1e-14)
         a, s, t0 = rng.normal(size=3), rng.normal(size=3), rng.normal()
         step = [f["row_step"](t0, *a, *s) for f in (PY, cpu._F)]
-        assert step[0] == step[1] and step[0] == pytest.approx(t0 + a @ s, rel=1e-14, abs=1e-14)
+        assert step[0] == step[1] and step[0] == pytest.approx(
+            t0 + a @ s, rel=1e-14, abs=1e-14
+        )
         ang = rng.uniform(-np.pi, np.pi, 3)
         cs = [v for x in ang for v in (np.cos(x), np.sin(x))]
         n = [f["rpy_rotation_cs"](*cs) for f in (PY, cpu._F)]
         assert n[0] == n[1]
-        np.testing.assert_allclose(np.reshape(n[0], (3, 3)), geometry.rpy_to_matrix(ang), atol=1e-15)
+        np.testing.assert_allclose(
+            np.reshape(n[0], (3, 3)), geometry.rpy_to_matrix(ang), atol=1e-15
+        )
 
 
 def test_transform_points_rejects_bad_shapes():
@@ -358,8 +438,11 @@ def _box_world(rng, n=6000):
 
 def _maps(rng):
     world = _box_world(rng)
-    maps = [VoxelHashMap(voxel_size=0.4, capacity=2**14), MortonBVHMap(radius=0.3, dedup_level=2),
-            MortonBVHMap(radius=1.0, sigma=0.3, quantum=0.02, dedup_level=0)]
+    maps = [
+        VoxelHashMap(voxel_size=0.4, capacity=2**14),
+        MortonBVHMap(radius=0.3, dedup_level=2),
+        MortonBVHMap(radius=1.0, sigma=0.3, quantum=0.02, dedup_level=0),
+    ]
     for m in maps:
         m.merge(world)
     return maps
@@ -372,7 +455,9 @@ def test_score_particles_cpu_equals_reference(P, N, seed):
     maps = _maps(rng)
     R, t = _particles(rng, P, spread=0.1)
     t *= 0.1
-    pts = rng.uniform(-7, 7, (N, 3)).astype(np.float32)  # many near surfaces, some outside the map
+    pts = rng.uniform(-7, 7, (N, 3)).astype(
+        np.float32
+    )  # many near surfaces, some outside the map
     for m in maps:
         lk = m.lookup()
         ref = REF.score_particles(R, t, pts, lk)
@@ -388,7 +473,9 @@ def test_score_particles_empty_map_and_far_points():
     for m in (VoxelHashMap(capacity=64, m_max=9.0), MortonBVHMap(radius=0.5, sigma=0.25)):
         floor = -0.5 * 9.0 if isinstance(m, VoxelHashMap) else -0.5 * 0.5**2 / 0.25**2
         for backend in (REF, CPU):
-            np.testing.assert_allclose(backend.score_particles(R, t, pts, m.lookup()), 50 * floor)
+            np.testing.assert_allclose(
+                backend.score_particles(R, t, pts, m.lookup()), 50 * floor
+            )
         m.merge(pts)  # now the identity pose hits every point exactly
         I, z = np.eye(3)[None], np.zeros((1, 3))
         for backend in (REF, CPU):
@@ -415,7 +502,10 @@ def test_score_particles_is_exact_nearest_neighbour_for_morton():
 
 
 @settings(max_examples=40, deadline=None)
-@given(st.lists(st.floats(0.0, 10.0, allow_nan=False), min_size=1, max_size=300), st.floats(0.0, 0.999999))
+@given(
+    st.lists(st.floats(0.0, 10.0, allow_nan=False), min_size=1, max_size=300),
+    st.floats(0.0, 0.999999),
+)
 def test_systematic_resample_cpu_equals_reference(w, u0):
     w = np.asarray(w)
     if not w.sum() > 0:
@@ -428,7 +518,9 @@ def test_systematic_resample_cpu_equals_reference(w, u0):
     assert np.all(w[cpu] > 0)  # zero-weight particles are never drawn
     counts = np.bincount(cpu, minlength=len(w))
     expected = len(w) * w / w.sum()
-    assert np.all(counts >= np.floor(expected - 1e-9)) and np.all(counts <= np.ceil(expected + 1e-9))
+    assert np.all(counts >= np.floor(expected - 1e-9)) and np.all(
+        counts <= np.ceil(expected + 1e-9)
+    )
 
 
 def test_systematic_resample_by_definition():
@@ -442,7 +534,9 @@ def test_systematic_resample_by_definition():
             j += 1
         want.append(j)
     np.testing.assert_array_equal(CPU.systematic_resample(w, u0), want)
-    np.testing.assert_array_equal(REF.systematic_resample(w * 7.0, u0), want)  # scale does not matter
+    np.testing.assert_array_equal(
+        REF.systematic_resample(w * 7.0, u0), want
+    )  # scale does not matter
 
 
 def test_systematic_resample_matches_slamlib_resampling_when_present():
@@ -482,22 +576,45 @@ def test_voxel_scores_are_the_sum_of_voxel_term_bit_for_bit():
     lk = vmap.lookup()
     R, t = _particles(rng, 70, spread=0.05)
     t = t * 0.2
-    pts = np.vstack([rng.uniform(-6, 6, (150, 3)), [[np.nan, 0, 0], [1e9, 0, 0]]]).astype(np.float32)
+    pts = np.vstack([rng.uniform(-6, 6, (150, 3)), [[np.nan, 0, 0], [1e9, 0, 0]]]).astype(
+        np.float32
+    )
     far = VoxelHashMap(voxel_size=0.001, capacity=16, min_sigma=0.001)
     corner = np.float32(-(2**20) * 0.001 + 0.0004)
-    far.merge(np.array([[corner, corner, corner], [corner + 0.0001, corner, corner]], np.float32))
-    cases = [(R, t, pts, lk), (np.eye(3)[None].repeat(3, 0), np.zeros((3, 3)) + [[0, 0, 0], [2e-4, 0, 0], [0, 1e-4, 0]],
-                               np.array([[corner, corner, corner]], np.float32), far.lookup())]
+    far.merge(
+        np.array(
+            [[corner, corner, corner], [corner + 0.0001, corner, corner]], np.float32
+        )
+    )
+    cases = [
+        (R, t, pts, lk),
+        (
+            np.eye(3)[None].repeat(3, 0),
+            np.zeros((3, 3)) + [[0, 0, 0], [2e-4, 0, 0], [0, 1e-4, 0]],
+            np.array([[corner, corner, corner]], np.float32),
+            far.lookup(),
+        ),
+    ]
     for R_, t_, p_, lk_ in cases:
         got = CPU.score_particles(R_, t_, p_, lk_)
         for i in range(len(R_)):
             total = 0.0
             for c in range(0, len(p_), cpu.POINT_CHUNK):
                 acc = 0.0
-                for x, y, z in p_[c:c + cpu.POINT_CHUNK].astype(np.float64):
+                for x, y, z in p_[c : c + cpu.POINT_CHUNK].astype(np.float64):
                     wx, wy, wz = PY["world_point"](R_, t_, i, x, y, z)
-                    acc += PY["voxel_term"](wx, wy, wz, lk_.keys, lk_.mean, lk_.icov, lk_.inv_voxel_size,
-                                            lk_.log2_capacity, lk_.max_probe, lk_.m_max)
+                    acc += PY["voxel_term"](
+                        wx,
+                        wy,
+                        wz,
+                        lk_.keys,
+                        lk_.mean,
+                        lk_.icov,
+                        lk_.inv_voxel_size,
+                        lk_.log2_capacity,
+                        lk_.max_probe,
+                        lk_.m_max,
+                    )
                 total += acc
             assert got[i] == total, (i, got[i], total)
 
@@ -512,17 +629,49 @@ def test_shared_point_math_python_and_numba_builds_agree_bit_for_bit():
     rng = np.random.default_rng(21)
     vmap, mmap = _maps(rng)[:2]
     vl, ml = vmap.lookup(), mmap.lookup()
-    pts = np.vstack([rng.uniform(-7, 7, (150, 3)), [[np.nan, 0.0, 0.0], [1e9, 0.0, 0.0], [0.0, -1e7, 3.0]]])
+    pts = np.vstack(
+        [
+            rng.uniform(-7, 7, (150, 3)),
+            [[np.nan, 0.0, 0.0], [1e9, 0.0, 0.0], [0.0, -1e7, 3.0]],
+        ]
+    )
     r2 = ml.radius**2
     brute = mmap.points().astype(np.float64)
     for wx, wy, wz in pts:
-        v = [f["voxel_term"](wx, wy, wz, vl.keys, vl.mean, vl.icov, vl.inv_voxel_size, vl.log2_capacity,
-                             vl.max_probe, vl.m_max) for f in (PY, NB)]
+        v = [
+            f["voxel_term"](
+                wx,
+                wy,
+                wz,
+                vl.keys,
+                vl.mean,
+                vl.icov,
+                vl.inv_voxel_size,
+                vl.log2_capacity,
+                vl.max_probe,
+                vl.m_max,
+            )
+            for f in (PY, NB)
+        ]
         assert v[0] == v[1]
-        d = [f["morton_d2"](wx, wy, wz, ml.points, ml.cell_codes, ml.cell_start, ml.quantum, ml.cell_level, r2)
-             for f in (PY, NB)]
+        d = [
+            f["morton_d2"](
+                wx,
+                wy,
+                wz,
+                ml.points,
+                ml.cell_codes,
+                ml.cell_start,
+                ml.quantum,
+                ml.cell_level,
+                r2,
+            )
+            for f in (PY, NB)
+        ]
         assert d[0] == d[1]
-        if np.isfinite(wx):  # the documented query is the exact truncated nearest neighbour
+        if np.isfinite(
+            wx
+        ):  # the documented query is the exact truncated nearest neighbour
             want = min(np.min(np.sum((brute - [wx, wy, wz]) ** 2, axis=1)), r2)
             np.testing.assert_allclose(d[0], want, rtol=1e-12)
         c = [f["cell_block"](wx, wy, wz, ml.quantum, ml.cell_level) for f in (PY, NB)]
@@ -530,10 +679,16 @@ def test_shared_point_math_python_and_numba_builds_agree_bit_for_bit():
     R, t = _particles(rng, 3)
     for i in range(3):
         for x, y, z in pts[:20]:
-            assert PY["world_point"](R, t, i, x, y, z) == NB["world_point"](R, t, i, x, y, z)
+            assert PY["world_point"](R, t, i, x, y, z) == NB["world_point"](
+                R, t, i, x, y, z
+            )
     out = [np.empty((3, 3)), np.empty((3, 3))]
     for r, p, y in rng.uniform(-np.pi, np.pi, (20, 3)):
         for f, o in zip((PY, NB), out):
             f["rpy_matrix"](r, p, y, o)
-        np.testing.assert_allclose(out[0], out[1], rtol=0, atol=1e-15)  # libm sin/cos on both sides
-        np.testing.assert_allclose(out[0], geometry.rpy_to_matrix(np.array([r, p, y])), atol=1e-15)
+        np.testing.assert_allclose(
+            out[0], out[1], rtol=0, atol=1e-15
+        )  # libm sin/cos on both sides
+        np.testing.assert_allclose(
+            out[0], geometry.rpy_to_matrix(np.array([r, p, y])), atol=1e-15
+        )

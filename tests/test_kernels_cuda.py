@@ -30,7 +30,9 @@ def test_move_particles_equals_reference_with_passed_noise():
     rng = np.random.default_rng(1)
     R, t = _particles(rng, 70)
     noise = rng.standard_normal((70, 6))
-    got = kc.move_particles(R, t, [0.1, -0.05, 0.2], [1.0, 0.2, 0.01], noise, SIGMA, threads=32)
+    got = kc.move_particles(
+        R, t, [0.1, -0.05, 0.2], [1.0, 0.2, 0.01], noise, SIGMA, threads=32
+    )
     want = ref.move_particles(R, t, [0.1, -0.05, 0.2], [1.0, 0.2, 0.01], noise, SIGMA)
     np.testing.assert_allclose(got[0], want[0], rtol=0, atol=1e-12)
     np.testing.assert_allclose(got[1], want[1], rtol=0, atol=1e-12)
@@ -43,12 +45,18 @@ def test_move_particles_with_device_lut_noise_equals_reference_with_host_draws()
     R, t = _particles(rng, 40)
     lut = N.LutNoise(N.make_tables(seed=5), step=3, seed=9)
     got = kc.move_particles(R, t, [0.0, 0.01, -0.1], [0.5, 0.0, 0.0], lut, SIGMA)
-    want = ref.move_particles(R, t, [0.0, 0.01, -0.1], [0.5, 0.0, 0.0], lut.draw(40), SIGMA)
+    want = ref.move_particles(
+        R, t, [0.0, 0.01, -0.1], [0.5, 0.0, 0.0], lut.draw(40), SIGMA
+    )
     np.testing.assert_allclose(got[0], want[0], atol=1e-12)
     np.testing.assert_allclose(got[1], want[1], atol=1e-12)
-    other = kc.move_particles(R, t, [0.0, 0.01, -0.1], [0.5, 0.0, 0.0], lut._replace(step=4), SIGMA)
+    other = kc.move_particles(
+        R, t, [0.0, 0.01, -0.1], [0.5, 0.0, 0.0], lut._replace(step=4), SIGMA
+    )
     assert not np.allclose(other[1], got[1])  # the next frame draws new noise
-    on_device = lut._replace(tables=kc.tables_to_device(lut.tables))  # tables uploaded once
+    on_device = lut._replace(
+        tables=kc.tables_to_device(lut.tables)
+    )  # tables uploaded once
     again = kc.move_particles(R, t, [0.0, 0.01, -0.1], [0.5, 0.0, 0.0], on_device, SIGMA)
     np.testing.assert_array_equal(again[1], got[1])
 
@@ -57,7 +65,14 @@ def test_device_arrays_stay_on_device():
     rng = np.random.default_rng(3)
     R, t = _particles(rng, 16)
     noise = rng.standard_normal((16, 6))
-    R_d, t_d = kc.move_particles(kc.to_device(R), kc.to_device(t), [0, 0, 0.1], [1, 0, 0], kc.to_device(noise), SIGMA)
+    R_d, t_d = kc.move_particles(
+        kc.to_device(R),
+        kc.to_device(t),
+        [0, 0, 0.1],
+        [1, 0, 0],
+        kc.to_device(noise),
+        SIGMA,
+    )
     assert kc.is_device_array(R_d) and kc.is_device_array(t_d)
     want = ref.move_particles(R, t, [0, 0, 0.1], [1, 0, 0], noise, SIGMA)
     np.testing.assert_allclose(kc.to_host(R_d), want[0], atol=1e-12)
@@ -71,13 +86,17 @@ def test_transform_points_grid_stride():
     R, t = _particles(rng, 1)
     T = geometry.make_pose(R[0], t[0])
     pts = rng.normal(0, 20, (300, 3)).astype(np.float32)
-    got = kc.transform_points(T, pts, threads=16, max_blocks=3)  # 48 threads, ~6 points each
+    got = kc.transform_points(
+        T, pts, threads=16, max_blocks=3
+    )  # 48 threads, ~6 points each
     assert got.dtype == np.float32 and got.shape == pts.shape
     np.testing.assert_allclose(got, ref.transform_points(T, pts), rtol=1e-6, atol=2e-5)
     dev = kc.transform_points(T, kc.to_device(pts))
     assert kc.is_device_array(dev)
     np.testing.assert_allclose(kc.to_host(dev), got, atol=1e-5)
-    host_out = np.full_like(pts, np.nan)  # out= on the host, on the device, and in place on the device
+    host_out = np.full_like(
+        pts, np.nan
+    )  # out= on the host, on the device, and in place on the device
     assert kc.transform_points(T, pts, out=host_out, threads=16, max_blocks=3) is host_out
     assert np.array_equal(host_out, got)
     d = kc.to_device(pts)
@@ -95,14 +114,23 @@ def test_score_particles_equals_reference_and_cpu(street_maps, which):
     P = 5
     R = geometry.rpy_to_matrix(rng.normal(0, 0.05, (P, 3)))
     t = rng.normal(0, 0.3, (P, 3))
-    pts = world[rng.choice(len(world), 100, replace=False)] + rng.normal(0, 0.05, (100, 3)).astype(np.float32)
+    pts = world[rng.choice(len(world), 100, replace=False)] + rng.normal(
+        0, 0.05, (100, 3)
+    ).astype(np.float32)
     got = kc.score_particles(R, t, pts, lookup, threads=32)
     want = ref.score_particles(R, t, pts, lookup)
     np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-9)
-    np.testing.assert_allclose(got, cpu.score_particles(R, t, pts, lookup), rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(
+        got, cpu.score_particles(R, t, pts, lookup), rtol=1e-9, atol=1e-9
+    )
     assert np.ptp(got) > 1.0  # the particles are told apart
-    dev = kc.score_particles(kc.to_device(R), kc.to_device(t), kc.to_device(pts), kc.lookup_to_device(lookup),
-                             threads=16)
+    dev = kc.score_particles(
+        kc.to_device(R),
+        kc.to_device(t),
+        kc.to_device(pts),
+        kc.lookup_to_device(lookup),
+        threads=16,
+    )
     np.testing.assert_allclose(kc.to_host(dev), want, rtol=1e-9, atol=1e-9)
 
 
@@ -114,7 +142,11 @@ def test_score_particles_uploads_the_map_once_per_version(monkeypatch, kind):
 
     rng = np.random.default_rng(12)
     world = rng.normal(0, 2, (600, 3)).astype(np.float32)
-    m = VoxelHashMap(voxel_size=1.0, capacity=2**10) if kind == "voxel_hash" else MortonBVHMap(radius=0.5)
+    m = (
+        VoxelHashMap(voxel_size=1.0, capacity=2**10)
+        if kind == "voxel_hash"
+        else MortonBVHMap(radius=0.5)
+    )
     m.merge(world)
     R, t = _particles(rng, 2)
     t *= 0.02
@@ -148,17 +180,23 @@ def test_score_particles_uploads_the_map_once_per_version(monkeypatch, kind):
     uploaded.clear()
     got = kc.score_particles(R, t, pts, lk2, threads=8)
     assert map_uploads(lk2) == n_arrays
-    np.testing.assert_allclose(got, ref.score_particles(R, t, pts, lk2), rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(
+        got, ref.score_particles(R, t, pts, lk2), rtol=1e-9, atol=1e-9
+    )
     assert not np.allclose(got, first)
     uploaded.clear()
-    kc.score_particles(R, t, pts, lk2._replace(version=0), threads=8)  # no version: uploaded, not kept
+    kc.score_particles(
+        R, t, pts, lk2._replace(version=0), threads=8
+    )  # no version: uploaded, not kept
     kc.score_particles(R, t, pts, lk2._replace(version=0), threads=8)
     assert map_uploads(lk2) == 2 * n_arrays
 
 
 def test_inclusive_scan_multi_level():
     x = np.random.default_rng(7).random(150)
-    got = kc.inclusive_scan(x, threads=8).copy_to_host()  # 19 blocks -> 3 -> 1: two levels of recursion
+    got = kc.inclusive_scan(
+        x, threads=8
+    ).copy_to_host()  # 19 blocks -> 3 -> 1: two levels of recursion
     np.testing.assert_allclose(got, np.cumsum(x), rtol=1e-12)
 
 
@@ -170,7 +208,9 @@ def test_systematic_resample_equals_reference(P, threads):
     if w.sum() == 0:
         w[0] = 1.0
     for u0 in (0.0, 0.37, 0.999):
-        np.testing.assert_array_equal(kc.systematic_resample(w, u0, threads=threads), ref.systematic_resample(w, u0))
+        np.testing.assert_array_equal(
+            kc.systematic_resample(w, u0, threads=threads), ref.systematic_resample(w, u0)
+        )
 
 
 def test_systematic_resample_rejects_bad_input():
@@ -184,9 +224,13 @@ def test_get_backend_cuda_in_simulator():
     b = get_backend("cuda")
     assert b.name == "cuda" and b.score_particles is kc.score_particles
     w = np.array([0.0, 1.0, 0.0, 3.0])
-    np.testing.assert_array_equal(b.systematic_resample(w, 0.2), ref.systematic_resample(w, 0.2))
+    np.testing.assert_array_equal(
+        b.systematic_resample(w, 0.2), ref.systematic_resample(w, 0.2)
+    )
     # launch sizes are keywords of the module functions
-    np.testing.assert_array_equal(kc.systematic_resample(w, 0.2, threads=32), ref.systematic_resample(w, 0.2))
+    np.testing.assert_array_equal(
+        kc.systematic_resample(w, 0.2, threads=32), ref.systematic_resample(w, 0.2)
+    )
 
 
 def test_no_gpu_gives_backend_unavailable_error_with_the_fix():
@@ -208,7 +252,9 @@ def test_no_gpu_gives_backend_unavailable_error_with_the_fix():
                 print("NO ERROR")
     """)
     env = {k: v for k, v in os.environ.items() if k != "NUMBA_ENABLE_CUDASIM"}
-    res = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120)
+    res = subprocess.run(
+        [sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120
+    )
     if "HAS_GPU" in res.stdout:
         pytest.skip("this machine has a GPU")
     assert res.returncode == 0, res.stderr
@@ -222,21 +268,42 @@ def test_no_gpu_gives_backend_unavailable_error_with_the_fix():
 
 def test_bench_cuda_refuses_without_gpu_and_runs_in_simulator_when_asked():
     from slamlib.commands.bench import load_benchmark
+
     bench_cuda = load_benchmark("cuda")  # benchmarks/cuda.py of this checkout
 
     with pytest.raises(SystemExit, match="no GPU"):
         bench_cuda.run(quick=True)  # the simulator is on in the tests: no timings
-    d = bench_cuda.run(allow_simulator=True, sizes={"P": [2], "N": [20], "points": [50], "resample": [10],
-                                                    "map": 500})
+    d = bench_cuda.run(
+        allow_simulator=True,
+        sizes={"P": [2], "N": [20], "points": [50], "resample": [10], "map": 500},
+    )
     assert d["simulator"] is True
-    assert {r["kernel"] for r in d["rows"]} == {"move_particles", "lut_noise_fill", "transform_points",
-                                                "score_particles", "systematic_resample"}
+    assert {r["kernel"] for r in d["rows"]} == {
+        "move_particles",
+        "lut_noise_fill",
+        "transform_points",
+        "score_particles",
+        "systematic_resample",
+    }
 
 
 def test_bench_cuda_cli_exits_non_zero_without_gpu(tmp_path):
     env = {k: v for k, v in os.environ.items() if k != "NUMBA_ENABLE_CUDASIM"}
-    res = subprocess.run([sys.executable, "-m", "slamlib.cli", "bench", "cuda", "--out", str(tmp_path / "c.json")],
-                         env=env, capture_output=True, text=True, timeout=120)
+    res = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "slamlib.cli",
+            "bench",
+            "cuda",
+            "--out",
+            str(tmp_path / "c.json"),
+        ],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     if res.returncode == 0:
         pytest.skip("this machine has a GPU")
     assert "no GPU" in res.stderr and "numba-cuda[cu12]" in res.stderr
@@ -244,8 +311,12 @@ def test_bench_cuda_cli_exits_non_zero_without_gpu(tmp_path):
 
 
 @settings(max_examples=10, deadline=None)
-@given(w=st.lists(st.floats(0.0, 10.0), min_size=1, max_size=40).filter(lambda v: sum(v) > 1e-3),
-       u0=st.floats(0.0, 0.999999))
+@given(
+    w=st.lists(st.floats(0.0, 10.0), min_size=1, max_size=40).filter(
+        lambda v: sum(v) > 1e-3
+    ),
+    u0=st.floats(0.0, 0.999999),
+)
 def test_systematic_resample_copy_counts(w, u0):
     """Systematic resampling copies particle j either floor(P w_j) or floor(P w_j) + 1 times (w normalised)."""
     w = np.asarray(w)
@@ -254,19 +325,30 @@ def test_systematic_resample_copy_counts(w, u0):
     counts = np.bincount(idx, minlength=P)
     expected = P * w / w.sum()
     assert counts.sum() == P and np.all(np.diff(idx) >= 0)
-    assert np.all(counts >= np.floor(expected - 1e-9)) and np.all(counts <= np.floor(expected + 1e-9) + 1)
+    assert np.all(counts >= np.floor(expected - 1e-9)) and np.all(
+        counts <= np.floor(expected + 1e-9) + 1
+    )
     assert np.all(counts[w == 0] == 0)
 
 
 @settings(max_examples=10, deadline=None)
-@given(rpy=st.lists(st.floats(-3.1, 3.1), min_size=3, max_size=3),
-       sig=st.lists(st.floats(0.0, 0.5), min_size=6, max_size=6), step=st.integers(0, 2**31))
+@given(
+    rpy=st.lists(st.floats(-3.1, 3.1), min_size=3, max_size=3),
+    sig=st.lists(st.floats(0.0, 0.5), min_size=6, max_size=6),
+    step=st.integers(0, 2**31),
+)
 def test_move_particles_keeps_rotations_orthonormal(rpy, sig, step):
     rng = np.random.default_rng(step % 1000)
     R, t = _particles(rng, 8)
     lut = N.LutNoise(N.make_tables(seed=0, bits=8), step=step, seed=1)
-    R_new, t_new = kc.move_particles(R, t, rpy, [0.3, -0.1, 0.0], lut, np.asarray(sig), threads=8)
-    np.testing.assert_allclose(R_new @ np.swapaxes(R_new, 1, 2), np.broadcast_to(np.eye(3), R_new.shape), atol=1e-12)
+    R_new, t_new = kc.move_particles(
+        R, t, rpy, [0.3, -0.1, 0.0], lut, np.asarray(sig), threads=8
+    )
+    np.testing.assert_allclose(
+        R_new @ np.swapaxes(R_new, 1, 2),
+        np.broadcast_to(np.eye(3), R_new.shape),
+        atol=1e-12,
+    )
     np.testing.assert_allclose(np.linalg.det(R_new), 1.0, atol=1e-12)
     want = ref.move_particles(R, t, rpy, [0.3, -0.1, 0.0], lut.draw(8), np.asarray(sig))
     np.testing.assert_allclose(t_new, want[1], atol=1e-12)

@@ -14,7 +14,13 @@ from slamlib.kitti import (
     read_timestamps_ns,
     read_velodyne_scan,
 )
-from slamlib.kitti.sample import SAMPLE_DATE, SAMPLE_DRIVE, make_tiny_drive, sample_raw_paths
+from slamlib.kitti.sample import (
+    SAMPLE_DATE,
+    SAMPLE_DRIVE,
+    make_tiny_drive,
+    sample_raw_paths,
+)
+
 
 def _read_all(open_drive):
     return [f.index for f in open_drive()]
@@ -45,14 +51,24 @@ def _good_line():
 def test_oxts_wrong_field_count(drive_dir, open_drive):
     _set_oxts(drive_dir, 2, " ".join(_good_line().split()[:29]) + "\n")
     open_drive()  # opening is fine: frame 2 is only read when reached
-    _expect(lambda: _read_all(open_drive), "0000000002.txt", line=1, match="29 fields, expected 30")
+    _expect(
+        lambda: _read_all(open_drive),
+        "0000000002.txt",
+        line=1,
+        match="29 fields, expected 30",
+    )
 
 
 def test_oxts_non_numeric_field(drive_dir, open_drive):
     parts = _good_line().split()
     parts[7] = "abc"
     _set_oxts(drive_dir, 1, "\n" + " ".join(parts) + "\n")
-    _expect(lambda: _read_all(open_drive), "0000000001.txt", line=2, match=r"field 8 \(ve\).*'abc'")
+    _expect(
+        lambda: _read_all(open_drive),
+        "0000000001.txt",
+        line=2,
+        match=r"field 8 \(ve\).*'abc'",
+    )
 
 
 @pytest.mark.parametrize("bad", ["nan", "inf"])
@@ -70,7 +86,11 @@ def test_oxts_first_packet_checked_at_open(drive_dir, open_drive):
 
 def test_oxts_two_lines(drive_dir):
     _set_oxts(drive_dir, 0, _good_line() + "\n" + _good_line() + "\n")
-    _expect(lambda: read_oxts_packet(drive_dir / "oxts" / "data" / "0000000000.txt"), "0000000000.txt", line=2)
+    _expect(
+        lambda: read_oxts_packet(drive_dir / "oxts" / "data" / "0000000000.txt"),
+        "0000000000.txt",
+        line=2,
+    )
 
 
 def test_oxts_fractional_integer_field(drive_dir, open_drive):
@@ -125,7 +145,11 @@ def test_timestamps_empty_or_missing(drive_dir, open_drive):
     _ts_path(drive_dir).write_text("\n\n")
     _expect(lambda: open_drive(), "timestamps.txt", match="empty")
     _ts_path(drive_dir).unlink()
-    _expect(lambda: read_timestamps_ns(_ts_path(drive_dir)), "timestamps.txt", match="not found")
+    _expect(
+        lambda: read_timestamps_ns(_ts_path(drive_dir)),
+        "timestamps.txt",
+        match="not found",
+    )
     _expect(lambda: open_drive(), "timestamps.txt", match="not found")
 
 
@@ -139,7 +163,11 @@ def test_more_timestamps_than_packets(drive_dir, open_drive):
     lines = _ts_lines(drive_dir)
     lines.append("2011-09-26 13:02:29.000000000")
     _ts_path(drive_dir).write_text("\n".join(lines) + "\n")
-    _expect(lambda: open_drive(), "data", match=r"fewer OXTS packets than the 5 timestamps.*first: 0000000004.txt")
+    _expect(
+        lambda: open_drive(),
+        "data",
+        match=r"fewer OXTS packets than the 5 timestamps.*first: 0000000004.txt",
+    )
 
 
 # ------------------------------------------------------------------ velodyne scans
@@ -175,11 +203,17 @@ def test_no_velodyne_folder(drive_dir, open_drive):
 
 
 def test_missing_scan_file_direct(tmp_path):
-    _expect(lambda: read_velodyne_scan(tmp_path / "0000000007.bin"), "0000000007.bin", match="not found")
+    _expect(
+        lambda: read_velodyne_scan(tmp_path / "0000000007.bin"),
+        "0000000007.bin",
+        match="not found",
+    )
 
 
 # ------------------------------------------------------------------ calibration (at open)
-@pytest.mark.parametrize("name", ["calib_imu_to_velo.txt", "calib_velo_to_cam.txt", "calib_cam_to_cam.txt"])
+@pytest.mark.parametrize(
+    "name", ["calib_imu_to_velo.txt", "calib_velo_to_cam.txt", "calib_cam_to_cam.txt"]
+)
 def test_missing_calibration_file(drive_dir, name, open_drive):
     (drive_dir.parent / name).unlink()
     _expect(lambda: open_drive(), name, match="not found")
@@ -187,8 +221,13 @@ def test_missing_calibration_file(drive_dir, name, open_drive):
 
 @pytest.mark.parametrize(
     "name,key",
-    [("calib_imu_to_velo.txt", "R"), ("calib_imu_to_velo.txt", "T"), ("calib_velo_to_cam.txt", "T"),
-     ("calib_cam_to_cam.txt", "P_rect_02"), ("calib_cam_to_cam.txt", "R_rect_00")],
+    [
+        ("calib_imu_to_velo.txt", "R"),
+        ("calib_imu_to_velo.txt", "T"),
+        ("calib_velo_to_cam.txt", "T"),
+        ("calib_cam_to_cam.txt", "P_rect_02"),
+        ("calib_cam_to_cam.txt", "R_rect_00"),
+    ],
 )
 def test_missing_calibration_key(drive_dir, name, key, open_drive):
     p = drive_dir.parent / name
@@ -203,7 +242,12 @@ def test_calibration_key_wrong_count_and_non_numeric(drive_dir, open_drive):
     lines = list(original)
     lines[2] = "T: 1.0 2.0"
     p.write_text("\n".join(lines) + "\n")
-    _expect(lambda: open_drive(), "calib_imu_to_velo.txt", line=3, match="2 numbers, expected 3")
+    _expect(
+        lambda: open_drive(),
+        "calib_imu_to_velo.txt",
+        line=3,
+        match="2 numbers, expected 3",
+    )
     lines[2] = "T: 1.0 2.0 x"
     p.write_text("\n".join(lines) + "\n")
     _expect(lambda: open_drive(), "calib_imu_to_velo.txt", line=3, match="non-numeric")
@@ -222,9 +266,14 @@ def test_calibration_line_without_colon(tmp_path):
 # ------------------------------------------------------------------ folders
 def test_missing_drive_folder_names_expected_path(tmp_path):
     make_tiny_drive(tmp_path, n_frames=2, point_stride=1000)
-    err = _expect(lambda: KittiRawDrive(tmp_path, SAMPLE_DATE, "0002"), "2011_09_26_drive_0002_sync")
+    err = _expect(
+        lambda: KittiRawDrive(tmp_path, SAMPLE_DATE, "0002"), "2011_09_26_drive_0002_sync"
+    )
     assert str(tmp_path / SAMPLE_DATE / "2011_09_26_drive_0002_sync") in str(err)
-    _expect(lambda: KittiRawDrive(tmp_path / "nope", SAMPLE_DATE, SAMPLE_DRIVE), "2011_09_26_drive_0001_sync")
+    _expect(
+        lambda: KittiRawDrive(tmp_path / "nope", SAMPLE_DATE, SAMPLE_DRIVE),
+        "2011_09_26_drive_0001_sync",
+    )
 
 
 def test_velodyne_timestamps_checked_at_open(drive_dir, open_drive):

@@ -18,7 +18,12 @@ from slamlib.kitti import (
     read_velodyne_scan,
     write_velodyne_scan,
 )
-from slamlib.kitti.sample import SAMPLE_DATE, SAMPLE_DRIVE, make_tiny_drive, sample_raw_paths
+from slamlib.kitti.sample import (
+    SAMPLE_DATE,
+    SAMPLE_DRIVE,
+    make_tiny_drive,
+    sample_raw_paths,
+)
 
 P = sample_raw_paths()
 
@@ -28,9 +33,15 @@ def test_real_calibration_T_velo_imu():
     T = load_T_velo_imu(P["date_dir"])
     # Values as printed in calib_imu_to_velo.txt (2011_09_26).
     assert T.shape == (4, 4)
-    np.testing.assert_array_equal(T[0], [9.999976e-01, 7.553071e-04, -2.035826e-03, -8.086759e-01])
-    np.testing.assert_array_equal(T[1], [-7.854027e-04, 9.998898e-01, -1.482298e-02, 3.195559e-01])
-    np.testing.assert_array_equal(T[2], [2.024406e-03, 1.482454e-02, 9.998881e-01, -7.997231e-01])
+    np.testing.assert_array_equal(
+        T[0], [9.999976e-01, 7.553071e-04, -2.035826e-03, -8.086759e-01]
+    )
+    np.testing.assert_array_equal(
+        T[1], [-7.854027e-04, 9.998898e-01, -1.482298e-02, 3.195559e-01]
+    )
+    np.testing.assert_array_equal(
+        T[2], [2.024406e-03, 1.482454e-02, 9.998881e-01, -7.997231e-01]
+    )
     np.testing.assert_array_equal(T[3], [0, 0, 0, 1])
     np.testing.assert_allclose(T[:3, :3].T @ T[:3, :3], np.eye(3), atol=1e-6)
 
@@ -38,9 +49,15 @@ def test_real_calibration_T_velo_imu():
 def test_real_oxts_packet_fields():
     p = read_oxts_packet(P["oxts_packet"])
     assert p._fields == OXTS_FIELDS and len(p) == 30
-    assert p.lat == 49.015003823272 and p.lon == 8.4342971002335 and p.alt == 116.43032836914
+    assert (
+        p.lat == 49.015003823272 and p.lon == 8.4342971002335 and p.alt == 116.43032836914
+    )
     assert p.roll == 0.035752 and p.pitch == 0.00903 and p.yaw == -2.6087069803847
-    assert p.vf == 13.172716663769 and p.vl == -0.12475264293164 and p.vu == -0.032919903047354
+    assert (
+        p.vf == 13.172716663769
+        and p.vl == -0.12475264293164
+        and p.vu == -0.032919903047354
+    )
     assert p.af == -0.34030092211055 and p.au == 10.209117821189
     assert p.wf == 0.0089018002187228 and p.wu == -0.018809330937153
     assert (p.navstat, p.numsats, p.posmode, p.velmode, p.orimode) == (4, 11, 6, 6, 6)
@@ -118,7 +135,9 @@ def test_drive_agrees_with_pykitti(tiny):
         assert frame.oxts == pk.oxts[frame.index].packet
         # pykitti keeps microseconds only (truncated): they agree with ours to the microsecond
         assert frame.timestamp_ns // 1000 % 1_000_000 == pk_ts.microsecond
-        assert format_timestamp_ns(frame.timestamp_ns)[:19] == pk_ts.strftime("%Y-%m-%d %H:%M:%S")
+        assert format_timestamp_ns(frame.timestamp_ns)[:19] == pk_ts.strftime(
+            "%Y-%m-%d %H:%M:%S"
+        )
     assert drive.calib.T_cam0_velo.shape == (4, 4)
 
 
@@ -143,15 +162,43 @@ def test_frame_fields_and_timing(tiny):
     assert drive.velo_timestamps_ns is not None and drive.velo_timestamps_ns.shape == (6,)
 
 
+def test_scan_stamp_more_than_a_sweep_from_its_pose_names_the_file_and_line(tiny):
+    from slamlib.errors import DataFormatError
+    from slamlib.kitti.velodyne import SWEEP_PERIOD_S
+
+    drive = KittiRawDrive(tiny, SAMPLE_DATE, int(SAMPLE_DRIVE))
+    stamps = drive.path / "velodyne_points" / "timestamps.txt"
+    lines = stamps.read_text().splitlines()
+    late = int(drive.timestamps_ns[2]) + int(
+        2 * SWEEP_PERIOD_S * 1e9
+    )  # two sweeps after its pose
+    lines[2] = format_timestamp_ns(late)
+    stamps.write_text("\n".join(lines) + "\n")
+    drive = KittiRawDrive(tiny, SAMPLE_DATE, int(SAMPLE_DRIVE))
+    assert drive[1].scan_time_offset_s == pytest.approx(
+        (drive.velo_timestamps_ns[1] - drive.timestamps_ns[1]) * 1e-9
+    )
+    with pytest.raises(
+        DataFormatError, match=r"velodyne_points/timestamps.txt:3: .*one sweep"
+    ):
+        drive[2]
+
+
 def test_imu_arrays_match_frames(tiny):
     drive = KittiRawDrive(tiny, SAMPLE_DATE, SAMPLE_DRIVE, frames=range(1, 6))
     imu = drive.imu_arrays()
     frames = list(drive)
     np.testing.assert_array_equal(imu.index, [1, 2, 3, 4, 5])
     np.testing.assert_array_equal(imu.velocity, np.stack([f.velocity for f in frames]))
-    np.testing.assert_array_equal(imu.angular_rate, np.stack([f.angular_rate for f in frames]))
-    np.testing.assert_array_equal(imu.acceleration, np.stack([f.acceleration for f in frames]))
-    np.testing.assert_array_equal(imu.specific_force, np.stack([f.specific_force for f in frames]))
+    np.testing.assert_array_equal(
+        imu.angular_rate, np.stack([f.angular_rate for f in frames])
+    )
+    np.testing.assert_array_equal(
+        imu.acceleration, np.stack([f.acceleration for f in frames])
+    )
+    np.testing.assert_array_equal(
+        imu.specific_force, np.stack([f.specific_force for f in frames])
+    )
     np.testing.assert_allclose(imu.dt, [f.dt for f in frames], atol=1e-15)
     np.testing.assert_allclose(imu.time_s, [f.time_s for f in frames], atol=1e-15)
     assert imu.dt[0] == 0.0 and imu.time_s[0] > 0.09  # time counts from drive frame 0
@@ -167,7 +214,9 @@ def test_frame_selection_keeps_world_and_dt(tiny):
     for f in got:
         np.testing.assert_allclose(f.T_w_imu, G[f.index], atol=1e-12)
     assert got[0].dt == 0.0
-    assert got[1].dt == pytest.approx((full.timestamps_ns[3] - full.timestamps_ns[1]) * 1e-9)
+    assert got[1].dt == pytest.approx(
+        (full.timestamps_ns[3] - full.timestamps_ns[1]) * 1e-9
+    )
     assert sub[-1].index == 5 and sub[1].dt == got[1].dt
     np.testing.assert_allclose(sub.ground_truth_poses(), G[[1, 3, 5]], atol=1e-12)
     with pytest.raises(IndexError):

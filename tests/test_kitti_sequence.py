@@ -15,8 +15,7 @@ from slamlib.errors import DataFormatError
 from slamlib.geometry import make_pose, rpy_to_matrix
 from slamlib.kitti import KittiOdometrySequence, KittiRawDrive
 from slamlib.odometry import imu_increment, increment_matrix, twist_between
-from slamlib.slam3d import SLAM3DConfig, run_drive, evaluate
-from slamlib.slam3d import steps
+from slamlib.slam3d import SLAM3DConfig, evaluate, run_drive, steps
 from slamlib.synth import Hdl64, write_drive, write_sequence
 
 FAST = Hdl64(columns=500, beam_stride=2)
@@ -43,8 +42,12 @@ def test_sequence_matches_the_raw_drive_of_the_same_route(odo):
     raw = KittiRawDrive(odo / "raw", "2011_09_26", 1)
     assert len(seq) == N and seq.sequence == "07"
     G = raw.ground_truth_poses("velo")
-    G = np.linalg.inv(G[0])[None] @ G  # world = Velodyne at frame 0, as the odometry ground truth
-    assert np.abs(seq.ground_truth_poses() - G).max() < 1e-6  # 12 printed digits in poses/07.txt
+    G = (
+        np.linalg.inv(G[0])[None] @ G
+    )  # world = Velodyne at frame 0, as the odometry ground truth
+    assert (
+        np.abs(seq.ground_truth_poses() - G).max() < 1e-6
+    )  # 12 printed digits in poses/07.txt
     np.testing.assert_array_equal(seq[5].scan, raw[5].scan)
     assert seq[0].dt == 0.0 and 0.09 < seq[3].dt < 0.11
     assert seq[4].velocity is None and seq[4].angular_rate is None
@@ -58,9 +61,14 @@ def test_reader_agrees_with_pykitti_odometry(odo):
     seq = KittiOdometrySequence(odo, 7)
     ref = pykitti.odometry(str(odo), "07")
     np.testing.assert_allclose(seq.Tr, ref.calib.T_cam0_velo, atol=1e-12)
-    np.testing.assert_allclose(seq.Tr[None] @ seq.ground_truth @ np.linalg.inv(seq.Tr)[None], np.array(ref.poses),
-                               atol=1e-9)
-    np.testing.assert_allclose(seq.times, [t.total_seconds() for t in ref.timestamps], atol=1e-6)
+    np.testing.assert_allclose(
+        seq.Tr[None] @ seq.ground_truth @ np.linalg.inv(seq.Tr)[None],
+        np.array(ref.poses),
+        atol=1e-9,
+    )
+    np.testing.assert_allclose(
+        seq.times, [t.total_seconds() for t in ref.timestamps], atol=1e-6
+    )
     np.testing.assert_array_equal(seq[7].scan, ref.get_velo(7))
 
 
@@ -78,17 +86,43 @@ def test_missing_sequence_lists_the_ones_there(odo):
         KittiOdometrySequence(odo, 5)
 
 
-@pytest.mark.parametrize("damage, pattern", [
-    (lambda d: (d / "sequences/07/times.txt").unlink(), r"times\.txt: times file not found"),
-    (lambda d: (d / "sequences/07/times.txt").write_text("0.0\n0.1\nabc\n"), r"times\.txt:3: "),
-    (lambda d: (d / "sequences/07/times.txt").write_text("0.0\n0.1\n0.1\n"), r"times\.txt:3: .*not later"),
-    (lambda d: (d / "poses/07.txt").write_text("\n".join((d / "poses/07.txt").read_text().splitlines()[:5]) + "\n"),
-     r"poses/07\.txt:6: ground truth ends after 5 poses"),
-    (lambda d: (d / "sequences/07/velodyne/000004.bin").unlink(), r"velodyne: .*first: 000004\.bin"),
-    (lambda d: (d / "sequences/07/calib.txt").write_text("P0: 1 0 0\n"), r"calib\.txt: calibration key\(s\) missing: Tr"),
-    (lambda d: (d / "sequences/07/calib.txt").write_text("Tr: 2 0 0 0 0 1 0 0 0 0 1 0\n"),
-     r"calib\.txt: calibration Tr's 3x3 block is not a rotation"),
-])
+@pytest.mark.parametrize(
+    "damage, pattern",
+    [
+        (
+            lambda d: (d / "sequences/07/times.txt").unlink(),
+            r"times\.txt: times file not found",
+        ),
+        (
+            lambda d: (d / "sequences/07/times.txt").write_text("0.0\n0.1\nabc\n"),
+            r"times\.txt:3: ",
+        ),
+        (
+            lambda d: (d / "sequences/07/times.txt").write_text("0.0\n0.1\n0.1\n"),
+            r"times\.txt:3: .*not later",
+        ),
+        (
+            lambda d: (d / "poses/07.txt").write_text(
+                "\n".join((d / "poses/07.txt").read_text().splitlines()[:5]) + "\n"
+            ),
+            r"poses/07\.txt:6: ground truth ends after 5 poses",
+        ),
+        (
+            lambda d: (d / "sequences/07/velodyne/000004.bin").unlink(),
+            r"velodyne: .*first: 000004\.bin",
+        ),
+        (
+            lambda d: (d / "sequences/07/calib.txt").write_text("P0: 1 0 0\n"),
+            r"calib\.txt: calibration key\(s\) missing: Tr",
+        ),
+        (
+            lambda d: (d / "sequences/07/calib.txt").write_text(
+                "Tr: 2 0 0 0 0 1 0 0 0 0 1 0\n"
+            ),
+            r"calib\.txt: calibration Tr's 3x3 block is not a rotation",
+        ),
+    ],
+)
 def test_bad_files_name_the_file_and_line(odo, tmp_path, damage, pattern):
     d = _copy(odo, tmp_path)
     damage(d)
@@ -110,26 +144,41 @@ def test_write_sequence_keeps_user_files_and_refuses_foreign_folders(odo, tmp_pa
     (d / "sequences/07/notes.txt").write_text("mine")
     write_sequence(d, "07", 7, frames=(0, 6), seed=2, lidar=FAST, progress=False)
     assert (d / "sequences/07/notes.txt").read_text() == "mine"
-    assert len(KittiOdometrySequence(d, 7)) == 6  # the older, longer sequence's scans were the generator's: gone
+    assert (
+        len(KittiOdometrySequence(d, 7)) == 6
+    )  # the older, longer sequence's scans were the generator's: gone
     (tmp_path / "other/sequences/03").mkdir(parents=True)
     (tmp_path / "other/sequences/03/data.bin").write_bytes(b"x")
     with pytest.raises(FileExistsError, match="not a slamlib synthetic drive"):
-        write_sequence(tmp_path / "other", "07", 3, frames=(0, 6), lidar=FAST, progress=False)
+        write_sequence(
+            tmp_path / "other", "07", 3, frames=(0, 6), lidar=FAST, progress=False
+        )
 
 
 # ------------------------------------------------------------------------------------------------ LIDAR-only
 def test_twist_between_inverts_the_motion_model():
     Ta = make_pose(rpy_to_matrix(np.array([0.1, -0.2, 0.5])), np.array([1.0, 2.0, 3.0]))
-    Tb = Ta @ make_pose(rpy_to_matrix(np.array([0.02, 0.01, -0.3])), np.array([1.2, -0.1, 0.05]))
+    Tb = Ta @ make_pose(
+        rpy_to_matrix(np.array([0.02, 0.01, -0.3])), np.array([1.2, -0.1, 0.05])
+    )
     v, w = twist_between(Ta, Tb, 0.1)
-    np.testing.assert_allclose(Ta @ increment_matrix(*imu_increment(v, w, v, w, 0.1)), Tb, atol=1e-12)
+    np.testing.assert_allclose(
+        Ta @ increment_matrix(*imu_increment(v, w, v, w, 0.1)), Tb, atol=1e-12
+    )
     # a straight constant-velocity motion is read back as that velocity
     v, w = twist_between(np.eye(4), make_pose(np.eye(3), np.array([1.0, 0.0, 0.0])), 0.1)
     np.testing.assert_allclose(v, [10.0, 0.0, 0.0], atol=1e-12)
     np.testing.assert_allclose(w, 0.0, atol=1e-12)
     assert all(np.all(x == 0) for x in twist_between(np.eye(4), Tb, 0.0))
-    for dt in (0.0, -0.1, np.nan, np.inf):  # no motion known: two zero 3-vectors, like a real twist
-        assert [(x.shape, x.dtype) for x in twist_between(np.eye(4), Tb, dt)] == [((3,), np.float64)] * 2
+    for dt in (
+        0.0,
+        -0.1,
+        np.nan,
+        np.inf,
+    ):  # no motion known: two zero 3-vectors, like a real twist
+        assert [(x.shape, x.dtype) for x in twist_between(np.eye(4), Tb, dt)] == [
+            ((3,), np.float64)
+        ] * 2
 
 
 def test_read_imu_without_imu_needs_the_estimate(odo):
@@ -151,7 +200,10 @@ def test_constant_velocity_noise_is_wider_by_the_acceleration_terms():
     np.testing.assert_allclose(extra, np.r_[m.cv_accel, m.cv_angular_accel] * dt**2)
     with pytest.raises(ValueError, match="model must be one of"):
         MotionConfig(model="wheel")
-    assert m.scaled(2.0).cv_accel == tuple(2 * a for a in m.cv_accel) and m.scaled(2.0).model == "imu"
+    assert (
+        m.scaled(2.0).cv_accel == tuple(2 * a for a in m.cv_accel)
+        and m.scaled(2.0).model == "imu"
+    )
 
 
 def test_lidar_only_run_follows_a_constant_velocity_street(tmp_path):
@@ -170,7 +222,9 @@ def test_lidar_only_run_follows_a_constant_velocity_street(tmp_path):
 
 def test_lidar_only_flag_on_a_raw_drive_ignores_the_imu(odo):
     drive = KittiRawDrive(odo / "raw", "2011_09_26", 1)
-    slam = run_drive(drive, SLAM3DConfig.of(particles=50, model="constant_velocity"), progress=False).slam
+    slam = run_drive(
+        drive, SLAM3DConfig.of(particles=50, model="constant_velocity"), progress=False
+    ).slam
     assert slam.lidar_only and slam.dead_reckoning is None
     slam = run_drive(drive, SLAM3DConfig.of(particles=50), progress=False).slam
     assert not slam.lidar_only and slam.dead_reckoning.shape == (N, 4, 4)
@@ -178,38 +232,103 @@ def test_lidar_only_flag_on_a_raw_drive_ignores_the_imu(odo):
 
 # ------------------------------------------------------------------------------------------------ CLI
 def _run(*args):
-    return subprocess.run([sys.executable, "-m", "slamlib.cli", "run", "--no-progress", "--no-plots", *args],
-                          capture_output=True, text=True, timeout=300)
+    return subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "slamlib.cli",
+            "run",
+            "--no-progress",
+            "--no-plots",
+            *args,
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
 
 
 def test_cli_runs_an_odometry_sequence(odo, tmp_path):
     out = tmp_path / "out"
-    r = _run("--odometry-dir", str(odo), "--sequence", "07", "--particles", "50", "--out", str(out))
+    r = _run(
+        "--odometry-dir",
+        str(odo),
+        "--sequence",
+        "07",
+        "--particles",
+        "50",
+        "--out",
+        str(out),
+    )
     assert r.returncode == 0, r.stderr
     assert "LIDAR-only" in r.stdout and "dead reckoning" not in r.stdout.split("ATE")[-1]
     info = json.loads((out / "metrics.json").read_text())
-    assert info["config"]["motion"]["model"] == "constant_velocity" and info["sequence"] == "07"
-    assert "dead_reckoning" not in info["metrics"] and not (out / "dead_reckoning_poses.txt").exists()
+    assert (
+        info["config"]["motion"]["model"] == "constant_velocity"
+        and info["sequence"] == "07"
+    )
+    assert (
+        "dead_reckoning" not in info["metrics"]
+        and not (out / "dead_reckoning_poses.txt").exists()
+    )
     assert len((out / "slam_poses.txt").read_text().splitlines()) == N
     # LIDAR-only, every frame after the first is scan-matched by default; --no-scan-match turns it off
-    assert info["config"]["filter"]["scan_match"] is None and info["n_matched_frames"] == N - 1
-    r = _run("--odometry-dir", str(odo), "--sequence", "07", "--particles", "50", "--frames", "0:4",
-             "--no-scan-match", "--out", str(tmp_path / "off"))
+    assert (
+        info["config"]["filter"]["scan_match"] is None
+        and info["n_matched_frames"] == N - 1
+    )
+    r = _run(
+        "--odometry-dir",
+        str(odo),
+        "--sequence",
+        "07",
+        "--particles",
+        "50",
+        "--frames",
+        "0:4",
+        "--no-scan-match",
+        "--out",
+        str(tmp_path / "off"),
+    )
     assert r.returncode == 0, r.stderr
     info = json.loads((tmp_path / "off" / "metrics.json").read_text())
-    assert info["config"]["filter"]["scan_match"] is False and info["n_matched_frames"] == 0
+    assert (
+        info["config"]["filter"]["scan_match"] is False and info["n_matched_frames"] == 0
+    )
 
 
-@pytest.mark.parametrize("damage, pattern", [
-    (lambda d: (d / "sequences/07/times.txt").unlink(), r"times\.txt: times file not found"),
-    (lambda d: (d / "poses/07.txt").write_text("\n".join((d / "poses/07.txt").read_text().splitlines()[:3]) + "\n"),
-     r"poses/07\.txt:4: "),
-    (lambda d: (d / "sequences/07/velodyne/000005.bin").write_bytes(b"\0" * 40), r"000005\.bin: .*multiple of 16"),
-])
+@pytest.mark.parametrize(
+    "damage, pattern",
+    [
+        (
+            lambda d: (d / "sequences/07/times.txt").unlink(),
+            r"times\.txt: times file not found",
+        ),
+        (
+            lambda d: (d / "poses/07.txt").write_text(
+                "\n".join((d / "poses/07.txt").read_text().splitlines()[:3]) + "\n"
+            ),
+            r"poses/07\.txt:4: ",
+        ),
+        (
+            lambda d: (d / "sequences/07/velodyne/000005.bin").write_bytes(b"\0" * 40),
+            r"000005\.bin: .*multiple of 16",
+        ),
+    ],
+)
 def test_cli_bad_odometry_files_stop_with_file_and_line(odo, tmp_path, damage, pattern):
     d = _copy(odo, tmp_path)
     damage(d)
-    r = _run("--odometry-dir", str(d), "--sequence", "7", "--particles", "20", "--out", str(tmp_path / "out"))
+    r = _run(
+        "--odometry-dir",
+        str(d),
+        "--sequence",
+        "7",
+        "--particles",
+        "20",
+        "--out",
+        str(tmp_path / "out"),
+    )
     assert r.returncode == 1 and "Traceback" not in r.stderr
     assert len(r.stderr.strip().splitlines()) == 1, r.stderr
     assert __import__("re").search(pattern, r.stderr), r.stderr
@@ -218,16 +337,45 @@ def test_cli_bad_odometry_files_stop_with_file_and_line(odo, tmp_path, damage, p
 def test_cli_odometry_options_go_together(odo, tmp_path):
     r = _run("--odometry-dir", str(odo), "--out", str(tmp_path / "o"))
     assert r.returncode == 1 and "--odometry-dir and --sequence" in r.stderr
-    r = _run("--odometry-dir", str(odo), "--sequence", "7", "--basedir", str(odo), "--date", "x", "--drive", "1",
-             "--out", str(tmp_path / "o"))
+    r = _run(
+        "--odometry-dir",
+        str(odo),
+        "--sequence",
+        "7",
+        "--basedir",
+        str(odo),
+        "--date",
+        "x",
+        "--drive",
+        "1",
+        "--out",
+        str(tmp_path / "o"),
+    )
     assert r.returncode == 1 and "not both" in r.stderr
 
 
 def test_synth_command_writes_the_odometry_layout(tmp_path):
     from slamlib.cli import main
 
-    assert main(["synth", "--out", str(tmp_path), "--layout", "odometry", "--route", "07", "--frames", "0:6",
-                 "--columns", "300", "--no-progress"]) == 0
+    assert (
+        main(
+            [
+                "synth",
+                "--out",
+                str(tmp_path),
+                "--layout",
+                "odometry",
+                "--route",
+                "07",
+                "--frames",
+                "0:6",
+                "--columns",
+                "300",
+                "--no-progress",
+            ]
+        )
+        == 0
+    )
     seq = KittiOdometrySequence(tmp_path, 7)
     assert len(seq) == 6 and seq.ground_truth.shape == (6, 4, 4)
     with pytest.raises(SystemExit, match="--no-scans does not go with --layout odometry"):
@@ -237,19 +385,41 @@ def test_synth_command_writes_the_odometry_layout(tmp_path):
     (tmp_path / "sequences" / "02").mkdir()
     (tmp_path / "sequences" / "02" / "mine.txt").write_text("x")
     with pytest.raises(SystemExit, match="not a slamlib synthetic drive"):
-        main(["synth", "--out", str(tmp_path), "--layout", "odometry", "--route", "loop", "--frames", "3",
-              "--sequence", "2", "--no-progress"])
+        main(
+            [
+                "synth",
+                "--out",
+                str(tmp_path),
+                "--layout",
+                "odometry",
+                "--route",
+                "loop",
+                "--frames",
+                "3",
+                "--sequence",
+                "2",
+                "--no-progress",
+            ]
+        )
 
 
 def test_own_motion_window_and_damping():
     """LIDAR-only step 3 holds the twist over the last cv_window frames, times cv_damping per component."""
     from slamlib.slam3d.pipeline import ParticleSLAM3D
 
-    slam = ParticleSLAM3D(SLAM3DConfig.of(model="constant_velocity", cv_window=2,
-                                          cv_damping=(1, 1, 0.5, 0, 0, 1)))
+    slam = ParticleSLAM3D(
+        SLAM3DConfig.of(
+            model="constant_velocity", cv_window=2, cv_damping=(1, 1, 0.5, 0, 0, 1)
+        )
+    )
     assert all(np.all(x == 0) for x in slam.own_motion())  # nothing known yet: at rest
-    steps_ = [make_pose(rpy_to_matrix(np.array([0.0, 0.0, 0.1 * k])), np.array([1.0 * k, 0.0, 0.2 * k]))
-              for k in range(3)]
+    steps_ = [
+        make_pose(
+            rpy_to_matrix(np.array([0.0, 0.0, 0.1 * k])),
+            np.array([1.0 * k, 0.0, 0.2 * k]),
+        )
+        for k in range(3)
+    ]
     slam.poses, slam.dts = steps_[:2], [0.0, 0.1]
     v1, w1 = slam.own_motion()  # one frame known: the window shrinks to it
     v_ref, w_ref = twist_between(steps_[0], steps_[1], 0.1)

@@ -100,7 +100,11 @@ def test_read_calib_file_non_finite_message(tmp_path):
     path = _write(tmp_path / "c.txt", "R: 1 2 3\n\nT: 0 inf 0\n")
     err = _raises(lambda: read_calib_file(path, {"R": 3, "T": 3}))
     assert str(err) == f"{path}:3: calibration key 'T' has a non-finite value"
-    assert err.path == str(path) and err.line == 3 and err.message == "calibration key 'T' has a non-finite value"
+    assert (
+        err.path == str(path)
+        and err.line == 3
+        and err.message == "calibration key 'T' has a non-finite value"
+    )
 
 
 def test_read_calib_file_missing_keys_listed_comma_separated(tmp_path):
@@ -113,7 +117,9 @@ def test_read_calib_file_missing_keys_listed_comma_separated(tmp_path):
 def test_read_calib_file_is_ascii_and_counts_only_newlines(tmp_path):
     """Files are read as ASCII: a UTF-8 NEL (``\\xc2\\x85``, a line break to Python's str.splitlines) in a comment
     does not shift line numbers, and a UTF-8 no-break space between numbers is not a separator."""
-    path = _write(tmp_path / "c.txt", b"calib_time: a\xc2\x85b\nR: 1 2 3\nT: 1\xc2\xa02 3\n")
+    path = _write(
+        tmp_path / "c.txt", b"calib_time: a\xc2\x85b\nR: 1 2 3\nT: 1\xc2\xa02 3\n"
+    )
     err = _raises(lambda: read_calib_file(path, {"R": 3, "T": 3}))
     assert err.line == 3
     assert str(err) == f"{path}:3: calibration key 'T' has a non-numeric value"
@@ -122,11 +128,18 @@ def test_read_calib_file_is_ascii_and_counts_only_newlines(tmp_path):
 # ------------------------------------------------------------------ rigid_transform / read_rigid
 def test_rigid_transform_default_names_in_messages(tmp_path):
     """Default names: the messages call the blocks ``R`` and ``T``, and quote T in metres with the 100 m limit."""
-    err = _raises(lambda: rigid_transform("f.txt", np.diag([1.0, 1.0, -1.0]), [0.0, 0.0, 0.0]))
-    assert str(err) == "f.txt: calibration R is not a rotation matrix (R^T R != I or det R < 0)"
+    err = _raises(
+        lambda: rigid_transform("f.txt", np.diag([1.0, 1.0, -1.0]), [0.0, 0.0, 0.0])
+    )
+    assert (
+        str(err)
+        == "f.txt: calibration R is not a rotation matrix (R^T R != I or det R < 0)"
+    )
     err = _raises(lambda: rigid_transform("f.txt", np.eye(3), [100, 0, 1]))
-    assert str(err) == ("f.txt: calibration T = [100.0, 0.0, 1.0] m is farther than 100 m: not an offset between two "
-                        "sensors of one vehicle")
+    assert str(err) == (
+        "f.txt: calibration T = [100.0, 0.0, 1.0] m is farther than 100 m: not an offset between two "
+        "sensors of one vehicle"
+    )
 
 
 def test_rigid_transform_offset_limit_is_inclusive():
@@ -157,31 +170,46 @@ def test_rigid_transform_integer_input_does_not_overflow():
 # ------------------------------------------------------------------ check_cam_to_cam
 def test_cam_to_cam_rotation_tolerance_is_inclusive(tmp_path):
     """``R_rect_00`` with ``max |R^T R - I|`` exactly 1e-3 passes (pykitti can still invert it)."""
-    path = _write(tmp_path / CAM_TO_CAM, _cam_to_cam_text(r_rect_00="1 0.001 0 0 1 0 0 0 1"))
+    path = _write(
+        tmp_path / CAM_TO_CAM, _cam_to_cam_text(r_rect_00="1 0.001 0 0 1 0 0 0 1")
+    )
     d = check_cam_to_cam(path)
     np.testing.assert_array_equal(d["R_rect_00"], [1, 0.001, 0, 0, 1, 0, 0, 0, 1])
 
 
 def test_cam_to_cam_small_positive_focal_length_passes(tmp_path):
     """Any positive focal length is accepted, also one below 1 pixel."""
-    path = _write(tmp_path / CAM_TO_CAM, _cam_to_cam_text(p_rect_00="0.5 0 0 0 0 0.5 0 0 0 0 1 0"))
+    path = _write(
+        tmp_path / CAM_TO_CAM, _cam_to_cam_text(p_rect_00="0.5 0 0 0 0 0.5 0 0 0 0 1 0")
+    )
     assert check_cam_to_cam(path)["P_rect_00"][0] == 0.5
 
 
 def test_cam_to_cam_focal_length_message(tmp_path):
     """A zero focal length: the message quotes ``P[0, 0] = 0`` and names the ``P_rect_00`` line (line 2)."""
-    path = _write(tmp_path / CAM_TO_CAM, _cam_to_cam_text(p_rect_00="0 0 0 0 0 1 0 0 0 0 1 0"))
+    path = _write(
+        tmp_path / CAM_TO_CAM, _cam_to_cam_text(p_rect_00="0 0 0 0 0 1 0 0 0 0 1 0")
+    )
     err = _raises(lambda: check_cam_to_cam(path))
-    assert str(err) == f"{path}:2: calibration P_rect_00 has focal length P[0, 0] = 0: it must be positive"
+    assert (
+        str(err)
+        == f"{path}:2: calibration P_rect_00 has focal length P[0, 0] = 0: it must be positive"
+    )
 
 
 def test_cam_to_cam_line_of_bad_rotation_counts_newlines_only(tmp_path):
     """The line named for a bad ``R_rect_00`` counts ``\\n`` only: non-ASCII bytes before it (a UTF-8 NEL, an
     invalid byte) neither shift it nor make the check fail."""
-    path = _write(tmp_path / CAM_TO_CAM, _cam_to_cam_text(r_rect_00="1 0 0 0 1 0 0 0 -1").encode("ascii")
-                  .replace(b"calib_time: ", b"calib_time: \xc2\x85\xff "))
+    path = _write(
+        tmp_path / CAM_TO_CAM,
+        _cam_to_cam_text(r_rect_00="1 0 0 0 1 0 0 0 -1")
+        .encode("ascii")
+        .replace(b"calib_time: ", b"calib_time: \xc2\x85\xff "),
+    )
     err = _raises(lambda: check_cam_to_cam(path))
-    assert str(err) == (f"{path}:3: calibration R_rect_00 is not a rotation matrix (R^T R != I or det R < 0)")
+    assert str(err) == (
+        f"{path}:3: calibration R_rect_00 is not a rotation matrix (R^T R != I or det R < 0)"
+    )
 
 
 # ------------------------------------------------------------------ check_calibration_for_pykitti
@@ -198,8 +226,10 @@ def test_pykitti_check_undecodable_byte_message_and_line(tmp_path):
     _write(path, b"calib_time: x\nR: 1 0 0 0 1 0 0 0 1\nT: 0 0 0 \xff\n")
     encoding = locale.getpreferredencoding(False)
     err = _raises(lambda: check_calibration_for_pykitti(d))
-    assert str(err) == (f"{path}:3: byte b'\\xff' is not {encoding} text: pykitti cannot read the file (KITTI "
-                        "calibration files are ASCII)")
+    assert str(err) == (
+        f"{path}:3: byte b'\\xff' is not {encoding} text: pykitti cannot read the file (KITTI "
+        "calibration files are ASCII)"
+    )
 
 
 def test_pykitti_check_unknown_encoding_names_first_byte(tmp_path, monkeypatch):
@@ -207,8 +237,10 @@ def test_pykitti_check_unknown_encoding_names_first_byte(tmp_path, monkeypatch):
     d = _date_dir(tmp_path)
     monkeypatch.setattr(kcalib.locale, "getpreferredencoding", lambda *a: "no-such-codec")
     err = _raises(lambda: check_calibration_for_pykitti(d))
-    assert str(err) == (f"{d / IMU_TO_VELO}:1: byte b'c' is not no-such-codec text: pykitti cannot read the file "
-                        "(KITTI calibration files are ASCII)")
+    assert str(err) == (
+        f"{d / IMU_TO_VELO}:1: byte b'c' is not no-such-codec text: pykitti cannot read the file "
+        "(KITTI calibration files are ASCII)"
+    )
 
 
 def test_pykitti_check_blank_line_message(tmp_path):
@@ -217,7 +249,10 @@ def test_pykitti_check_blank_line_message(tmp_path):
     path = d / VELO_TO_CAM
     _write(path, f"R: {IDENTITY_9}\n\nT: 0 0 0\n")
     err = _raises(lambda: check_calibration_for_pykitti(d))
-    assert str(err) == f"{path}:2: line without ':' (a blank line too): pykitti reads every line as 'key: values'"
+    assert (
+        str(err)
+        == f"{path}:2: line without ':' (a blank line too): pykitti reads every line as 'key: values'"
+    )
 
 
 def test_pykitti_check_absent_key_is_a_data_format_error_without_line(tmp_path):
@@ -228,7 +263,10 @@ def test_pykitti_check_absent_key_is_a_data_format_error_without_line(tmp_path):
     _write(path, f"R: {IDENTITY_9}\n")
     err = _raises(lambda: check_calibration_for_pykitti(d))
     assert err.path == str(path) and err.line is None
-    assert err.message == "calibration key 'T' is missing: pykitti needs 'T:' at the start of a line"
+    assert (
+        err.message
+        == "calibration key 'T' is missing: pykitti needs 'T:' at the start of a line"
+    )
 
 
 def test_pykitti_check_key_line_splits_at_first_colon(tmp_path):
@@ -254,9 +292,13 @@ def _line(**changes):
 def test_oxts_range_problem_message_and_unknown_field():
     """Out of range: the message quotes the value with repr and the closed range with %g; fields without a range
     (the integer flags) have no problem."""
-    assert oxts_range_problem("lat", 90.0) == "OXTS field lat = 90.0 is outside its physical range [-89, 89]"
-    assert oxts_range_problem("alt", -1000.5) == ("OXTS field alt = -1000.5 is outside its physical range "
-                                                  "[-1000, 20000]")
+    assert (
+        oxts_range_problem("lat", 90.0)
+        == "OXTS field lat = 90.0 is outside its physical range [-89, 89]"
+    )
+    assert oxts_range_problem("alt", -1000.5) == (
+        "OXTS field alt = -1000.5 is outside its physical range [-1000, 20000]"
+    )
     assert oxts_range_problem("navstat", 1e9) is None
 
 
@@ -271,7 +313,10 @@ def test_oxts_range_bounds_are_inclusive():
 def test_parse_oxts_line_defaults_name_string_line_1():
     """Without path/line, errors read ``<string>:1: ...``."""
     err = _raises(lambda: parse_oxts_line("1 2 3"))
-    assert str(err) == "<string>:1: OXTS line has 3 fields, expected 30 (see oxts/dataformat.txt)"
+    assert (
+        str(err)
+        == "<string>:1: OXTS line has 3 fields, expected 30 (see oxts/dataformat.txt)"
+    )
 
 
 def test_parse_oxts_line_non_finite_message():
@@ -289,7 +334,10 @@ def test_parse_oxts_line_fractional_integer_message():
 def test_parse_oxts_line_range_message():
     """A latitude of 90 degrees is field 1 and outside [-89, 89]; path, line and message are all given."""
     err = _raises(lambda: parse_oxts_line(_line(lat=90.0), "p.txt", 3))
-    assert str(err) == "p.txt:3: field 1: OXTS field lat = 90.0 is outside its physical range [-89, 89]"
+    assert (
+        str(err)
+        == "p.txt:3: field 1: OXTS field lat = 90.0 is outside its physical range [-89, 89]"
+    )
     assert err.path == "p.txt" and err.line == 3
 
 
@@ -313,21 +361,26 @@ def test_read_oxts_packet_empty_message(tmp_path):
     """A file of blank lines: ``path: OXTS packet file is empty (expected one line of 30 numbers)``."""
     path = _write(tmp_path / "0000000000.txt", "\n  \n")
     assert str(_raises(lambda: read_oxts_packet(path))) == (
-        f"{path}: OXTS packet file is empty (expected one line of 30 numbers)")
+        f"{path}: OXTS packet file is empty (expected one line of 30 numbers)"
+    )
 
 
 def test_read_oxts_packet_two_lines_message(tmp_path):
     """Two data lines: the second one's line (3, after a blank line) is named."""
     path = _write(tmp_path / "0000000000.txt", f"{_line()}\n\n{_line()}\n")
     assert str(_raises(lambda: read_oxts_packet(path))) == (
-        f"{path}:3: OXTS packet file has more than one data line (expected exactly one)")
+        f"{path}:3: OXTS packet file has more than one data line (expected exactly one)"
+    )
 
 
 def test_read_oxts_packet_reads_ascii_with_replacement(tmp_path):
     """Non-ASCII bytes become U+FFFD (one per byte) and are quoted in the error; a UTF-8 NEL is not a line break."""
-    path = _write(tmp_path / "0000000000.txt", _line(alt="1\xc2\x85").encode("latin-1") + b"\n")
+    path = _write(
+        tmp_path / "0000000000.txt", _line(alt="1\xc2\x85").encode("latin-1") + b"\n"
+    )
     assert str(_raises(lambda: read_oxts_packet(path))) == (
-        f"{path}:1: OXTS field 3 (alt) is not a number: '1\ufffd\ufffd'")
+        f"{path}:1: OXTS field 3 (alt) is not a number: '1\ufffd\ufffd'"
+    )
 
 
 def test_check_oxts_for_pykitti_blank_line_message(tmp_path):
@@ -335,13 +388,16 @@ def test_check_oxts_for_pykitti_blank_line_message(tmp_path):
     path = _write(tmp_path / "0000000000.txt", f"{_line()}\n\n")
     assert str(_raises(lambda: check_oxts_for_pykitti(path))) == (
         f"{path}:2: blank line in an OXTS packet file: pykitti reads every line as a packet (expected exactly one "
-        "line of 30 numbers)")
+        "line of 30 numbers)"
+    )
 
 
 def test_check_oxts_for_pykitti_reads_ascii_with_replacement(tmp_path):
     """The file is read as ASCII with replacement: an invalid byte does not raise, and a line holding only a UTF-8
     no-break space (``\\xc2\\xa0``) is not blank."""
-    path = _write(tmp_path / "0000000000.txt", _line().encode("ascii") + b" \xff\n\xc2\xa0\n")
+    path = _write(
+        tmp_path / "0000000000.txt", _line().encode("ascii") + b" \xff\n\xc2\xa0\n"
+    )
     assert check_oxts_for_pykitti(path) is None
 
 
@@ -363,7 +419,12 @@ def test_write_oxts_packet_round_trip(tmp_path):
     """A written packet file is the formatted line plus ``\\n`` and reads back equal."""
     path = tmp_path / "0000000000.txt"
     write_oxts_packet(path, GOOD)
-    assert path.read_bytes() == ("49.0 8.4 110.0 0.01 -0.02 1.5 " + "0.0 " * 17 + "0.1 0.2 4 10 4 4 4\n").encode()
+    assert (
+        path.read_bytes()
+        == (
+            "49.0 8.4 110.0 0.01 -0.02 1.5 " + "0.0 " * 17 + "0.1 0.2 4 10 4 4 4\n"
+        ).encode()
+    )
     assert list(read_oxts_packet(path)) == GOOD
 
 
@@ -380,6 +441,13 @@ def test_poses_from_packets_default_reference_is_first_packet():
     p0 = parse_oxts_line(_line(roll=0.0, pitch=0.0, yaw=0.0))
     p1 = parse_oxts_line(_line(roll=0.0, pitch=0.0, yaw=math.pi / 2, alt=113.0))
     out = poses_from_packets([p0, p1])
-    expected1 = np.array([[0.0, -1.0, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 1.0, 3.0], [0.0, 0.0, 0.0, 1.0]])
+    expected1 = np.array(
+        [
+            [0.0, -1.0, 0.0, 0.0],
+            [1.0, 0.0, 0.0, 0.0],
+            [0.0, 0.0, 1.0, 3.0],
+            [0.0, 0.0, 0.0, 1.0],
+        ]
+    )
     np.testing.assert_allclose(out[0], np.eye(4), atol=1e-12)
     np.testing.assert_allclose(out[1], expected1, atol=1e-9)

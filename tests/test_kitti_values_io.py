@@ -27,8 +27,10 @@ from slamlib.kitti.trajectory_io import (
 )
 
 HINT = "expected 'YYYY-MM-DD HH:MM:SS.fffffffff' (KITTI raw format, 9 fractional digits)"
-PYKITTI_HINT = ("it needs exactly 'YYYY-MM-DD HH:MM:SS.fffffffff' on every line (no trailing spaces, "
-                "no blank lines)")
+PYKITTI_HINT = (
+    "it needs exactly 'YYYY-MM-DD HH:MM:SS.fffffffff' on every line (no trailing spaces, "
+    "no blank lines)"
+)
 RANGE = "outside the years 1678-2262 that int64 nanoseconds since 1970 can hold"
 IDENTITY_ROW = "1 0 0 0 0 1 0 0 0 0 1 0"
 
@@ -56,26 +58,37 @@ def test_kitti_pose_not_a_number_names_value_position(tmp_path):
 def test_kitti_pose_not_finite_names_value_position(tmp_path):
     """inf at the 4th place reads 'KITTI pose value 4 is not finite'."""
     p = _write(tmp_path / "poses.txt", "1 0 0 inf 0 1 0 0 0 0 1 0\n")
-    assert str(_raises(lambda: read_kitti_poses(p))) == f"{p}:1: KITTI pose value 4 is not finite: 'inf'"
+    assert (
+        str(_raises(lambda: read_kitti_poses(p)))
+        == f"{p}:1: KITTI pose value 4 is not finite: 'inf'"
+    )
 
 
 def test_kitti_pose_wrong_count_message(tmp_path):
     """Eleven numbers: 'KITTI pose line has 11 numbers, expected 12'."""
     p = _write(tmp_path / "poses.txt", "1 0 0 0 0 1 0 0 0 0 1\n")
-    assert str(_raises(lambda: read_kitti_poses(p))) == f"{p}:1: KITTI pose line has 11 numbers, expected 12"
+    assert (
+        str(_raises(lambda: read_kitti_poses(p)))
+        == f"{p}:1: KITTI pose line has 11 numbers, expected 12"
+    )
 
 
 def test_kitti_pose_hash_is_not_a_comment(tmp_path):
     """KITTI pose files have no comments: a '#' line is a bad line (TUM and times files skip it)."""
     p = _write(tmp_path / "poses.txt", "# header\n" + IDENTITY_ROW + "\n")
-    assert str(_raises(lambda: read_kitti_poses(p))) == f"{p}:1: KITTI pose line has 2 numbers, expected 12"
+    assert (
+        str(_raises(lambda: read_kitti_poses(p)))
+        == f"{p}:1: KITTI pose line has 2 numbers, expected 12"
+    )
 
 
 def test_kitti_pose_rotation_unchecked_by_default(tmp_path):
     """Without check_rotation a non-rotation block is read as written; with it, the line is named."""
     p = _write(tmp_path / "poses.txt", IDENTITY_ROW + "\n" + "2 0 0 1 0 2 0 2 0 0 2 3\n")
     T = read_kitti_poses(p)
-    expected = np.array([[2, 0, 0, 1], [0, 2, 0, 2], [0, 0, 2, 3], [0, 0, 0, 1]], dtype=float)
+    expected = np.array(
+        [[2, 0, 0, 1], [0, 2, 0, 2], [0, 0, 2, 3], [0, 0, 0, 1]], dtype=float
+    )
     np.testing.assert_array_equal(T[1], expected)
     err = _raises(lambda: read_kitti_poses(p, check_rotation=True))
     assert str(err) == f"{p}:2: KITTI pose rotation block is not a rotation matrix"
@@ -86,15 +99,21 @@ def test_kitti_pose_rotation_tolerance_is_inclusive(tmp_path):
     p = _write(tmp_path / "poses.txt", "1 0.0001 0 0 0 1 0 0 0 0 1 0\n")
     assert read_kitti_poses(p, check_rotation=True)[0, 0, 1] == 1e-4
     q = _write(tmp_path / "poses2.txt", "1 0.5 0 0 0 1 0 0 0 0 1 0\n")
-    assert str(_raises(lambda: read_kitti_poses(q, check_rotation=True))).startswith(f"{q}:1: KITTI pose rotation")
+    assert str(_raises(lambda: read_kitti_poses(q, check_rotation=True))).startswith(
+        f"{q}:1: KITTI pose rotation"
+    )
 
 
 def test_kitti_poses_values_and_shape(tmp_path):
     """Two lines -> (2, 4, 4), the 12 numbers row-major in the top 3x4, bottom row 0 0 0 1."""
-    p = _write(tmp_path / "poses.txt", IDENTITY_ROW + "\n\n" + "0 -1 0 5 1 0 0 6 0 0 1 7\n")
+    p = _write(
+        tmp_path / "poses.txt", IDENTITY_ROW + "\n\n" + "0 -1 0 5 1 0 0 6 0 0 1 7\n"
+    )
     T = read_kitti_poses(p, check_rotation=True)
     assert T.shape == (2, 4, 4) and T.dtype == np.float64
-    np.testing.assert_array_equal(T[1], [[0, -1, 0, 5], [1, 0, 0, 6], [0, 0, 1, 7], [0, 0, 0, 1]])
+    np.testing.assert_array_equal(
+        T[1], [[0, -1, 0, 5], [1, 0, 0, 6], [0, 0, 1, 7], [0, 0, 0, 1]]
+    )
 
 
 def test_write_kitti_poses_golden_text(tmp_path):
@@ -105,12 +124,15 @@ def test_write_kitti_poses_golden_text(tmp_path):
     write_kitti_poses(tmp_path / "p.txt", P)
     assert (tmp_path / "p.txt").read_text() == (
         "1.0 0.0 0.0 0.0 0.0 1.0 0.0 0.0 0.0 0.0 1.0 0.0\n"
-        "1.0 0.0 0.0 0.1 0.0 1.0 0.0 -2.0 0.0 0.0 1.0 3.5\n")
+        "1.0 0.0 0.0 0.1 0.0 1.0 0.0 -2.0 0.0 0.0 1.0 3.5\n"
+    )
 
 
 def test_write_poses_rejects_3d_wrong_shape(tmp_path):
     """A 3-D array that is neither (N, 4, 4) nor (N, 3, 4) is refused, naming the shape; nothing is written."""
-    err = _raises(lambda: write_kitti_poses(tmp_path / "p.txt", np.zeros((2, 4, 3))), ValueError)
+    err = _raises(
+        lambda: write_kitti_poses(tmp_path / "p.txt", np.zeros((2, 4, 3))), ValueError
+    )
     assert str(err) == "poses must be (N, 4, 4) or (N, 3, 4), got (2, 4, 3)"
     assert not (tmp_path / "p.txt").exists()
 
@@ -122,20 +144,32 @@ def test_write_poses_non_finite_message_counts(tmp_path):
     T[1, 3, 3] = np.nan
     T[2, 2, 2] = np.inf
     msg = "refusing to write a trajectory with non-finite (NaN / inf) poses: 2 of 3, the first at index 1"
-    assert str(_raises(lambda: write_kitti_poses(tmp_path / "p.txt", T), ValueError)) == msg
-    assert str(_raises(lambda: write_tum(tmp_path / "t.txt", [0, 1, 2], T), ValueError)) == msg
+    assert (
+        str(_raises(lambda: write_kitti_poses(tmp_path / "p.txt", T), ValueError)) == msg
+    )
+    assert (
+        str(_raises(lambda: write_tum(tmp_path / "t.txt", [0, 1, 2], T), ValueError))
+        == msg
+    )
     assert not (tmp_path / "p.txt").exists() and not (tmp_path / "t.txt").exists()
 
 
 # ------------------------------------------------------------------ trajectory_io: TUM
 def test_tum_values_by_hand(tmp_path):
     """qx = 1 is a half turn about x (diag 1 -1 -1); a comment line is skipped; times and translation kept."""
-    p = _write(tmp_path / "t.txt", "# timestamp tx ty tz qx qy qz qw\n0.5 1 2 3 1 0 0 0\n1.5 4 5 6 0 0 0 2\n")
+    p = _write(
+        tmp_path / "t.txt",
+        "# timestamp tx ty tz qx qy qz qw\n0.5 1 2 3 1 0 0 0\n1.5 4 5 6 0 0 0 2\n",
+    )
     t, T = read_tum(p)
     np.testing.assert_array_equal(t, [0.5, 1.5])
     assert T.shape == (2, 4, 4)
-    np.testing.assert_allclose(T[0], [[1, 0, 0, 1], [0, -1, 0, 2], [0, 0, -1, 3], [0, 0, 0, 1]], atol=1e-15)
-    np.testing.assert_allclose(T[1], [[1, 0, 0, 4], [0, 1, 0, 5], [0, 0, 1, 6], [0, 0, 0, 1]], atol=1e-15)
+    np.testing.assert_allclose(
+        T[0], [[1, 0, 0, 1], [0, -1, 0, 2], [0, 0, -1, 3], [0, 0, 0, 1]], atol=1e-15
+    )
+    np.testing.assert_allclose(
+        T[1], [[1, 0, 0, 4], [0, 1, 0, 5], [0, 0, 1, 6], [0, 0, 0, 1]], atol=1e-15
+    )
 
 
 def test_tum_empty_file(tmp_path):
@@ -149,13 +183,18 @@ def test_tum_tiny_quaternion_is_normalised(tmp_path):
     p = _write(tmp_path / "t.txt", "0 0 0 0 0 0 0 1e-12\n")
     np.testing.assert_allclose(read_tum(p)[1][0], np.eye(4), atol=1e-15)
     q = _write(tmp_path / "t2.txt", "0 0 0 0 0 0 0 0\n")
-    assert str(_raises(lambda: read_tum(q))) == f"{q}:1: TUM quaternion (qx qy qz qw) has zero norm"
+    assert (
+        str(_raises(lambda: read_tum(q)))
+        == f"{q}:1: TUM quaternion (qx qy qz qw) has zero norm"
+    )
 
 
 def test_tum_bad_line_messages(tmp_path):
     """TUM messages name the kind 'TUM', the count, or the value position."""
     p = _write(tmp_path / "t.txt", "0 1 2 3 0 0 0\n")
-    assert str(_raises(lambda: read_tum(p))) == f"{p}:1: TUM line has 7 numbers, expected 8"
+    assert (
+        str(_raises(lambda: read_tum(p))) == f"{p}:1: TUM line has 7 numbers, expected 8"
+    )
     q = _write(tmp_path / "t2.txt", "0 1 2 3 0 0 0 nan\n")
     assert str(_raises(lambda: read_tum(q))) == f"{q}:1: TUM value 8 is not finite: 'nan'"
 
@@ -164,7 +203,10 @@ def test_tum_invalid_utf8_is_replaced(tmp_path):
     """Bytes that are not UTF-8 become U+FFFD and give a DataFormatError (not UnicodeDecodeError)."""
     p = tmp_path / "t.txt"
     p.write_bytes(b"0 1 2 3 0 0 0 1\xff\n")
-    assert str(_raises(lambda: read_tum(p))) == f"{p}:1: TUM value 8 is not a number: '1\ufffd'"
+    assert (
+        str(_raises(lambda: read_tum(p)))
+        == f"{p}:1: TUM value 8 is not a number: '1\ufffd'"
+    )
 
 
 def test_write_tum_golden_text_with_header(tmp_path):
@@ -173,7 +215,8 @@ def test_write_tum_golden_text_with_header(tmp_path):
     T[:, :3, 3] = [[1, 2, 3], [4, 5, 6]]
     write_tum(tmp_path / "t.txt", np.array([[0.5, 1.25]]), T, header=True)
     assert (tmp_path / "t.txt").read_text() == (
-        "# timestamp tx ty tz qx qy qz qw\n0.5 1.0 2.0 3.0 0.0 0.0 0.0 1.0\n1.25 4.0 5.0 6.0 0.0 0.0 0.0 1.0\n")
+        "# timestamp tx ty tz qx qy qz qw\n0.5 1.0 2.0 3.0 0.0 0.0 0.0 1.0\n1.25 4.0 5.0 6.0 0.0 0.0 0.0 1.0\n"
+    )
 
 
 def test_write_tum_errors(tmp_path):
@@ -181,8 +224,13 @@ def test_write_tum_errors(tmp_path):
     T = np.tile(np.eye(4), (3, 1, 1))
     err = _raises(lambda: write_tum(tmp_path / "t.txt", [0.0, 1.0], T), ValueError)
     assert str(err) == "2 timestamps for 3 poses"
-    err = _raises(lambda: write_tum(tmp_path / "t.txt", [0.0, np.inf, 2.0], T), ValueError)
-    assert str(err) == "refusing to write a trajectory with non-finite (NaN / inf) timestamps"
+    err = _raises(
+        lambda: write_tum(tmp_path / "t.txt", [0.0, np.inf, 2.0], T), ValueError
+    )
+    assert (
+        str(err)
+        == "refusing to write a trajectory with non-finite (NaN / inf) timestamps"
+    )
 
 
 # ------------------------------------------------------------------ trajectory_io: times
@@ -204,9 +252,15 @@ def test_times_not_increasing_names_previous_value(tmp_path):
 def test_times_bad_line_messages(tmp_path):
     """A times line with two numbers, or a word, names the kind 'time'."""
     p = _write(tmp_path / "times.txt", "0.0\n1 2\n")
-    assert str(_raises(lambda: read_times(p))) == f"{p}:2: time line has 2 numbers, expected 1"
+    assert (
+        str(_raises(lambda: read_times(p)))
+        == f"{p}:2: time line has 2 numbers, expected 1"
+    )
     q = _write(tmp_path / "times2.txt", "abc\n")
-    assert str(_raises(lambda: read_times(q))) == f"{q}:1: time value 1 is not a number: 'abc'"
+    assert (
+        str(_raises(lambda: read_times(q)))
+        == f"{q}:1: time value 1 is not a number: 'abc'"
+    )
 
 
 def test_write_times_golden_and_flattened(tmp_path):
@@ -253,7 +307,9 @@ def test_parse_int64_limits_inclusive():
 def test_read_timestamps_missing_and_empty(tmp_path):
     """Missing and blank-only files: exact messages without a line."""
     p = tmp_path / "timestamps.txt"
-    assert str(_raises(lambda: read_timestamps_ns(p))) == f"{p}: timestamps file not found"
+    assert (
+        str(_raises(lambda: read_timestamps_ns(p))) == f"{p}: timestamps file not found"
+    )
     _write(p, "\n  \n")
     assert str(_raises(lambda: read_timestamps_ns(p))) == f"{p}: timestamps file is empty"
 
@@ -263,35 +319,52 @@ def test_read_timestamps_second_line_not_later(tmp_path):
     a = "2011-09-26 13:02:25.000000001"
     p = _write(tmp_path / "timestamps.txt", f"{a}\n{a}\n")
     err = _raises(lambda: read_timestamps_ns(p))
-    assert str(err) == (f"{p}:2: timestamp {a!r} is not later than the previous line's ({a}); "
-                        "timestamps must be strictly increasing")
-    np.testing.assert_array_equal(read_timestamps_ns(p, strictly_increasing=False), [1317042145000000001] * 2)
+    assert str(err) == (
+        f"{p}:2: timestamp {a!r} is not later than the previous line's ({a}); "
+        "timestamps must be strictly increasing"
+    )
+    np.testing.assert_array_equal(
+        read_timestamps_ns(p, strictly_increasing=False), [1317042145000000001] * 2
+    )
 
 
 def test_read_timestamps_third_line_names_second(tmp_path):
     """Line 3 earlier than line 2: the message quotes line 2's time, not line 1's."""
-    lines = ["2011-09-26 13:02:25.000000000", "2011-09-26 13:02:27.000000000", "2011-09-26 13:02:26.000000000"]
+    lines = [
+        "2011-09-26 13:02:25.000000000",
+        "2011-09-26 13:02:27.000000000",
+        "2011-09-26 13:02:26.000000000",
+    ]
     p = _write(tmp_path / "timestamps.txt", "\n".join(lines) + "\n")
     err = _raises(lambda: read_timestamps_ns(p))
-    assert str(err) == (f"{p}:3: timestamp {lines[2]!r} is not later than the previous line's ({lines[1]}); "
-                        "timestamps must be strictly increasing")
+    assert str(err) == (
+        f"{p}:3: timestamp {lines[2]!r} is not later than the previous line's ({lines[1]}); "
+        "timestamps must be strictly increasing"
+    )
 
 
 def test_read_timestamps_non_ascii_replaced(tmp_path):
     """Read as ASCII with replacement: the two UTF-8 bytes of 'é' become two U+FFFD in the message."""
     p = tmp_path / "timestamps.txt"
-    p.write_bytes("2011-09-26 13:02:25.96438944é\n".encode("utf-8"))
+    p.write_bytes("2011-09-26 13:02:25.96438944é\n".encode())
     bad = "2011-09-26 13:02:25.96438944\ufffd\ufffd"
-    assert str(_raises(lambda: read_timestamps_ns(p))) == f"{p}:1: bad timestamp {bad!r}: {HINT}"
+    assert (
+        str(_raises(lambda: read_timestamps_ns(p)))
+        == f"{p}:1: bad timestamp {bad!r}: {HINT}"
+    )
 
 
 def test_pykitti_check_non_ascii_replaced(tmp_path):
     """The pykitti check reads ASCII with replacement too, and quotes the line without its newline."""
     p = tmp_path / "timestamps.txt"
-    p.write_bytes("2011-09-26 13:02:25.964389445\n2011-09-26 13:02:26.96438944é\n".encode("utf-8"))
+    p.write_bytes(
+        "2011-09-26 13:02:25.964389445\n2011-09-26 13:02:26.96438944é\n".encode()
+    )
     bad = "2011-09-26 13:02:26.96438944\ufffd\ufffd"
     err = _raises(lambda: check_timestamps_for_pykitti(p))
-    assert str(err) == f"{p}:2: pykitti cannot parse timestamp line {bad!r}: {PYKITTI_HINT}"
+    assert (
+        str(err) == f"{p}:2: pykitti cannot parse timestamp line {bad!r}: {PYKITTI_HINT}"
+    )
 
 
 def test_pykitti_check_cuts_four_characters(tmp_path):
@@ -302,7 +375,8 @@ def test_pykitti_check_cuts_four_characters(tmp_path):
     line = "2011-09-26 13:02:25.1234567890"
     bad = _write(tmp_path / "bad.txt", line + "\n")
     assert str(_raises(lambda: check_timestamps_for_pykitti(bad))) == (
-        f"{bad}:1: pykitti cannot parse timestamp line {line!r}: {PYKITTI_HINT}")
+        f"{bad}:1: pykitti cannot parse timestamp line {line!r}: {PYKITTI_HINT}"
+    )
 
 
 def test_write_timestamps_round_trip(tmp_path):
@@ -310,8 +384,11 @@ def test_write_timestamps_round_trip(tmp_path):
     ns = [0, 1317042145964389445, -(2**63)]
     write_timestamps_ns(tmp_path / "ts.txt", ns)
     assert (tmp_path / "ts.txt").read_text() == (
-        "1970-01-01 00:00:00.000000000\n2011-09-26 13:02:25.964389445\n1677-09-21 00:12:43.145224192\n")
-    np.testing.assert_array_equal(read_timestamps_ns(tmp_path / "ts.txt", strictly_increasing=False), ns)
+        "1970-01-01 00:00:00.000000000\n2011-09-26 13:02:25.964389445\n1677-09-21 00:12:43.145224192\n"
+    )
+    np.testing.assert_array_equal(
+        read_timestamps_ns(tmp_path / "ts.txt", strictly_increasing=False), ns
+    )
     assert format_timestamp_ns(ns[1]) == "2011-09-26 13:02:25.964389445"
 
 

@@ -16,6 +16,7 @@ from slamlib.kitti.raw import _normalise_frames, check_numbered_files, drive_fol
 from slamlib.kitti.sample import SAMPLE_DATE, SAMPLE_DRIVE
 from slamlib.kitti.timestamps import read_timestamps_ns, write_timestamps_ns
 
+
 # ------------------------------------------------------------------ raw: names and frame selection
 def test_drive_folder_name_keeps_string_drive_as_given():
     """A drive given as a string is used verbatim (only ints are zero-padded to 4 digits)."""
@@ -28,8 +29,10 @@ def test_check_numbered_files_full_message(tmp_path):
     (tmp_path / "0000000000.txt").write_text("")
     with pytest.raises(DataFormatError) as info:
         check_numbered_files(tmp_path, ".txt", 3, "OXTS packets", "timestamps")
-    assert info.value.message == ("fewer OXTS packets than the 3 timestamps: 2 of 3 missing "
-                                  "(first: 0000000001.txt; files are numbered 0000000000.txt upwards)")
+    assert info.value.message == (
+        "fewer OXTS packets than the 3 timestamps: 2 of 3 missing "
+        "(first: 0000000001.txt; files are numbered 0000000000.txt upwards)"
+    )
 
 
 N = 4  # frames in the drive that _normalise_frames is told about
@@ -37,8 +40,15 @@ N = 4  # frames in the drive that _normalise_frames is told about
 
 def test_normalise_frames_values_and_dtype():
     """Every accepted form of ``frames`` gives int64 frame numbers, including floats, generators and lists."""
-    cases = [(None, [0, 1, 2, 3]), (slice(1, None, 2), [1, 3]), (range(1, 3), [1, 2]), ([0.0, 2.0], [0, 2]),
-             ((i for i in (0, 3)), [0, 3]), ([0], [0]), (np.array([3, 0]), [3, 0])]
+    cases = [
+        (None, [0, 1, 2, 3]),
+        (slice(1, None, 2), [1, 3]),
+        (range(1, 3), [1, 2]),
+        ([0.0, 2.0], [0, 2]),
+        ((i for i in (0, 3)), [0, 3]),
+        ([0], [0]),
+        (np.array([3, 0]), [3, 0]),
+    ]
     for frames, expected in cases:
         idx = _normalise_frames(frames, N)
         assert idx.dtype == np.int64
@@ -56,10 +66,15 @@ def test_normalise_frames_error_messages():
     for bad, shown in (([0, 0.5], "0.5"), ([np.inf], "inf"), (["1"], "'1'")):
         with pytest.raises(ValueError) as info:
             _normalise_frames(bad, N)
-        assert str(info.value).startswith("frames must be whole frame numbers, got ") and shown in str(info.value)
+        assert str(info.value).startswith(
+            "frames must be whole frame numbers, got "
+        ) and shown in str(info.value)
     with pytest.raises(ValueError) as info:
         _normalise_frames([0, N], N)
-    assert str(info.value) == "frames out of range: the drive has frames 0..3, asked for 0..4"
+    assert (
+        str(info.value)
+        == "frames out of range: the drive has frames 0..3, asked for 0..4"
+    )
     assert _normalise_frames([N - 1], N).tolist() == [N - 1]
 
 
@@ -77,15 +92,19 @@ def test_missing_drive_folder_full_message(tmp_path):
         KittiRawDrive(tmp_path, "2011_09_26", 7)
     expected_path = tmp_path / "2011_09_26" / "2011_09_26_drive_0007_sync"
     assert info.value.path == str(expected_path)
-    assert info.value.message == ("KITTI raw drive folder not found (expected basedir/DATE/DATE_drive_XXXX_sync with "
-                                  f"basedir={str(tmp_path)!r}, date='2011_09_26', drive='0007')")
+    assert info.value.message == (
+        "KITTI raw drive folder not found (expected basedir/DATE/DATE_drive_XXXX_sync with "
+        f"basedir={str(tmp_path)!r}, date='2011_09_26', drive='0007')"
+    )
 
 
 def test_dataset_suffix_selects_folder(drive_dir, tiny_drive_frames):
     """``dataset='extract'`` opens ``DATE_drive_XXXX_extract`` (the suffix is not always ``sync``)."""
     other = drive_dir.with_name(drive_dir.name.replace("_sync", "_extract"))
     drive_dir.rename(other)
-    drive = KittiRawDrive(other.parent.parent, SAMPLE_DATE, SAMPLE_DRIVE, dataset="extract")
+    drive = KittiRawDrive(
+        other.parent.parent, SAMPLE_DATE, SAMPLE_DRIVE, dataset="extract"
+    )
     assert drive.path == other
     assert len(drive) == tiny_drive_frames
 
@@ -140,7 +159,10 @@ def test_getitem_bounds_dt_and_path(drive_dir, open_drive):
     assert first.index == 1 and first.dt == 0.0
     assert drive[0].dt == 0.0
     assert drive[1].dt == pytest.approx((ts[3] - ts[1]) * 1e-9, rel=1e-12)
-    assert drive[1].velodyne_path == drive_dir / "velodyne_points" / "data" / "0000000003.bin"
+    assert (
+        drive[1].velodyne_path
+        == drive_dir / "velodyne_points" / "data" / "0000000003.bin"
+    )
     with pytest.raises(IndexError) as info:
         drive[2]
     assert str(info.value) == "frame position 2 out of range for 2 frames"
@@ -197,8 +219,14 @@ def test_xyz_shape_message():
 
 def test_ring_index_two_points_and_exact_drop():
     """Two points: a drop of more than min_drop starts ring 1; a drop of exactly min_drop does not."""
-    assert ss.ring_index([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0]]).tolist() == [0, 0]  # drop pi/2 == min_drop
-    assert ss.ring_index([[-1.0, 1.0, 0.0], [1.0, 0.0, 0.0]]).tolist() == [0, 1]  # drop 3 pi / 4
+    assert ss.ring_index([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0]]).tolist() == [
+        0,
+        0,
+    ]  # drop pi/2 == min_drop
+    assert ss.ring_index([[-1.0, 1.0, 0.0], [1.0, 0.0, 0.0]]).tolist() == [
+        0,
+        1,
+    ]  # drop 3 pi / 4
 
 
 def test_ring_counts_uses_min_drop_and_int64():
@@ -220,8 +248,11 @@ def test_elevation_fractions_no_point_inside_is_silent_nan():
 def test_front_view_limits_inclusive_and_short_range():
     """A point at exactly the lower azimuth limit and one at exactly max_range are kept; elevation of a point
     nearer than 1 m is asin(z / r) (0.3, 0, 0.4): r = 0.5, el = asin(0.8))."""
-    az, el, r = ss.front_view([[3.0, 4.0, 0.0], [0.3, 0.0, 0.4], [1.0, -1.0, 0.0]], az_limits_deg=(0.0, 90.0),
-                              max_range=5.0)
+    az, el, r = ss.front_view(
+        [[3.0, 4.0, 0.0], [0.3, 0.0, 0.4], [1.0, -1.0, 0.0]],
+        az_limits_deg=(0.0, 90.0),
+        max_range=5.0,
+    )
     assert r.tolist() == [5.0, 0.5]
     assert az[1] == 0.0
     assert el[1] == pytest.approx(np.degrees(np.arcsin(0.8)), abs=1e-12)
@@ -229,14 +260,29 @@ def test_front_view_limits_inclusive_and_short_range():
 
 def test_front_view_ties_keep_input_order():
     """Points at equal range keep their input order (stable far-to-near sort)."""
-    dirs = np.array([[5, 0, 0], [4, 3, 0], [4, -3, 0], [3, 4, 0], [3, -4, 0], [4, 0, 3], [4, 0, -3], [3, 0, 4]])
+    dirs = np.array(
+        [
+            [5, 0, 0],
+            [4, 3, 0],
+            [4, -3, 0],
+            [3, 4, 0],
+            [3, -4, 0],
+            [4, 0, 3],
+            [4, 0, -3],
+            [3, 0, 4],
+        ]
+    )
     rng = np.random.default_rng(0)
     k = rng.integers(1, 4, 200)
-    pts = (dirs[rng.integers(0, len(dirs), 200)] * k[:, None]).astype(float)  # ranges exactly 5 k
+    pts = (dirs[rng.integers(0, len(dirs), 200)] * k[:, None]).astype(
+        float
+    )  # ranges exactly 5 k
     order = sorted(range(200), key=lambda i: -k[i])  # Python's sort is stable
     az, el, r = ss.front_view(pts)
     assert r.tolist() == [5.0 * k[i] for i in order]
-    np.testing.assert_allclose(az, np.degrees(np.arctan2(pts[order, 1], pts[order, 0])), atol=1e-12)
+    np.testing.assert_allclose(
+        az, np.degrees(np.arctan2(pts[order, 1], pts[order, 0])), atol=1e-12
+    )
     np.testing.assert_allclose(el, np.degrees(np.arcsin(pts[order, 2] / r)), atol=1e-12)
 
 
@@ -249,22 +295,38 @@ def test_range_image_shapes_and_errors():
     for kw in ({"az_limits_deg": (10.0, 10.0)}, {"columns": 0}):
         with pytest.raises(ValueError) as info:
             ss.range_image(one, **kw)
-        assert str(info.value) == "need az_limits_deg[0] < az_limits_deg[1] and columns >= 1"
+        assert (
+            str(info.value) == "need az_limits_deg[0] < az_limits_deg[1] and columns >= 1"
+        )
 
 
 def test_range_image_drops_out_of_grid_points():
     """Rings beyond n_rings and a point one column past the right edge are dropped; min_drop is passed on.
 
     Limits (-90, 90) with columns=4: step 90 deg, width 2 (az 90 -> column 0, az 0 -> column 1, az -90 -> 2)."""
-    pts = [[0.0, 2.0, 0.0], [3.0, 0.0, 0.0], [0.0, -4.0, 0.0]]  # az 90, 0, -90: no drop, one ring
+    pts = [
+        [0.0, 2.0, 0.0],
+        [3.0, 0.0, 0.0],
+        [0.0, -4.0, 0.0],
+    ]  # az 90, 0, -90: no drop, one ring
     img = ss.range_image(pts, az_limits_deg=(-90.0, 90.0), columns=4, n_rings=2)
     np.testing.assert_array_equal(img, [[2.0, 3.0], [np.nan, np.nan]])
-    two_rings = [[5.0, -0.1, 0.0], [3.0, 0.1, 0.0]]  # az ~358.9 then ~1.9 deg: the wrap starts ring 1
+    two_rings = [
+        [5.0, -0.1, 0.0],
+        [3.0, 0.1, 0.0],
+    ]  # az ~358.9 then ~1.9 deg: the wrap starts ring 1
     img = ss.range_image(two_rings, az_limits_deg=(-90.0, 90.0), columns=4, n_rings=1)
     np.testing.assert_array_equal(img, [[np.nan, np.hypot(5.0, 0.1)]])
-    spread = [[0.0, 2.0, 0.0], [1.0, 1.0, 0.0]]  # az 90 then 45: drop pi/4 splits only with min_drop < pi/4
-    img = ss.range_image(spread, az_limits_deg=(-90.0, 90.0), columns=8, n_rings=2, min_drop=0.5)
-    np.testing.assert_allclose(img, [[2.0, np.nan, np.nan, np.nan], [np.nan, np.sqrt(2.0), np.nan, np.nan]])
+    spread = [
+        [0.0, 2.0, 0.0],
+        [1.0, 1.0, 0.0],
+    ]  # az 90 then 45: drop pi/4 splits only with min_drop < pi/4
+    img = ss.range_image(
+        spread, az_limits_deg=(-90.0, 90.0), columns=8, n_rings=2, min_drop=0.5
+    )
+    np.testing.assert_allclose(
+        img, [[2.0, np.nan, np.nan, np.nan], [np.nan, np.sqrt(2.0), np.nan, np.nan]]
+    )
 
 
 # ------------------------------------------------------------------ icp_align
@@ -279,8 +341,18 @@ def _plane_grid(n=20, spacing=1.0):
 
 def test_icp_crop_bounds_inclusive():
     """Points at exactly min_range (3 m) and max_range (80 m) are kept; nearer / farther ones (2.9, 80.5 m) not."""
-    src = np.array([[3.0, 0, 0], [0, 3.0, 0], [0, 0, 3.0], [80.0, 0, 0], [0, 80.0, 0],
-                    [2.9, 0, 0], [80.5, 0, 0], [0, 0, 1.0]])
+    src = np.array(
+        [
+            [3.0, 0, 0],
+            [0, 3.0, 0],
+            [0, 0, 3.0],
+            [80.0, 0, 0],
+            [0, 80.0, 0],
+            [2.9, 0, 0],
+            [80.5, 0, 0],
+            [0, 0, 1.0],
+        ]
+    )
     res = ss.icp_align(src, _plane_grid())
     assert res.n_source == 5
 
@@ -295,7 +367,10 @@ def test_icp_three_points_enough_and_message():
     for src, tgt in ((three[:2], _plane_grid()), (_plane_grid(), three[:2])):
         with pytest.raises(ValueError) as info:
             ss.icp_align(src, tgt)
-        assert str(info.value) == "icp_align: fewer than 3 points left in a scan after cropping and down-sampling"
+        assert (
+            str(info.value)
+            == "icp_align: fewer than 3 points left in a scan after cropping and down-sampling"
+        )
 
 
 def test_icp_initial_rmse_reported():
@@ -320,7 +395,11 @@ def test_icp_settings_reach_open3d(monkeypatch):
 
     def icp(src, tgt, d, T, est, criteria=None):
         rounds.append(None if criteria is None else criteria.max_iteration)
-        return real_icp(src, tgt, d, T, est) if criteria is None else real_icp(src, tgt, d, T, est, criteria)
+        return (
+            real_icp(src, tgt, d, T, est)
+            if criteria is None
+            else real_icp(src, tgt, d, T, est, criteria)
+        )
 
     def search(radius, max_nn):
         searches.append((radius, max_nn))

@@ -14,7 +14,12 @@ import numpy as np
 import pytest
 
 from slamlib.errors import DataFormatError
-from slamlib.kitti import KittiOdometrySequence, read_oxts_packet, read_timestamps_ns, read_velodyne_scan
+from slamlib.kitti import (
+    KittiOdometrySequence,
+    read_oxts_packet,
+    read_timestamps_ns,
+    read_velodyne_scan,
+)
 from slamlib.kitti.sample import (
     NOMINAL_SCAN_PERIOD,
     REAL_SCANS,
@@ -52,13 +57,17 @@ def _make_sequence(base, seq="04", times=TIMES, tr=TR, poses=True, scans=None):
     d = base / "sequences" / seq
     (d / "velodyne").mkdir(parents=True)
     p = _line(np.hstack([np.eye(3), np.zeros((3, 1))]))
-    (d / "calib.txt").write_text("".join(f"P{i}: {p}\n" for i in range(4)) + f"Tr: {_line(tr)}\n")
+    (d / "calib.txt").write_text(
+        "".join(f"P{i}: {p}\n" for i in range(4)) + f"Tr: {_line(tr)}\n"
+    )
     (d / "times.txt").write_text("".join(f"{t!r}\n" for t in times))
     for i in range(len(times) if scans is None else scans):
         _scan(i).astype("<f4").tofile(d / "velodyne" / f"{i:06d}.bin")
     if poses:
         (base / "poses").mkdir(exist_ok=True)
-        (base / "poses" / f"{seq}.txt").write_text("".join(_line(_pose(k)) + "\n" for k in range(len(times))))
+        (base / "poses" / f"{seq}.txt").write_text(
+            "".join(_line(_pose(k)) + "\n" for k in range(len(times)))
+        )
     return d
 
 
@@ -83,7 +92,10 @@ def _err(fn, exc=DataFormatError):
 # ------------------------------------------------------------------ sequence_name
 def test_sequence_name_error_message_is_whole():
     """A non-numeric sequence is refused with the message naming the value (repr)."""
-    assert str(_err(lambda: sequence_name("x7"), ValueError)) == "sequence must be a number like 07, got 'x7'"
+    assert (
+        str(_err(lambda: sequence_name("x7"), ValueError))
+        == "sequence must be a number like 07, got 'x7'"
+    )
 
 
 # ------------------------------------------------------------------ opening
@@ -97,7 +109,9 @@ def test_values_read_at_open(base):
     for k in range(3):
         P = np.eye(4)
         P[:3] = _pose(k)
-        np.testing.assert_allclose(seq.ground_truth[k], np.linalg.inv(_tr4()) @ P @ _tr4(), atol=1e-12)
+        np.testing.assert_allclose(
+            seq.ground_truth[k], np.linalg.inv(_tr4()) @ P @ _tr4(), atol=1e-12
+        )
 
 
 def test_missing_sequence_folder_lists_the_sequences_there(tmp_path):
@@ -107,16 +121,20 @@ def test_missing_sequence_folder_lists_the_sequences_there(tmp_path):
     (tmp_path / "sequences" / "05").write_text("")
     err = _err(lambda: KittiOdometrySequence(tmp_path, 7))
     path = tmp_path / "sequences" / "07"
-    assert str(err) == (f"{path}: KITTI odometry sequence folder not found (expected basedir/sequences/NN); "
-                        "sequences there: 03, 11")
+    assert str(err) == (
+        f"{path}: KITTI odometry sequence folder not found (expected basedir/sequences/NN); "
+        "sequences there: 03, 11"
+    )
     assert err.path == str(path)
 
 
 def test_missing_sequences_folder_says_none(tmp_path):
     """Without a sequences/ folder the list reads ``none``."""
     err = _err(lambda: KittiOdometrySequence(tmp_path, "00"))
-    assert str(err) == (f"{tmp_path / 'sequences' / '00'}: KITTI odometry sequence folder not found (expected "
-                        "basedir/sequences/NN); sequences there: none")
+    assert str(err) == (
+        f"{tmp_path / 'sequences' / '00'}: KITTI odometry sequence folder not found (expected "
+        "basedir/sequences/NN); sequences there: none"
+    )
 
 
 def test_tr_offset_too_far_names_tr_offset(tmp_path):
@@ -125,8 +143,10 @@ def test_tr_offset_too_far_names_tr_offset(tmp_path):
     tr[:, 3] = [200.0, 0.0, 0.0]
     d = _make_sequence(tmp_path, tr=tr)
     err = _err(lambda: KittiOdometrySequence(tmp_path, 4))
-    assert str(err) == (f"{d / 'calib.txt'}: calibration Tr's offset = [200.0, 0.0, 0.0] m is farther than 100 m: "
-                        "not an offset between two sensors of one vehicle")
+    assert str(err) == (
+        f"{d / 'calib.txt'}: calibration Tr's offset = [200.0, 0.0, 0.0] m is farther than 100 m: "
+        "not an offset between two sensors of one vehicle"
+    )
 
 
 def test_missing_times_file_message(base):
@@ -135,7 +155,8 @@ def test_missing_times_file_message(base):
     times.unlink()
     assert str(_err(lambda: KittiOdometrySequence(base, 4))) == (
         f"{times}: times file not found (one time in seconds per frame; the odometry layout needs it for the "
-        "frame intervals)")
+        "frame intervals)"
+    )
 
 
 def test_empty_times_file_has_no_frames(base):
@@ -160,7 +181,8 @@ def test_missing_scan_message(tmp_path):
     d = _make_sequence(tmp_path, scans=2)
     assert str(_err(lambda: KittiOdometrySequence(tmp_path, 4))) == (
         f"{d / 'velodyne'}: fewer Velodyne scans than the 3 times in times.txt: 1 of 3 missing "
-        "(first: 000002.bin; files are numbered 000000.bin upwards)")
+        "(first: 000002.bin; files are numbered 000000.bin upwards)"
+    )
 
 
 def test_missing_velodyne_folder_message(base):
@@ -170,7 +192,8 @@ def test_missing_velodyne_folder_message(base):
         f.unlink()
     d.rmdir()
     assert str(_err(lambda: KittiOdometrySequence(base, 4))) == (
-        f"{d}: folder of Velodyne scans not found (needed for 3 frames)")
+        f"{d}: folder of Velodyne scans not found (needed for 3 frames)"
+    )
 
 
 def test_explicit_poses_file_is_read(base, tmp_path):
@@ -181,7 +204,9 @@ def test_explicit_poses_file_is_read(base, tmp_path):
     other.write_text("".join(_line(P[:3]) + "\n" for _ in range(3)))
     seq = KittiOdometrySequence(base, 4, poses=other)
     assert seq.poses_path == other
-    np.testing.assert_allclose(seq.ground_truth[1], np.linalg.inv(_tr4()) @ P @ _tr4(), atol=1e-12)
+    np.testing.assert_allclose(
+        seq.ground_truth[1], np.linalg.inv(_tr4()) @ P @ _tr4(), atol=1e-12
+    )
 
 
 def test_explicit_missing_poses_file_is_an_error(base, tmp_path):
@@ -207,7 +232,10 @@ def test_no_poses_file_means_no_ground_truth(tmp_path):
     assert seq.poses_path is None and seq.ground_truth is None
     assert seq[1].T_w_body is None
     err = _err(seq.ground_truth_poses, ValueError)
-    assert str(err) == f"{tmp_path / 'sequences' / '04'} has no ground truth ({tmp_path / 'poses' / '04'}.txt)"
+    assert (
+        str(err)
+        == f"{tmp_path / 'sequences' / '04'} has no ground truth ({tmp_path / 'poses' / '04'}.txt)"
+    )
 
 
 # ------------------------------------------------------------------ frames
@@ -219,15 +247,24 @@ def test_frame_values(base):
     assert f.velodyne_path == base / "sequences" / "04" / "velodyne" / "000002.bin"
     np.testing.assert_array_equal(f.scan, _scan(2))
     np.testing.assert_array_equal(f.T_w_body, seq.ground_truth[2])
-    assert repr(seq) == f"KittiOdometrySequence({str(base / 'sequences' / '04')!r}, 2 of 3 frames)"
+    assert (
+        repr(seq)
+        == f"KittiOdometrySequence({str(base / 'sequences' / '04')!r}, 2 of 3 frames)"
+    )
 
 
 def test_getitem_bounds(base):
     """Positions -n..n-1 are valid (-n is the first), n and -n-1 raise IndexError with the whole message."""
     seq = KittiOdometrySequence(base, 4)
     assert seq[-3].index == 0 and seq[2].index == 2
-    assert str(_err(lambda: seq[3], IndexError)) == "frame position 3 out of range for 3 frames"
-    assert str(_err(lambda: seq[-4], IndexError)) == "frame position -4 out of range for 3 frames"
+    assert (
+        str(_err(lambda: seq[3], IndexError))
+        == "frame position 3 out of range for 3 frames"
+    )
+    assert (
+        str(_err(lambda: seq[-4], IndexError))
+        == "frame position -4 out of range for 3 frames"
+    )
 
 
 def test_progress_bar_only_when_asked(base, capsys):
@@ -237,7 +274,9 @@ def test_progress_bar_only_when_asked(base, capsys):
     assert [f.index for f in KittiOdometrySequence(base, 4, progress=True)] == [0, 1, 2]
     err = capsys.readouterr().err
     assert err.startswith("\rframes:   0%|") and " 0/3 " in err and "frame/s]" in err
-    assert not err.endswith("\n")  # leave=False: the bar is cleared, not left on its own line
+    assert not err.endswith(
+        "\n"
+    )  # leave=False: the bar is cleared, not left on its own line
 
 
 # ------------------------------------------------------------------ velodyne
@@ -249,7 +288,10 @@ def test_missing_scan_file_message(tmp_path):
 
 def test_xz_scan_reads_the_same_values(tmp_path):
     """A ``.bin.xz`` file holds the little-endian float32 bytes of a ``.bin``: read back exactly."""
-    pts = np.array([[1.5, -2.25, 3.0, 0.5], [4.0, 5.0, -6.5, 1.0], [0.1, 0.2, 0.3, 0.0]], dtype=np.float32)
+    pts = np.array(
+        [[1.5, -2.25, 3.0, 0.5], [4.0, 5.0, -6.5, 1.0], [0.1, 0.2, 0.3, 0.0]],
+        dtype=np.float32,
+    )
     f = tmp_path / "000000.bin.xz"
     f.write_bytes(lzma.compress(pts.astype("<f4").tobytes()))
     got = read_velodyne_scan(f)
@@ -262,7 +304,10 @@ def test_xz_scan_size_is_the_decompressed_size(tmp_path):
     f = tmp_path / "s.bin.xz"
     f.write_bytes(lzma.compress(bytes(20)))
     err = _err(lambda: read_velodyne_scan(f))
-    assert str(err) == f"{f}: Velodyne scan has 20 bytes, not a multiple of 16 (4 float32 per point)"
+    assert (
+        str(err)
+        == f"{f}: Velodyne scan has 20 bytes, not a multiple of 16 (4 float32 per point)"
+    )
 
 
 def test_unreadable_xz_message(tmp_path):
@@ -271,7 +316,9 @@ def test_unreadable_xz_message(tmp_path):
     f.write_bytes(bytes(32))
     err = _err(lambda: read_velodyne_scan(f))
     assert err.path == str(f)
-    assert str(err).startswith(f"{f}: not a readable xz file: ") and len(err.message) > len("not a readable xz file: ")
+    assert str(err).startswith(f"{f}: not a readable xz file: ") and len(
+        err.message
+    ) > len("not a readable xz file: ")
 
 
 def test_write_three_columns_adds_zero_reflectance(tmp_path):
@@ -294,7 +341,9 @@ def test_write_float64_is_stored_as_float32(tmp_path):
 @pytest.mark.parametrize("shape", [(4,), (2, 4, 4), (2, 5), (2, 2)])
 def test_write_refuses_bad_shapes(tmp_path, shape):
     """Only (N, 4) or (N, 3) are written; the message gives the shape."""
-    err = _err(lambda: write_velodyne_scan(tmp_path / "s.bin", np.zeros(shape)), ValueError)
+    err = _err(
+        lambda: write_velodyne_scan(tmp_path / "s.bin", np.zeros(shape)), ValueError
+    )
     assert str(err) == f"scan must be (N, 4) or (N, 3), got {shape}"
     assert not (tmp_path / "s.bin").exists()
 
@@ -318,11 +367,17 @@ def test_make_tiny_drive_defaults(tmp_path):
     """Defaults: 5 frames; scans alternate the two real scans keeping every 50th point; dataformat.txt copied."""
     d = make_tiny_drive(tmp_path)
     p = sample_raw_paths()
-    assert sorted(f.name for f in (d / "oxts" / "data").iterdir()) == [f"{i:010d}.txt" for i in range(5)]
+    assert sorted(f.name for f in (d / "oxts" / "data").iterdir()) == [
+        f"{i:010d}.txt" for i in range(5)
+    ]
     assert len(list((d / "velodyne_points" / "data").iterdir())) == 5
-    np.testing.assert_array_equal(read_velodyne_scan(d / "velodyne_points" / "data" / "0000000003.bin"),
-                                  np.fromfile(p["scan9"], dtype="<f4").reshape(-1, 4)[::50])
-    assert (d / "oxts" / "dataformat.txt").read_bytes() == (p["drive_dir"] / "oxts" / "dataformat.txt").read_bytes()
+    np.testing.assert_array_equal(
+        read_velodyne_scan(d / "velodyne_points" / "data" / "0000000003.bin"),
+        np.fromfile(p["scan9"], dtype="<f4").reshape(-1, 4)[::50],
+    )
+    assert (d / "oxts" / "dataformat.txt").read_bytes() == (
+        p["drive_dir"] / "oxts" / "dataformat.txt"
+    ).read_bytes()
 
 
 def test_make_tiny_drive_twice_in_the_same_place(tmp_path):
@@ -351,14 +406,23 @@ def test_make_tiny_drive_packets(tmp_path):
     base = read_oxts_packet(sample_raw_paths()["oxts_packet"])
     ts = read_timestamps_ns(sample_raw_paths()["oxts_timestamps"])
     pk = [read_oxts_packet(d / "oxts" / "data" / f"{i:010d}.txt") for i in range(3)]
-    assert (pk[0].lat, pk[0].lon, pk[0].yaw, pk[0].wu) == (base.lat, base.lon, base.yaw, rate)
+    assert (pk[0].lat, pk[0].lon, pk[0].yaw, pk[0].wu) == (
+        base.lat,
+        base.lon,
+        base.yaw,
+        rate,
+    )
     assert pk[0]._replace(wu=base.wu) == base
     dt = (ts[1] - ts[0]) * 1e-9
     step = base.vf * dt
     r = 6378137.0
-    assert pk[1].lat - base.lat == pytest.approx(math.degrees(step * math.sin(base.yaw) / r), rel=1e-9)
+    assert pk[1].lat - base.lat == pytest.approx(
+        math.degrees(step * math.sin(base.yaw) / r), rel=1e-9
+    )
     assert pk[1].lon - base.lon == pytest.approx(
-        math.degrees(step * math.cos(base.yaw) / (r * math.cos(math.radians(pk[1].lat)))), rel=1e-9)
+        math.degrees(step * math.cos(base.yaw) / (r * math.cos(math.radians(pk[1].lat)))),
+        rel=1e-9,
+    )
     assert pk[2].yaw == pytest.approx(base.yaw + rate * (ts[2] - ts[0]) * 1e-9, abs=1e-12)
     assert pk[2].wu == rate
 
@@ -367,7 +431,10 @@ def test_real_scan_path_values_and_bounds():
     """Scans 0 and 9 ship as .bin, 1..8 as .bin.xz; -1 and 10 are refused with the whole message."""
     root = kitti_sample_dir() / "velodyne_sample"
     assert REAL_SCANS == 10
-    assert real_scan_path(0) == root / "0000000000.bin" and real_scan_path(9) == root / "0000000009.bin"
+    assert (
+        real_scan_path(0) == root / "0000000000.bin"
+        and real_scan_path(9) == root / "0000000009.bin"
+    )
     assert real_scan_path("4") == root / "0000000004.bin.xz"
     for bad in (-1, 10):
         err = _err(lambda: real_scan_path(bad), ValueError)
@@ -378,10 +445,17 @@ def test_real_scan_frames_selected():
     """Selected frames: index, time k * period, dt from the previous selected, scan = the file, no ground truth."""
     frames = real_scan_frames([1, 4], period=0.5)
     assert [f.index for f in frames] == [1, 4]
-    assert [f.time_s for f in frames] == [0.5, 2.0] and [f.dt for f in frames] == [0.0, 1.5]
+    assert [f.time_s for f in frames] == [0.5, 2.0] and [f.dt for f in frames] == [
+        0.0,
+        1.5,
+    ]
     for f, k in zip(frames, [1, 4]):
-        assert f.velodyne_path == kitti_sample_dir() / "velodyne_sample" / f"{k:010d}.bin.xz"
-        raw = np.frombuffer(lzma.decompress(f.velodyne_path.read_bytes()), dtype="<f4").reshape(-1, 4)
+        assert (
+            f.velodyne_path == kitti_sample_dir() / "velodyne_sample" / f"{k:010d}.bin.xz"
+        )
+        raw = np.frombuffer(
+            lzma.decompress(f.velodyne_path.read_bytes()), dtype="<f4"
+        ).reshape(-1, 4)
         np.testing.assert_array_equal(f.scan, raw)
         assert f.T_w_body is None and f.velocity is None and f.angular_rate is None
 
@@ -393,4 +467,6 @@ def test_real_scan_frames_defaults():
     assert NOMINAL_SCAN_PERIOD == 0.10315
     assert frames[9].time_s == pytest.approx(9 * 0.10315, abs=1e-12)
     assert frames[3].dt == pytest.approx(0.10315, abs=1e-12)
-    np.testing.assert_array_equal(frames[9].scan, np.fromfile(real_scan_path(9), dtype="<f4").reshape(-1, 4))
+    np.testing.assert_array_equal(
+        frames[9].scan, np.fromfile(real_scan_path(9), dtype="<f4").reshape(-1, 4)
+    )

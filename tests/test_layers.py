@@ -9,17 +9,46 @@ ROOT = Path(slamlib.__file__).parent
 
 #: Layer of each top-level part of slamlib: a module may import only its own layer or lower ones.
 LAYERS = {
-    "cli": 5, "commands": 5,
-    "slam3d": 3, "synth": 3, "noise_quality": 3,
-    "kernels": 2, "kitti": 2, "sim1d": 2, "sim2d": 2, "metrics": 2, "odometry": 2, "peers": 2,
-    "maps": 1, "noise": 1, "geometry": 1, "resampling": 1, "contract": 1, "errors": 1,
-    "paths": 1, "data": 1, "plotstyle": 1, "machine": 1, "__init__": 6, "__main__": 6,
+    "cli": 5,
+    "commands": 5,
+    "slam3d": 3,
+    "synth": 3,
+    "noise_quality": 3,
+    "kernels": 2,
+    "kitti": 2,
+    "sim1d": 2,
+    "sim2d": 2,
+    "metrics": 2,
+    "odometry": 2,
+    "peers": 2,
+    "maps": 1,
+    "noise": 1,
+    "geometry": 1,
+    "resampling": 1,
+    "contract": 1,
+    "errors": 1,
+    "paths": 1,
+    "data": 1,
+    "plotstyle": 1,
+    "machine": 1,
+    "__init__": 6,
+    "__main__": 6,
 }
 #: Pairs inside one layer that must not know each other (CONTRIBUTING.md: kernels and maps know no pipeline,
 #: kitti and synth know no filter).
-FORBIDDEN = {("kernels", "slam3d"), ("maps", "slam3d"), ("maps", "kernels"), ("kitti", "sim1d"),
-             ("kitti", "slam3d"), ("synth", "slam3d"), ("synth", "sim1d"), ("synth", "sim2d"),
-             ("sim2d", "slam3d"), ("sim2d", "sim1d"), ("sim1d", "sim2d")}
+FORBIDDEN = {
+    ("kernels", "slam3d"),
+    ("maps", "slam3d"),
+    ("maps", "kernels"),
+    ("kitti", "sim1d"),
+    ("kitti", "slam3d"),
+    ("synth", "slam3d"),
+    ("synth", "sim1d"),
+    ("synth", "sim2d"),
+    ("sim2d", "slam3d"),
+    ("sim2d", "sim1d"),
+    ("sim1d", "sim2d"),
+}
 
 
 def imports_of(path: Path) -> set[str]:
@@ -63,5 +92,7 @@ def test_no_module_imports_upwards_or_the_benchmarks():
 
 def test_the_check_sees_an_upward_import(tmp_path):
     bad = tmp_path / "bad.py"
-    bad.write_text("def f():\n    from slamlib.slam3d import steps\n    import benchmarks.maps\n")
+    bad.write_text(
+        "def f():\n    from slamlib.slam3d import steps\n    import benchmarks.maps\n"
+    )
     assert imports_of(bad) == {"slam3d", "benchmarks"}

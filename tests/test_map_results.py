@@ -17,15 +17,23 @@ def tiny_drive(tmp_path_factory):
     from slamlib.synth import Hdl64, write_drive
 
     base = tmp_path_factory.mktemp("kitti")
-    return write_drive(base, route="07", frames=(0, 12), seed=1, lidar=Hdl64(columns=500, beam_stride=2),
-                       progress=False)
+    return write_drive(
+        base,
+        route="07",
+        frames=(0, 12),
+        seed=1,
+        lidar=Hdl64(columns=500, beam_stride=2),
+        progress=False,
+    )
 
 
 @pytest.fixture(scope="module")
 def tiny_run(tiny_drive):
     base, date, drive = tiny_drive
     cfg = SLAM3DConfig.of(particles=40, scored_points=200, seed=2)
-    return run_drive(KittiRawDrive(base, date, drive), cfg, progress=False, snapshot_every=2)
+    return run_drive(
+        KittiRawDrive(base, date, drive), cfg, progress=False, snapshot_every=2
+    )
 
 
 def count_video_frames(path) -> int:
@@ -47,7 +55,9 @@ def count_video_frames(path) -> int:
 @pytest.mark.parametrize("name", ["map.mp4", "map.gif"])
 def test_write_map_video_has_one_frame_per_snapshot(tiny_run, tmp_path, name):
     assert len(tiny_run.snapshots) == 6  # 12 frames, every 2nd
-    info = write_map_video(tiny_run, tmp_path / name, fps=5, size=(320, 240), progress=False)
+    info = write_map_video(
+        tiny_run, tmp_path / name, fps=5, size=(320, 240), progress=False
+    )
     assert info["frames"] == 6 and info["bytes"] > 1000 and info["size"] == (320, 240)
     assert count_video_frames(tmp_path / name) == 6
 
@@ -55,8 +65,16 @@ def test_write_map_video_has_one_frame_per_snapshot(tiny_run, tmp_path, name):
 def test_video_frames_show_the_map_growing(tiny_run):
     from slamlib.slam3d.video import map_video_frames
 
-    frames = list(map_video_frames(tiny_run.snapshots, tiny_run.poses, tiny_run.ground_truth, size=(320, 240)))
-    assert len(frames) == 6 and frames[0].shape == (240, 320, 3) and frames[0].dtype == np.uint8
+    frames = list(
+        map_video_frames(
+            tiny_run.snapshots, tiny_run.poses, tiny_run.ground_truth, size=(320, 240)
+        )
+    )
+    assert (
+        len(frames) == 6
+        and frames[0].shape == (240, 320, 3)
+        and frames[0].dtype == np.uint8
+    )
     assert not np.array_equal(frames[0], frames[-1])
 
 
@@ -87,7 +105,11 @@ def test_video_names_the_missing_package(monkeypatch, tmp_path):
 
 
 def test_snapshot_every_for():
-    assert snapshot_every_for(10) == 1 and snapshot_every_for(300, 100) == 3 and snapshot_every_for(301, 100) == 4
+    assert (
+        snapshot_every_for(10) == 1
+        and snapshot_every_for(300, 100) == 3
+        and snapshot_every_for(301, 100) == 4
+    )
 
 
 def test_slamlib_run_video_end_to_end(tiny_drive, tmp_path):
@@ -95,9 +117,29 @@ def test_slamlib_run_video_end_to_end(tiny_drive, tmp_path):
 
     base, date, drive = tiny_drive
     out, video = tmp_path / "out", tmp_path / "v" / "map.mp4"
-    rc = main(["run", "--basedir", str(base), "--date", date, "--drive", str(drive), "--frames", "1:11",
-               "--particles", "40", "--points", "200", "--out", str(out), "--no-progress", "--no-plots",
-               "--video", str(video)])
+    rc = main(
+        [
+            "run",
+            "--basedir",
+            str(base),
+            "--date",
+            date,
+            "--drive",
+            str(drive),
+            "--frames",
+            "1:11",
+            "--particles",
+            "40",
+            "--points",
+            "200",
+            "--out",
+            str(out),
+            "--no-progress",
+            "--no-plots",
+            "--video",
+            str(video),
+        ]
+    )
     assert rc == 0 and (out / "slam_poses.txt").exists()
     import imageio_ffmpeg
 
@@ -110,15 +152,31 @@ def test_slamlib_run_video_bad_extension_fails_before_running(tiny_drive, tmp_pa
 
     base, date, drive = tiny_drive
     with pytest.raises(SystemExit, match=r"\.mp4 or \.gif"):
-        main(["run", "--basedir", str(base), "--date", date, "--drive", str(drive), "--out", str(tmp_path / "o"),
-              "--no-progress", "--video", str(tmp_path / "map.webm")])
+        main(
+            [
+                "run",
+                "--basedir",
+                str(base),
+                "--date",
+                date,
+                "--drive",
+                str(drive),
+                "--out",
+                str(tmp_path / "o"),
+                "--no-progress",
+                "--video",
+                str(tmp_path / "map.webm"),
+            ]
+        )
     assert not (tmp_path / "o").exists()
 
 
 @pytest.mark.parametrize("engine", ["open3d", "matplotlib"])
 def test_render_map_3d_returns_an_image_of_the_requested_size(tiny_run, engine):
     if engine == "open3d" and not offscreen_available():
-        pytest.skip("open3d OffscreenRenderer is unavailable here (no EGL/Vulkan driver); matplotlib is the fallback")
+        pytest.skip(
+            "open3d OffscreenRenderer is unavailable here (no EGL/Vulkan driver); matplotlib is the fallback"
+        )
     pts = tiny_run.slam.map_points()
     img = render_map_3d(pts, tiny_run.poses, size=(200, 120), engine=engine)
     assert img.shape == (120, 200, 3) and img.dtype == np.uint8

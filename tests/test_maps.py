@@ -6,13 +6,23 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from numba import njit
 
-from slamlib.synth.street import street_scan, street_scene
 from slamlib.geometry import rpy_to_matrix
 from slamlib.kernels import get_backend
 from slamlib.maps import MortonBVHMap, VoxelHashMap, make_map
 from slamlib.maps.base import EMPTY_KEY, HASH_MULTIPLIER
-from slamlib.maps.codes import (axis_indices, find_cell_nb, find_slot_nb, hash_slot_nb, hash_slots,
-                                make_code_functions, morton_codes, morton_nb, pack_key_nb, pack_keys)
+from slamlib.maps.codes import (
+    axis_indices,
+    find_cell_nb,
+    find_slot_nb,
+    hash_slot_nb,
+    hash_slots,
+    make_code_functions,
+    morton_codes,
+    morton_nb,
+    pack_key_nb,
+    pack_keys,
+)
+from slamlib.synth.street import street_scan, street_scene
 
 
 @njit(cache=True)
@@ -29,7 +39,11 @@ def _bit_interleave(ux, uy, uz):
     """Morton code by the definition, one bit at a time (independent of the magic-number version)."""
     code = 0
     for b in range(21):
-        code |= ((ux >> b) & 1) << (3 * b) | ((uy >> b) & 1) << (3 * b + 1) | ((uz >> b) & 1) << (3 * b + 2)
+        code |= (
+            ((ux >> b) & 1) << (3 * b)
+            | ((uy >> b) & 1) << (3 * b + 1)
+            | ((uz >> b) & 1) << (3 * b + 2)
+        )
     return code
 
 
@@ -37,7 +51,9 @@ coord = st.integers(0, 2**21 - 1)
 
 
 @settings(max_examples=50, deadline=None)
-@given(st.lists(st.tuples(coord, coord, coord), min_size=1, max_size=20), st.integers(4, 30))
+@given(
+    st.lists(st.tuples(coord, coord, coord), min_size=1, max_size=20), st.integers(4, 30)
+)
 def test_codes_numpy_numba_and_definition_agree(triples, log2c):
     u = np.array(triples, dtype=np.int64)
     m_nb, h_nb = _codes_nb(u, log2c)
@@ -47,19 +63,27 @@ def test_codes_numpy_numba_and_definition_agree(triples, log2c):
     for (x, y, z), code in zip(triples, m_np):
         assert code == _bit_interleave(x, y, z)
         key = x | y << 21 | z << 42
-        assert hash_slots(np.array([key]), log2c)[0] == ((key * HASH_MULTIPLIER) % 2**64) >> (64 - log2c)
+        assert hash_slots(np.array([key]), log2c)[0] == (
+            (key * HASH_MULTIPLIER) % 2**64
+        ) >> (64 - log2c)
     assert np.all(m_np >= 0)
 
 
 @settings(max_examples=30, deadline=None)
-@given(st.lists(st.tuples(coord, coord, coord), min_size=1, max_size=10), st.integers(0, 20))
+@given(
+    st.lists(st.tuples(coord, coord, coord), min_size=1, max_size=10), st.integers(0, 20)
+)
 def test_morton_prefix_is_the_parent_cell_code(triples, level):
     u = np.array(triples, dtype=np.int64)
-    np.testing.assert_array_equal(morton_codes(u) >> (3 * level), morton_codes(u >> level))
+    np.testing.assert_array_equal(
+        morton_codes(u) >> (3 * level), morton_codes(u >> level)
+    )
 
 
 @settings(max_examples=40, deadline=None)
-@given(st.lists(st.tuples(coord, coord, coord), min_size=1, max_size=10), st.integers(1, 63))
+@given(
+    st.lists(st.tuples(coord, coord, coord), min_size=1, max_size=10), st.integers(1, 63)
+)
 def test_codes_scalar_builds_agree_without_overflow(triples, log2c):
     """The plain build on numpy scalars (how the CUDA simulator runs the device build) equals the njit and the
     array builds, and never overflows (the hash product is formed from 32-bit halves)."""
@@ -75,7 +99,9 @@ def test_codes_scalar_builds_agree_without_overflow(triples, log2c):
             h = py["hash_slot"](key, np.int64(log2c))
             assert h == hash_slot_nb(key, log2c) == hash_slots(np.array([key]), log2c)[0]
             assert h == ((int(key) * HASH_MULTIPLIER) % 2**64) >> (64 - log2c)
-            assert py["morton"](ux, uy, uz) == morton_nb(x, y, z) == _bit_interleave(x, y, z)
+            assert (
+                py["morton"](ux, uy, uz) == morton_nb(x, y, z) == _bit_interleave(x, y, z)
+            )
 
 
 def test_find_slot_and_find_cell_builds_agree_with_the_tables():
@@ -87,12 +113,22 @@ def test_find_slot_and_find_cell_builds_agree_with_the_tables():
     occupied = np.flatnonzero(lk.keys != EMPTY_KEY)
     for s in occupied[:200]:
         key = lk.keys[s]
-        assert py["find_slot"](lk.keys, key, np.int64(lk.log2_capacity), np.int64(lk.max_probe)) == s
+        assert (
+            py["find_slot"](
+                lk.keys, key, np.int64(lk.log2_capacity), np.int64(lk.max_probe)
+            )
+            == s
+        )
         assert find_slot_nb(lk.keys, key, lk.log2_capacity, lk.max_probe) == s
     stored = set(lk.keys[occupied].tolist())
     missing = [k for k in rng.integers(0, 2**62, 50) if int(k) not in stored]
     for key in missing:
-        assert py["find_slot"](lk.keys, np.int64(key), np.int64(lk.log2_capacity), np.int64(lk.max_probe)) == -1
+        assert (
+            py["find_slot"](
+                lk.keys, np.int64(key), np.int64(lk.log2_capacity), np.int64(lk.max_probe)
+            )
+            == -1
+        )
         assert find_slot_nb(lk.keys, key, lk.log2_capacity, lk.max_probe) == -1
     mm = MortonBVHMap(radius=0.3)
     mm.merge(_random_points(rng, 2000, scale=2.0))
@@ -100,7 +136,11 @@ def test_find_slot_and_find_cell_builds_agree_with_the_tables():
     for k in range(0, cells.size, 7):
         assert py["find_cell"](cells, cells[k]) == find_cell_nb(cells, cells[k]) == k
     for code in (cells[0] - 1, cells[-1] + 1, np.int64(0)):
-        assert py["find_cell"](cells, code) == find_cell_nb(cells, code) == (0 if code == cells[0] else -1)
+        assert (
+            py["find_cell"](cells, code)
+            == find_cell_nb(cells, code)
+            == (0 if code == cells[0] else -1)
+        )
 
 
 def _random_points(rng, n, scale=6.0):
@@ -139,7 +179,9 @@ def test_voxel_hash_statistics_match_numpy_groupby():
         cov = np.cov(p.T, bias=True).reshape(3, 3) + 0.05**2 * np.eye(3)
         a = np.linalg.inv(cov)
         got = lk.icov[s]
-        np.testing.assert_allclose(got, a[[0, 0, 0, 1, 1, 2], [0, 1, 2, 1, 2, 2]], rtol=2e-3, atol=1e-2)
+        np.testing.assert_allclose(
+            got, a[[0, 0, 0, 1, 1, 2], [0, 1, 2, 1, 2, 2]], rtol=2e-3, atol=1e-2
+        )
     # every stored key is reachable from its home slot within max_probe
     occupied = np.flatnonzero(lk.keys != EMPTY_KEY)
     assert len(occupied) == len(uniq)
@@ -151,7 +193,12 @@ def test_voxel_hash_statistics_match_numpy_groupby():
 
 def test_voxel_hash_refuses_new_voxels_beyond_load_factor():
     m = VoxelHashMap(voxel_size=1.0, capacity=64, max_load=0.5)
-    pts = np.stack(np.meshgrid(np.arange(10), np.arange(10), [0.5], indexing="ij"), -1).reshape(-1, 3) + 0.5
+    pts = (
+        np.stack(
+            np.meshgrid(np.arange(10), np.arange(10), [0.5], indexing="ij"), -1
+        ).reshape(-1, 3)
+        + 0.5
+    )
     m.merge(pts.astype(np.float32))
     assert len(m) == 32
     assert m.n_dropped == 100 - 32
@@ -177,14 +224,21 @@ def test_voxel_hash_prune_keeps_near_voxels_reachable():
     for s in np.flatnonzero(lk.keys != EMPTY_KEY):
         assert _find(lk.keys, int(lk.keys[s]), lk.log2_capacity, lk.max_probe) == s
     # points well inside the kept ball score the same before and after
-    np.testing.assert_allclose(cpu.score_particles(I, z, score_pts, lk), s_before, rtol=1e-6)
+    np.testing.assert_allclose(
+        cpu.score_particles(I, z, score_pts, lk), s_before, rtol=1e-6
+    )
 
 
 def _wall_and_mover(frames: int, speed: float = 0.6):
     """A static wall hit every frame, and a one-point mover ``speed`` m along y per frame (a trail of voxels)."""
-    wall = np.stack(np.meshgrid([5.2], np.arange(0, 2, 0.1), np.arange(0, 1, 0.1), indexing="ij"), -1)
+    wall = np.stack(
+        np.meshgrid([5.2], np.arange(0, 2, 0.1), np.arange(0, 1, 0.1), indexing="ij"), -1
+    )
     wall = wall.reshape(-1, 3).astype(np.float32)
-    return [np.concatenate([wall, np.float32([[1.0, -10.0 + speed * k, 0.5]])]) for k in range(frames)]
+    return [
+        np.concatenate([wall, np.float32([[1.0, -10.0 + speed * k, 0.5]])])
+        for k in range(frames)
+    ]
 
 
 def test_voxel_hash_remembers_when_each_voxel_was_hit():
@@ -208,12 +262,16 @@ def test_voxel_hash_evicts_the_trail_of_a_mover_and_keeps_static_surfaces():
     assert np.array_equal(transient, (last - first < 10) & (29 - last >= 10))
     wall_before = np.sort(m.points()[m.points()[:, 0] > 5.0], axis=0)
     trail = int(transient.sum())
-    assert trail == 20  # frames 0..19 of the mover: 0.6 m apart, one 0.5 m voxel each; 20..29 are too recent
+    assert (
+        trail == 20
+    )  # frames 0..19 of the mover: 0.6 m apart, one 0.5 m voxel each; 20..29 are too recent
     # only near a centre: the trail's first five voxels (0.6 m apart) lie within 2.9 m of its start
     near = m.transients(10, center=[1.0, -10.0, 0.5], radius=2.9)
     assert near.sum() == 5 and np.all(near <= transient)
     assert m.evict_transients(10) == trail and len(m) == len(transient) - trail
-    assert np.array_equal(np.sort(m.points()[m.points()[:, 0] > 5.0], axis=0), wall_before)
+    assert np.array_equal(
+        np.sort(m.points()[m.points()[:, 0] > 5.0], axis=0), wall_before
+    )
     assert not m.transients(10).any() and m.evict_transients(10) == 0
     lk = m.lookup()  # the rebuilt table still finds every kept key
     for s in np.flatnonzero(lk.keys != EMPTY_KEY):
@@ -238,14 +296,16 @@ def test_morton_map_layout_and_dedup():
     dedup = lk.codes >> 9
     assert np.all(np.diff(dedup) > 0)  # one point per 8 cm voxel
     u_all, _ = axis_indices(pts, 100.0)
-    assert set(np.unique(morton_codes(u_all) >> 9)) == set(dedup)  # every occupied voxel represented
+    assert set(np.unique(morton_codes(u_all) >> 9)) == set(
+        dedup
+    )  # every occupied voxel represented
     cells = lk.codes >> (3 * lk.cell_level)
     np.testing.assert_array_equal(np.unique(cells), lk.cell_codes)
     for k in range(len(lk.cell_codes)):
-        assert np.all(cells[lk.cell_start[k]:lk.cell_start[k + 1]] == lk.cell_codes[k])
+        assert np.all(cells[lk.cell_start[k] : lk.cell_start[k + 1]] == lk.cell_codes[k])
     assert lk.cell_start[-1] == len(m)
     for k in rng.choice(len(lk.cell_codes), size=50, replace=False):
-        run = lk.points[lk.cell_start[k]:lk.cell_start[k + 1]]
+        run = lk.points[lk.cell_start[k] : lk.cell_start[k + 1]]
         np.testing.assert_array_equal(lk.cell_lo[k], run.min(axis=0))
         np.testing.assert_array_equal(lk.cell_hi[k], run.max(axis=0))
     assert 0.01 * 2**lk.cell_level >= 2 * 0.3 > 0.01 * 2 ** (lk.cell_level - 1)
@@ -369,15 +429,25 @@ def test_score_peaks_on_a_real_kitti_scan(kind):
     idx = rng.permutation(len(scan))
     m = make_map(kind)
     m.merge(scan[idx[: len(scan) // 2]])
-    query = scan[idx[len(scan) // 2:]]
+    query = scan[idx[len(scan) // 2 :]]
     query = query[np.linalg.norm(query, axis=1) > 3.0][:1000]
     cpu = get_backend("cpu")
     for axis in range(6):
-        offs = np.linspace(-0.2, 0.2, 41) if axis < 3 else np.deg2rad(np.linspace(-2.0, 2.0, 41))
+        offs = (
+            np.linspace(-0.2, 0.2, 41)
+            if axis < 3
+            else np.deg2rad(np.linspace(-2.0, 2.0, 41))
+        )
         t, rpy = np.zeros((41, 3)), np.zeros((41, 3))
         (t if axis < 3 else rpy)[:, axis % 3] = offs
-        best = offs[np.argmax(cpu.score_particles(rpy_to_matrix(rpy), t, query, m.lookup()))]
-        assert abs(best) <= (0.05 if axis < 3 else np.deg2rad(0.2)) + 1e-9, (kind, axis, best)
+        best = offs[
+            np.argmax(cpu.score_particles(rpy_to_matrix(rpy), t, query, m.lookup()))
+        ]
+        assert abs(best) <= (0.05 if axis < 3 else np.deg2rad(0.2)) + 1e-9, (
+            kind,
+            axis,
+            best,
+        )
 
 
 def test_voxel_hash_statistics_after_merging_one_point():
@@ -390,9 +460,12 @@ def test_voxel_hash_statistics_after_merging_one_point():
     np.testing.assert_allclose(m.points(), [[0.1, 0.2, 0.3]], atol=1e-7)
     lk = m.lookup()
     s = int(np.flatnonzero(lk.keys != EMPTY_KEY)[0])
-    np.testing.assert_allclose(lk.icov[s], [400.0, 0.0, 0.0, 400.0, 0.0, 400.0], rtol=1e-5, atol=1e-3)
-    score = get_backend("numpy").score_particles(np.eye(3)[None], np.zeros((1, 3)),
-                                                 np.array([[0.25, 0.25, 0.25]], np.float32), lk)
+    np.testing.assert_allclose(
+        lk.icov[s], [400.0, 0.0, 0.0, 400.0, 0.0, 400.0], rtol=1e-5, atol=1e-3
+    )
+    score = get_backend("numpy").score_particles(
+        np.eye(3)[None], np.zeros((1, 3)), np.array([[0.25, 0.25, 0.25]], np.float32), lk
+    )
     assert score[0] == pytest.approx(-5.5, rel=1e-4)
 
 
@@ -401,7 +474,10 @@ def test_voxel_hash_merge_in_pieces_equals_merge_at_once():
     pieces of uneven sizes, including single points (so the last voxel of each merge is refreshed)."""
     rng = np.random.default_rng(5)
     pts = _random_points(rng, 3000, scale=2.0)
-    a, b = VoxelHashMap(voxel_size=0.7, capacity=2**13), VoxelHashMap(voxel_size=0.7, capacity=2**13)
+    a, b = (
+        VoxelHashMap(voxel_size=0.7, capacity=2**13),
+        VoxelHashMap(voxel_size=0.7, capacity=2**13),
+    )
     a.merge(pts)
     for chunk in np.split(pts, [1, 2, 700, 701, 2999]):
         b.merge(chunk)

@@ -18,18 +18,28 @@ def _room(rng, n=20000):
     u = rng.uniform(-1.0, 1.0, (n, 2))
     face = rng.integers(0, 7, n)
     p = np.zeros((n, 3))
-    p[face == 0] = np.c_[12 * u[face == 0, 0], 9 * u[face == 0, 1], np.zeros((face == 0).sum())]  # floor
-    for k, (axis, c) in enumerate(((0, 12.0), (0, -12.0), (1, 9.0), (1, -9.0)), start=1):  # walls
+    p[face == 0] = np.c_[
+        12 * u[face == 0, 0], 9 * u[face == 0, 1], np.zeros((face == 0).sum())
+    ]  # floor
+    for k, (axis, c) in enumerate(
+        ((0, 12.0), (0, -12.0), (1, 9.0), (1, -9.0)), start=1
+    ):  # walls
         sel = face == k
         other = 1 - axis
         p[sel, axis] = c
         p[sel, other] = (12.0 if other == 0 else 9.0) * u[sel, 0]
         p[sel, 2] = 1.5 + 1.5 * u[sel, 1]
-    for k, (cx, cy) in enumerate(((4.0, 3.0), (-5.0, -2.0)), start=5):  # a box's two faces each
+    for k, (cx, cy) in enumerate(
+        ((4.0, 3.0), (-5.0, -2.0)), start=5
+    ):  # a box's two faces each
         sel = face == k
         half = sel & (u[:, 0] > 0)
         p[half] = np.c_[np.full(half.sum(), cx), cy + u[half, 0], 1 + u[half, 1]]
-        p[sel & ~half] = np.c_[cx + u[sel & ~half, 0], np.full((sel & ~half).sum(), cy), 1 + u[sel & ~half, 1]]
+        p[sel & ~half] = np.c_[
+            cx + u[sel & ~half, 0],
+            np.full((sel & ~half).sum(), cy),
+            1 + u[sel & ~half, 1],
+        ]
     return (p + rng.normal(0.0, 0.01, p.shape)).astype(np.float32)
 
 
@@ -50,7 +60,7 @@ def test_cost_is_the_negated_map_score_of_that_pose():
     world = _room(rng)
     m = _map(world)
     scan = world[rng.choice(len(world), 3000, replace=False)]
-    for k in range(4):
+    for _ in range(4):
         T = make_pose(rpy_to_matrix(rng.normal(0, 0.02, 3)), rng.normal(0, 0.2, 3))
         H, g, E = normal_equations(T, scan, m.lookup())
         particles = steps.Particles3D(T[None, :3, :3].copy(), T[None, :3, 3].copy())
@@ -58,7 +68,9 @@ def test_cost_is_the_negated_map_score_of_that_pose():
             score = steps.score_particles(particles, scan, m, backend)[0]
             assert E == pytest.approx(-score, rel=1e-9, abs=1e-6), (backend, E, score)
         np.testing.assert_allclose(H, H.T)
-        assert np.linalg.eigvalsh(H).min() >= -1e-9 * np.trace(H)  # J^T A J with A positive definite
+        assert np.linalg.eigvalsh(H).min() >= -1e-9 * np.trace(
+            H
+        )  # J^T A J with A positive definite
 
 
 def _frozen_cost(T, scan, lookup, road=None):
@@ -81,7 +93,9 @@ def _frozen_cost(T, scan, lookup, road=None):
         keys = pack_keys(np.where(ok[:, None], u, 0))
         pos = np.minimum(np.searchsorted(stored, keys), stored.size - 1)
         hit = ok & (stored[pos] == keys)
-        corners.append((np.prod(np.where(d == 1, f, 1.0 - f), axis=1), hit, occupied[pos]))
+        corners.append(
+            (np.prod(np.where(d == 1, f, 1.0 - f), axis=1), hit, occupied[pos])
+        )
 
     vertical_only = np.zeros(len(scan), bool) if road is None else road
 
@@ -97,6 +111,7 @@ def _frozen_cost(T, scan, lookup, road=None):
             m = np.where(hit, np.einsum("ni,nij,nj->n", e, A, e), lookup.m_max)
             total += np.sum(w * 0.5 * np.minimum(m, lookup.m_max))
         return total
+
     return cost
 
 
@@ -108,7 +123,10 @@ def test_gradient_is_the_derivative_of_the_cost_with_the_voxels_held():
     m = _map(world)
     scan = world[:5000]
     T = make_pose(rpy_to_matrix([0.004, -0.003, 0.01]), np.array([0.06, -0.04, 0.03]))
-    for road in (None, rng.random(len(scan)) < 0.5):  # road points: the vertical part of the motion only
+    for road in (
+        None,
+        rng.random(len(scan)) < 0.5,
+    ):  # road points: the vertical part of the motion only
         _, g, E = normal_equations(T, scan, m.lookup(), road)
         cost = _frozen_cost(T, scan, m.lookup(), road)
         assert cost(np.zeros(6)) == pytest.approx(E, rel=1e-9)
@@ -137,13 +155,17 @@ def test_a_plane_alone_brings_back_height_roll_and_pitch():
     """A flat floor fixes the three coordinates it can (height, roll, pitch), and the damped solve stays defined
     where the others are (nearly) free."""
     rng = np.random.default_rng(3)
-    floor = np.c_[rng.uniform(-15, 15, (20000, 2)), rng.normal(0, 0.01, 20000)].astype(np.float32)
+    floor = np.c_[rng.uniform(-15, 15, (20000, 2)), rng.normal(0, 0.01, 20000)].astype(
+        np.float32
+    )
     m = _map(floor)
     start = make_pose(rpy_to_matrix([0.01, -0.008, 0.02]), np.array([0.3, -0.2, 0.15]))
     found = match_scan(start, floor, m, iterations=20)
     assert np.all(np.isfinite(found))
     assert abs(found[2, 3]) < 0.01  # height
-    assert np.abs(found[2, :3] - [0, 0, 1]).max() < 2e-3  # the body's z stands up again: roll, pitch
+    assert (
+        np.abs(found[2, :3] - [0, 0, 1]).max() < 2e-3
+    )  # the body's z stands up again: roll, pitch
 
 
 def _rings(rng, height=1.73, per_ring=3000):
@@ -151,7 +173,9 @@ def _rings(rng, height=1.73, per_ring=3000):
     radii = height / np.tan(np.radians([6.0, 7.5, 9.0, 11.0, 13.5, 17.0, 22.0]))
     a = rng.uniform(0, 2 * np.pi, (len(radii), per_ring))
     r = radii[:, None] + rng.normal(0, 0.01, a.shape)
-    return np.c_[(r * np.cos(a)).ravel(), (r * np.sin(a)).ravel(), np.full(a.size, -height)]
+    return np.c_[
+        (r * np.cos(a)).ravel(), (r * np.sin(a)).ravel(), np.full(a.size, -height)
+    ]
 
 
 def test_road_points_do_not_pull_a_moving_scan_back_onto_the_rings():
@@ -169,9 +193,14 @@ def test_road_points_do_not_pull_a_moving_scan_back_onto_the_rings():
     truth = make_pose(np.eye(3), step)
     road = road_mask(scan1)
     assert road.sum() == len(scan1) - len(walls)  # the rings, and only they, are road
-    found = {name: match_scan(truth, scan1, m, 20, mask) for name, mask in (("all", None), ("road", road))}
+    found = {
+        name: match_scan(truth, scan1, m, 20, mask)
+        for name, mask in (("all", None), ("road", road))
+    }
     assert abs(found["road"][0, 3] - step[0]) < 0.02, found["road"][:3, 3]
-    assert found["all"][0, 3] < step[0] - 0.05, found["all"][:3, 3]  # pulled back toward the rings
+    assert found["all"][0, 3] < step[0] - 0.05, found["all"][
+        :3, 3
+    ]  # pulled back toward the rings
     assert abs(found["road"][2, 3]) < 0.01  # the road still holds the height
 
 
@@ -179,10 +208,16 @@ def test_leaves_the_pose_alone_where_it_cannot_match():
     rng = np.random.default_rng(4)
     world = _room(rng, 2000)
     T = make_pose(rpy_to_matrix([0.0, 0.0, 0.1]), np.array([0.2, 0.0, 0.0]))
-    np.testing.assert_array_equal(match_scan(T, world, _map(world, MortonBVHMap), 5), T)  # no voxel Gaussians
+    np.testing.assert_array_equal(
+        match_scan(T, world, _map(world, MortonBVHMap), 5), T
+    )  # no voxel Gaussians
     np.testing.assert_array_equal(match_scan(T, world, VoxelHashMap(), 5), T)  # empty map
-    np.testing.assert_array_equal(match_scan(T, world, _map(world), 0), T)  # asked for none
-    np.testing.assert_array_equal(match_scan(T, world[:0], _map(world), 5), T)  # no points
+    np.testing.assert_array_equal(
+        match_scan(T, world, _map(world), 0), T
+    )  # asked for none
+    np.testing.assert_array_equal(
+        match_scan(T, world[:0], _map(world), 5), T
+    )  # no points
 
 
 def test_so3_exp_is_rodrigues():
@@ -190,7 +225,9 @@ def test_so3_exp_is_rodrigues():
 
     rng = np.random.default_rng(5)
     for w in (rng.normal(0, 1, 3), rng.normal(0, 1e-7, 3), np.zeros(3)):
-        np.testing.assert_allclose(so3_exp(w), Rotation.from_rotvec(w).as_matrix(), atol=1e-12)
+        np.testing.assert_allclose(
+            so3_exp(w), Rotation.from_rotvec(w).as_matrix(), atol=1e-12
+        )
 
 
 def test_pipeline_matches_lidar_only_by_default_and_with_an_imu_when_asked(tmp_path):
@@ -200,16 +237,39 @@ def test_pipeline_matches_lidar_only_by_default_and_with_an_imu_when_asked(tmp_p
     fast = Hdl64(columns=500, beam_stride=2)
     write_sequence(tmp_path, "07", 7, frames=(0, 6), seed=1, lidar=fast, progress=False)
     write_drive(tmp_path / "raw", "07", frames=(0, 6), seed=1, lidar=fast, progress=False)
-    seq, raw = KittiOdometrySequence(tmp_path, 7), KittiRawDrive(tmp_path / "raw", "2011_09_26", 1)
+    seq, raw = (
+        KittiOdometrySequence(tmp_path, 7),
+        KittiRawDrive(tmp_path / "raw", "2011_09_26", 1),
+    )
     slam = run_drive(seq, SLAM3DConfig.of(particles=50), progress=False).slam
     assert slam.lidar_only and slam.n_matched == 5
-    assert run_drive(seq, SLAM3DConfig.of(particles=50, scan_match=False), progress=False).slam.n_matched == 0
-    assert run_drive(raw, SLAM3DConfig.of(particles=50), progress=False).slam.n_matched == 0
-    assert run_drive(raw, SLAM3DConfig.of(particles=50, scan_match=True), progress=False).slam.n_matched == 5
+    assert (
+        run_drive(
+            seq, SLAM3DConfig.of(particles=50, scan_match=False), progress=False
+        ).slam.n_matched
+        == 0
+    )
+    assert (
+        run_drive(raw, SLAM3DConfig.of(particles=50), progress=False).slam.n_matched == 0
+    )
+    assert (
+        run_drive(
+            raw, SLAM3DConfig.of(particles=50, scan_match=True), progress=False
+        ).slam.n_matched
+        == 5
+    )
 
 
-@pytest.mark.parametrize("bad", [dict(scan_match="yes"), dict(scan_match=1), dict(scan_match_iterations=0),
-                                 dict(scan_match_iterations=1.5), dict(scan_match_iterations=10**6)])
+@pytest.mark.parametrize(
+    "bad",
+    [
+        dict(scan_match="yes"),
+        dict(scan_match=1),
+        dict(scan_match_iterations=0),
+        dict(scan_match_iterations=1.5),
+        dict(scan_match_iterations=10**6),
+    ],
+)
 def test_config_rejects_bad_scan_match_settings(bad):
     with pytest.raises(ValueError, match="scan_match"):
         SLAM3DConfig.of(**bad)

@@ -31,7 +31,9 @@ def test_ate_identical_is_zero():
     T = _random_trajectory(np.random.default_rng(0))
     for align in (False, True, "sim3"):
         r = absolute_trajectory_error(T, T, align=align)
-        assert r.rmse == pytest.approx(0, abs=1e-9) and r.max == pytest.approx(0, abs=1e-9)
+        assert r.rmse == pytest.approx(0, abs=1e-9) and r.max == pytest.approx(
+            0, abs=1e-9
+        )
 
 
 def test_ate_of_shifted_trajectory():
@@ -69,7 +71,10 @@ def test_ate_alignment_never_worse():
     T = _random_trajectory(rng)
     noisy = T.copy()
     noisy[:, :3, 3] += rng.normal(scale=0.3, size=(len(T), 3))
-    assert absolute_trajectory_error(noisy, T, align=True).rmse <= absolute_trajectory_error(noisy, T).rmse
+    assert (
+        absolute_trajectory_error(noisy, T, align=True).rmse
+        <= absolute_trajectory_error(noisy, T).rmse
+    )
 
 
 def test_rpe_invariant_to_global_transform_and_detects_drift():
@@ -106,11 +111,15 @@ def test_rotation_angle():
         assert rotation_angle(R) == pytest.approx(a, abs=1e-7)
 
 
-def _devkit_literal(poses_gt, poses_result, lengths=(100, 200, 300, 400, 500, 600, 700, 800), step=10):
+def _devkit_literal(
+    poses_gt, poses_result, lengths=(100, 200, 300, 400, 500, 600, 700, 800), step=10
+):
     """Line-by-line translation of evaluate_odometry.cpp (calcSequenceErrors + saveStats), in float64."""
     dist = [0.0]
     for i in range(1, len(poses_gt)):
-        dist.append(dist[i - 1] + np.linalg.norm(poses_gt[i - 1][:3, 3] - poses_gt[i][:3, 3]))
+        dist.append(
+            dist[i - 1] + np.linalg.norm(poses_gt[i - 1][:3, 3] - poses_gt[i][:3, 3])
+        )
     dist = np.array(dist)
     errs = []
     for first in range(0, len(poses_gt), step):
@@ -135,8 +144,10 @@ def test_kitti_metric_matches_literal_devkit():
     # a drifting estimate: perturb each relative motion slightly
     est = gt.copy()
     for i in range(1, len(gt)):
-        noise = make_pose(Rotation.from_rotvec(rng.normal(scale=2e-3, size=3)).as_matrix(),
-                          rng.normal(scale=0.01, size=3))
+        noise = make_pose(
+            Rotation.from_rotvec(rng.normal(scale=2e-3, size=3)).as_matrix(),
+            rng.normal(scale=0.01, size=3),
+        )
         est[i] = est[i - 1] @ (np.linalg.inv(gt[i - 1]) @ gt[i]) @ noise
     t_ref, r_ref, n_ref = _devkit_literal(gt, est)
     r = kitti_odometry_error(est, gt)
@@ -205,12 +216,18 @@ def test_trajectory_metrics_summary_keys_by_path_length():
 
     short, long_ = straight(50, 1.0), straight(300, 1.0)
     m = trajectory_metrics(short, short)
-    assert m["ate_rmse_m"] == 0 and m["rpe_10f_trans_rmse_m"] == 0 and "kitti_t_err_percent" not in m
+    assert (
+        m["ate_rmse_m"] == 0
+        and m["rpe_10f_trans_rmse_m"] == 0
+        and "kitti_t_err_percent" not in m
+    )
     drifted = long_.copy()
     drifted[:, 0, 3] *= 1.01  # 1 % scale error
     m = trajectory_metrics(drifted, long_)
     # segments end at the first frame past their length (devkit rule), so slightly over 1 %
-    assert 1.0 <= m["kitti_t_err_percent"] < 1.02 and abs(m["final_error_m"] - 2.99) < 1e-9
+    assert (
+        1.0 <= m["kitti_t_err_percent"] < 1.02 and abs(m["final_error_m"] - 2.99) < 1e-9
+    )
 
 
 def test_kitti_segment_ends_at_the_first_frame_strictly_beyond_the_length():
@@ -218,9 +235,13 @@ def test_kitti_segment_ends_at_the_first_frame_strictly_beyond_the_length():
     the two differ: frames exactly 1 m apart, so ``d_f + L`` is itself a frame's distance."""
     n = 30
     gt = np.stack([make_pose(np.eye(3), [float(i), 0.0, 0.0]) for i in range(n)])
-    est = np.stack([make_pose(np.eye(3), [1.01 * i, 0.0, 0.0]) for i in range(n)])  # 1 % too long per step
+    est = np.stack(
+        [make_pose(np.eye(3), [1.01 * i, 0.0, 0.0]) for i in range(n)]
+    )  # 1 % too long per step
     r = kitti_odometry_error(est, gt, lengths=(5.0,), step=1)
-    np.testing.assert_array_equal(r.last - r.first, 6)  # d_l = d_f + 6 > d_f + 5; d_f + 5 itself is not beyond
+    np.testing.assert_array_equal(
+        r.last - r.first, 6
+    )  # d_l = d_f + 6 > d_f + 5; d_f + 5 itself is not beyond
     np.testing.assert_array_equal(r.first, np.arange(n - 6))
     # error over 6 frames (0.06 m) per 5 m: 1.2 %; the ">=" rule would give 0.05 / 5 = 1.0 %
     assert r.t_err_percent == pytest.approx(1.2, rel=1e-9)
@@ -236,8 +257,10 @@ def _drifting_pair(n=40, seed=8):
     gt = _random_trajectory(rng, n)
     est = gt.copy()
     for i in range(1, n):
-        noise = make_pose(Rotation.from_rotvec(rng.normal(scale=0.02, size=3)).as_matrix(),
-                          rng.normal(scale=0.05, size=3))
+        noise = make_pose(
+            Rotation.from_rotvec(rng.normal(scale=0.02, size=3)).as_matrix(),
+            rng.normal(scale=0.05, size=3),
+        )
         est[i] = est[i - 1] @ (np.linalg.inv(gt[i - 1]) @ gt[i]) @ noise
     return est, gt
 
@@ -245,11 +268,16 @@ def _drifting_pair(n=40, seed=8):
 def test_poses_as_3x4_rows_float32_and_bad_shapes():
     est, gt = _drifting_pair()
     ref = relative_pose_error(est, gt, delta=3)
-    r34 = relative_pose_error(est[:, :3], gt[:, :3], delta=3)  # KITTI files' (N, 3, 4) rows
+    r34 = relative_pose_error(
+        est[:, :3], gt[:, :3], delta=3
+    )  # KITTI files' (N, 3, 4) rows
     np.testing.assert_array_equal(r34.trans_errors, ref.trans_errors)
     np.testing.assert_array_equal(r34.rot_errors, ref.rot_errors)
     k34 = kitti_odometry_error(est[:, :3], gt[:, :3], lengths=(5.0,), step=1)
-    assert k34.t_err_percent == kitti_odometry_error(est, gt, lengths=(5.0,), step=1).t_err_percent
+    assert (
+        k34.t_err_percent
+        == kitti_odometry_error(est, gt, lengths=(5.0,), step=1).t_err_percent
+    )
     # float32 input is computed in float64 (the float32 products would differ in the 7th digit)
     e32, g32 = est.astype(np.float32), gt.astype(np.float32)
     r32 = relative_pose_error(e32, g32, delta=3)
@@ -257,7 +285,9 @@ def test_poses_as_3x4_rows_float32_and_bad_shapes():
     np.testing.assert_array_equal(r32.trans_errors, want.trans_errors)
     np.testing.assert_array_equal(r32.rot_errors, want.rot_errors)
     for bad in (np.zeros((4, 5, 5)), np.zeros((4, 4, 3)), np.zeros((4, 3, 5)), np.eye(4)):
-        with pytest.raises(ValueError, match=r"estimate must be \(N, 4, 4\) or \(N, 3, 4\) poses"):
+        with pytest.raises(
+            ValueError, match=r"estimate must be \(N, 4, 4\) or \(N, 3, 4\) poses"
+        ):
             relative_pose_error(bad, gt[:4])
         with pytest.raises(ValueError, match="ground_truth must be"):
             kitti_odometry_error(gt[:4], bad)
@@ -268,11 +298,17 @@ def test_poses_as_3x4_rows_float32_and_bad_shapes():
 
 
 def test_rotation_angle_clips_round_off_at_pi_and_computes_in_float64():
-    assert rotation_angle(np.diag([-1.0 - 1e-12, -1.0 - 1e-12, 1.0])) == np.pi  # cos just below -1
+    assert (
+        rotation_angle(np.diag([-1.0 - 1e-12, -1.0 - 1e-12, 1.0])) == np.pi
+    )  # cos just below -1
     assert rotation_angle(np.diag([1.0 + 1e-12, 1.0, 1.0])) == 0.0
     R = Rotation.from_rotvec([0.1, -0.2, 0.3]).as_matrix().astype(np.float32)
-    assert rotation_angle(R) == np.arccos(0.5 * (np.trace(R.astype(np.float64)) - 1.0))  # float64 sums
-    assert rotation_angle(R) != np.arccos(0.5 * (np.trace(R) - np.float32(1.0)))  # float32 would differ
+    assert rotation_angle(R) == np.arccos(
+        0.5 * (np.trace(R.astype(np.float64)) - 1.0)
+    )  # float64 sums
+    assert rotation_angle(R) != np.arccos(
+        0.5 * (np.trace(R) - np.float32(1.0))
+    )  # float32 would differ
 
 
 def test_umeyama_defaults_reflections_and_degenerate_inputs():
@@ -291,7 +327,9 @@ def test_umeyama_defaults_reflections_and_degenerate_inputs():
     small = 0.1 * src
     R, t, s = umeyama_alignment(small, 3.0 * small + [1.0, 2.0, 3.0], with_scale=True)
     assert s == pytest.approx(3.0) and np.allclose(t, [1.0, 2.0, 3.0])
-    R, t, s = umeyama_alignment(np.ones((4, 3)), np.ones((4, 3)) + [0.0, 0.0, 5.0], with_scale=True)
+    R, t, s = umeyama_alignment(
+        np.ones((4, 3)), np.ones((4, 3)) + [0.0, 0.0, 5.0], with_scale=True
+    )
     assert s == 1.0 and np.allclose(t, [0.0, 0.0, 5.0])
     R, t, s = umeyama_alignment(src[:1], src[:1] + 1.0)  # one point: a translation
     np.testing.assert_allclose(t, [1.0, 1.0, 1.0])
@@ -308,7 +346,9 @@ def test_rpe_values_defaults_units_and_errors():
     r = relative_pose_error(est, gt)  # default: 1 frame apart
     np.testing.assert_array_equal(r.first, np.arange(n - 1))
     np.testing.assert_array_equal(r.last, np.arange(1, n))
-    E = np.linalg.inv(np.linalg.inv(est[:-1]) @ est[1:]) @ (np.linalg.inv(gt[:-1]) @ gt[1:])
+    E = np.linalg.inv(np.linalg.inv(est[:-1]) @ est[1:]) @ (
+        np.linalg.inv(gt[:-1]) @ gt[1:]
+    )
     te = np.linalg.norm(E[:, :3, 3], axis=1)
     re = np.arccos(np.clip(0.5 * (np.trace(E[:, :3, :3], axis1=1, axis2=2) - 1), -1, 1))
     np.testing.assert_allclose(r.trans_errors, te, rtol=1e-12)
@@ -321,14 +361,18 @@ def test_rpe_values_defaults_units_and_errors():
     by_m = [relative_pose_error(est, gt, 2.5, u) for u in ("m", "meters", "metres")]
     for other in by_m[1:]:
         np.testing.assert_array_equal(other.last, by_m[0].last)
-    assert relative_pose_error(est, gt, 0.5, "m").first.size == n - 1  # any delta > 0 m is allowed
+    assert (
+        relative_pose_error(est, gt, 0.5, "m").first.size == n - 1
+    )  # any delta > 0 m is allowed
     with pytest.raises(ValueError, match=r"^delta must be >= 1 frame$"):
         relative_pose_error(est, gt, 0)
     with pytest.raises(ValueError, match=r"^delta must be > 0 metres$"):
         relative_pose_error(est, gt, 0.0, "m")
     with pytest.raises(ValueError, match="unit must be 'frames' or 'm', got 'km'"):
         relative_pose_error(est, gt, 1, "km")
-    with pytest.raises(ValueError, match="no pose pair 41 frames apart in a trajectory of 40 poses"):
+    with pytest.raises(
+        ValueError, match="no pose pair 41 frames apart in a trajectory of 40 poses"
+    ):
         relative_pose_error(est, gt, n + 1)
 
 
@@ -336,16 +380,27 @@ def test_inverse_choice_matters_on_non_orthonormal_rotations():
     """General 4x4 inverses by default (the devkit's ``Matrix::inv``); ``[R^T, -R^T t]`` only when asked."""
     est, gt = _drifting_pair()
     skew = est.copy()
-    skew[:, :3, :3] *= 1.0 + 1e-3 * np.random.default_rng(0).random((len(est), 1, 1))  # not orthonormal
+    skew[:, :3, :3] *= 1.0 + 1e-3 * np.random.default_rng(0).random(
+        (len(est), 1, 1)
+    )  # not orthonormal
     r = relative_pose_error(skew, gt, delta=2)
-    E = np.linalg.inv(np.linalg.inv(skew[:-2]) @ skew[2:]) @ (np.linalg.inv(gt[:-2]) @ gt[2:])
-    np.testing.assert_allclose(r.trans_errors, np.linalg.norm(E[:, :3, 3], axis=1), rtol=1e-12)
+    E = np.linalg.inv(np.linalg.inv(skew[:-2]) @ skew[2:]) @ (
+        np.linalg.inv(gt[:-2]) @ gt[2:]
+    )
+    np.testing.assert_allclose(
+        r.trans_errors, np.linalg.norm(E[:, :3, 3], axis=1), rtol=1e-12
+    )
     general = kitti_odometry_error(skew, gt, lengths=(5.0,), step=1)
     rigid = kitti_odometry_error(skew, gt, lengths=(5.0,), step=1, rigid_inverse=True)
     assert abs(general.t_err_percent - rigid.t_err_percent) > 1e-6 * general.t_err_percent
-    assert abs(general.r_err_deg_per_m - rigid.r_err_deg_per_m) > 1e-6 * general.r_err_deg_per_m
+    assert (
+        abs(general.r_err_deg_per_m - rigid.r_err_deg_per_m)
+        > 1e-6 * general.r_err_deg_per_m
+    )
     Er = _rigid_error(skew, gt, general.first, general.last)
-    np.testing.assert_allclose(rigid.t_err, np.linalg.norm(Er[:, :3, 3], axis=1) / 5.0, rtol=1e-12)
+    np.testing.assert_allclose(
+        rigid.t_err, np.linalg.norm(Er[:, :3, 3], axis=1) / 5.0, rtol=1e-12
+    )
 
 
 def _rigid_error(est, gt, first, last):
@@ -356,28 +411,40 @@ def _rigid_error(est, gt, first, last):
         out[:, :3, 3] = -np.einsum("nij,nj->ni", Rt, T[:, :3, 3])
         out[:, 3, 3] = 1.0
         return out
+
     return inv(inv(est[first]) @ est[last]) @ (inv(gt[first]) @ gt[last])
 
 
 def test_kitti_segment_arrays_and_short_path_message():
     est, gt = _drifting_pair()
     r = kitti_odometry_error(est, gt, lengths=(5.0, 8.0), step=3)
-    E = np.linalg.inv(np.linalg.inv(est[r.first]) @ est[r.last]) @ (np.linalg.inv(gt[r.first]) @ gt[r.last])
-    np.testing.assert_allclose(r.t_err, np.linalg.norm(E[:, :3, 3], axis=1) / r.length, rtol=1e-12)
+    E = np.linalg.inv(np.linalg.inv(est[r.first]) @ est[r.last]) @ (
+        np.linalg.inv(gt[r.first]) @ gt[r.last]
+    )
+    np.testing.assert_allclose(
+        r.t_err, np.linalg.norm(E[:, :3, 3], axis=1) / r.length, rtol=1e-12
+    )
     re = np.arccos(np.clip(0.5 * (np.trace(E[:, :3, :3], axis1=1, axis2=2) - 1), -1, 1))
     np.testing.assert_allclose(r.r_err, re / r.length, rtol=1e-9)
     T = np.tile(np.eye(4), (6, 1, 1))
     T[:, 0, 3] = [0.0, 1.0, 2.0, 3.0, 4.0, 5.5]
-    with pytest.raises(ValueError, match=r"trajectory \(5.5 m\) is shorter than the shortest segment \(6 m\)"):
+    with pytest.raises(
+        ValueError,
+        match=r"trajectory \(5.5 m\) is shorter than the shortest segment \(6 m\)",
+    ):
         kitti_odometry_error(T, T, lengths=(6, 7))
 
 
 def test_umeyama_computes_in_float64():
     rng = np.random.default_rng(3)
     src = rng.normal(size=(30, 3)).astype(np.float32)
-    dst = (src @ Rotation.from_rotvec([0.2, 0.1, -0.3]).as_matrix().T * 1.5 + 0.7).astype(np.float32)
+    dst = (src @ Rotation.from_rotvec([0.2, 0.1, -0.3]).as_matrix().T * 1.5 + 0.7).astype(
+        np.float32
+    )
     got = umeyama_alignment(src, dst, with_scale=True)
-    want = umeyama_alignment(src.astype(np.float64), dst.astype(np.float64), with_scale=True)
+    want = umeyama_alignment(
+        src.astype(np.float64), dst.astype(np.float64), with_scale=True
+    )
     np.testing.assert_array_equal(got[0], want[0])
     np.testing.assert_array_equal(got[1], want[1])
     assert got[2] == want[2]
@@ -387,43 +454,70 @@ def test_ate_inputs_values_alignment_modes_and_messages():
     est, gt = _drifting_pair()
     ref = absolute_trajectory_error(est, gt)
     e = np.linalg.norm(gt[:, :3, 3] - est[:, :3, 3], axis=1)
-    assert (ref.rmse, ref.mean, ref.median, ref.max) == (pytest.approx(np.sqrt(np.mean(e**2)), rel=1e-12),
-                                                         pytest.approx(e.mean(), rel=1e-12),
-                                                         pytest.approx(np.median(e), rel=1e-12), e.max())
+    assert (ref.rmse, ref.mean, ref.median, ref.max) == (
+        pytest.approx(np.sqrt(np.mean(e**2)), rel=1e-12),
+        pytest.approx(e.mean(), rel=1e-12),
+        pytest.approx(np.median(e), rel=1e-12),
+        e.max(),
+    )
     np.testing.assert_array_equal(ref.rotation, np.eye(3))
     assert ref.scale == 1.0
-    for other in (absolute_trajectory_error(est[:, :3], gt[:, :3]), absolute_trajectory_error(est[:, :3, 3], gt)):
+    for other in (
+        absolute_trajectory_error(est[:, :3], gt[:, :3]),
+        absolute_trajectory_error(est[:, :3, 3], gt),
+    ):
         np.testing.assert_array_equal(other.errors, ref.errors)
     p32 = est[:, :3, 3].astype(np.float32)
-    np.testing.assert_array_equal(absolute_trajectory_error(p32, gt).errors,
-                                  absolute_trajectory_error(p32.astype(np.float64), gt).errors)
+    np.testing.assert_array_equal(
+        absolute_trajectory_error(p32, gt).errors,
+        absolute_trajectory_error(p32.astype(np.float64), gt).errors,
+    )
     # scaled and rotated estimate: sim3 recovers it exactly (scale 1/2), se3 cannot
     Rw = Rotation.from_rotvec([0.0, 0.0, 0.4]).as_matrix()
     pe = 0.5 * gt[:, :3, 3] @ Rw.T + [3.0, -1.0, 2.0]
     sim3 = absolute_trajectory_error(pe, gt, align="sim3")
-    assert sim3.rmse < 1e-9 and sim3.scale == pytest.approx(2.0) and np.allclose(sim3.rotation, Rw.T)
+    assert (
+        sim3.rmse < 1e-9
+        and sim3.scale == pytest.approx(2.0)
+        and np.allclose(sim3.rotation, Rw.T)
+    )
     se3 = absolute_trajectory_error(pe, gt, align="SE3")
     assert se3.scale == 1.0 and se3.rmse > 0.1
     assert absolute_trajectory_error(pe, gt, align=True).rmse == se3.rmse
-    assert absolute_trajectory_error(pe, gt, align="none").rmse == absolute_trajectory_error(pe, gt).rmse
+    assert (
+        absolute_trajectory_error(pe, gt, align="none").rmse
+        == absolute_trajectory_error(pe, gt).rmse
+    )
     one = absolute_trajectory_error(gt[:1], gt[:1] + 0.0)  # a single pose is fine
     assert one.rmse == 0.0
     with pytest.raises(ValueError, match=r"^empty trajectories$"):
         absolute_trajectory_error(np.zeros((0, 3)), np.zeros((0, 3)))
-    with pytest.raises(ValueError, match=r"^estimate has 5 poses but ground truth has 4; associate them first$"):
+    with pytest.raises(
+        ValueError,
+        match=r"^estimate has 5 poses but ground truth has 4; associate them first$",
+    ):
         absolute_trajectory_error(np.zeros((5, 3)), np.zeros((4, 3)))
     for bad in (np.zeros((4, 5, 5)), np.zeros((4, 2)), np.zeros(3), np.zeros((4, 3, 3))):
-        with pytest.raises(ValueError, match=r"^estimate must be \(N, 4, 4\) poses or \(N, 3\) positions, got"):
+        with pytest.raises(
+            ValueError,
+            match=r"^estimate must be \(N, 4, 4\) poses or \(N, 3\) positions, got",
+        ):
             absolute_trajectory_error(bad, np.zeros((4, 3)))
-        with pytest.raises(ValueError, match=r"^ground_truth must be \(N, 4, 4\) poses or \(N, 3\)"):
+        with pytest.raises(
+            ValueError, match=r"^ground_truth must be \(N, 4, 4\) poses or \(N, 3\)"
+        ):
             absolute_trajectory_error(np.zeros((4, 3)), bad)
-        with pytest.raises(ValueError, match=r"^poses must be \(N, 4, 4\) poses or \(N, 3\) positions"):
+        with pytest.raises(
+            ValueError, match=r"^poses must be \(N, 4, 4\) poses or \(N, 3\) positions"
+        ):
             trajectory_distances(bad)
 
 
 def test_trajectory_distances_of_one_and_two_poses():
     np.testing.assert_array_equal(trajectory_distances(np.zeros((1, 3))), [0.0])
-    np.testing.assert_array_equal(trajectory_distances(np.array([[0.0, 0, 0], [3.0, 4.0, 0]])), [0.0, 5.0])
+    np.testing.assert_array_equal(
+        trajectory_distances(np.array([[0.0, 0, 0], [3.0, 4.0, 0]])), [0.0, 5.0]
+    )
 
 
 def test_trajectory_metrics_values_and_thresholds():
@@ -431,13 +525,30 @@ def test_trajectory_metrics_values_and_thresholds():
 
     est, gt = _drifting_pair(n=11)
     m = trajectory_metrics(est, gt)
-    assert set(m) == {"ate_rmse_m", "ate_max_m", "final_error_m", "rpe_10f_trans_rmse_m", "rpe_10f_rot_rmse_deg"}
+    assert set(m) == {
+        "ate_rmse_m",
+        "ate_max_m",
+        "final_error_m",
+        "rpe_10f_trans_rmse_m",
+        "rpe_10f_rot_rmse_deg",
+    }
     ate = absolute_trajectory_error(est, gt)
-    assert (m["ate_rmse_m"], m["ate_max_m"], m["final_error_m"]) == (ate.rmse, ate.max, ate.errors[-1])
+    assert (m["ate_rmse_m"], m["ate_max_m"], m["final_error_m"]) == (
+        ate.rmse,
+        ate.max,
+        ate.errors[-1],
+    )
     rpe = relative_pose_error(est, gt, delta=10)
     assert m["rpe_10f_trans_rmse_m"] == rpe.trans_rmse
-    assert m["rpe_10f_rot_rmse_deg"] == pytest.approx(np.degrees(rpe.rot_rmse), rel=1e-12) and rpe.rot_rmse > 0
-    assert set(trajectory_metrics(est[:10], gt[:10])) == {"ate_rmse_m", "ate_max_m", "final_error_m"}
+    assert (
+        m["rpe_10f_rot_rmse_deg"] == pytest.approx(np.degrees(rpe.rot_rmse), rel=1e-12)
+        and rpe.rot_rmse > 0
+    )
+    assert set(trajectory_metrics(est[:10], gt[:10])) == {
+        "ate_rmse_m",
+        "ate_max_m",
+        "final_error_m",
+    }
 
     def straight(xs):
         T = np.tile(np.eye(4), (len(xs), 1, 1))
@@ -445,19 +556,33 @@ def test_trajectory_metrics_values_and_thresholds():
         return T
 
     exactly_100 = straight(np.linspace(0.0, 100.0, 201))
-    assert "kitti_t_err_percent" not in trajectory_metrics(exactly_100, exactly_100)  # longer than 100 m only
-    gt = straight(np.r_[np.linspace(0.0, 99.5, 200), 100.5])  # d[-2] = 99.5 m, d[-1] = 100.5 m
+    assert "kitti_t_err_percent" not in trajectory_metrics(
+        exactly_100, exactly_100
+    )  # longer than 100 m only
+    gt = straight(
+        np.r_[np.linspace(0.0, 99.5, 200), 100.5]
+    )  # d[-2] = 99.5 m, d[-1] = 100.5 m
     est = gt.copy()
     est[:, 0, 3] *= 1.01
     m = trajectory_metrics(est, gt)
     k = kitti_odometry_error(est, gt)
-    assert (m["kitti_t_err_percent"], m["kitti_r_err_deg_per_m"], m["kitti_segments"]) == (
-        k.t_err_percent, k.r_err_deg_per_m, k.n_segments)
+    assert (
+        m["kitti_t_err_percent"],
+        m["kitti_r_err_deg_per_m"],
+        m["kitti_segments"],
+    ) == (k.t_err_percent, k.r_err_deg_per_m, k.n_segments)
 
 
 def test_trajectory_distances_of_float32_positions_are_summed_in_float64():
-    p = np.cumsum(np.random.default_rng(1).normal(size=(500, 3)), axis=0).astype(np.float32) + 1000.0
-    np.testing.assert_array_equal(trajectory_distances(p), trajectory_distances(p.astype(np.float64)))
+    p = (
+        np.cumsum(np.random.default_rng(1).normal(size=(500, 3)), axis=0).astype(
+            np.float32
+        )
+        + 1000.0
+    )
+    np.testing.assert_array_equal(
+        trajectory_distances(p), trajectory_distances(p.astype(np.float64))
+    )
 
 
 def test_plane_residuals_are_distances_to_the_local_plane_of_the_reference():
@@ -465,9 +590,13 @@ def test_plane_residuals_are_distances_to_the_local_plane_of_the_reference():
 
     rng = np.random.default_rng(0)
     floor = np.column_stack([rng.uniform(-5, 5, (2000, 2)), np.zeros(2000)])  # z = 0
-    wall = np.column_stack([np.full(2000, 8.0), rng.uniform(-5, 5, 2000), rng.uniform(0.5, 4, 2000)])  # x = 8
+    wall = np.column_stack(
+        [np.full(2000, 8.0), rng.uniform(-5, 5, 2000), rng.uniform(0.5, 4, 2000)]
+    )  # x = 8
     ref = np.vstack([floor, wall])
     q = np.array([[1.0, 1.0, 0.03], [-2.0, 0.5, -0.05], [7.9, 0.0, 2.0], [8.2, 1.0, 3.0]])
     dist, normal = plane_residuals(q, ref)
     np.testing.assert_allclose(dist, [0.03, 0.05, 0.1, 0.2], atol=1e-9)
-    np.testing.assert_allclose(np.abs(normal), [[0, 0, 1], [0, 0, 1], [1, 0, 0], [1, 0, 0]], atol=1e-9)
+    np.testing.assert_allclose(
+        np.abs(normal), [[0, 0, 1], [0, 0, 1], [1, 0, 0], [1, 0, 0]], atol=1e-9
+    )

@@ -23,7 +23,10 @@ CPU = get_backend("cpu")
 def _world(rng, n=900):
     """Points on the faces of two boxes and a slab, plus clutter, around the origin (float32, metres)."""
     out = []
-    for c, size in (([1.0, 0.5, 0.0], [2.0, 1.0, 1.5]), ([-1.5, -1.0, 0.5], [1.0, 2.5, 1.0])):
+    for c, size in (
+        ([1.0, 0.5, 0.0], [2.0, 1.0, 1.5]),
+        ([-1.5, -1.0, 0.5], [1.0, 2.5, 1.0]),
+    ):
         p = rng.uniform(-0.5, 0.5, (n // 3, 3))
         ax = rng.integers(0, 3, n // 3)
         p[np.arange(n // 3), ax] = np.sign(p[np.arange(n // 3), ax]) * 0.5
@@ -34,8 +37,11 @@ def _world(rng, n=900):
 
 def _maps(rng):
     world = _world(rng)
-    maps = [VoxelHashMap(voxel_size=0.5, capacity=2**11), MortonBVHMap(radius=0.3, sigma=0.15, dedup_level=2),
-            MortonBVHMap(radius=0.8, sigma=0.3, quantum=0.02, dedup_level=0)]
+    maps = [
+        VoxelHashMap(voxel_size=0.5, capacity=2**11),
+        MortonBVHMap(radius=0.3, sigma=0.15, dedup_level=2),
+        MortonBVHMap(radius=0.8, sigma=0.3, quantum=0.02, dedup_level=0),
+    ]
     for m in maps:
         m.merge(world)
     return maps
@@ -52,26 +58,38 @@ def small_maps():
     return _maps(np.random.default_rng(11))
 
 
-@pytest.mark.parametrize("chunks", [None, (5, 3, 4, 2)], ids=["default-chunks", "small-chunks"])
-def test_score_particles_cpu_equals_reference_across_chunks(small_maps, monkeypatch, chunks):
+@pytest.mark.parametrize(
+    "chunks", [None, (5, 3, 4, 2)], ids=["default-chunks", "small-chunks"]
+)
+def test_score_particles_cpu_equals_reference_across_chunks(
+    small_maps, monkeypatch, chunks
+):
     """Per-particle scores of the fused kernel == the reference, with point and particle counts that are not
     multiples of the chunk sizes (several chunks each way, a partial last one), a small Morton leaf (the octree
     descent runs) and a tiny cell cache (collisions), and with the default constants."""
     if chunks:
-        for name, v in zip(("POINT_CHUNK", "PARTICLE_CHUNK", "MORTON_LEAF", "CELL_CACHE_BITS"), chunks):
+        for name, v in zip(
+            ("POINT_CHUNK", "PARTICLE_CHUNK", "MORTON_LEAF", "CELL_CACHE_BITS"), chunks
+        ):
             monkeypatch.setattr(cpu, name, v)
     rng = np.random.default_rng(12)
     P, N = (7, 23) if chunks else (3, 70)
     R, t = _particles(rng, P)
-    pts = np.vstack([rng.uniform(-3, 3, (N - 3, 3)),
-                     [[1.0, 1.0, 0.75], [20.0, 0.0, 0.0], [-2.0, -1.0, 0.0]]]).astype(np.float32)
+    pts = np.vstack(
+        [
+            rng.uniform(-3, 3, (N - 3, 3)),
+            [[1.0, 1.0, 0.75], [20.0, 0.0, 0.0], [-2.0, -1.0, 0.0]],
+        ]
+    ).astype(np.float32)
     for m in small_maps:
         lk = m.lookup()
         ref = REF.score_particles(R, t, pts, lk)
         got = CPU.score_particles(R, t, pts, lk)
         assert got.shape == (P,) and got.dtype == np.float64
         np.testing.assert_allclose(got, ref, rtol=1e-9, atol=1e-9)
-        assert np.ptp(ref) > 1.0  # the particles are told apart: a mixed-up particle index shows
+        assert (
+            np.ptp(ref) > 1.0
+        )  # the particles are told apart: a mixed-up particle index shows
 
 
 def test_score_particles_per_point_terms_by_definition(small_maps):
@@ -79,18 +97,30 @@ def test_score_particles_per_point_terms_by_definition(small_maps):
     for the Morton maps it is ``-0.5 min(d_nn, r)^2 / sigma^2`` by brute force; the sum over points adds up."""
     rng = np.random.default_rng(13)
     I, z = np.eye(3)[None], np.zeros((1, 3))
-    queries = np.vstack([rng.uniform(-3, 3, (25, 3)), _world(rng)[:15] + rng.normal(0, 0.05, (15, 3))])
+    queries = np.vstack(
+        [rng.uniform(-3, 3, (25, 3)), _world(rng)[:15] + rng.normal(0, 0.05, (15, 3))]
+    )
     queries = queries.astype(np.float32)
     for m in small_maps:
         lk = m.lookup()
         terms = reference.point_terms(queries.astype(np.float64), lk)
         got = np.array([CPU.score_particles(I, z, q[None], lk)[0] for q in queries])
         np.testing.assert_allclose(got, terms, rtol=1e-9, atol=1e-9)
-        np.testing.assert_allclose(CPU.score_particles(I, z, queries, lk)[0], terms.sum(), rtol=1e-9)
+        np.testing.assert_allclose(
+            CPU.score_particles(I, z, queries, lk)[0], terms.sum(), rtol=1e-9
+        )
         if isinstance(m, MortonBVHMap):
             stored = m.points().astype(np.float64)
-            d2 = np.min(np.sum((stored[None] - queries.astype(np.float64)[:, None]) ** 2, axis=2), axis=1)
-            np.testing.assert_allclose(got, -0.5 * np.minimum(d2, m.radius**2) / m.sigma**2, rtol=1e-9, atol=1e-12)
+            d2 = np.min(
+                np.sum((stored[None] - queries.astype(np.float64)[:, None]) ** 2, axis=2),
+                axis=1,
+            )
+            np.testing.assert_allclose(
+                got,
+                -0.5 * np.minimum(d2, m.radius**2) / m.sigma**2,
+                rtol=1e-9,
+                atol=1e-12,
+            )
             assert np.any(d2 < m.radius**2) and np.any(d2 > m.radius**2)
 
 
@@ -109,8 +139,12 @@ def test_morton_nn_is_exact_with_warm_starts_and_a_small_leaf(small_maps):
     lk = m.lookup()
     stored = lk.points.astype(np.float64)
     rng = np.random.default_rng(14)
-    queries = np.vstack([stored[rng.integers(0, len(stored), 20)] + rng.normal(0, 0.1, (20, 3)),
-                         rng.uniform(-3, 3, (20, 3))])
+    queries = np.vstack(
+        [
+            stored[rng.integers(0, len(stored), 20)] + rng.normal(0, 0.1, (20, 3)),
+            rng.uniform(-3, 3, (20, 3)),
+        ]
+    )
     r2 = lk.radius**2
     for leaf in (1, 4, 64):
         stack = _garbage_stack(lk.cell_level)
@@ -119,17 +153,33 @@ def test_morton_nn_is_exact_with_warm_starts_and_a_small_leaf(small_maps):
         for q in queries:
             d2 = np.sum((stored - q) ** 2, axis=1)
             j = int(np.argmin(d2))
-            args = (lk.codes, lk.points, lk.cell_codes, lk.cell_start, lk.cell_lo, lk.cell_hi, lk.quantum,
-                    lk.cell_level)
-            best, best_j = cpu.morton_nn_nb(*q, *args, r2, -1, stack, leaf, cache_code, cache_k, 3)
+            args = (
+                lk.codes,
+                lk.points,
+                lk.cell_codes,
+                lk.cell_start,
+                lk.cell_lo,
+                lk.cell_hi,
+                lk.quantum,
+                lk.cell_level,
+            )
+            best, best_j = cpu.morton_nn_nb(
+                *q, *args, r2, -1, stack, leaf, cache_code, cache_k, 3
+            )
             if d2[j] < r2:
                 assert best_j == j and best == pytest.approx(d2[j], rel=1e-12)
             else:
                 assert best_j == -1 and best == r2
-            k = int(np.argsort(d2)[1])  # warm start from the second-nearest point, at its distance
+            k = int(
+                np.argsort(d2)[1]
+            )  # warm start from the second-nearest point, at its distance
             if d2[k] < r2:
-                best, best_j = cpu.morton_nn_nb(*q, *args, d2[k], k, stack, leaf, cache_code, cache_k, 3)
-                assert best == pytest.approx(d2[j], rel=1e-12) and d2[best_j] == pytest.approx(best, rel=1e-12)
+                best, best_j = cpu.morton_nn_nb(
+                    *q, *args, d2[k], k, stack, leaf, cache_code, cache_k, 3
+                )
+                assert best == pytest.approx(d2[j], rel=1e-12) and d2[
+                    best_j
+                ] == pytest.approx(best, rel=1e-12)
 
 
 def test_move_particles_cpu_equals_reference_on_two_blocks(monkeypatch):
@@ -142,7 +192,11 @@ def test_move_particles_cpu_equals_reference_on_two_blocks(monkeypatch):
     sigma = rng.uniform(0.05, 0.3, 6)
     args = ([0.02, -0.01, 0.3], [1.1, 0.2, -0.1])
     noise = rng.normal(size=(10, 6))
-    for nz in (noise, LutNoise(make_tables(5, bits=2), 3, 4), LutNoise(make_tables(5, bits=6), 3, 4)):
+    for nz in (
+        noise,
+        LutNoise(make_tables(5, bits=2), 3, 4),
+        LutNoise(make_tables(5, bits=6), 3, 4),
+    ):
         R_c, t_c = CPU.move_particles(R, t, *args, nz, sigma)
         R_r, t_r = REF.move_particles(R, t, *args, nz, sigma)
         np.testing.assert_allclose(R_c, R_r, atol=1e-12)
@@ -169,7 +223,10 @@ def _voxel_stats(m):
     """``{key: (count, mean, icov)}`` of every occupied voxel of a VoxelHashMap."""
     lk = m.lookup()
     occ = np.flatnonzero(lk.keys != -1)
-    return {int(lk.keys[s]): (int(m._count[s]), lk.mean[s].copy(), lk.icov[s].copy()) for s in occ}
+    return {
+        int(lk.keys[s]): (int(m._count[s]), lk.mean[s].copy(), lk.icov[s].copy())
+        for s in occ
+    }
 
 
 def _probe_distances(lk):
@@ -190,7 +247,12 @@ def test_voxel_hash_prune_keeps_exactly_the_near_voxels_with_their_statistics():
     from slamlib.maps.codes import hash_slots, pack_keys
 
     rng = np.random.default_rng(21)
-    centres = np.array([[x, y, 0.0] for x in range(-3, 4) for y in range(-3, 4)], np.float64)[:40] + 0.5
+    centres = (
+        np.array([[x, y, 0.0] for x in range(-3, 4) for y in range(-3, 4)], np.float64)[
+            :40
+        ]
+        + 0.5
+    )
     # three more near voxels whose home slots are the last ones (62, 63; found by search): reinserted after the
     # grid's keys, one of them wraps around the end of the table
     last = np.array([[-1, 0, 1], [0, 1, 2], [1, 2, -3]])
@@ -198,19 +260,33 @@ def test_voxel_hash_prune_keeps_exactly_the_near_voxels_with_their_statistics():
     centres = np.vstack([centres, last + [0.5, 0.5, 0.5]])
     pts = np.vstack([c + rng.uniform(-0.4, 0.4, (5, 3)) * [1, 1, 0.5] for c in centres])
     c0 = np.array([0.5, 0.5, 0.0])
-    pts = np.vstack([pts, [c0 + [0.0, 4.0, 0.0]]]).astype(np.float32)  # alone in its voxel: mean at distance 4.0
+    pts = np.vstack([pts, [c0 + [0.0, 4.0, 0.0]]]).astype(
+        np.float32
+    )  # alone in its voxel: mean at distance 4.0
     m = VoxelHashMap(voxel_size=1.0, capacity=64, max_load=0.7)
     m.merge(pts)
     assert m.n_dropped == 0 and len(m) == 44
     before = _voxel_stats(m)
     version = m.version
-    assert m.prune(c0, 100.0) == 0 and m.version == version and _voxel_stats(m).keys() == before.keys()
+    assert (
+        m.prune(c0, 100.0) == 0
+        and m.version == version
+        and _voxel_stats(m).keys() == before.keys()
+    )
     means = {k: v[1].astype(np.float64) for k, v in before.items()}
     near = {k for k, mu in means.items() if np.sum((mu - c0) ** 2) <= 16.0}
-    assert any(np.sum((mu - c0) ** 2) == 16.0 for mu in means.values()) and 0 < len(near) < 44
+    assert (
+        any(np.sum((mu - c0) ** 2) == 16.0 for mu in means.values())
+        and 0 < len(near) < 44
+    )
     assert {pack_key_of(p) for p in last + 0.5} <= near
     evicted = m.prune(c0.reshape(3, 1), 4.0)  # a column is fine too
-    assert evicted == 44 - len(near) and len(m) == len(near) and m.version != version and m.n_dropped == 0
+    assert (
+        evicted == 44 - len(near)
+        and len(m) == len(near)
+        and m.version != version
+        and m.n_dropped == 0
+    )
     after = _voxel_stats(m)
     assert after.keys() == near
     for k in near:
@@ -218,8 +294,12 @@ def test_voxel_hash_prune_keeps_exactly_the_near_voxels_with_their_statistics():
         np.testing.assert_array_equal(after[k][1], before[k][1])
         np.testing.assert_array_equal(after[k][2], before[k][2])
     lk = m.lookup()
-    assert (lk.keys.dtype, lk.mean.dtype, lk.icov.dtype, m.counts().dtype) == (np.int64, np.float32, np.float32,
-                                                                               np.int64)
+    assert (lk.keys.dtype, lk.mean.dtype, lk.icov.dtype, m.counts().dtype) == (
+        np.int64,
+        np.float32,
+        np.float32,
+        np.int64,
+    )
     for s in np.flatnonzero(lk.keys != -1):
         assert _find(lk.keys, int(lk.keys[s]), lk.log2_capacity, lk.max_probe) == s
     assert lk.max_probe == _probe_distances(lk).max() > 0
@@ -267,7 +347,9 @@ def test_morton_prune_keeps_exactly_the_points_within_the_radius():
     """``prune(c, r)`` keeps the points within ``r`` of ``c`` (a point at exactly ``r`` is kept), and the map is then
     the map built from those points alone (codes, points, cells, boxes); nothing to drop changes nothing."""
     rng = np.random.default_rng(22)
-    pts = np.vstack([rng.uniform(-6, 6, (400, 3)), [[3.0, 4.0, 3.0], [1.0, 2.0, 2.0]]]).astype(np.float32)
+    pts = np.vstack(
+        [rng.uniform(-6, 6, (400, 3)), [[3.0, 4.0, 3.0], [1.0, 2.0, 2.0]]]
+    ).astype(np.float32)
     m = MortonBVHMap(radius=0.3, dedup_level=0)
     m.merge(pts)
     version = m.version
@@ -276,7 +358,11 @@ def test_morton_prune_keeps_exactly_the_points_within_the_radius():
     d2 = np.sum((pts.astype(np.float64) - c) ** 2, axis=1)
     keep = d2 <= 9.0
     assert keep[-2] and d2[-2] == 9.0 and 0 < keep.sum() < 402
-    assert m.prune(c.reshape(3, 1), 3.0) == 402 - keep.sum() and len(m) == keep.sum() and m.version != version
+    assert (
+        m.prune(c.reshape(3, 1), 3.0) == 402 - keep.sum()
+        and len(m) == keep.sum()
+        and m.version != version
+    )
     fresh = MortonBVHMap(radius=0.3, dedup_level=0)
     fresh.merge(pts[keep])
     a, b = m.lookup(), fresh.lookup()
@@ -291,7 +377,10 @@ def test_make_map_by_name():
     m = make_map("morton_bvh", radius=0.5, sigma=0.2)
     assert type(m) is MortonBVHMap and (m.radius, m.sigma) == (0.5, 0.2)
     assert make_map("voxel_hash", voxel_size=2.0).voxel_size == 2.0
-    with pytest.raises(ValueError, match=r"^unknown map kind 'octree'; choose one of voxel_hash, morton_bvh$"):
+    with pytest.raises(
+        ValueError,
+        match=r"^unknown map kind 'octree'; choose one of voxel_hash, morton_bvh$",
+    ):
         make_map("octree")
 
 
@@ -303,21 +392,41 @@ def test_fresh_code_functions_follow_the_formulas():
     f = make_code_functions()
     for x, inv_h in ((0.0, 2.0), (-0.1, 2.0), (3.7, 2.0), (-1e5, 10.0), (0.49999, 2.0)):
         assert f["axis_index"](x, inv_h) == np.floor(x * inv_h) + 2**20
-    assert [bool(f["in_range"](np.int64(u))) for u in (-1, 0, 2**21 - 1, 2**21)] == [False, True, True, False]
+    assert [bool(f["in_range"](np.int64(u))) for u in (-1, 0, 2**21 - 1, 2**21)] == [
+        False,
+        True,
+        True,
+        False,
+    ]
     log2c = 4
     keys = np.full(16, -1, np.int64)
     # three keys with the home slot 15: stored at 15, 0, 1 (linear probing wraps around)
-    homes = [k for k in range(1, 5000) if f["hash_slot"](np.int64(k), np.int64(log2c)) == 15][:3]
+    homes = [
+        k for k in range(1, 5000) if f["hash_slot"](np.int64(k), np.int64(log2c)) == 15
+    ][:3]
     for slot, k in zip((15, 0, 1), homes):
         keys[slot] = k
     for slot, k in zip((15, 0, 1), homes):
         assert f["find_slot"](keys, np.int64(k), np.int64(log2c), np.int64(2)) == slot
-    assert f["find_slot"](keys, np.int64(homes[2]), np.int64(log2c), np.int64(1)) == -1  # beyond max_probe
-    other = next(k for k in range(5000, 10000) if f["hash_slot"](np.int64(k), np.int64(log2c)) == 15)
-    assert f["find_slot"](keys, np.int64(other), np.int64(log2c), np.int64(5)) == -1  # stops at the empty slot 2
-    full = np.arange(16, dtype=np.int64) + 100  # a full table without the key: gives up after max_probe + 1
+    assert (
+        f["find_slot"](keys, np.int64(homes[2]), np.int64(log2c), np.int64(1)) == -1
+    )  # beyond max_probe
+    other = next(
+        k
+        for k in range(5000, 10000)
+        if f["hash_slot"](np.int64(k), np.int64(log2c)) == 15
+    )
+    assert (
+        f["find_slot"](keys, np.int64(other), np.int64(log2c), np.int64(5)) == -1
+    )  # stops at the empty slot 2
+    full = (
+        np.arange(16, dtype=np.int64) + 100
+    )  # a full table without the key: gives up after max_probe + 1
     assert f["find_slot"](full, np.int64(7), np.int64(log2c), np.int64(15)) == -1
-    assert f["part1by2"](np.int64(0b1011)) == 0b1000001001 and f["part1by2"](np.int64(2**21)) == 0  # masked to 21 bits
+    assert (
+        f["part1by2"](np.int64(0b1011)) == 0b1000001001
+        and f["part1by2"](np.int64(2**21)) == 0
+    )  # masked to 21 bits
 
 
 def test_pack_keys_of_unsigned_or_narrow_indices():
@@ -338,7 +447,11 @@ def test_morton_map_of_one_point_and_pruned_to_nothing():
     p = np.array([[1.0, -2.0, 0.5]], np.float32)
     m.merge(p)
     lk = m.lookup()
-    assert lk.codes.shape == (1,) and lk.cell_codes.shape == (1,) and lk.cell_start.tolist() == [0, 1]
+    assert (
+        lk.codes.shape == (1,)
+        and lk.cell_codes.shape == (1,)
+        and lk.cell_start.tolist() == [0, 1]
+    )
     assert lk.cell_codes[0] == lk.codes[0] >> (3 * lk.cell_level)
     np.testing.assert_array_equal(lk.cell_lo, p)
     np.testing.assert_array_equal(lk.cell_hi, p)
@@ -346,30 +459,53 @@ def test_morton_map_of_one_point_and_pruned_to_nothing():
     I, z = np.eye(3)[None], np.zeros((1, 3))
     floor = -0.5 * 0.5**2 / 0.25**2
     for backend in (REF, CPU):
-        np.testing.assert_allclose(backend.score_particles(I, z, q[:1], lk), -0.5 * 0.1**2 / 0.25**2, rtol=1e-5)
+        np.testing.assert_allclose(
+            backend.score_particles(I, z, q[:1], lk), -0.5 * 0.1**2 / 0.25**2, rtol=1e-5
+        )
     assert m.prune([0.0, 0.0, 0.0], 1.0) == 1 and len(m) == 0
     lk = m.lookup()
     assert lk.codes.shape == (0,) and lk.points.shape == (0, 3)
     assert lk.cell_codes.shape == (0,) and lk.cell_codes.dtype == np.int64
     assert lk.cell_start.tolist() == [0] and lk.cell_start.dtype == np.int64
-    assert lk.cell_lo.shape == lk.cell_hi.shape == (0, 3) and lk.cell_lo.dtype == lk.cell_hi.dtype == np.float32
+    assert (
+        lk.cell_lo.shape == lk.cell_hi.shape == (0, 3)
+        and lk.cell_lo.dtype == lk.cell_hi.dtype == np.float32
+    )
     for backend in (REF, CPU):
         np.testing.assert_allclose(backend.score_particles(I, z, q, lk), 2 * floor)
 
 
 def test_morton_parameters_defaults_and_limits():
     m = MortonBVHMap()
-    assert (m.radius, m.sigma, m.quantum, m.dedup_level, m.max_points) == (0.3, 0.1, 0.01, 3, 4_000_000)
+    assert (m.radius, m.sigma, m.quantum, m.dedup_level, m.max_points) == (
+        0.3,
+        0.1,
+        0.01,
+        3,
+        4_000_000,
+    )
     msg = r"^radius, sigma, quantum, max_points must be > 0 and 0 <= dedup_level <= 20$"
-    for bad in ({"radius": 0.0}, {"sigma": 0.0}, {"quantum": 0.0}, {"max_points": 0}, {"dedup_level": -1},
-                {"dedup_level": 21}, {"radius": -1.0, "sigma": 1.0}):
+    for bad in (
+        {"radius": 0.0},
+        {"sigma": 0.0},
+        {"quantum": 0.0},
+        {"max_points": 0},
+        {"dedup_level": -1},
+        {"dedup_level": 21},
+        {"radius": -1.0, "sigma": 1.0},
+    ):
         with pytest.raises(ValueError, match=msg):
             MortonBVHMap(**bad)
     for ok in ({"dedup_level": 0}, {"dedup_level": 20}, {"max_points": 1}):
         MortonBVHMap(**ok)
-    assert MortonBVHMap(radius=0.004, quantum=0.01).cell_level == 0  # 2 r < quantum: cells of one quantum
+    assert (
+        MortonBVHMap(radius=0.004, quantum=0.01).cell_level == 0
+    )  # 2 r < quantum: cells of one quantum
     assert MortonBVHMap(radius=0.01 * 2**19, quantum=0.01).cell_level == 20
-    with pytest.raises(ValueError, match=r"^radius too large for quantum: cells would exceed the 21-bit range$"):
+    with pytest.raises(
+        ValueError,
+        match=r"^radius too large for quantum: cells would exceed the 21-bit range$",
+    ):
         MortonBVHMap(radius=0.01 * 2**19 * 1.01, quantum=0.01)
 
 
@@ -414,18 +550,28 @@ def test_voxel_hash_merge_drops_out_of_range_points_and_counts_them():
     refreshed from an empty slot)."""
     m = VoxelHashMap(voxel_size=1.0, capacity=2**10)
     out = 1.5 * 2**20  # index + 2**20 beyond 21 bits
-    bad = np.array([[np.nan, 0, 0], [0, np.inf, 0], [out, 0, 0], [0, -out, 0], [0, 0, out]], np.float32)
+    bad = np.array(
+        [[np.nan, 0, 0], [0, np.inf, 0], [out, 0, 0], [0, -out, 0], [0, 0, out]],
+        np.float32,
+    )
     m.merge(bad)
     assert len(m) == 0 and m.n_dropped == 5
     lk = m.lookup()
     assert not lk.mean.any() and not lk.icov.any()
-    good = np.array([[0.5, 0.5, 1000.5], [1000.5, 0.5, 0.5], [0.5, -1000.5, 0.5], [0.2, 0.3, 0.4]], np.float32)
+    good = np.array(
+        [[0.5, 0.5, 1000.5], [1000.5, 0.5, 0.5], [0.5, -1000.5, 0.5], [0.2, 0.3, 0.4]],
+        np.float32,
+    )
     m.merge(np.vstack([bad[:2], good]))
     assert len(m) == 4 and m.n_dropped == 7
     np.testing.assert_allclose(np.sort(m.points(), axis=0), np.sort(good, axis=0))
     lk = m.lookup()
     empty = lk.keys == -1
-    assert not lk.mean[empty].any() and not lk.icov[empty].any() and np.isfinite(lk.icov).all()
+    assert (
+        not lk.mean[empty].any()
+        and not lk.icov[empty].any()
+        and np.isfinite(lk.icov).all()
+    )
     tiny = VoxelHashMap(voxel_size=1e-10, capacity=2**4)
     tiny.merge(np.array([[1e9, 0, 0], [0, 1e9, 0], [0, 0, -1e9], [0, 0, 0]], np.float32))
     assert len(tiny) == 1 and tiny.n_dropped == 3
@@ -446,15 +592,29 @@ def test_voxel_hash_max_probe_is_the_longest_probe():
 
 def test_voxel_hash_parameters_defaults_and_limits():
     m = VoxelHashMap()
-    assert (m.voxel_size, m.capacity, m.max_load, m.min_sigma, m.m_max) == (0.5, 2**18, 0.75, 0.05, 16.0)
+    assert (m.voxel_size, m.capacity, m.max_load, m.min_sigma, m.m_max) == (
+        0.5,
+        2**18,
+        0.75,
+        0.05,
+        16.0,
+    )
     assert m.max_voxels == int(0.75 * 2**18) and m.log2_capacity == 18
     for cap in (8, 24, 15, 2**10 + 2):
-        with pytest.raises(ValueError, match=rf"^capacity must be a power of two >= 16, got {cap}$"):
+        with pytest.raises(
+            ValueError, match=rf"^capacity must be a power of two >= 16, got {cap}$"
+        ):
             VoxelHashMap(capacity=cap)
     assert VoxelHashMap(capacity=16).capacity == 16
     msg = r"^voxel_size, min_sigma, m_max must be > 0 and 0 < max_load < 1$"
-    for bad in ({"voxel_size": 0.0}, {"max_load": 0.0}, {"max_load": 1.0}, {"max_load": 1.5}, {"min_sigma": 0.0},
-                {"m_max": 0.0}):
+    for bad in (
+        {"voxel_size": 0.0},
+        {"max_load": 0.0},
+        {"max_load": 1.0},
+        {"max_load": 1.5},
+        {"min_sigma": 0.0},
+        {"m_max": 0.0},
+    ):
         with pytest.raises(ValueError, match=msg):
             VoxelHashMap(capacity=16, **bad)
 
@@ -462,12 +622,20 @@ def test_voxel_hash_parameters_defaults_and_limits():
 def test_as_points_names_the_argument_and_converts():
     from slamlib.maps.base import as_points
 
-    with pytest.raises(ValueError, match=r"^points must have shape \(N, 3\), got \(3,\)$"):
+    with pytest.raises(
+        ValueError, match=r"^points must have shape \(N, 3\), got \(3,\)$"
+    ):
         as_points(np.zeros(3))
-    with pytest.raises(ValueError, match=r"^scan must have shape \(N, 3\), got \(2, 4\)$"):
+    with pytest.raises(
+        ValueError, match=r"^scan must have shape \(N, 3\), got \(2, 4\)$"
+    ):
         as_points(np.zeros((2, 4)), "scan")
     a = as_points(np.arange(12, dtype=np.float64).reshape(3, 4)[:, :3])
-    assert a.dtype == np.float32 and a.flags.c_contiguous and a.tolist() == [[0, 1, 2], [4, 5, 6], [8, 9, 10]]
+    assert (
+        a.dtype == np.float32
+        and a.flags.c_contiguous
+        and a.tolist() == [[0, 1, 2], [4, 5, 6], [8, 9, 10]]
+    )
 
 
 def test_axis_indices_in_float64_at_the_range_ends():
@@ -479,8 +647,15 @@ def test_axis_indices_in_float64_at_the_range_ends():
     assert u.dtype == np.int64 and ok.tolist() == [True]
     assert (u[0] - 2**20).tolist() == [700, 272, -920]
     h = 0.5
-    pts = np.array([[-(2**20) * h, 0, 0], [(2**20 - 1) * h, 0, 0], [0, -(2**20) * h - h, 0], [0, 0, 2**20 * h],
-                    [np.nan, 0, 0]])
+    pts = np.array(
+        [
+            [-(2**20) * h, 0, 0],
+            [(2**20 - 1) * h, 0, 0],
+            [0, -(2**20) * h - h, 0],
+            [0, 0, 2**20 * h],
+            [np.nan, 0, 0],
+        ]
+    )
     u, ok = axis_indices(pts, 1.0 / h)
     assert ok.tolist() == [True, True, False, False, False]
     assert u[0, 0] == 0 and u[1, 0] == 2**21 - 1
@@ -494,7 +669,9 @@ def test_voxel_in_slot_zero_is_refreshed():
     u = np.stack(np.meshgrid(r, r, r, indexing="ij"), -1).reshape(-1, 3)
     home0 = u[hash_slots(pack_keys(u + 2**20), 4) == 0][0]
     p = (home0 + [0.2, 0.3, 0.4]).astype(np.float32)[None]
-    m = VoxelHashMap(voxel_size=1.0, capacity=16, min_sigma=0.05, m_max=0.5)  # m_max may be below 1
+    m = VoxelHashMap(
+        voxel_size=1.0, capacity=16, min_sigma=0.05, m_max=0.5
+    )  # m_max may be below 1
     m.merge(p)
     lk = m.lookup()
     assert lk.keys[0] != -1 and lk.voxel_size == 1.0 and lk.m_max == 0.5
@@ -513,7 +690,10 @@ def test_fresh_morton_map_layout():
     for box in (lk.cell_lo, lk.cell_hi):
         assert (box.shape, box.dtype) == ((0, 3), np.float32)
     I, z = np.eye(3)[None], np.zeros((1, 3))
-    np.testing.assert_allclose(CPU.score_particles(I, z, np.zeros((3, 3), np.float32), lk), -1.5 * 0.5**2 / 0.25**2)
+    np.testing.assert_allclose(
+        CPU.score_particles(I, z, np.zeros((3, 3), np.float32), lk),
+        -1.5 * 0.5**2 / 0.25**2,
+    )
 
 
 # ---------------------------------------------------------------------------------------------------- kernels
@@ -522,7 +702,14 @@ def test_systematic_resample_checks_and_messages(backend):
     """Each bad input alone is refused with the documented message (infinite weights, 2-D weights, empty, negative,
     zero sum, ``u0`` outside [0, 1)); the result is int64."""
     msg = r"^weights must be a non-empty 1-D array of finite non-negative numbers with positive sum$"
-    for w in ([np.inf, 1.0], [[0.5, 0.5], [0.5, 0.5]], [], [1.0, -0.5], [0.0, 0.0], [np.nan, 1.0]):
+    for w in (
+        [np.inf, 1.0],
+        [[0.5, 0.5], [0.5, 0.5]],
+        [],
+        [1.0, -0.5],
+        [0.0, 0.0],
+        [np.nan, 1.0],
+    ):
         with pytest.raises(ValueError, match=msg):
             backend.systematic_resample(np.asarray(w, float), 0.5)
     for u0 in (1.0, -0.1):
@@ -537,7 +724,11 @@ def test_reference_scores_every_voxel_and_rounds_points_to_float32():
     terms at each voxel's mean == the CPU kernel's); float64 points are scored as their float32 values."""
     rng = np.random.default_rng(25)
     m = VoxelHashMap(voxel_size=1.0, capacity=64)
-    m.merge((rng.integers(-3, 3, (6, 3)) + rng.uniform(0.3, 0.7, (30, 6, 3))).reshape(-1, 3).astype(np.float32))
+    m.merge(
+        (rng.integers(-3, 3, (6, 3)) + rng.uniform(0.3, 0.7, (30, 6, 3)))
+        .reshape(-1, 3)
+        .astype(np.float32)
+    )
     lk = m.lookup()
     occ = np.flatnonzero(lk.keys != -1)
     q = lk.mean[occ]
@@ -552,8 +743,10 @@ def test_reference_scores_every_voxel_and_rounds_points_to_float32():
         for mm in (m, MortonBVHMap(radius=0.5)):
             if isinstance(mm, MortonBVHMap):
                 mm.merge(q)
-            np.testing.assert_array_equal(backend.score_particles(R, t, p64, mm.lookup()),
-                                          backend.score_particles(R, t, p64.astype(np.float32), mm.lookup()))
+            np.testing.assert_array_equal(
+                backend.score_particles(R, t, p64, mm.lookup()),
+                backend.score_particles(R, t, p64.astype(np.float32), mm.lookup()),
+            )
 
 
 def test_reference_at_the_far_corner_of_the_key_range():
@@ -562,13 +755,26 @@ def test_reference_at_the_far_corner_of_the_key_range():
     h = 0.001
     corner = np.float32(-(2**20) * h + 0.0004)
     m = VoxelHashMap(voxel_size=h, capacity=16, min_sigma=0.001)
-    m.merge(np.array([[corner, corner, corner], [corner + 0.0001, corner, corner]], np.float32))
+    m.merge(
+        np.array(
+            [[corner, corner, corner], [corner + 0.0001, corner, corner]], np.float32
+        )
+    )
     lk = m.lookup()
     assert 0 in lk.keys.tolist()
-    q = np.array([[corner, corner, corner], [corner + 0.0002, corner + 0.0001, corner], [1e4, 0, 0]], np.float32)
+    q = np.array(
+        [
+            [corner, corner, corner],
+            [corner + 0.0002, corner + 0.0001, corner],
+            [1e4, 0, 0],
+        ],
+        np.float32,
+    )
     I, z = np.eye(3)[None], np.zeros((1, 3))
     ref = np.array([REF.score_particles(I, z, p[None], lk)[0] for p in q])
-    np.testing.assert_allclose(ref, [CPU.score_particles(I, z, p[None], lk)[0] for p in q], rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(
+        ref, [CPU.score_particles(I, z, p[None], lk)[0] for p in q], rtol=1e-9, atol=1e-9
+    )
     assert ref[0] > -0.5 * lk.m_max and ref[2] == -0.5 * lk.m_max
 
 
@@ -576,11 +782,15 @@ def test_point_terms_work_in_float64_and_name_an_unknown_kind(small_maps):
     rng = np.random.default_rng(26)
     w = rng.uniform(-3, 3, (30, 3)).astype(np.float32)
     for m in small_maps:
-        np.testing.assert_array_equal(reference.point_terms(w, m.lookup()),
-                                      reference.point_terms(w.astype(np.float64), m.lookup()))
+        np.testing.assert_array_equal(
+            reference.point_terms(w, m.lookup()),
+            reference.point_terms(w.astype(np.float64), m.lookup()),
+        )
     bad = small_maps[0].lookup()._replace(kind=7)
-    for fn in (lambda: reference.point_terms(w, bad), lambda: CPU.score_particles(np.eye(3)[None], np.zeros((1, 3)),
-                                                                                   w, bad)):
+    for fn in (
+        lambda: reference.point_terms(w, bad),
+        lambda: CPU.score_particles(np.eye(3)[None], np.zeros((1, 3)), w, bad),
+    ):
         with pytest.raises(ValueError, match=r"^unknown lookup kind 7$"):
             fn()
 
@@ -595,8 +805,18 @@ def test_out_may_be_another_view_of_the_input():
     assert np.shares_memory(CPU.transform_points(T, x, out=x.view()), x)
     np.testing.assert_allclose(x, want, rtol=1e-6)
     R, t = _particles(rng, 4)
-    R_ref, t_ref = CPU.move_particles(R, t, [0.1, 0, 0], [1, 0, 0], np.zeros((4, 6)), np.zeros(6))
-    CPU.move_particles(R, t, [0.1, 0, 0], [1, 0, 0], np.zeros((4, 6)), np.zeros(6), out=(R.view(), t.view()))
+    R_ref, t_ref = CPU.move_particles(
+        R, t, [0.1, 0, 0], [1, 0, 0], np.zeros((4, 6)), np.zeros(6)
+    )
+    CPU.move_particles(
+        R,
+        t,
+        [0.1, 0, 0],
+        [1, 0, 0],
+        np.zeros((4, 6)),
+        np.zeros(6),
+        out=(R.view(), t.view()),
+    )
     np.testing.assert_array_equal(R, R_ref)
     np.testing.assert_array_equal(t, t_ref)
 
@@ -612,9 +832,15 @@ def test_reference_transform_points_dtype_and_out_checks():
     got = REF.transform_points(T, p64)
     assert got.dtype == np.float32
     np.testing.assert_array_equal(got, REF.transform_points(T, p64.astype(np.float32)))
-    with pytest.raises(ValueError, match=r"^out must be a float32 array of shape \(20, 3\), got float64 \(20, 3\)$"):
+    with pytest.raises(
+        ValueError,
+        match=r"^out must be a float32 array of shape \(20, 3\), got float64 \(20, 3\)$",
+    ):
         REF.transform_points(T, p64, out=np.empty((20, 3)))
-    with pytest.raises(ValueError, match=r"^out must be a float32 array of shape \(20, 3\), got float32 \(19, 3\)$"):
+    with pytest.raises(
+        ValueError,
+        match=r"^out must be a float32 array of shape \(20, 3\), got float32 \(19, 3\)$",
+    ):
         REF.transform_points(T, p64, out=np.empty((19, 3), np.float32))
 
 
@@ -631,9 +857,24 @@ def test_morton_nn_exact_on_coarse_quanta(quantum, leaf):
     cache_code, cache_k = np.full(8, -1, np.int64), np.empty(8, np.int64)
     for q in stored[rng.integers(0, len(stored), 60)] + rng.normal(0, 0.01, (60, 3)):
         d2 = np.sum((stored - q) ** 2, axis=1)
-        best, best_j = cpu.morton_nn_nb(*q, lk.codes, lk.points, lk.cell_codes, lk.cell_start, lk.cell_lo,
-                                        lk.cell_hi, lk.quantum, lk.cell_level, lk.radius**2, -1, stack, leaf,
-                                        cache_code, cache_k, 3)
+        best, best_j = cpu.morton_nn_nb(
+            *q,
+            lk.codes,
+            lk.points,
+            lk.cell_codes,
+            lk.cell_start,
+            lk.cell_lo,
+            lk.cell_hi,
+            lk.quantum,
+            lk.cell_level,
+            lk.radius**2,
+            -1,
+            stack,
+            leaf,
+            cache_code,
+            cache_k,
+            3,
+        )
         assert best_j == int(np.argmin(d2)) and best == pytest.approx(d2.min(), rel=1e-12)
 
 
@@ -648,7 +889,10 @@ def test_morton_scoring_exact_when_the_cells_are_one_to_four_quanta(quantum):
     assert lk.cell_level == {0.6: 0, 0.3: 1, 0.2: 2}[quantum]
     stored = lk.points.astype(np.float64)
     q = stored[rng.integers(0, len(stored), 30)] + rng.normal(0, 0.05, (30, 3))
-    R, t = np.repeat(np.eye(3)[None], 2, axis=0), np.array([[0.0, 0.0, 0.0], [0.05, -0.02, 0.01]])
+    R, t = (
+        np.repeat(np.eye(3)[None], 2, axis=0),
+        np.array([[0.0, 0.0, 0.0], [0.05, -0.02, 0.01]]),
+    )
     got = CPU.score_particles(R, t, q.astype(np.float32), lk)
     for i in range(2):
         w = q.astype(np.float32).astype(np.float64) + t[i]
@@ -665,11 +909,17 @@ def test_cpu_transform_points_dtype_and_messages():
     got = CPU.transform_points(T, p64)
     assert got.dtype == np.float32
     np.testing.assert_array_equal(got, CPU.transform_points(T, p64.astype(np.float32)))
-    with pytest.raises(ValueError, match=r"^need T \(4, 4\) and points \(N, 3\), got \(3, 3\) and \(4, 3\)$"):
+    with pytest.raises(
+        ValueError,
+        match=r"^need T \(4, 4\) and points \(N, 3\), got \(3, 3\) and \(4, 3\)$",
+    ):
         CPU.transform_points(np.eye(3), p64)
     pts = p64.astype(np.float32)
     for out in (np.empty((4, 3)), pts[::-1]):
-        with pytest.raises(ValueError, match=r"^out must be a writeable C-contiguous float32 array of shape \(4, 3\)$"):
+        with pytest.raises(
+            ValueError,
+            match=r"^out must be a writeable C-contiguous float32 array of shape \(4, 3\)$",
+        ):
             CPU.transform_points(T, pts, out=out)
 
 
@@ -682,13 +932,27 @@ def test_cpu_move_and_score_refuse_bad_input_with_messages():
     R, t = _particles(rng, 4)
     args = ([0.0, 0.0, 0.1], [1.0, 0.0, 0.0])
     noise, sigma = np.zeros((4, 6)), np.full(6, 0.1)
-    with pytest.raises(ValueError, match=r"^particles need R \(P, 3, 3\) and t \(P, 3\), got \(4, 3, 3\) and \(3, 3\)$"):
+    with pytest.raises(
+        ValueError,
+        match=r"^particles need R \(P, 3, 3\) and t \(P, 3\), got \(4, 3, 3\) and \(3, 3\)$",
+    ):
         CPU.move_particles(R, t[:3], *args, noise, sigma)
-    with pytest.raises(ValueError, match=r"^particles need R \(P, 3, 3\) and t \(P, 3\), got \(4, 3, 2\) and \(4, 3\)$"):
+    with pytest.raises(
+        ValueError,
+        match=r"^particles need R \(P, 3, 3\) and t \(P, 3\), got \(4, 3, 2\) and \(4, 3\)$",
+    ):
         CPU.move_particles(R[:, :, :2], t, *args, noise, sigma)
-    with pytest.raises(ValueError, match=r"^out\[0\] must be a writeable C-contiguous float64 array of shape \(4, 3, 3\)$"):
-        CPU.move_particles(R, t, *args, noise, sigma, out=(R.astype(np.float32), t.copy()))
-    with pytest.raises(ValueError, match=r"^out\[1\] must be a writeable C-contiguous float64 array of shape \(4, 3\)$"):
+    with pytest.raises(
+        ValueError,
+        match=r"^out\[0\] must be a writeable C-contiguous float64 array of shape \(4, 3, 3\)$",
+    ):
+        CPU.move_particles(
+            R, t, *args, noise, sigma, out=(R.astype(np.float32), t.copy())
+        )
+    with pytest.raises(
+        ValueError,
+        match=r"^out\[1\] must be a writeable C-contiguous float64 array of shape \(4, 3\)$",
+    ):
         CPU.move_particles(R, t, *args, noise, sigma, out=(R.copy(), t[:, :2].copy()))
     tables = make_tables(5, bits=4)
     for step, seed in ((-1, 0), (0, -1)):
@@ -696,13 +960,21 @@ def test_cpu_move_and_score_refuse_bad_input_with_messages():
             CPU.move_particles(R, t, *args, LutNoise(tables, step, seed), sigma)
     CPU.move_particles(R, t, *args, LutNoise(tables, 0, 0), sigma)
     bad = LutNoise(tables._replace(perm=tables.perm[:, :8]), 1, 1)
-    with pytest.raises(ValueError, match=r"^LutNoise tables need normal \(T,\) and perm \(6, T\) with T = 2\*\*bits$"):
+    with pytest.raises(
+        ValueError,
+        match=r"^LutNoise tables need normal \(T,\) and perm \(6, T\) with T = 2\*\*bits$",
+    ):
         CPU.move_particles(R, t, *args, bad, sigma)
-    with pytest.raises(ValueError, match=r"^noise must have shape \(P, 6\) = \(4, 6\), got \(4, 5\)$"):
+    with pytest.raises(
+        ValueError, match=r"^noise must have shape \(P, 6\) = \(4, 6\), got \(4, 5\)$"
+    ):
         CPU.move_particles(R, t, *args, noise[:, :5], sigma)
     lk = VoxelHashMap(capacity=16).lookup()
     for pts in (np.zeros(3, np.float32), np.zeros((4, 2), np.float32)):
-        with pytest.raises(ValueError, match=rf"^points must have shape \(N, 3\), got {re.escape(str(pts.shape))}$"):
+        with pytest.raises(
+            ValueError,
+            match=rf"^points must have shape \(N, 3\), got {re.escape(str(pts.shape))}$",
+        ):
             CPU.score_particles(R, t, pts, lk)
     with pytest.raises(ValueError, match=r"^particles need R"):
         CPU.score_particles(R, t[:3], np.zeros((2, 3), np.float32), lk)
@@ -711,7 +983,10 @@ def test_cpu_move_and_score_refuse_bad_input_with_messages():
 def test_cpu_transform_in_place_refuses_a_read_only_array():
     x = np.ones((4, 3), np.float32)
     x.setflags(write=False)
-    with pytest.raises(ValueError, match=r"^out must be a writeable C-contiguous float32 array of shape \(4, 3\)$"):
+    with pytest.raises(
+        ValueError,
+        match=r"^out must be a writeable C-contiguous float32 array of shape \(4, 3\)$",
+    ):
         CPU.transform_points(np.eye(4), x, out=x)
 
 
@@ -719,7 +994,9 @@ def test_reference_move_particles_returns_the_out_arrays():
     rng = np.random.default_rng(31)
     R, t = _particles(rng, 3)
     R_o, t_o = np.empty_like(R), np.empty_like(t)
-    res = REF.move_particles(R, t, [0.1, 0, 0], [1, 0, 0], np.zeros((3, 6)), np.zeros(6), out=(R_o, t_o))
+    res = REF.move_particles(
+        R, t, [0.1, 0, 0], [1, 0, 0], np.zeros((3, 6)), np.zeros(6), out=(R_o, t_o)
+    )
     assert res[0] is R_o and res[1] is t_o
 
 
@@ -794,19 +1071,33 @@ def test_sim1d_steps_checks_and_edge_values():
     p = np.array([0.0, 1.0, 2.0])
     for sigma in (1.0, 0.3):
         want = p + sigma * np.random.default_rng(5).standard_normal(3)
-        np.testing.assert_array_equal(steps.perturb_with_noise(p, sigma, np.random.default_rng(5)), want)
+        np.testing.assert_array_equal(
+            steps.perturb_with_noise(p, sigma, np.random.default_rng(5)), want
+        )
     with pytest.raises(ValueError, match=r"^sigma must be non-negative, got -1.0$"):
         steps.perturb_with_noise(p, -1.0, np.random.default_rng(5))
-    with pytest.raises(ValueError, match=r"^log_weights must be a non-empty \(P,\) array, got shape \(1, 3\)$"):
+    with pytest.raises(
+        ValueError,
+        match=r"^log_weights must be a non-empty \(P,\) array, got shape \(1, 3\)$",
+    ):
         steps.pick_best_particle(p, np.zeros((1, 3)))
-    with pytest.raises(ValueError, match=r"^particles shape \(2,\) does not match log_weights shape \(3,\)$"):
+    with pytest.raises(
+        ValueError,
+        match=r"^particles shape \(2,\) does not match log_weights shape \(3,\)$",
+    ):
         steps.pick_best_particle(p[:2], np.zeros(3))
-    with pytest.raises(ValueError, match=r"^log_weights shape \(3,\) does not match particles shape \(2,\)$"):
+    with pytest.raises(
+        ValueError,
+        match=r"^log_weights shape \(3,\) does not match particles shape \(2,\)$",
+    ):
         steps.resample_particles(p[:2], np.zeros(3), np.random.default_rng(5))
     # ESS of weights (0.8, 0.1, 0.1) is 1 / 0.66 = 1.52 >= 0.5 * 3: no resampling by default, but below 0.6 * 3
     lw3 = np.log([0.8, 0.1, 0.1])
     assert steps.resample_particles(p, lw3, np.random.default_rng(5))[2] is False
-    assert steps.resample_particles(p, lw3, np.random.default_rng(5), ess_fraction=0.6)[2] is True
+    assert (
+        steps.resample_particles(p, lw3, np.random.default_rng(5), ess_fraction=0.6)[2]
+        is True
+    )
 
 
 def test_reference_transform_is_float64_arithmetic_rounded_once():
@@ -817,7 +1108,9 @@ def test_reference_transform_is_float64_arithmetic_rounded_once():
 
     rng = np.random.default_rng(11)
     pts = rng.uniform(-80, 80, (10_000, 3)).astype(np.float32)
-    T = make_pose(rpy_to_matrix(np.array([0.01, -0.02, 1.3])), np.array([123.4, -56.7, 1.9]))
+    T = make_pose(
+        rpy_to_matrix(np.array([0.01, -0.02, 1.3])), np.array([123.4, -56.7, 1.9])
+    )
     exact = (pts.astype(np.float64) @ T[:3, :3].T + T[:3, 3]).astype(np.float32)
     np.testing.assert_array_equal(reference.transform_points(T, pts), exact)
 
@@ -841,7 +1134,18 @@ def test_launch_runs_one_task_on_one_thread_and_restores_the_thread_count():
 
 def test_ceil_div_counts_the_tasks_that_cover_n_items():
     """``kernels.cpu._ceil_div(n, chunk) = ceil(n / chunk)``: the task count of every ``prange`` in the CPU backend."""
-    for n, chunk in [(0, 4), (1, 4), (3, 4), (4, 4), (5, 4), (8, 4), (9, 4), (7, 1), (1, 1), (100, 64)]:
+    for n, chunk in [
+        (0, 4),
+        (1, 4),
+        (3, 4),
+        (4, 4),
+        (5, 4),
+        (8, 4),
+        (9, 4),
+        (7, 1),
+        (1, 1),
+        (100, 64),
+    ]:
         assert cpu._ceil_div(n, chunk) == -(-n // chunk), (n, chunk)
 
 
@@ -850,7 +1154,9 @@ def test_move_particles_takes_float32_particles_and_returns_float64():
     float32 particles give the float64 result of the same poses, not a float32 one."""
     rng = np.random.default_rng(4)
     P = 5
-    R = np.stack([geometry.rpy_to_matrix(a) for a in rng.uniform(-0.5, 0.5, (P, 3))]).astype(np.float32)
+    R = np.stack(
+        [geometry.rpy_to_matrix(a) for a in rng.uniform(-0.5, 0.5, (P, 3))]
+    ).astype(np.float32)
     t = rng.normal(size=(P, 3)).astype(np.float32)
     noise = rng.normal(size=(P, 6))
     sigma = np.array([0.1, 0.2, 0.05, 0.01, 0.02, 0.03])
@@ -870,8 +1176,12 @@ def test_move_particles_names_a_vector_of_the_wrong_length(which):
     R, t = np.tile(np.eye(3), (P, 1, 1)), np.zeros((P, 3))
     args = {"rpy_delta": np.zeros(3), "trans_delta": np.zeros(3), "sigma": np.ones(6)}
     args[which] = np.zeros(args[which].size + 1)
-    with pytest.raises(ValueError, match=rf"{which} must have {args[which].size - 1} values"):
-        cpu.move_particles(R, t, args["rpy_delta"], args["trans_delta"], np.zeros((P, 6)), args["sigma"])
+    with pytest.raises(
+        ValueError, match=rf"{which} must have {args[which].size - 1} values"
+    ):
+        cpu.move_particles(
+            R, t, args["rpy_delta"], args["trans_delta"], np.zeros((P, 6)), args["sigma"]
+        )
 
 
 def test_systematic_resample_normalises_float32_weights_in_float64():
@@ -885,10 +1195,18 @@ def test_systematic_resample_normalises_float32_weights_in_float64():
     c64 = np.cumsum(w64 / w64.sum())
     u0s = np.linspace(0.0, 0.999, 99901)
     pointers = (u0s[:, None] + np.arange(P)) / P
-    differ = np.any(np.searchsorted(c32, pointers, side="right") != np.searchsorted(c64, pointers, side="right"), 1)
-    assert differ.any(), "no pointer separates the float32 and float64 sums: the test needs another weight"
+    differ = np.any(
+        np.searchsorted(c32, pointers, side="right")
+        != np.searchsorted(c64, pointers, side="right"),
+        1,
+    )
+    assert differ.any(), (
+        "no pointer separates the float32 and float64 sums: the test needs another weight"
+    )
     u0 = u0s[np.argmax(differ)]
-    np.testing.assert_array_equal(cpu.systematic_resample(w32, u0), reference.systematic_resample(w64, u0))
+    np.testing.assert_array_equal(
+        cpu.systematic_resample(w32, u0), reference.systematic_resample(w64, u0)
+    )
 
 
 def test_fill_kernel_built_afresh_draws_what_lut_normal_draws():

@@ -41,21 +41,37 @@ def test_numpy_numba_and_cuda_builds_agree_bit_for_bit(tables):
 
     a = N.lut_normal(tables, 257, step=9, seed=4)
     assert np.array_equal(a, N.lut_normal_nb(tables, 257, step=9, seed=4))
-    assert np.array_equal(a, kc.lut_normal_device(N.LutNoise(tables, 9, 4), 257).copy_to_host())
+    assert np.array_equal(
+        a, kc.lut_normal_device(N.LutNoise(tables, 9, 4), 257).copy_to_host()
+    )
     assert np.array_equal(a, N.LutNoise(tables, 9, 4).draw(257))
 
 
 @settings(max_examples=60, deadline=None)
-@given(thread=st.integers(0, 2**32 - 1), step=st.integers(0, 2**32 - 1), seed=st.integers(0, 2**32 - 1),
-       k=st.integers(0, 5))
+@given(
+    thread=st.integers(0, 2**32 - 1),
+    step=st.integers(0, 2**32 - 1),
+    seed=st.integers(0, 2**32 - 1),
+    k=st.integers(0, 5),
+)
 def test_index_in_range_and_numba_matches_numpy(thread, step, seed, k):
     tables = N.make_tables(seed=0, bits=8)
     nb = N.numba_functions()
     i_np = int(N.lut_index(np.uint64(thread), step, seed, k, tables.perm, tables.bits))
-    i_nb = int(nb["lut_index"](np.uint64(thread), np.uint64(step), np.uint64(seed), k, tables.perm, tables.bits))
+    i_nb = int(
+        nb["lut_index"](
+            np.uint64(thread),
+            np.uint64(step),
+            np.uint64(seed),
+            k,
+            tables.perm,
+            tables.bits,
+        )
+    )
     assert i_np == i_nb and 0 <= i_np < 256
-    assert int(nb["counter_hash"](np.uint64(thread), np.uint64(step), np.uint64(seed))) == int(
-        N.counter_hash(np.uint64(thread), step, seed))
+    assert int(
+        nb["counter_hash"](np.uint64(thread), np.uint64(step), np.uint64(seed))
+    ) == int(N.counter_hash(np.uint64(thread), step, seed))
 
 
 def test_fmix32_is_a_bijection_on_a_range():
@@ -78,19 +94,32 @@ def test_components_uncorrelated(tables):
 
 
 def test_noise_changes_every_frame_and_across_threads(tables):
-    series = np.stack([N.lut_normal(tables, 256, step=s, seed=7)[:, 0] for s in range(200)])  # (steps, threads)
+    series = np.stack(
+        [N.lut_normal(tables, 256, step=s, seed=7)[:, 0] for s in range(200)]
+    )  # (steps, threads)
     _check_uncorrelated(series, 0.05)
-    one = np.array([N.lut_normal(tables, 1, step=s, seed=7, start=3)[0, 3] for s in range(2000)])
-    assert abs(N.lag_correlation(one, 1)) < 0.07  # one particle over 2000 frames (sd of r ~ 0.022)
+    one = np.array(
+        [N.lut_normal(tables, 1, step=s, seed=7, start=3)[0, 3] for s in range(2000)]
+    )
+    assert (
+        abs(N.lag_correlation(one, 1)) < 0.07
+    )  # one particle over 2000 frames (sd of r ~ 0.022)
     wide = N.lut_normal(tables, 4096, step=1, seed=7)[:, 0]
-    assert abs(np.corrcoef(wide[:-256], wide[256:])[0, 1]) < 0.05  # no period of 256 threads
-    assert not np.array_equal(N.lut_normal(tables, 64, 1, 7), N.lut_normal(tables, 64, 1, 8))  # seeds differ
+    assert (
+        abs(np.corrcoef(wide[:-256], wide[256:])[0, 1]) < 0.05
+    )  # no period of 256 threads
+    assert not np.array_equal(
+        N.lut_normal(tables, 64, 1, 7), N.lut_normal(tables, 64, 1, 8)
+    )  # seeds differ
 
 
 def test_particles_rarely_share_their_six_draws(tables):
     # Two particles share all six draws only when 2 log2(T) = 24 hash bits agree: P^2 / 2 / 2^24 = 0.75 pairs
     # expected for P = 5000 (birthday bound); the seed variant has only 256 distinct rows.
-    dup = [5000 - np.unique(N.lut_normal(tables, 5000, step=s, seed=3), axis=0).shape[0] for s in range(10)]
+    dup = [
+        5000 - np.unique(N.lut_normal(tables, 5000, step=s, seed=3), axis=0).shape[0]
+        for s in range(10)
+    ]
     assert np.mean(dup) < 3.0
     t8 = N.make_tables(seed=2017, bits=N.SEED_BITS)
     assert np.unique(N.seed_lut_normal(t8, 5000), axis=0).shape[0] == 256
@@ -99,7 +128,9 @@ def test_particles_rarely_share_their_six_draws(tables):
 def test_seed_variant_fails_the_same_check():
     t8 = N.make_tables(seed=2017, bits=N.SEED_BITS)
     series = np.stack([N.seed_lut_normal(t8, 512, step=s)[:, 0] for s in range(20)])
-    assert N.lag_correlation(series, 1, axis=0) == pytest.approx(1.0)  # same noise at every frame
+    assert N.lag_correlation(series, 1, axis=0) == pytest.approx(
+        1.0
+    )  # same noise at every frame
     assert np.array_equal(series[0, :256], series[0, 256:])  # repeats every 256 threads
     with pytest.raises(AssertionError, match="consecutive frames correlated"):
         _check_uncorrelated(series, 0.05)
@@ -117,24 +148,37 @@ def test_statistics_helpers_on_known_input():
 
 
 @settings(max_examples=40, deadline=None)
-@given(thread=st.integers(0, 2**32 - 1), step=st.integers(0, 2**32 - 1), seed=st.integers(0, 2**32 - 1))
+@given(
+    thread=st.integers(0, 2**32 - 1),
+    step=st.integers(0, 2**32 - 1),
+    seed=st.integers(0, 2**32 - 1),
+)
 def test_hash_once_then_six_indexes_is_lut_index(thread, step, seed):
     """The pieces a fused kernel uses (frame_key once per frame, thread_hash once per particle, hash_index per
     component) give lut_index's values, in numpy and in Numba, and frame_key is the documented nesting."""
     tables = N.make_tables(seed=3, bits=10)
     nb = N.numba_functions()
     key = N.frame_key(np.uint64(step), np.uint64(seed))
-    assert int(key) == int(N.fmix32(np.uint64(step) ^ N.fmix32(np.uint64(seed) ^ np.uint64(0x9E3779B9))))
+    assert int(key) == int(
+        N.fmix32(np.uint64(step) ^ N.fmix32(np.uint64(seed) ^ np.uint64(0x9E3779B9)))
+    )
     assert int(nb["frame_key"](np.uint64(step), np.uint64(seed))) == int(key)
     h = N._NP["thread_hash"](np.uint64(thread), key)
     assert int(h) == int(N.counter_hash(np.uint64(thread), step, seed))
     for k in range(6):
         i = int(N._NP["hash_index"](h, k, tables.perm, tables.bits))
-        assert i == int(N.lut_index(np.uint64(thread), step, seed, k, tables.perm, tables.bits))
-        assert i == int(nb["hash_index"](nb["thread_hash"](np.uint64(thread), key), k, tables.perm, tables.bits))
+        assert i == int(
+            N.lut_index(np.uint64(thread), step, seed, k, tables.perm, tables.bits)
+        )
+        assert i == int(
+            nb["hash_index"](
+                nb["thread_hash"](np.uint64(thread), key), k, tables.perm, tables.bits
+            )
+        )
 
 
 # Value tests pinning the formulas (issue 15, mutation testing).
+
 
 def _fmix32_ref(h):
     """MurmurHash3's fmix32 on Python ints (Appleby)."""
@@ -161,19 +205,47 @@ def test_fresh_lut_functions_match_a_plain_integer_reference():
     assert int(fns["fmix32"](np.uint64(0))) == 0
     tables = N.make_tables(seed=11, bits=7)
     rng = np.random.default_rng(4)
-    for thread, step, seed in rng.integers(0, 2**33, size=(30, 3)):  # beyond 2**32: inputs are taken mod 2**32
+    for thread, step, seed in rng.integers(
+        0, 2**33, size=(30, 3)
+    ):  # beyond 2**32: inputs are taken mod 2**32
         thread, step, seed = int(thread), int(step), int(seed)
         key = fns["frame_key"](np.uint64(step), np.uint64(seed))
-        assert int(key) == _fmix32_ref((step & 0xFFFFFFFF) ^ _fmix32_ref((seed & 0xFFFFFFFF) ^ 0x9E3779B9))
+        assert int(key) == _fmix32_ref(
+            (step & 0xFFFFFFFF) ^ _fmix32_ref((seed & 0xFFFFFFFF) ^ 0x9E3779B9)
+        )
         h = fns["thread_hash"](np.uint64(thread), key)
-        assert int(h) == int(fns["counter_hash"](np.uint64(thread), np.uint64(step), np.uint64(seed)))
+        assert int(h) == int(
+            fns["counter_hash"](np.uint64(thread), np.uint64(step), np.uint64(seed))
+        )
         for k in range(6):
             ref = _lut_index_ref(thread, step, seed, k, tables.perm, 7)
             assert 0 <= ref < 128
             assert int(fns["hash_index"](h, k, tables.perm, 7)) == ref
-            assert int(fns["lut_index"](np.uint64(thread), np.uint64(step), np.uint64(seed), k, tables.perm, 7)) == ref
-            assert fns["lut_draw"](np.uint64(thread), np.uint64(step), np.uint64(seed), k, tables.normal,
-                                   tables.perm, 7) == tables.normal[ref]
+            assert (
+                int(
+                    fns["lut_index"](
+                        np.uint64(thread),
+                        np.uint64(step),
+                        np.uint64(seed),
+                        k,
+                        tables.perm,
+                        7,
+                    )
+                )
+                == ref
+            )
+            assert (
+                fns["lut_draw"](
+                    np.uint64(thread),
+                    np.uint64(step),
+                    np.uint64(seed),
+                    k,
+                    tables.normal,
+                    tables.perm,
+                    7,
+                )
+                == tables.normal[ref]
+            )
 
 
 def test_make_tables_values_and_bounds():
@@ -183,7 +255,12 @@ def test_make_tables_values_and_bounds():
     q = norm.ppf((np.arange(16) + 0.5) / 16)
     q = (q - q.mean()) / np.sqrt(np.mean((q - q.mean()) ** 2))
     np.testing.assert_array_equal(t.normal, q.astype(np.float32))
-    assert t.normal.dtype == np.float32 and t.perm.dtype == np.int32 and t.bits == 4 and type(t.bits) is int
+    assert (
+        t.normal.dtype == np.float32
+        and t.perm.dtype == np.int32
+        and t.bits == 4
+        and type(t.bits) is int
+    )
     rng = np.random.default_rng(5)
     np.testing.assert_array_equal(t.perm, [rng.permutation(16) for _ in range(6)])
     d = N.make_tables(seed=5, bits=4, exact=False)
@@ -217,7 +294,9 @@ def test_check_rejects_negative_inputs_and_bad_tables():
         with pytest.raises(ValueError, match=r"n, step and seed must be >= 0, got "):
             N.lut_normal(t, n, step, seed)
     N.lut_normal(t, 0, 0, 0)
-    bad_tables = r"^tables.perm must be \(6, T\) and tables.normal \(T,\) with T = 2\*\*bits$"
+    bad_tables = (
+        r"^tables.perm must be \(6, T\) and tables.normal \(T,\) with T = 2\*\*bits$"
+    )
     with pytest.raises(ValueError, match=bad_tables):
         N.lut_normal(N.NoiseTables(t.normal, t.perm[:5], 6), 1, 0, 0)
     with pytest.raises(ValueError, match=bad_tables):
@@ -235,7 +314,12 @@ def test_seed_variant_values_and_bounds():
             assert s[i, k] == t9.normal[t9.perm[k, i & 0xFF]]
     np.testing.assert_array_equal(N.seed_lut_normal(t9, 10), s[:10])  # step, seed ignored
     N.seed_lut_normal(N.make_tables(0, bits=8), 3)
-    with pytest.raises(ValueError, match=(r"^the seed variant needs tables with at least 256 entries \(bits >= 8\)$")):
+    with pytest.raises(
+        ValueError,
+        match=(
+            r"^the seed variant needs tables with at least 256 entries \(bits >= 8\)$"
+        ),
+    ):
         N.seed_lut_normal(N.make_tables(0, bits=7), 3)
 
 
@@ -246,7 +330,9 @@ def test_noise_statistics_and_lag_correlation_values():
     s = N.noise_statistics(x)
     assert s["n"] == 4 and type(s["n"]) is int
     assert s["mean"] == 1.5 and s["var"] == 1.25
-    assert s["kurtosis"] == pytest.approx((2 * 1.5**4 + 2 * 0.5**4) / 4 / 1.25**2, rel=1e-15)
+    assert s["kurtosis"] == pytest.approx(
+        (2 * 1.5**4 + 2 * 0.5**4) / 4 / 1.25**2, rel=1e-15
+    )
     assert s["ks"] == stats.kstest(x.ravel(), "norm").statistic
     assert N.noise_statistics([1, 2, 3, 4])["var"] == 1.25  # ints are read as float64
     alt = np.array([1.0, 2.0, 1.0, 2.0, 1.0, 2.0])
@@ -255,22 +341,31 @@ def test_noise_statistics_and_lag_correlation_values():
     assert N.lag_correlation(alt) == pytest.approx(-1.0)  # lag 1 by default
     y = np.random.default_rng(1).normal(size=(7, 5))
     a, b = y[:-2].ravel(), y[2:].ravel()
-    assert N.lag_correlation(y, 2, axis=0) == pytest.approx(np.corrcoef(a, b)[0, 1], rel=1e-12)
+    assert N.lag_correlation(y, 2, axis=0) == pytest.approx(
+        np.corrcoef(a, b)[0, 1], rel=1e-12
+    )
     a, b = y.T[:-1].ravel(), y.T[1:].ravel()  # axis 1 moved first, pooled over the rows
-    assert N.lag_correlation(y, 1, axis=1) == pytest.approx(np.corrcoef(a, b)[0, 1], rel=1e-12)
-    assert np.isnan(N.lag_correlation(np.ones(5), 1))  # no variance: NaN, not a division error
+    assert N.lag_correlation(y, 1, axis=1) == pytest.approx(
+        np.corrcoef(a, b)[0, 1], rel=1e-12
+    )
+    assert np.isnan(
+        N.lag_correlation(np.ones(5), 1)
+    )  # no variance: NaN, not a division error
 
 
 def test_float32_and_degenerate_inputs_of_the_helpers():
     import warnings
 
-    x32 = (1e4 + np.random.default_rng(6).normal(size=1001)).astype(np.float32)  # float32 sums would round
+    x32 = (1e4 + np.random.default_rng(6).normal(size=1001)).astype(
+        np.float32
+    )  # float32 sums would round
     s32, s64 = N.noise_statistics(x32), N.noise_statistics(x32.astype(np.float64))
     for key in ("mean", "var", "kurtosis"):
         assert s32[key] == pytest.approx(s64[key], rel=1e-12, abs=0)
     y32 = x32.reshape(7, 143)
-    assert N.lag_correlation(y32, 1, axis=1) == pytest.approx(N.lag_correlation(y32.astype(np.float64), 1, axis=1),
-                                                               rel=1e-12, abs=0)
+    assert N.lag_correlation(y32, 1, axis=1) == pytest.approx(
+        N.lag_correlation(y32.astype(np.float64), 1, axis=1), rel=1e-12, abs=0
+    )
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # zero variance: NaN without computing 0/0
         assert np.isnan(N.lag_correlation(np.full(6, 2.0), 2))

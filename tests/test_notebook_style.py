@@ -17,22 +17,34 @@ def _cells(path):
 
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.stem)
 def test_code_is_wrapped(path):
-    long = [f"cell {i}: {line.strip()[:60]}... ({len(line)} columns)"
-            for i, c in enumerate(_cells(path)) if c["cell_type"] == "code"
-            for line in "".join(c["source"]).splitlines() if len(line) > MAX_CODE_COLUMNS]
-    assert not long, f"{path.name}: lines over {MAX_CODE_COLUMNS} columns:\n" + "\n".join(long)
+    long = [
+        f"cell {i}: {line.strip()[:60]}... ({len(line)} columns)"
+        for i, c in enumerate(_cells(path))
+        if c["cell_type"] == "code"
+        for line in "".join(c["source"]).splitlines()
+        if len(line) > MAX_CODE_COLUMNS
+    ]
+    assert not long, f"{path.name}: lines over {MAX_CODE_COLUMNS} columns:\n" + "\n".join(
+        long
+    )
 
 
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.stem)
 def test_figures_are_named_captioned_and_cited(path):
     cells = _cells(path)
-    figures = [c["metadata"]["mystnb"]["figure"] for c in cells
-               if c["cell_type"] == "code" and "figure" in c.get("metadata", {}).get("mystnb", {})]
+    figures = [
+        c["metadata"]["mystnb"]["figure"]
+        for c in cells
+        if c["cell_type"] == "code"
+        and "figure" in c.get("metadata", {}).get("mystnb", {})
+    ]
     prose = "".join("".join(c["source"]) for c in cells if c["cell_type"] == "markdown")
     cited = set(re.findall(r"\{numref\}`([^`]+)`", prose))
     for fig in figures:
         assert re.fullmatch(r"fig-[a-z0-9]+-[a-z0-9-]+", fig.get("name", "")), fig
         assert len(fig.get("caption", "")) > 20, fig
-        assert fig["name"] in cited, f"{path.name}: figure {fig['name']} is never cited with {{numref}}"
+        assert fig["name"] in cited, (
+            f"{path.name}: figure {fig['name']} is never cited with {{numref}}"
+        )
     names = [f["name"] for f in figures]
     assert len(names) == len(set(names)), names

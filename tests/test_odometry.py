@@ -4,14 +4,27 @@ import functools
 
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
 from slamlib.geometry import make_pose, rpy_to_matrix
-from slamlib.odometry import (GRAVITY, balance_heading_bins, dead_reckon, gravity_up, heading_bin, imu_increment,
-                              imu_increments, increment_matrix, tilt_calibration, tilt_calibration_add,
-                              tilt_calibration_bins, tilt_calibration_estimate, tilt_calibration_prior,
-                              tilt_calibration_update)
+from slamlib.odometry import (
+    GRAVITY,
+    balance_heading_bins,
+    dead_reckon,
+    gravity_up,
+    heading_bin,
+    imu_increment,
+    imu_increments,
+    increment_matrix,
+    tilt_calibration,
+    tilt_calibration_add,
+    tilt_calibration_bins,
+    tilt_calibration_estimate,
+    tilt_calibration_prior,
+    tilt_calibration_update,
+)
 
 
 def _rel(a, b):
@@ -31,7 +44,9 @@ def test_constant_turn_circle_is_exact(dt):
     speed, radius = 8.0, 25.0
     w = speed / radius
     n = int(2 * np.pi / w / dt) + 1
-    T = dead_reckon(np.tile([speed, 0, 0], (n, 1)), np.tile([0, 0, w], (n, 1)), np.full(n, dt))
+    T = dead_reckon(
+        np.tile([speed, 0, 0], (n, 1)), np.tile([0, 0, w], (n, 1)), np.full(n, dt)
+    )
     t = dt * np.arange(n)
     truth = np.c_[radius * np.sin(w * t), radius * (1 - np.cos(w * t)), np.zeros(n)]
     assert np.max(np.linalg.norm(T[:, :3, 3] - truth, axis=1)) < 1e-6 * radius
@@ -43,18 +58,25 @@ def test_helix_with_climb_is_exact():
     dt, n, v, w = 0.1, 300, np.array([5.0, 0.0, 0.5]), np.array([0.0, 0.0, 0.2])
     T = dead_reckon(np.tile(v, (n, 1)), np.tile(w, (n, 1)), np.full(n, dt))
     t = dt * (n - 1)
-    truth = np.array([5.0 / 0.2 * np.sin(0.2 * t), 5.0 / 0.2 * (1 - np.cos(0.2 * t)), 0.5 * t])
+    truth = np.array(
+        [5.0 / 0.2 * np.sin(0.2 * t), 5.0 / 0.2 * (1 - np.cos(0.2 * t)), 0.5 * t]
+    )
     assert _rel(T[-1, :3, 3], truth) < 1e-6
 
 
 def test_increment_convention_matches_backend_interface():
-    rpy, tr = imu_increment([3, 0.1, 0], [0.01, 0.02, 0.3], [3.2, 0.1, 0], [0.0, 0.02, 0.35], 0.1)
+    rpy, tr = imu_increment(
+        [3, 0.1, 0], [0.01, 0.02, 0.3], [3.2, 0.1, 0], [0.0, 0.02, 0.35], 0.1
+    )
     inc = increment_matrix(rpy, tr)
     assert np.allclose(inc[:3, :3], rpy_to_matrix(rpy))
     T_old = make_pose(rpy_to_matrix([0.1, -0.2, 1.0]), [1, 2, 3])
     T_new = T_old @ inc
     # rotation increment is Exp(mean w dt)
-    assert np.allclose(inc[:3, :3], Rotation.from_rotvec(0.1 * np.array([0.005, 0.02, 0.325])).as_matrix())
+    assert np.allclose(
+        inc[:3, :3],
+        Rotation.from_rotvec(0.1 * np.array([0.005, 0.02, 0.325])).as_matrix(),
+    )
     assert np.allclose(T_new[:3, 3], T_old[:3, 3] + T_old[:3, :3] @ tr)
 
 
@@ -62,13 +84,18 @@ def test_increment_convention_matches_backend_interface():
 @given(st.lists(st.floats(-3, 3), min_size=12, max_size=12), st.floats(0.01, 0.5))
 def test_vectorised_equals_scalar_and_second_order(vals, dt):
     a = np.array(vals).reshape(4, 3)
-    rpy_v, tr_v = imu_increments(a[None, 0], a[None, 1], a[None, 2], a[None, 3], np.array([dt]))
+    rpy_v, tr_v = imu_increments(
+        a[None, 0], a[None, 1], a[None, 2], a[None, 3], np.array([dt])
+    )
     rpy_s, tr_s = imu_increment(a[0], a[1], a[2], a[3], dt)
     assert np.allclose(rpy_v[0], rpy_s) and np.allclose(tr_v[0], tr_s)
     # small-angle: translation ~ mean v dt rotated by half the rotation, to second order in dt
     vb, wb = (a[0] + a[2]) / 2, (a[1] + a[3]) / 2
     half = Rotation.from_rotvec(wb * dt / 2).as_matrix() @ (vb * dt)
-    assert np.linalg.norm(tr_s - half) <= 0.05 * (np.linalg.norm(wb) * dt) ** 2 * np.linalg.norm(vb) * dt + 1e-12
+    assert (
+        np.linalg.norm(tr_s - half)
+        <= 0.05 * (np.linalg.norm(wb) * dt) ** 2 * np.linalg.norm(vb) * dt + 1e-12
+    )
 
 
 # Value tests pinning the formulas (issue 15, mutation testing).
@@ -78,7 +105,11 @@ from slamlib.odometry import _skew, so3_left_jacobian  # noqa: E402
 def _c1_c2(a):
     """Reference coefficients of J, without cancellation: (1-cos a)/a^2 = sin(a/2)^2/(a^2/2); series for c2."""
     c1 = 0.5 * (np.sinc(a / 2 / np.pi)) ** 2
-    c2 = (1 / 6 - a**2 / 120 + a**4 / 5040 - a**6 / 362880) if a < 1e-2 else (a - np.sin(a)) / a**3
+    c2 = (
+        (1 / 6 - a**2 / 120 + a**4 / 5040 - a**6 / 362880)
+        if a < 1e-2
+        else (a - np.sin(a)) / a**3
+    )
     return c1, c2
 
 
@@ -125,7 +156,9 @@ def test_imu_increment_values_for_a_turn():
     # constant v = (4, 0, 0), w = (0, 0, 0.5) for dt = 0.2: yaw 0.1, chord of the circle of radius 8
     rpy, tr = imu_increment([4.0, 0, 0], [0, 0, 0.5], [4.0, 0, 0], [0, 0, 0.5], 0.2)
     np.testing.assert_allclose(rpy, [0.0, 0.0, 0.1], atol=1e-15)
-    np.testing.assert_allclose(tr, [8.0 * np.sin(0.1), 8.0 * (1 - np.cos(0.1)), 0.0], rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(
+        tr, [8.0 * np.sin(0.1), 8.0 * (1 - np.cos(0.1)), 0.0], rtol=1e-12, atol=1e-15
+    )
     # the mean of the two samples is used: (2, 0, 0)+(6, 0, 0) and (0,0,0)+(0,0,1)
     rpy2, tr2 = imu_increment([2.0, 0, 0], [0, 0, 0.0], [6.0, 0, 0], [0, 0, 1.0], 0.2)
     np.testing.assert_allclose(rpy2, rpy, atol=1e-15)
@@ -134,7 +167,9 @@ def test_imu_increment_values_for_a_turn():
 
 def test_increment_matrix_values():
     inc = increment_matrix([0.0, 0.0, np.pi / 2], [1.0, 2.0, 3.0])
-    np.testing.assert_allclose(inc, [[0, -1, 0, 1], [1, 0, 0, 2], [0, 0, 1, 3], [0, 0, 0, 1]], atol=1e-15)
+    np.testing.assert_allclose(
+        inc, [[0, -1, 0, 1], [1, 0, 0, 2], [0, 0, 1, 3], [0, 0, 0, 1]], atol=1e-15
+    )
 
 
 def test_dead_reckon_starts_at_T0_and_composes_on_its_right():
@@ -142,9 +177,15 @@ def test_dead_reckon_starts_at_T0_and_composes_on_its_right():
     one = dead_reckon([[1.0, 0, 0]], [[0, 0, 0.1]], [0.1], T0=T0)
     assert one.shape == (1, 4, 4)
     np.testing.assert_array_equal(one[0], T0)
-    np.testing.assert_array_equal(dead_reckon([[1.0, 0, 0]], [[0, 0, 0.1]], [0.1])[0], np.eye(4))
+    np.testing.assert_array_equal(
+        dead_reckon([[1.0, 0, 0]], [[0, 0, 0.1]], [0.1])[0], np.eye(4)
+    )
     rng = np.random.default_rng(3)
-    v, w, dts = rng.normal(size=(6, 3)), rng.normal(scale=0.3, size=(6, 3)), rng.uniform(0.05, 0.2, 6)
+    v, w, dts = (
+        rng.normal(size=(6, 3)),
+        rng.normal(scale=0.3, size=(6, 3)),
+        rng.uniform(0.05, 0.2, 6),
+    )
     T = dead_reckon(v, w, dts, T0=T0)
     T_id = dead_reckon(v, w, dts)
     np.testing.assert_allclose(T, T0 @ T_id, atol=1e-12)
@@ -161,10 +202,16 @@ def test_left_jacobian_float32_input_and_zero_without_warnings():
     phi32 = np.float32([0.3, -0.7, 1.9])
     J = so3_left_jacobian(phi32)
     assert J.dtype == np.float64
-    np.testing.assert_allclose(J, so3_left_jacobian(phi32.astype(np.float64)), rtol=0, atol=1e-15)
+    np.testing.assert_allclose(
+        J, so3_left_jacobian(phi32.astype(np.float64)), rtol=0, atol=1e-15
+    )
     with warnings.catch_warnings():
-        warnings.simplefilter("error")  # the closed form is never evaluated at a = 0 (no 0/0)
-        np.testing.assert_array_equal(so3_left_jacobian(np.zeros((2, 3))), np.broadcast_to(np.eye(3), (2, 3, 3)))
+        warnings.simplefilter(
+            "error"
+        )  # the closed form is never evaluated at a = 0 (no 0/0)
+        np.testing.assert_array_equal(
+            so3_left_jacobian(np.zeros((2, 3))), np.broadcast_to(np.eye(3), (2, 3, 3))
+        )
 
 
 # ------------------------------------------------------------------------------------------ gravity_up
@@ -179,7 +226,7 @@ def _route_window(k: int, n: int = 20, every: float = 0.1):
     """Samples ``k - n .. k`` at ``every`` seconds of KITTI 07's first 400 key frames (~40 s): rotations,
     specific forces, body velocities, dts."""
     route = _route()
-    t = np.arange(route.t0, route.t1, every)[k - n:k + 1]
+    t = np.arange(route.t0, route.t1, every)[k - n : k + 1]
     dts = np.r_[0.0, np.diff(t)]
     return (route.rotation(t), route.specific_force_body(t), route.velocity_body(t), dts)
 
@@ -203,7 +250,9 @@ def test_gravity_up_needs_only_the_relative_rotations():
     last body frame."""
     R, f, v, dts = _route_window(300)
     tilt = Rotation.from_rotvec([0.02, -0.03, 0.4]).as_matrix()
-    np.testing.assert_allclose(gravity_up(tilt @ R, f, v, dts), gravity_up(R, f, v, dts), atol=1e-12)
+    np.testing.assert_allclose(
+        gravity_up(tilt @ R, f, v, dts), gravity_up(R, f, v, dts), atol=1e-12
+    )
 
 
 def test_gravity_up_of_a_still_tilted_body_and_of_no_window():
@@ -216,7 +265,7 @@ def test_gravity_up_of_a_still_tilted_body_and_of_no_window():
 
 # ------------------------------------------------------------------------------------------ tilt calibration
 WORLD_TILT = np.array([0.02, -0.01])  # the world's up off its z (rad, world x and y)
-BIAS = np.array([0.003, -0.004])       # the accelerometer's bias b / g (rad, body x and y)
+BIAS = np.array([0.003, -0.004])  # the accelerometer's bias b / g (rad, body x and y)
 
 
 def _measured_up(R):
@@ -256,19 +305,27 @@ def test_tilt_calibration_on_one_heading_sees_only_the_sum_and_splits_it_by_the_
 
 
 def test_tilt_calibration_holds_an_unknown_with_prior_sigma_zero_at_zero():
-    world_up, bias = _calibrate(np.linspace(0, 2 * np.pi, 40, endpoint=False), sigma_bias=0.0)
+    world_up, bias = _calibrate(
+        np.linspace(0, 2 * np.pi, 40, endpoint=False), sigma_bias=0.0
+    )
     assert np.all(bias == 0.0) and abs(world_up[0]) > 0.01  # the world's part still moves
-    world_up, bias = _calibrate(np.linspace(0, 2 * np.pi, 40, endpoint=False), sigma_world=0.0, sigma_bias=0.0)
+    world_up, bias = _calibrate(
+        np.linspace(0, 2 * np.pi, 40, endpoint=False), sigma_world=0.0, sigma_bias=0.0
+    )
     assert np.array_equal(world_up, [0.0, 0.0, 1.0]) and np.all(bias == 0.0)
     info, eta, free = tilt_calibration_prior(0.05, 0.01)
-    assert np.array_equal(tilt_calibration(info, eta, free)[0], [0.0, 0.0, 1.0])  # no data: the prior's mean
+    assert np.array_equal(
+        tilt_calibration(info, eta, free)[0], [0.0, 0.0, 1.0]
+    )  # no data: the prior's mean
     with pytest.raises(ValueError, match="sigma_world, sigma_bias >= 0"):
         tilt_calibration_prior(-0.01, 0.01)
 
 
 def test_heading_bin_counts_sectors_from_minus_pi():
-    assert [heading_bin(rpy_to_matrix([0.0, 0.0, yaw]), 8) for yaw in (-np.pi + 1e-9, -0.01, 0.0, 0.8, np.pi - 1e-9)] \
-        == [0, 3, 4, 5, 7]
+    assert [
+        heading_bin(rpy_to_matrix([0.0, 0.0, yaw]), 8)
+        for yaw in (-np.pi + 1e-9, -0.01, 0.0, 0.8, np.pi - 1e-9)
+    ] == [0, 3, 4, 5, 7]
     assert heading_bin(rpy_to_matrix([0.02, -0.03, 2.0]), 1) == 0
 
 
@@ -305,7 +362,9 @@ def test_balanced_bias_fit_is_not_pulled_by_a_tilted_map_on_a_long_straight():
     balanced = tilt_calibration(info0 + info, eta0 + eta, free)[1][:2]
     time_weighted = tilt_calibration(*plain, free)[1][:2]
     np.testing.assert_allclose(balanced, BIAS, atol=3e-4)
-    assert abs(time_weighted[0] - BIAS[0]) > 3e-3  # 0.8 x 5 mrad of the map's pitch taken for a bias
+    assert (
+        abs(time_weighted[0] - BIAS[0]) > 3e-3
+    )  # 0.8 x 5 mrad of the map's pitch taken for a bias
 
 
 def test_tilt_calibration_add_and_estimate_are_the_sectors_sums_balanced():

@@ -10,7 +10,9 @@ from slamlib.geometry import make_pose, rpy_to_matrix
 from slamlib.kitti.velodyne import SWEEP_PERIOD_S
 from slamlib.peers import move_along, pose_time_fraction
 
-MOTION = make_pose(rpy_to_matrix([0.01, -0.02, 0.08]), [1.2, 0.1, -0.05])  # one sweep of a turning car
+MOTION = make_pose(
+    rpy_to_matrix([0.01, -0.02, 0.08]), [1.2, 0.1, -0.05]
+)  # one sweep of a turning car
 
 
 @pytest.mark.parametrize("fraction", [-1.0, -0.335, 0.0, 0.25, 1.0, 1.5])
@@ -32,9 +34,15 @@ def test_pose_time_fraction_counts_sweeps_from_kiss_icps_instant_to_the_pose():
     assert pose_time_fraction(0.0, deskew=True) == pytest.approx(-0.5)
     assert pose_time_fraction(0.0, deskew=False) == 0.0
     # a KITTI raw frame: the OXTS pose 17 ms after the mid-sweep stamp (scan_time_offset_s = -0.017)
-    assert pose_time_fraction(-0.017, deskew=False) == pytest.approx(0.017 / SWEEP_PERIOD_S)
-    assert pose_time_fraction(-0.017, deskew=True) == pytest.approx((0.017 - SWEEP_PERIOD_S / 2) / SWEEP_PERIOD_S)
-    assert pose_time_fraction(-0.017, deskew=True, sweep_period=0.2) == pytest.approx((0.017 - 0.1) / 0.2)
+    assert pose_time_fraction(-0.017, deskew=False) == pytest.approx(
+        0.017 / SWEEP_PERIOD_S
+    )
+    assert pose_time_fraction(-0.017, deskew=True) == pytest.approx(
+        (0.017 - SWEEP_PERIOD_S / 2) / SWEEP_PERIOD_S
+    )
+    assert pose_time_fraction(-0.017, deskew=True, sweep_period=0.2) == pytest.approx(
+        (0.017 - 0.1) / 0.2
+    )
 
 
 def test_kiss_icp_deskews_to_the_end_of_the_sweep():
@@ -47,13 +55,30 @@ def test_kiss_icp_deskews_to_the_end_of_the_sweep():
     config = load_config(None)
     config.data.deskew = True
     rng = np.random.default_rng(0)
-    az = np.linspace(np.pi - 1e-3, -np.pi + 1e-3, 400)  # the sweep's order on KITTI: from behind, clockwise
+    az = np.linspace(
+        np.pi - 1e-3, -np.pi + 1e-3, 400
+    )  # the sweep's order on KITTI: from behind, clockwise
     r = rng.uniform(5.0, 40.0, az.size)
-    points = np.column_stack([r * np.cos(az), r * np.sin(az), rng.uniform(-1.5, 2.0, az.size)])
-    stamps = 0.5 * (1.0 - np.arctan2(points[:, 1], points[:, 0]) / np.pi)  # KISS-ICP's KITTI rule, 0 = start
+    points = np.column_stack(
+        [r * np.cos(az), r * np.sin(az), rng.uniform(-1.5, 2.0, az.size)]
+    )
+    stamps = 0.5 * (
+        1.0 - np.arctan2(points[:, 1], points[:, 0]) / np.pi
+    )  # KISS-ICP's KITTI rule, 0 = start
     out = np.asarray(get_preprocessor(config).preprocess(points, stamps, MOTION))
-    s = (stamps - stamps.min()) / (stamps.max() - stamps.min())  # KISS-ICP normalises the stamps to [0, 1]
-    expected = np.array([(move_along(np.eye(4), MOTION, si - 1.0) @ np.append(p, 1.0))[:3] for p, si in zip(points, s)])
-    keep = np.linalg.norm(expected, axis=1) > config.data.min_range  # it drops points outside its range limits
+    s = (stamps - stamps.min()) / (
+        stamps.max() - stamps.min()
+    )  # KISS-ICP normalises the stamps to [0, 1]
+    expected = np.array(
+        [
+            (move_along(np.eye(4), MOTION, si - 1.0) @ np.append(p, 1.0))[:3]
+            for p, si in zip(points, s)
+        ]
+    )
+    keep = (
+        np.linalg.norm(expected, axis=1) > config.data.min_range
+    )  # it drops points outside its range limits
     np.testing.assert_allclose(out, expected[keep], atol=1e-9)
-    assert np.abs(out[np.argmax(s[keep])] - points[keep][np.argmax(s[keep])]).max() < 1e-12  # the end: unmoved
+    assert (
+        np.abs(out[np.argmax(s[keep])] - points[keep][np.argmax(s[keep])]).max() < 1e-12
+    )  # the end: unmoved

@@ -27,6 +27,10 @@ def test_book_style_sets_the_fonts_and_silences_only_the_legend_timing_warning()
     with warnings.catch_warnings(record=True) as seen:
         warnings.simplefilter("always")
         book_style()  # inserts its filter in front of "always"
-        warnings.warn('Creating legend with loc="best" can be slow with large amounts of data.', UserWarning)
-        warnings.warn("something else", UserWarning)
+        warnings.warn(
+            'Creating legend with loc="best" can be slow with large amounts of data.',
+            UserWarning,
+            stacklevel=1,
+        )
+        warnings.warn("something else", UserWarning, stacklevel=1)
     assert [str(w.message) for w in seen] == ["something else"]

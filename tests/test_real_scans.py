@@ -27,24 +27,37 @@ def frames():
 def test_the_ten_real_scans_ship_and_read(frames):
     assert len(frames) == REAL_SCANS
     assert all(100_000 < len(f.scan) < 130_000 for f in frames)
-    assert frames[0].dt == 0.0 and all(f.dt > 0 for f in frames[1:]) and frames[4].velocity is None
-    assert str(real_scan_path(4)).endswith(".bin.xz") and str(real_scan_path(9)).endswith(".bin")
+    assert (
+        frames[0].dt == 0.0
+        and all(f.dt > 0 for f in frames[1:])
+        and frames[4].velocity is None
+    )
+    assert str(real_scan_path(4)).endswith(".bin.xz") and str(real_scan_path(9)).endswith(
+        ".bin"
+    )
     with pytest.raises(ValueError, match="0..9"):
         real_scan_path(10)
 
 
-def test_compressed_scans_decompress_to_kitti_bytes_and_bad_ones_name_the_file(tmp_path, frames):
+def test_compressed_scans_decompress_to_kitti_bytes_and_bad_ones_name_the_file(
+    tmp_path, frames
+):
     raw = tmp_path / "scan.bin"
     frames[3].scan.astype("<f4").tofile(raw)
     packed = tmp_path / "scan.bin.xz"
     packed.write_bytes(lzma.compress(raw.read_bytes()))
     np.testing.assert_array_equal(read_velodyne_scan(packed), read_velodyne_scan(raw))
-    assert read_velodyne_scan(packed).flags.writeable and read_velodyne_scan(raw).flags.writeable  # same either way
+    assert (
+        read_velodyne_scan(packed).flags.writeable
+        and read_velodyne_scan(raw).flags.writeable
+    )  # same either way
     packed.write_bytes(packed.read_bytes()[:1000])
     with pytest.raises(DataFormatError, match=r"scan\.bin\.xz: not a readable xz file"):
         read_velodyne_scan(packed)
     packed.write_bytes(lzma.compress(b"\0" * 20))
-    with pytest.raises(DataFormatError, match=r"scan\.bin\.xz: .*20 bytes, not a multiple of 16"):
+    with pytest.raises(
+        DataFormatError, match=r"scan\.bin\.xz: .*20 bytes, not a multiple of 16"
+    ):
         read_velodyne_scan(packed)
 
 

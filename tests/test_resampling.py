@@ -31,7 +31,8 @@ RNG_SAMPLERS = [stratified_resample, multinomial_resample, residual_resample]
 def _all_samplers(u0=0.5, seed=0):
     """(name, callable(weights)) pairs covering the four samplers."""
     return [("systematic", lambda w: systematic_resample(w, u0))] + [
-        (f.__name__, lambda w, f=f: f(w, np.random.default_rng(seed))) for f in RNG_SAMPLERS
+        (f.__name__, lambda w, f=f: f(w, np.random.default_rng(seed)))
+        for f in RNG_SAMPLERS
     ]
 
 
@@ -61,7 +62,9 @@ def test_systematic_gives_floor_or_ceil_copies(w, u0):
 @given(w=weights_strategy, seed=st.integers(0, 2**32 - 1))
 def test_residual_keeps_the_deterministic_copies(w, seed):
     expected = w.size * w / w.sum()
-    counts = np.bincount(residual_resample(w, np.random.default_rng(seed)), minlength=w.size)
+    counts = np.bincount(
+        residual_resample(w, np.random.default_rng(seed)), minlength=w.size
+    )
     assert np.all(counts >= np.floor(expected - 1e-9))
 
 
@@ -78,11 +81,15 @@ def test_systematic_matches_the_low_variance_sampler_by_hand():
                 c += w[i]
             want.append(i)
         np.testing.assert_array_equal(systematic_resample(w, u0), want)
-        np.testing.assert_array_equal(systematic_resample(w * 13.0, u0), want)  # scale-free
+        np.testing.assert_array_equal(
+            systematic_resample(w * 13.0, u0), want
+        )  # scale-free
 
 
-@pytest.mark.parametrize("name", ["systematic", "stratified_resample", "multinomial_resample",
-                                  "residual_resample"])
+@pytest.mark.parametrize(
+    "name",
+    ["systematic", "stratified_resample", "multinomial_resample", "residual_resample"],
+)
 def test_unbiased_and_higher_weight_never_fewer_copies_in_expectation(name):
     """Mean copies over many fixed-seed runs approach P w_i and are ordered like the weights."""
     rng = np.random.default_rng(1234)
@@ -106,7 +113,9 @@ def test_unbiased_and_higher_weight_never_fewer_copies_in_expectation(name):
 def test_effective_sample_size_bounds(w):
     ess = effective_sample_size(w)
     assert 1.0 <= ess <= w.size
-    assert ess <= np.count_nonzero(w) + 1e-9  # never more than the particles that carry weight
+    assert (
+        ess <= np.count_nonzero(w) + 1e-9
+    )  # never more than the particles that carry weight
 
 
 def test_effective_sample_size_extremes():
@@ -116,9 +125,13 @@ def test_effective_sample_size_extremes():
 
 
 @settings(max_examples=100, deadline=None)
-@given(lw=arrays(np.float64, st.integers(1, 40),
-                 elements=st.one_of(st.floats(-1e300, 1e300), st.just(-np.inf))).filter(
-    lambda a: np.isfinite(a).any()))
+@given(
+    lw=arrays(
+        np.float64,
+        st.integers(1, 40),
+        elements=st.one_of(st.floats(-1e300, 1e300), st.just(-np.inf)),
+    ).filter(lambda a: np.isfinite(a).any())
+)
 def test_weights_from_log_weights_sums_to_one(lw):
     w = weights_from_log_weights(lw)
     assert np.all(np.isfinite(w)) and np.all(w >= 0)
@@ -132,15 +145,20 @@ def test_weights_from_log_weights_matches_softmax_and_survives_huge_values():
     np.testing.assert_allclose(weights_from_log_weights(lw), [1 / 8, 2 / 8, 5 / 8])
     np.testing.assert_allclose(weights_from_log_weights(lw + 1e6), [1 / 8, 2 / 8, 5 / 8])
     np.testing.assert_allclose(weights_from_log_weights(lw - 1e6), [1 / 8, 2 / 8, 5 / 8])
-    np.testing.assert_allclose(weights_from_log_weights([-np.inf, 3.0, -np.inf]), [0, 1, 0])
+    np.testing.assert_allclose(
+        weights_from_log_weights([-np.inf, 3.0, -np.inf]), [0, 1, 0]
+    )
 
 
-@pytest.mark.parametrize("bad, message", [
-    ([-np.inf, -np.inf], "all log_weights are -inf"),
-    ([0.0, np.nan], "NaN"),
-    ([0.0, np.inf], r"\+inf"),
-    ([], "non-empty"),
-])
+@pytest.mark.parametrize(
+    "bad, message",
+    [
+        ([-np.inf, -np.inf], "all log_weights are -inf"),
+        ([0.0, np.nan], "NaN"),
+        ([0.0, np.inf], r"\+inf"),
+        ([], "non-empty"),
+    ],
+)
 def test_log_weight_functions_reject_bad_input(bad, message):
     for fn in (weights_from_log_weights, normalise_log_weights):
         with pytest.raises(ValueError, match=message):
@@ -152,8 +170,12 @@ def test_log_weight_functions_reject_bad_input(bad, message):
 def test_normalise_log_weights_returns_log_weights_of_the_same_distribution(lw):
     out = normalise_log_weights(lw)
     assert np.exp(out).sum() == pytest.approx(1.0)
-    np.testing.assert_allclose(np.exp(out), weights_from_log_weights(lw), rtol=1e-9, atol=1e-300)
-    np.testing.assert_allclose(out - out.max(), lw - lw.max(), rtol=0, atol=1e-6)  # a shift, nothing else
+    np.testing.assert_allclose(
+        np.exp(out), weights_from_log_weights(lw), rtol=1e-9, atol=1e-300
+    )
+    np.testing.assert_allclose(
+        out - out.max(), lw - lw.max(), rtol=0, atol=1e-6
+    )  # a shift, nothing else
 
 
 def test_resample_indexes_follows_the_ess_rule_and_draws_only_when_due():
@@ -162,27 +184,39 @@ def test_resample_indexes_follows_the_ess_rule_and_draws_only_when_due():
     assert np.allclose(np.exp(flat).sum(), 1.0)
     rng = np.random.default_rng(0)
     state = rng.bit_generator.state
-    assert resample_indexes(flat, rng, ess_fraction=0.5) is None          # ESS = P: nothing to do
-    assert rng.bit_generator.state == state                               # and nothing drawn
-    peaked = np.log(np.r_[np.full(10, 1.0), np.full(P - 10, 1e-6)])      # ESS ~ 10 < 50
+    assert resample_indexes(flat, rng, ess_fraction=0.5) is None  # ESS = P: nothing to do
+    assert rng.bit_generator.state == state  # and nothing drawn
+    peaked = np.log(np.r_[np.full(10, 1.0), np.full(P - 10, 1e-6)])  # ESS ~ 10 < 50
     idx = resample_indexes(peaked, np.random.default_rng(1), ess_fraction=0.5)
     assert idx.shape == (P,) and set(np.unique(idx)) <= set(range(10))
     u0 = np.random.default_rng(1).random()
-    np.testing.assert_array_equal(idx, systematic_resample(weights_from_log_weights(peaked), u0))
-    assert resample_indexes(flat, np.random.default_rng(2), ess_fraction=None) is not None   # None: always
+    np.testing.assert_array_equal(
+        idx, systematic_resample(weights_from_log_weights(peaked), u0)
+    )
+    assert (
+        resample_indexes(flat, np.random.default_rng(2), ess_fraction=None) is not None
+    )  # None: always
     calls = []
-    resample_indexes(peaked, np.random.default_rng(3), 0.5, sampler=lambda w, u: calls.append(u) or np.arange(P))
+    resample_indexes(
+        peaked,
+        np.random.default_rng(3),
+        0.5,
+        sampler=lambda w, u: calls.append(u) or np.arange(P),
+    )
     assert len(calls) == 1 and 0 <= calls[0] < 1
 
 
-@pytest.mark.parametrize("bad, message", [
-    ([0.5, -0.1, 0.6], "non-negative"),
-    ([0.5, np.nan], "NaN"),
-    ([0.5, np.inf], "inf"),
-    ([0.0, 0.0], "sum to zero"),
-    ([], "empty"),
-    ([[0.5, 0.5]], "1-D"),
-])
+@pytest.mark.parametrize(
+    "bad, message",
+    [
+        ([0.5, -0.1, 0.6], "non-negative"),
+        ([0.5, np.nan], "NaN"),
+        ([0.5, np.inf], "inf"),
+        ([0.0, 0.0], "sum to zero"),
+        ([], "empty"),
+        ([[0.5, 0.5]], "1-D"),
+    ],
+)
 def test_samplers_reject_bad_weights(bad, message):
     w = np.asarray(bad, dtype=float)
     with pytest.raises(ValueError, match=message):
@@ -231,12 +265,17 @@ def test_trailing_zero_weights_are_never_picked():
 def test_effective_sample_size_on_uneven_weights_is_one_over_sum_of_squares():
     # 1 / sum w^2 pinned on weights where it differs from 1 / max w (2.0) and from the count of non-zeros (3)
     assert effective_sample_size([0.5, 0.25, 0.25]) == pytest.approx(1 / 0.375, rel=1e-12)
-    assert effective_sample_size([2.0, 1.0, 1.0]) == pytest.approx(8 / 3, rel=1e-12)  # normalised first
+    assert effective_sample_size([2.0, 1.0, 1.0]) == pytest.approx(
+        8 / 3, rel=1e-12
+    )  # normalised first
     w = np.array([0.4, 0.3, 0.2, 0.1])
     assert effective_sample_size(w) == pytest.approx(1 / 0.3, rel=1e-12)
     # the resampling decision follows it: ESS = 3.33 is above 0.8 * 4 = 3.2 (1 / max w = 2.5 would be below)
     assert resample_indexes(np.log(w), np.random.default_rng(0), ess_fraction=0.8) is None
-    assert resample_indexes(np.log(w), np.random.default_rng(0), ess_fraction=0.85) is not None
+    assert (
+        resample_indexes(np.log(w), np.random.default_rng(0), ess_fraction=0.85)
+        is not None
+    )
 
 
 def test_stratified_and_multinomial_pointers_by_value():
@@ -247,9 +286,13 @@ def test_stratified_and_multinomial_pointers_by_value():
     for seed in range(5):
         u = np.random.default_rng(seed).random(w.size)
         want = np.searchsorted(c, (np.arange(w.size) + u) / w.size, side="right")
-        np.testing.assert_array_equal(stratified_resample(w, np.random.default_rng(seed)), want)
-        np.testing.assert_array_equal(multinomial_resample(w, np.random.default_rng(seed)),
-                                      np.searchsorted(c, u, side="right"))
+        np.testing.assert_array_equal(
+            stratified_resample(w, np.random.default_rng(seed)), want
+        )
+        np.testing.assert_array_equal(
+            multinomial_resample(w, np.random.default_rng(seed)),
+            np.searchsorted(c, u, side="right"),
+        )
 
 
 def test_residual_draws_the_remainder_from_the_residual_weights():
@@ -262,8 +305,13 @@ def test_residual_draws_the_remainder_from_the_residual_weights():
         assert idx.dtype == np.int64
         np.testing.assert_array_equal(idx, [0, int(u >= 0.4)])
         seen.add((u >= 0.4, u >= 0.7))
-    assert (True, False) in seen  # a draw in [0.4, 0.7) was tried: it tells the two rules apart
-    np.testing.assert_array_equal(residual_resample([0.5, 0.5], np.random.default_rng(0)), [0, 1])  # no draw
+    assert (
+        True,
+        False,
+    ) in seen  # a draw in [0.4, 0.7) was tried: it tells the two rules apart
+    np.testing.assert_array_equal(
+        residual_resample([0.5, 0.5], np.random.default_rng(0)), [0, 1]
+    )  # no draw
 
 
 def test_resample_indexes_default_threshold_is_half_the_particles():
@@ -271,7 +319,9 @@ def test_resample_indexes_default_threshold_is_half_the_particles():
     assert resample_indexes(np.log(w), np.random.default_rng(0)) is None
     w = np.array([0.85, 0.05, 0.05, 0.05])  # ESS = 1.37 < 2
     idx = resample_indexes(np.log(w), np.random.default_rng(0))
-    np.testing.assert_array_equal(idx, systematic_resample(w, np.random.default_rng(0).random()))
+    np.testing.assert_array_equal(
+        idx, systematic_resample(w, np.random.default_rng(0).random())
+    )
 
 
 def test_bad_rng_message_names_the_type_given():
@@ -280,14 +330,24 @@ def test_bad_rng_message_names_the_type_given():
 
 
 def test_weight_checks_name_the_problem_exactly():
-    cases = [([], r"^weights is empty: need at least one particle$"),
-             ([0.5, np.inf], r"^weights contain inf at index 1; pass log-weights through weights_from_log_weights first$"),
-             ([0.0, -0.1, 0.5], r"^weights must be non-negative, got (np.float64\()?-0.1\)? at index 1$"),
-             ([0.0, 0.0], r"^weights sum to zero: every particle has zero weight$")]
+    cases = [
+        ([], r"^weights is empty: need at least one particle$"),
+        (
+            [0.5, np.inf],
+            r"^weights contain inf at index 1; pass log-weights through weights_from_log_weights first$",
+        ),
+        (
+            [0.0, -0.1, 0.5],
+            r"^weights must be non-negative, got (np.float64\()?-0.1\)? at index 1$",
+        ),
+        ([0.0, 0.0], r"^weights sum to zero: every particle has zero weight$"),
+    ]
     for bad, message in cases:
         with pytest.raises(ValueError, match=message):
             effective_sample_size(np.asarray(bad, dtype=float))
-    with pytest.raises(ValueError, match=r"^all log_weights are -inf: every particle has zero likelihood"):
+    with pytest.raises(
+        ValueError, match=r"^all log_weights are -inf: every particle has zero likelihood"
+    ):
         weights_from_log_weights([-np.inf, -np.inf])
 
 
@@ -296,21 +356,41 @@ def test_weights_are_computed_in_float64_and_extremes_raise_no_warning():
 
     w32 = np.array([0.1, 0.2, 0.7], np.float32)
     w64 = w32.astype(np.float64)
-    assert effective_sample_size(w32) == effective_sample_size(w64) == 1.0 / np.sum((w64 / w64.sum()) ** 2)
+    assert (
+        effective_sample_size(w32)
+        == effective_sample_size(w64)
+        == 1.0 / np.sum((w64 / w64.sum()) ** 2)
+    )
     lw32 = np.log(w32)
     assert weights_from_log_weights(lw32).dtype == np.float64
-    np.testing.assert_array_equal(weights_from_log_weights(lw32), weights_from_log_weights(lw32.astype(np.float64)))
-    np.testing.assert_array_equal(normalise_log_weights(lw32), normalise_log_weights(lw32.astype(np.float64)))
+    np.testing.assert_array_equal(
+        weights_from_log_weights(lw32), weights_from_log_weights(lw32.astype(np.float64))
+    )
+    np.testing.assert_array_equal(
+        normalise_log_weights(lw32), normalise_log_weights(lw32.astype(np.float64))
+    )
     with warnings.catch_warnings():
-        warnings.simplefilter("error")  # -1e308 - 1e308 overflows to -inf: expected, silenced
-        np.testing.assert_array_equal(weights_from_log_weights([-1e308, 1e308]), [0.0, 1.0])
-        np.testing.assert_array_equal(normalise_log_weights([-1e308, 1e308]), [-np.inf, 0.0])
-        assert effective_sample_size([1e308, 1e308]) == 2.0  # their sum overflows: handled, silently
+        warnings.simplefilter(
+            "error"
+        )  # -1e308 - 1e308 overflows to -inf: expected, silenced
+        np.testing.assert_array_equal(
+            weights_from_log_weights([-1e308, 1e308]), [0.0, 1.0]
+        )
+        np.testing.assert_array_equal(
+            normalise_log_weights([-1e308, 1e308]), [-np.inf, 0.0]
+        )
+        assert (
+            effective_sample_size([1e308, 1e308]) == 2.0
+        )  # their sum overflows: handled, silently
 
 
 def test_resample_indexes_threshold_is_strict_and_indexes_are_int64():
     flat = uniform_log_weights(4)  # ESS = 4 exactly: not below 1.0 * 4
     assert resample_indexes(flat, np.random.default_rng(0), ess_fraction=1.0) is None
-    idx = resample_indexes(flat, np.random.default_rng(0), ess_fraction=None,
-                           sampler=lambda w, u: np.arange(w.size, dtype=np.int32))
+    idx = resample_indexes(
+        flat,
+        np.random.default_rng(0),
+        ess_fraction=None,
+        sampler=lambda w, u: np.arange(w.size, dtype=np.int32),
+    )
     assert idx.dtype == np.int64

@@ -13,14 +13,18 @@ from slamlib.commands.bench import load_benchmarks
 
 @pytest.fixture()
 def scaling():
-    load_benchmarks()   # the checkout's benchmarks package, importable from any folder
+    load_benchmarks()  # the checkout's benchmarks package, importable from any folder
     return importlib.import_module("benchmarks.scaling")
 
 
 def test_fit_recovers_a_line_and_reports_how_well(scaling):
     x = np.array([100.0, 300.0, 1000.0, 3000.0])
     f = scaling._fit(x, 12.5 + 0.02 * x)
-    assert np.isclose(f["intercept"], 12.5) and np.isclose(f["slope"], 0.02) and np.isclose(f["r2"], 1.0)
+    assert (
+        np.isclose(f["intercept"], 12.5)
+        and np.isclose(f["slope"], 0.02)
+        and np.isclose(f["r2"], 1.0)
+    )
     noisy = scaling._fit(x, 12.5 + 0.02 * x + np.array([3.0, -3.0, 3.0, -3.0]))
     assert noisy["r2"] < 1.0 and abs(noisy["slope"] - 0.02) < 0.01
 
@@ -35,8 +39,17 @@ def test_quick_run_writes_sweeps_fits_and_route(scaling, tmp_path, monkeypatch):
     assert [r["particles"] for r in d["particles"]] == [20, 40]
     assert [r["points"] for r in d["points"]] == [100, 200]
     for r in d["particles"] + d["points"]:
-        assert r["frames"] == 6 and 0 < r["frame_ms_best"] <= r["frame_ms_median"] and r["ate_rmse_m"] >= 0
-    assert {"intercept", "slope", "r2"} <= set(d["fit_ms_vs_particles"]) and "slope" in d["fit_ms_vs_points"]
+        assert (
+            r["frames"] == 6
+            and 0 < r["frame_ms_best"] <= r["frame_ms_median"]
+            and r["ate_rmse_m"] >= 0
+        )
+    assert {"intercept", "slope", "r2"} <= set(d["fit_ms_vs_particles"]) and "slope" in d[
+        "fit_ms_vs_points"
+    ]
     route = d["route"]
-    assert route["frames"] == len(route["frame_ms"]) == 6 and route["map_elements"][0][0] == 0
+    assert (
+        route["frames"] == len(route["frame_ms"]) == 6
+        and route["map_elements"][0][0] == 0
+    )
     assert "slope" in route["fit_frame_ms_vs_frame"]

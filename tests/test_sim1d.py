@@ -5,6 +5,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from slamlib.resampling import normalise_log_weights, uniform_log_weights
 from slamlib.sim1d import (
     OccupancyGrid1D,
     ParticleSLAM1D,
@@ -28,9 +29,10 @@ from slamlib.sim1d import (
     simulate,
     transform_scan,
 )
-from slamlib.resampling import normalise_log_weights, uniform_log_weights
 
-CLEAN = SensorModel1D(velocity_noise=0.0, velocity_bias=0.0, range_noise=0.0, dropout=0.0, clutter_rate=0.0)
+CLEAN = SensorModel1D(
+    velocity_noise=0.0, velocity_bias=0.0, range_noise=0.0, dropout=0.0, clutter_rate=0.0
+)
 
 
 @pytest.fixture(scope="module")
@@ -48,7 +50,9 @@ def test_velocity_profile_position_is_the_integral_of_velocity():
     prof = VelocityProfile(mean=1.2, components=((0.7, 9.0, 0.3), (0.2, 3.1, -1.0)))
     t = np.linspace(0.0, 20.0, 200_001)
     v = prof.velocity(t)
-    numeric = np.concatenate([[0.0], np.cumsum(0.5 * (v[1:] + v[:-1]) * np.diff(t))])  # trapezoid rule
+    numeric = np.concatenate(
+        [[0.0], np.cumsum(0.5 * (v[1:] + v[:-1]) * np.diff(t))]
+    )  # trapezoid rule
     np.testing.assert_allclose(prof.position(t), numeric, atol=1e-6)
     assert prof.position(0.0) == 0.0
 
@@ -71,16 +75,23 @@ def test_simulated_frames_timing_and_scans(world):
     assert len(rec) == 120
     dts = rec.dts
     assert dts[0] == 0.0 and rec.frames[0].velocity == 0.0
-    assert np.all(np.abs(dts[1:] - sensors.period) <= sensors.jitter * sensors.period + 1e-12)
+    assert np.all(
+        np.abs(dts[1:] - sensors.period) <= sensors.jitter * sensors.period + 1e-12
+    )
     assert dts[1:].std() > 0  # jittered
     np.testing.assert_allclose(rec.times, np.cumsum(dts))
-    for frame, x in zip(rec.frames, rec.true_positions):
+    for frame in rec.frames:
         assert np.all(np.abs(frame.scan) <= sensors.max_range)
         assert np.all(np.diff(frame.scan) >= 0)
     # dropouts: fewer returns than landmarks in range, on average by about the dropout rate
-    in_range = [np.sum(np.abs(world.landmarks - x) <= sensors.max_range) for x in rec.true_positions]
+    in_range = [
+        np.sum(np.abs(world.landmarks - x) <= sensors.max_range)
+        for x in rec.true_positions
+    ]
     returned = [len(o) for o in rec.true_offsets]
-    assert np.sum(returned) / np.sum(in_range) == pytest.approx(1 - sensors.dropout, abs=0.05)
+    assert np.sum(returned) / np.sum(in_range) == pytest.approx(
+        1 - sensors.dropout, abs=0.05
+    )
     assert rec.landmark_returns.sum() == np.sum(returned)
 
 
@@ -103,7 +114,10 @@ def test_simulation_is_deterministic(world):
     a, b = simulate(world, 50, seed=9), simulate(world, 50, seed=9)
     c = simulate(world, 50, seed=10)
     np.testing.assert_array_equal(a.times, b.times)
-    assert all(np.array_equal(fa.scan, fb.scan) and fa.velocity == fb.velocity for fa, fb in zip(a.frames, b.frames))
+    assert all(
+        np.array_equal(fa.scan, fb.scan) and fa.velocity == fb.velocity
+        for fa, fb in zip(a.frames, b.frames)
+    )
     assert not np.array_equal(a.times, c.times)
 
 
@@ -134,7 +148,9 @@ def test_offset_by_motion_integrates_the_velocity(clean_recording):
     for frame, want in zip(clean_recording.frames, clean_recording.true_positions):
         x = offset_by_motion(x, read_imu(frame), read_timing(frame))
         np.testing.assert_allclose(x, want, atol=1e-9)
-    np.testing.assert_allclose(dead_reckon(clean_recording), clean_recording.true_positions, atol=1e-9)
+    np.testing.assert_allclose(
+        dead_reckon(clean_recording), clean_recording.true_positions, atol=1e-9
+    )
 
 
 def test_perturb_with_noise_is_gaussian_and_seeded():
@@ -142,15 +158,19 @@ def test_perturb_with_noise_is_gaussian_and_seeded():
     y = perturb_with_noise(x, 0.25, np.random.default_rng(0))
     assert (y - 3.0).mean() == pytest.approx(0.0, abs=0.01)
     assert (y - 3.0).std() == pytest.approx(0.25, rel=0.03)
-    np.testing.assert_array_equal(y, perturb_with_noise(x, 0.25, np.random.default_rng(0)))
+    np.testing.assert_array_equal(
+        y, perturb_with_noise(x, 0.25, np.random.default_rng(0))
+    )
     np.testing.assert_array_equal(perturb_with_noise(x, 0.0, np.random.default_rng(0)), x)
     with pytest.raises(ValueError):
         perturb_with_noise(x, -1.0, np.random.default_rng(0))
 
 
 @settings(max_examples=50, deadline=None)
-@given(xs=st.lists(st.floats(-100, 100), min_size=1, max_size=8),
-       zs=st.lists(st.floats(-10, 10), min_size=0, max_size=8))
+@given(
+    xs=st.lists(st.floats(-100, 100), min_size=1, max_size=8),
+    zs=st.lists(st.floats(-10, 10), min_size=0, max_size=8),
+)
 def test_transform_scan_is_pose_plus_offset(xs, zs):
     pts = transform_scan(np.array(xs), np.array(zs))
     assert pts.shape == (len(xs), len(zs))
@@ -161,7 +181,9 @@ def test_transform_scan_is_pose_plus_offset(xs, zs):
 
 
 def test_transform_scan_at_the_true_pose_lands_on_the_landmarks(world, clean_recording):
-    for frame, x in zip(clean_recording.frames[::10], clean_recording.true_positions[::10]):
+    for frame, x in zip(
+        clean_recording.frames[::10], clean_recording.true_positions[::10]
+    ):
         pts = transform_scan(x, frame.scan)
         assert np.abs(pts[:, None] - world.landmarks[None, :]).min(axis=1).max() < 1e-9
 
@@ -176,10 +198,14 @@ def _map_from_truth(recording, frames, resolution=0.05):
 
 def test_merge_scan_adds_counts_in_place():
     grid = OccupancyGrid1D.empty(0.0, 10.0, 0.5)
-    pts = np.array([0.1, 0.2, 3.7, 9.99, -0.1, 10.0, 25.0])  # the last three are off the grid
+    pts = np.array(
+        [0.1, 0.2, 3.7, 9.99, -0.1, 10.0, 25.0]
+    )  # the last three are off the grid
     before = grid.copy()
     new = merge_scan(grid, 0.0, pts)
-    assert new is grid  # the map is changed in place and returned (the contract's step 10)
+    assert (
+        new is grid
+    )  # the map is changed in place and returned (the contract's step 10)
     assert before.total == 0  # a copy is independent
     assert new.total == 4
     assert new.counts[0] == 2 and new.counts[7] == 1 and new.counts[19] == 1
@@ -188,8 +214,14 @@ def test_merge_scan_adds_counts_in_place():
 
 
 def test_merge_scan_places_the_points_with_the_pose():
-    a = merge_scan(OccupancyGrid1D.empty(0.0, 10.0, 0.5), 3.0, np.array([-2.9, 0.7, 6.99]))
-    b = merge_scan(OccupancyGrid1D.empty(0.0, 10.0, 0.5), 0.0, transform_scan(3.0, np.array([-2.9, 0.7, 6.99])))
+    a = merge_scan(
+        OccupancyGrid1D.empty(0.0, 10.0, 0.5), 3.0, np.array([-2.9, 0.7, 6.99])
+    )
+    b = merge_scan(
+        OccupancyGrid1D.empty(0.0, 10.0, 0.5),
+        0.0,
+        transform_scan(3.0, np.array([-2.9, 0.7, 6.99])),
+    )
     np.testing.assert_array_equal(a.counts, b.counts)
     assert a.counts[0] == 1 and a.counts[7] == 1 and a.counts[19] == 1
 
@@ -206,7 +238,9 @@ def test_merge_scan_counts_every_point_on_the_grid(pts):
 
 def test_likelihood_field_peaks_at_structure():
     grid = OccupancyGrid1D.empty(0.0, 10.0, 0.05)
-    grid = merge_scan(grid, 0.0, np.r_[np.full(20, 2.0), 7.0])  # a well-observed landmark and a single hit
+    grid = merge_scan(
+        grid, 0.0, np.r_[np.full(20, 2.0), 7.0]
+    )  # a well-observed landmark and a single hit
     f = likelihood_field(grid, sigma=0.1, n_sat=3.0)
     c = grid.centres
     assert f.max() <= 1.0 + 1e-12 and f.min() >= 0.0
@@ -214,12 +248,16 @@ def test_likelihood_field_peaks_at_structure():
     assert f[grid.cell_of(7.0)] == pytest.approx(1 / 3)
     assert f[grid.cell_of(4.5)] < 1e-6
     d = np.abs(c - c[grid.cell_of(2.0)])
-    near = (d > 0) & (d < 0.28)  # within 3 sigma of the peak the field falls like exp(-d^2 / 2 sigma^2)
+    near = (d > 0) & (
+        d < 0.28
+    )  # within 3 sigma of the peak the field falls like exp(-d^2 / 2 sigma^2)
     np.testing.assert_allclose(f[near], np.exp(-0.5 * (d[near] / 0.1) ** 2), atol=1e-9)
 
 
 def test_score_prefers_the_true_pose_over_shifted_ones(clean_recording):
-    rec = simulate(make_world(seed=1), n_frames=80, seed=2)  # noisy, with dropouts and clutter
+    rec = simulate(
+        make_world(seed=1), n_frames=80, seed=2
+    )  # noisy, with dropouts and clutter
     grid = _map_from_truth(rec, range(60))
     k = 70
     x = rec.true_positions[k]
@@ -234,10 +272,14 @@ def test_score_particles_defaults_and_precomputed_field():
     grid = _map_from_truth(rec, range(60))
     xs, scan = rec.true_positions[70] + np.linspace(-0.3, 0.3, 9), rec.frames[70].scan
     default = score_particles(xs, scan, grid)  # sigma=None: two grid cells
-    np.testing.assert_array_equal(default, score_particles(xs, scan, grid, 2 * grid.resolution))
+    np.testing.assert_array_equal(
+        default, score_particles(xs, scan, grid, 2 * grid.resolution)
+    )
     field = likelihood_field(grid, 0.07)
-    np.testing.assert_array_equal(score_particles(xs, scan, grid, 0.07, field=field),
-                                  score_particles(xs, scan, grid, 0.07))
+    np.testing.assert_array_equal(
+        score_particles(xs, scan, grid, 0.07, field=field),
+        score_particles(xs, scan, grid, 0.07),
+    )
     assert score_particles(float(xs[4]), scan, grid, 0.07).shape == (1,)  # one pose
 
 
@@ -254,7 +296,10 @@ def test_pick_best_particle():
     x = np.array([4.0, 5.0, 6.0])
     pose, i = pick_best_particle(x, np.log([0.1, 0.5, 0.2]))
     assert (pose, i) == (5.0, 1) and isinstance(pose, float) and isinstance(i, int)
-    assert pick_best_particle(x, np.log([0.3, 0.3, 0.1])) == (4.0, 0)  # ties go to the lowest index
+    assert pick_best_particle(x, np.log([0.3, 0.3, 0.1])) == (
+        4.0,
+        0,
+    )  # ties go to the lowest index
     with pytest.raises(ValueError):
         pick_best_particle(np.zeros(0), np.zeros(0))
     with pytest.raises(ValueError):
@@ -273,7 +318,9 @@ def test_resample_particles_keeps_count_and_favours_high_weights():
     n10, n20 = np.sum(new_x == 10), np.sum(new_x == 20)
     assert n10 > n20 > 20 and n10 + n20 >= 85
     # uniform weights: ESS = P, nothing to do unless forced
-    same_x, same_lw, done = resample_particles(x, np.full(100, np.log(0.01)), rng, ess_fraction=0.5)
+    same_x, same_lw, done = resample_particles(
+        x, np.full(100, np.log(0.01)), rng, ess_fraction=0.5
+    )
     assert not done
     np.testing.assert_array_equal(same_x, x)
     np.testing.assert_allclose(same_lw, np.log(0.01))
@@ -283,14 +330,18 @@ def test_resample_particles_keeps_count_and_favours_high_weights():
 
 def test_resample_particles_returns_normalised_log_weights():
     x = np.linspace(0.0, 1.0, 8)
-    scores = np.array([-3.0, -1.0, -2.0, -1.5, -4.0, -2.5, -1.2, -3.3])  # unnormalised log-likelihoods
+    scores = np.array(
+        [-3.0, -1.0, -2.0, -1.5, -4.0, -2.5, -1.2, -3.3]
+    )  # unnormalised log-likelihoods
     rng = np.random.default_rng(5)
     state = rng.bit_generator.state
     kept_x, kept_lw, done = resample_particles(x, scores, rng, ess_fraction=0.1)
     assert not done and rng.bit_generator.state == state  # no resampling: nothing drawn
     np.testing.assert_array_equal(kept_x, x)
     np.testing.assert_allclose(kept_lw, normalise_log_weights(scores))
-    assert np.logaddexp.reduce(kept_lw) == pytest.approx(0.0, abs=1e-12) and np.all(kept_lw <= 0)
+    assert np.logaddexp.reduce(kept_lw) == pytest.approx(0.0, abs=1e-12) and np.all(
+        kept_lw <= 0
+    )
     new_x, new_lw, done = resample_particles(x, scores, rng, ess_fraction=None)
     assert done and set(new_x) <= set(x)
     np.testing.assert_array_equal(new_lw, uniform_log_weights(8))
@@ -303,7 +354,9 @@ def test_first_step_maps_the_scan_at_the_origin(clean_recording):
     info = slam.step(clean_recording.frames[0])
     assert info.estimate == 0.0 and np.all(info.moved == 0.0)
     assert slam.grid.total == clean_recording.frames[0].scan.size
-    assert grid.total == slam.grid.total  # the grid handed in is the map, merged into in place
+    assert (
+        grid.total == slam.grid.total
+    )  # the grid handed in is the map, merged into in place
     np.testing.assert_allclose(info.weights, 1 / 20)
     np.testing.assert_allclose(info.log_weights, -np.log(20))
     np.testing.assert_allclose(slam.log_weights, -np.log(20))
@@ -313,23 +366,33 @@ def test_first_step_maps_the_scan_at_the_origin(clean_recording):
 def test_filter_state_is_log_weights_and_map_history_is_copied(world):
     rec = simulate(world, n_frames=40, seed=6)
     grid = OccupancyGrid1D.empty(-30, 90, 0.05)
-    slam = ParticleSLAM1D(30, grid, 0.4, 0.07, np.random.default_rng(1), ess_fraction=None)
+    slam = ParticleSLAM1D(
+        30, grid, 0.4, 0.07, np.random.default_rng(1), ess_fraction=None
+    )
     for frame in rec.frames[:10]:
         info = slam.step(frame)
         assert info.resampled  # ess_fraction=None: every frame
         np.testing.assert_allclose(slam.log_weights, -np.log(30))
         assert np.logaddexp.reduce(info.log_weights) == pytest.approx(0.0, abs=1e-12)
         np.testing.assert_allclose(info.weights, np.exp(info.log_weights))
-        assert info.estimate == info.moved[info.best] == info.moved[np.argmax(info.log_weights)]
+        assert (
+            info.estimate
+            == info.moved[info.best]
+            == info.moved[np.argmax(info.log_weights)]
+        )
     r = run_slam_1d(rec, n_particles=30, seed=1)
     totals = r.map_history.sum(axis=1)
-    assert np.all(np.diff(totals) >= 0) and totals[0] < totals[-1]  # each row a snapshot, not the final grid
+    assert (
+        np.all(np.diff(totals) >= 0) and totals[0] < totals[-1]
+    )  # each row a snapshot, not the final grid
 
 
 def test_extract_landmarks_recovers_clusters():
     rng = np.random.default_rng(4)
     truth = np.array([1.0, 3.5, 8.2])
-    pts = np.concatenate([t + 0.04 * rng.standard_normal(30) for t in truth] + [[5.7]])  # + one stray hit
+    pts = np.concatenate(
+        [t + 0.04 * rng.standard_normal(30) for t in truth] + [[5.7]]
+    )  # + one stray hit
     grid = merge_scan(OccupancyGrid1D.empty(0, 10, 0.05), 0.0, pts)
     found = extract_landmarks(grid, sigma=0.1, min_count=5)
     assert found.size == 3
@@ -358,7 +421,9 @@ def test_map_landmarks_close_to_truth(runs, seed):
     errs = r.landmark_errors(min_returns=5)
     assert errs.size >= 10
     assert np.median(errs) < 0.1 and errs.max() < 0.3
-    spurious = np.abs(r.landmarks_estimated[:, None] - r.landmarks_true[None, :]).min(axis=1)
+    spurious = np.abs(r.landmarks_estimated[:, None] - r.landmarks_true[None, :]).min(
+        axis=1
+    )
     assert np.mean(spurious < 0.3) >= 0.9
 
 
@@ -371,13 +436,22 @@ def test_run_is_deterministic_and_seed_matters(world):
     np.testing.assert_array_equal(a.particle_history, b.particle_history)
     np.testing.assert_array_equal(a.grid.counts, b.grid.counts)
     assert not np.array_equal(a.particle_history, c.particle_history)
-    assert a.particle_history.shape == (60, 50) and a.map_history.shape == (60, a.grid.counts.size)
+    assert a.particle_history.shape == (60, 50) and a.map_history.shape == (
+        60,
+        a.grid.counts.size,
+    )
     np.testing.assert_array_equal(a.map_history[-1], a.grid.counts)
 
 
 def test_history_can_be_dropped(world):
-    r = run_slam_1d(simulate(world, n_frames=20, seed=1), n_particles=10, keep_history=False)
-    assert r.particle_history is None and r.map_history is None and r.estimated.shape == (20,)
+    r = run_slam_1d(
+        simulate(world, n_frames=20, seed=1), n_particles=10, keep_history=False
+    )
+    assert (
+        r.particle_history is None
+        and r.map_history is None
+        and r.estimated.shape == (20,)
+    )
 
 
 # ------------------------------------------------------------------------------------------- the command
@@ -385,7 +459,22 @@ def test_sim1d_command(tmp_path, capsys):
     from slamlib.cli import main
 
     out = tmp_path / "run.png"
-    assert main(["sim1d", "--particles", "60", "--frames", "120", "--seed", "2", "--plot", str(out)]) == 0
+    assert (
+        main(
+            [
+                "sim1d",
+                "--particles",
+                "60",
+                "--frames",
+                "120",
+                "--seed",
+                "2",
+                "--plot",
+                str(out),
+            ]
+        )
+        == 0
+    )
     text = capsys.readouterr().out
     assert "particle SLAM" in text and "dead reckoning" in text
     assert out.stat().st_size > 10_000
@@ -414,64 +503,114 @@ def test_filter_weights_are_prior_times_likelihood_between_resamplings(world):
     """Without resampling (``ess_fraction=0``: ESS < 0 never holds) the log-weights after frames 1 and 2 are
     ``normalise(s_1 + s_2)``: the posterior is the prior weight times the new likelihood, not the likelihood alone."""
     rec = simulate(world, n_frames=10, seed=6)
-    slam = ParticleSLAM1D(40, OccupancyGrid1D.empty(-30, 90, 0.05), 0.4, 0.07, np.random.default_rng(3),
-                          ess_fraction=0.0)
-    slam.step(rec.frames[0])  # maps the first scan at the origin; all particles still equal
+    slam = ParticleSLAM1D(
+        40,
+        OccupancyGrid1D.empty(-30, 90, 0.05),
+        0.4,
+        0.07,
+        np.random.default_rng(3),
+        ess_fraction=0.0,
+    )
+    slam.step(
+        rec.frames[0]
+    )  # maps the first scan at the origin; all particles still equal
     info1 = slam.step(rec.frames[1])
     info2 = slam.step(rec.frames[2])
     assert not info1.resampled and not info2.resampled
-    assert np.ptp(info1.scores) > 1.0 and np.ptp(info2.scores) > 1.0  # the two frames' scores both matter
-    np.testing.assert_allclose(info1.log_weights, normalise_log_weights(info1.scores), atol=1e-9)
-    np.testing.assert_allclose(info2.log_weights, normalise_log_weights(info1.scores + info2.scores), atol=1e-9)
+    assert (
+        np.ptp(info1.scores) > 1.0 and np.ptp(info2.scores) > 1.0
+    )  # the two frames' scores both matter
+    np.testing.assert_allclose(
+        info1.log_weights, normalise_log_weights(info1.scores), atol=1e-9
+    )
+    np.testing.assert_allclose(
+        info2.log_weights, normalise_log_weights(info1.scores + info2.scores), atol=1e-9
+    )
     prior_times_likelihood = info1.weights * np.exp(info2.scores - info2.scores.max())
-    np.testing.assert_allclose(info2.weights, prior_times_likelihood / prior_times_likelihood.sum(), atol=1e-12)
+    np.testing.assert_allclose(
+        info2.weights, prior_times_likelihood / prior_times_likelihood.sum(), atol=1e-12
+    )
     np.testing.assert_allclose(slam.log_weights, info2.log_weights)
-    assert not np.allclose(info2.log_weights, normalise_log_weights(info2.scores), atol=1e-3)
+    assert not np.allclose(
+        info2.log_weights, normalise_log_weights(info2.scores), atol=1e-3
+    )
 
 
 def test_step_scores_with_the_filter_settings_and_reports_mean_and_ess(world):
     rec = simulate(world, n_frames=6, seed=6)
-    slam = ParticleSLAM1D(30, OccupancyGrid1D.empty(-30, 90, 0.05), 0.4, 0.13, np.random.default_rng(3),
-                          eps=0.2, ess_fraction=0.0)
+    slam = ParticleSLAM1D(
+        30,
+        OccupancyGrid1D.empty(-30, 90, 0.05),
+        0.4,
+        0.13,
+        np.random.default_rng(3),
+        eps=0.2,
+        ess_fraction=0.0,
+    )
     slam.step(rec.frames[0])
     before = slam.grid.copy()
     info = slam.step(rec.frames[1])
     want = score_particles(info.moved, read_scan(rec.frames[1]), before, 0.13, 0.2)
     np.testing.assert_array_equal(info.scores, want)
-    assert not np.allclose(want, score_particles(info.moved, read_scan(rec.frames[1]), before, 0.05, 0.2))
+    assert not np.allclose(
+        want, score_particles(info.moved, read_scan(rec.frames[1]), before, 0.05, 0.2)
+    )
     assert info.mean == pytest.approx(float(np.dot(info.weights, info.moved)), rel=1e-12)
     assert info.ess == pytest.approx(1.0 / np.sum(info.weights**2), rel=1e-12)
-    assert ParticleSLAM1D(5, before, 0.4, 0.13, np.random.default_rng(0)).ess_fraction == 0.5
+    assert (
+        ParticleSLAM1D(5, before, 0.4, 0.13, np.random.default_rng(0)).ess_fraction == 0.5
+    )
     with pytest.raises(TypeError, match=r"^rng must be a numpy.random.Generator$"):
         ParticleSLAM1D(5, before, 0.4, 0.13, 0)
 
 
 def test_run_slam_1d_is_the_filter_loop_with_the_documented_defaults(world):
     rec = simulate(world, n_frames=30, seed=4)
-    r = run_slam_1d(rec)  # 200 particles, seed 0, resolution 0.05, eps 0.05, ess_fraction 0.5, min count 5
+    r = run_slam_1d(
+        rec
+    )  # 200 particles, seed 0, resolution 0.05, eps 0.05, ess_fraction 0.5, min count 5
     s = rec.sensors
     motion = 1.5 * max(s.velocity_noise, 0.05) + abs(s.velocity_bias)
     sigma = max(float(np.hypot(s.range_noise, 0.05)), 2 * 0.05)
     reach = np.abs(rec.measured_velocities).max() * rec.times[-1] + 1.0
     grid = OccupancyGrid1D.empty(-reach - s.max_range, reach + s.max_range, 0.05)
-    slam = ParticleSLAM1D(200, grid, motion, sigma, np.random.default_rng(0), eps=0.05, ess_fraction=0.5)
+    slam = ParticleSLAM1D(
+        200, grid, motion, sigma, np.random.default_rng(0), eps=0.05, ess_fraction=0.5
+    )
     infos = [slam.step(f) for f in rec.frames]
     assert r.grid.origin == grid.origin and r.grid.counts.size == grid.counts.size
     np.testing.assert_array_equal(r.grid.counts, slam.grid.counts)
     np.testing.assert_array_equal(r.estimated, [i.estimate for i in infos])
     np.testing.assert_array_equal(r.mean_estimated, [i.mean for i in infos])
     np.testing.assert_array_equal(r.ess, [i.ess for i in infos])
-    assert r.resampled.dtype == bool and r.resampled.tolist() == [i.resampled for i in infos]
-    assert 0 < r.resampled.sum() < len(infos)  # the ESS rule decided, not "always" or "never"
-    assert r.particle_history.dtype == r.weight_history.dtype == np.float32 and r.map_history.dtype == np.int32
-    np.testing.assert_array_equal(r.particle_history, np.float32([i.moved for i in infos]))
-    np.testing.assert_array_equal(r.weight_history, np.float32([i.weights for i in infos]))
+    assert r.resampled.dtype == bool and r.resampled.tolist() == [
+        i.resampled for i in infos
+    ]
+    assert (
+        0 < r.resampled.sum() < len(infos)
+    )  # the ESS rule decided, not "always" or "never"
+    assert (
+        r.particle_history.dtype == r.weight_history.dtype == np.float32
+        and r.map_history.dtype == np.int32
+    )
+    np.testing.assert_array_equal(
+        r.particle_history, np.float32([i.moved for i in infos])
+    )
+    np.testing.assert_array_equal(
+        r.weight_history, np.float32([i.weights for i in infos])
+    )
     np.testing.assert_array_equal(r.map_history[-1], slam.grid.counts)
-    np.testing.assert_array_equal(r.landmarks_estimated, extract_landmarks(slam.grid, sigma, 5))
+    np.testing.assert_array_equal(
+        r.landmarks_estimated, extract_landmarks(slam.grid, sigma, 5)
+    )
     summary = r.summary()
     assert summary["slam_final_error_m"] == abs(r.estimated[-1] - r.true_positions[-1])
-    assert summary["dead_reckoning_final_error_m"] == abs(r.dead_reckoned[-1] - r.true_positions[-1])
-    np.testing.assert_array_equal(r.observed_landmarks(), r.landmarks_true[r.landmark_returns >= 5])
+    assert summary["dead_reckoning_final_error_m"] == abs(
+        r.dead_reckoned[-1] - r.true_positions[-1]
+    )
+    np.testing.assert_array_equal(
+        r.observed_landmarks(), r.landmarks_true[r.landmark_returns >= 5]
+    )
     assert r.landmark_errors().size == r.observed_landmarks().size
     empty = run_slam_1d(rec, n_particles=10, keep_history=False, landmark_min_count=10**6)
     assert empty.landmarks_estimated.size == 0
@@ -480,20 +619,41 @@ def test_run_slam_1d_is_the_filter_loop_with_the_documented_defaults(world):
 
 def test_run_slam_1d_passes_its_settings_and_shows_no_progress_by_default(world, capsys):
     rec = simulate(world, n_frames=8, seed=4)
-    r = run_slam_1d(rec, n_particles=10, resolution=0.1, ess_fraction=None, keep_history=False)
-    assert r.grid.resolution == 0.1 and r.resampled.all()  # ess_fraction=None: every frame
-    assert r.particle_history is None and r.weight_history is None and r.map_history is None
+    r = run_slam_1d(
+        rec, n_particles=10, resolution=0.1, ess_fraction=None, keep_history=False
+    )
+    assert (
+        r.grid.resolution == 0.1 and r.resampled.all()
+    )  # ess_fraction=None: every frame
+    assert (
+        r.particle_history is None and r.weight_history is None and r.map_history is None
+    )
     assert capsys.readouterr().err == ""  # no progress bar by default
-    wide = run_slam_1d(rec, n_particles=10, resolution=0.1, ess_fraction=None, keep_history=False, eps=0.5)
-    assert not np.array_equal(wide.mean_estimated, r.mean_estimated)  # eps reaches the filter's scores
+    wide = run_slam_1d(
+        rec,
+        n_particles=10,
+        resolution=0.1,
+        ess_fraction=None,
+        keep_history=False,
+        eps=0.5,
+    )
+    assert not np.array_equal(
+        wide.mean_estimated, r.mean_estimated
+    )  # eps reaches the filter's scores
     # (progress=True itself is not run here: a tqdm bar hangs in mutmut's forked workers; its text is cosmetic)
 
 
 # The filter's input checks and the map's size bounds, to the boundary (issue 15, mutation testing).
 
+
 def _filter_args(**kw):
-    args = dict(n_particles=5, grid=OccupancyGrid1D.empty(0, 1), motion_noise=0.1, likelihood_sigma=0.1,
-                rng=np.random.default_rng(0))
+    args = dict(
+        n_particles=5,
+        grid=OccupancyGrid1D.empty(0, 1),
+        motion_noise=0.1,
+        likelihood_sigma=0.1,
+        rng=np.random.default_rng(0),
+    )
     args.update(kw)
     return args
 
@@ -503,7 +663,9 @@ def test_particle_slam_1d_checks_each_setting_to_the_boundary(name):
     slam = ParticleSLAM1D(**_filter_args(**{name: 0}))  # zero is allowed
     assert getattr(slam, name) == 0.0 and type(getattr(slam, name)) is float
     for bad in (-1e-12, np.nan, np.inf):
-        with pytest.raises(ValueError, match=rf"^{name} must be finite and >= 0, got {bad!r}$"):
+        with pytest.raises(
+            ValueError, match=rf"^{name} must be finite and >= 0, got {bad!r}$"
+        ):
             ParticleSLAM1D(**_filter_args(**{name: bad}))
 
 
@@ -511,7 +673,9 @@ def test_particle_slam_1d_checks_ess_fraction_and_rng():
     for ok in (0, 1, 0.5, None):
         assert ParticleSLAM1D(**_filter_args(ess_fraction=ok)).ess_fraction == ok
     for bad in (-0.01, 1.01, np.nan):
-        with pytest.raises(ValueError, match=rf"^ess_fraction must be in \[0, 1\] or None, got {bad!r}$"):
+        with pytest.raises(
+            ValueError, match=rf"^ess_fraction must be in \[0, 1\] or None, got {bad!r}$"
+        ):
             ParticleSLAM1D(**_filter_args(ess_fraction=bad))
     with pytest.raises(TypeError, match=r"^rng must be a numpy.random.Generator$"):
         ParticleSLAM1D(**_filter_args(rng=np.random.RandomState(0)))
@@ -526,42 +690,66 @@ def _cells_and_kernel(rec, resolution, sigma):
 def test_run_slam_1d_checks_the_resolution(world):
     rec = simulate(world, n_frames=3, seed=4)
     for bad in (0.0, -0.1, np.nan, np.inf):
-        with pytest.raises(ValueError, match=rf"^resolution must be finite and > 0, got {bad!r}$"):
+        with pytest.raises(
+            ValueError, match=rf"^resolution must be finite and > 0, got {bad!r}$"
+        ):
             run_slam_1d(rec, n_particles=5, resolution=bad, keep_history=False)
 
 
-def test_run_slam_1d_grid_cap_is_inclusive_and_its_message_names_the_numbers(world, monkeypatch):
+def test_run_slam_1d_grid_cap_is_inclusive_and_its_message_names_the_numbers(
+    world, monkeypatch
+):
     from slamlib.sim1d import filter as F
 
     rec = simulate(world, n_frames=3, seed=4)
     reach, cells, _ = _cells_and_kernel(rec, 0.1, 0.2)
     monkeypatch.setattr(F, "MAX_GRID_CELLS", cells)  # exactly at the cap: allowed
-    r = run_slam_1d(rec, n_particles=5, resolution=0.1, likelihood_sigma=0.2, keep_history=False)
+    r = run_slam_1d(
+        rec, n_particles=5, resolution=0.1, likelihood_sigma=0.2, keep_history=False
+    )
     assert r.grid.origin == -reach - rec.sensors.max_range
     monkeypatch.setattr(F, "MAX_GRID_CELLS", int(cells) - 1)
-    msg = (f"the map would need {cells:.3g} cells of 0.1 m to cover the +-{reach:.3g} m the measured velocities "
-           f"(bias included) can reach in {rec.times[-1]:.3g} s, more than {int(cells) - 1:,}; use a smaller "
-           f"velocity bias, fewer frames or a coarser resolution")
+    msg = (
+        f"the map would need {cells:.3g} cells of 0.1 m to cover the +-{reach:.3g} m the measured velocities "
+        f"(bias included) can reach in {rec.times[-1]:.3g} s, more than {int(cells) - 1:,}; use a smaller "
+        f"velocity bias, fewer frames or a coarser resolution"
+    )
     with pytest.raises(ValueError) as e:
-        run_slam_1d(rec, n_particles=5, resolution=0.1, likelihood_sigma=0.2, keep_history=False)
+        run_slam_1d(
+            rec, n_particles=5, resolution=0.1, likelihood_sigma=0.2, keep_history=False
+        )
     assert str(e.value) == msg
 
 
-def test_run_slam_1d_field_work_cap_is_inclusive_and_its_message_names_the_numbers(world, monkeypatch):
+def test_run_slam_1d_field_work_cap_is_inclusive_and_its_message_names_the_numbers(
+    world, monkeypatch
+):
     from slamlib.sim1d import filter as F
 
     rec = simulate(world, n_frames=3, seed=4)
     for sigma in (0.2, 1e6):  # blur narrower than the grid, and capped at the grid
         _, cells, kernel = _cells_and_kernel(rec, 0.1, sigma)
         assert kernel == (8.0 * sigma / 0.1 if sigma < 1 else cells)
-        monkeypatch.setattr(F, "MAX_FIELD_WORK", cells * kernel)  # exactly at the cap: allowed
-        run_slam_1d(rec, n_particles=5, resolution=0.1, likelihood_sigma=sigma, keep_history=False)
+        monkeypatch.setattr(
+            F, "MAX_FIELD_WORK", cells * kernel
+        )  # exactly at the cap: allowed
+        run_slam_1d(
+            rec, n_particles=5, resolution=0.1, likelihood_sigma=sigma, keep_history=False
+        )
         monkeypatch.setattr(F, "MAX_FIELD_WORK", cells * kernel * (1 - 1e-9))
-        msg = (f"a likelihood field {sigma:.3g} m wide over {cells:.3g} cells of 0.1 m costs {cells * kernel:.3g} "
-               f"operations per frame, more than {cells * kernel * (1 - 1e-9):.0e}; use a smaller range noise or "
-               f"likelihood_sigma, or a coarser resolution")
+        msg = (
+            f"a likelihood field {sigma:.3g} m wide over {cells:.3g} cells of 0.1 m costs {cells * kernel:.3g} "
+            f"operations per frame, more than {cells * kernel * (1 - 1e-9):.0e}; use a smaller range noise or "
+            f"likelihood_sigma, or a coarser resolution"
+        )
         with pytest.raises(ValueError) as e:
-            run_slam_1d(rec, n_particles=5, resolution=0.1, likelihood_sigma=sigma, keep_history=False)
+            run_slam_1d(
+                rec,
+                n_particles=5,
+                resolution=0.1,
+                likelihood_sigma=sigma,
+                keep_history=False,
+            )
         assert str(e.value) == msg
 
 
@@ -574,4 +762,8 @@ def test_run_slam_1d_progress_bar_only_when_asked(world, capsys):
     assert capsys.readouterr().err == ""
     run_slam_1d(rec, n_particles=10, seed=0, progress=True)
     err = capsys.readouterr().err
-    assert err.startswith("\rsim1d SLAM:   0%|") and "0/5 [00:00<?, ?frame/s]" in err and "5/5" in err
+    assert (
+        err.startswith("\rsim1d SLAM:   0%|")
+        and "0/5 [00:00<?, ?frame/s]" in err
+        and "5/5" in err
+    )

@@ -19,7 +19,9 @@ from slamlib.sim1d.world import Frame
 
 
 def _grid(counts, origin=0.0, resolution=1.0):
-    return OccupancyGrid1D(origin=origin, resolution=resolution, counts=np.asarray(counts, dtype=np.int64))
+    return OccupancyGrid1D(
+        origin=origin, resolution=resolution, counts=np.asarray(counts, dtype=np.int64)
+    )
 
 
 def _field_by_definition(counts, s_cells, n_sat):
@@ -27,9 +29,19 @@ def _field_by_definition(counts, s_cells, n_sat):
     max_{|j - i| <= ceil(3 s)} B_j)``, by double loops."""
     C = len(counts)
     blur_half, max_half = int(np.ceil(4 * s_cells)), int(np.ceil(3 * s_cells))
-    B = np.array([sum(counts[c] * np.exp(-0.5 * ((i - c) / s_cells) ** 2) for c in range(C)
-                      if abs(i - c) <= blur_half) for i in range(C)])
-    local = np.array([max(B[j] for j in range(C) if abs(j - i) <= max_half) for i in range(C)])
+    B = np.array(
+        [
+            sum(
+                counts[c] * np.exp(-0.5 * ((i - c) / s_cells) ** 2)
+                for c in range(C)
+                if abs(i - c) <= blur_half
+            )
+            for i in range(C)
+        ]
+    )
+    local = np.array(
+        [max(B[j] for j in range(C) if abs(j - i) <= max_half) for i in range(C)]
+    )
     return B / np.maximum(local, n_sat)
 
 
@@ -43,8 +55,13 @@ def test_empty_grid_extent_default_resolution_and_int64_counts():
     assert g.counts.shape == (4,) and g.counts.dtype == np.int64
 
 
-@pytest.mark.parametrize("lo, hi, resolution", [(0.0, 1.0, 0.0), (0.0, 1.0, -0.1), (1.0, 1.0, 0.1), (2.0, 1.0, 0.1)])
-def test_empty_grid_rejects_a_zero_or_negative_resolution_and_an_empty_extent(lo, hi, resolution):
+@pytest.mark.parametrize(
+    "lo, hi, resolution",
+    [(0.0, 1.0, 0.0), (0.0, 1.0, -0.1), (1.0, 1.0, 0.1), (2.0, 1.0, 0.1)],
+)
+def test_empty_grid_rejects_a_zero_or_negative_resolution_and_an_empty_extent(
+    lo, hi, resolution
+):
     """A zero resolution (not a division by zero), a negative one, ``hi == lo`` (no zero-cell grid) and ``hi < lo``
     raise ValueError naming the values."""
     msg = f"need resolution > 0 and hi > lo, got {resolution}, [{lo}, {hi}]"
@@ -57,7 +74,9 @@ def test_cell_of_computes_in_float64():
     rounds up to 7.0)."""
     g = _grid(np.zeros(10), origin=0.0, resolution=0.1)
     assert g.cell_of(np.float32(0.7)) == 6
-    np.testing.assert_array_equal(g.cell_of(np.array([0.7, 0.35], dtype=np.float32)), [6, 3])
+    np.testing.assert_array_equal(
+        g.cell_of(np.array([0.7, 0.35], dtype=np.float32)), [6, 3]
+    )
     assert g.cell_of(np.array([0.7, 0.35], dtype=np.float32)).dtype == np.int64
 
 
@@ -68,22 +87,36 @@ def test_gaussian_blur_is_truncated_at_four_sigma_on_both_sides():
     counts = np.zeros(7, dtype=np.int64)
     counts[3] = 1
     e = np.exp(-0.5 * (1 / 0.25) ** 2)
-    np.testing.assert_allclose(steps._gaussian_blur(counts, 0.25), [0, 0, e, 1, e, 0, 0], rtol=1e-15, atol=0)
+    np.testing.assert_allclose(
+        steps._gaussian_blur(counts, 0.25), [0, 0, e, 1, e, 0, 0], rtol=1e-15, atol=0
+    )
     counts[3], counts[0] = 0, 2
-    np.testing.assert_allclose(steps._gaussian_blur(counts, 0.25), [2, 2 * e, 0, 0, 0, 0, 0], rtol=1e-15, atol=0)
+    np.testing.assert_allclose(
+        steps._gaussian_blur(counts, 0.25), [2, 2 * e, 0, 0, 0, 0, 0], rtol=1e-15, atol=0
+    )
 
 
 def test_gaussian_blur_reaches_across_the_whole_grid_when_sigma_is_wide():
     """``s = 1`` cell on 3 cells: the kernel is cut at ``C - 1 = 2`` cells, so a count in the first cell reaches the
     last one with ``exp(-2)`` (and one in the last cell the first)."""
-    np.testing.assert_allclose(steps._gaussian_blur(np.array([1, 0, 0]), 1.0), np.exp([0, -0.5, -2]), rtol=1e-15)
-    np.testing.assert_allclose(steps._gaussian_blur(np.array([0, 0, 3]), 1.0), 3 * np.exp([-2, -0.5, 0]), rtol=1e-15)
+    np.testing.assert_allclose(
+        steps._gaussian_blur(np.array([1, 0, 0]), 1.0), np.exp([0, -0.5, -2]), rtol=1e-15
+    )
+    np.testing.assert_allclose(
+        steps._gaussian_blur(np.array([0, 0, 3]), 1.0),
+        3 * np.exp([-2, -0.5, 0]),
+        rtol=1e-15,
+    )
 
 
 def test_running_max_pads_the_edges_with_minus_infinity():
     """``max(values[i - h : i + h + 1])`` clipped to the array at both ends."""
-    np.testing.assert_array_equal(steps._running_max(np.array([1.0, 2.0, 3.0, 0.5]), 1), [2, 3, 3, 3])
-    np.testing.assert_array_equal(steps._running_max(np.array([4.0, 1.0, 0.0, 2.0, 0.0]), 2), [4, 4, 4, 2, 2])
+    np.testing.assert_array_equal(
+        steps._running_max(np.array([1.0, 2.0, 3.0, 0.5]), 1), [2, 3, 3, 3]
+    )
+    np.testing.assert_array_equal(
+        steps._running_max(np.array([4.0, 1.0, 0.0, 2.0, 0.0]), 2), [4, 4, 4, 2, 2]
+    )
 
 
 def test_likelihood_field_default_n_sat_and_landmarks_at_the_grid_edges():
@@ -91,8 +124,12 @@ def test_likelihood_field_default_n_sat_and_landmarks_at_the_grid_edges():
     peaks ``1 / 3`` (the local maximum near an edge is taken over the cells that exist), as by definition."""
     counts = np.array([1, 0, 0, 0, 0, 0, 0, 0, 1])
     f = steps.likelihood_field(_grid(counts, origin=-2.0, resolution=0.5), 0.15)
-    assert f[0] == pytest.approx(1 / 3, rel=1e-12) and f[-1] == pytest.approx(1 / 3, rel=1e-12)
-    np.testing.assert_allclose(f, _field_by_definition(counts, 0.3, 3.0), rtol=1e-12, atol=1e-300)
+    assert f[0] == pytest.approx(1 / 3, rel=1e-12) and f[-1] == pytest.approx(
+        1 / 3, rel=1e-12
+    )
+    np.testing.assert_allclose(
+        f, _field_by_definition(counts, 0.3, 3.0), rtol=1e-12, atol=1e-300
+    )
 
 
 def test_likelihood_field_local_maximum_window_is_ceil_three_sigma():
@@ -101,7 +138,9 @@ def test_likelihood_field_local_maximum_window_is_ceil_three_sigma():
     counts = np.array([0, 0, 6, 0, 3, 0, 0, 0, 0])
     f = steps.likelihood_field(_grid(counts, resolution=2.0), 0.6, n_sat=3.0)
     assert f[2] == pytest.approx(1.0, rel=1e-12) and f[4] == pytest.approx(1.0, rel=1e-12)
-    np.testing.assert_allclose(f, _field_by_definition(counts, 0.3, 3.0), rtol=1e-12, atol=1e-300)
+    np.testing.assert_allclose(
+        f, _field_by_definition(counts, 0.3, 3.0), rtol=1e-12, atol=1e-300
+    )
 
 
 # ------------------------------------------------------------------------------------------------------ scoring
@@ -115,15 +154,22 @@ def test_score_particles_is_log_eps_outside_the_grid_on_both_sides():
     ``eps = 0.05`` (``F`` is 0 off the grid, not the edge value 1); one scan point is scored too."""
     g = _two_landmark_grid()
     for z in (-1.0, 0.2, 4.8, 7.0):
-        np.testing.assert_allclose(steps.score_particles(0.0, [z], g, sigma=0.3), [np.log(0.05)], rtol=1e-15)
-    np.testing.assert_allclose(steps.score_particles(np.array([0.0, 4.0]), [0.5, 4.5], g, sigma=0.3),
-                               [2 * np.log(1.05), np.log(0.05) + np.log(1.05)], rtol=1e-12)
+        np.testing.assert_allclose(
+            steps.score_particles(0.0, [z], g, sigma=0.3), [np.log(0.05)], rtol=1e-15
+        )
+    np.testing.assert_allclose(
+        steps.score_particles(np.array([0.0, 4.0]), [0.5, 4.5], g, sigma=0.3),
+        [2 * np.log(1.05), np.log(0.05) + np.log(1.05)],
+        rtol=1e-12,
+    )
 
 
 def test_score_particles_rejects_a_zero_eps():
     """``eps`` must be > 0 (``log(F + 0)`` is ``-inf`` off the structure): 0 raises ValueError naming it."""
     with pytest.raises(ValueError, match=re.escape("eps must be positive, got 0.0")):
-        steps.score_particles(np.zeros(2), [0.5], _two_landmark_grid(), sigma=0.3, eps=0.0)
+        steps.score_particles(
+            np.zeros(2), [0.5], _two_landmark_grid(), sigma=0.3, eps=0.0
+        )
 
 
 # --------------------------------------------------------------------------------- float64 results of the steps
@@ -152,7 +198,9 @@ def test_perturb_with_noise_returns_float64_with_and_without_noise():
     np.testing.assert_array_equal(out, x.astype(np.float64))
     out = steps.perturb_with_noise(x, 0.5, np.random.default_rng(1))
     assert out.dtype == np.float64
-    np.testing.assert_array_equal(out, x.astype(np.float64) + 0.5 * np.random.default_rng(1).standard_normal(3))
+    np.testing.assert_array_equal(
+        out, x.astype(np.float64) + 0.5 * np.random.default_rng(1).standard_normal(3)
+    )
 
 
 @pytest.mark.parametrize("wide", ["particles", "points"])
@@ -178,7 +226,9 @@ def test_pick_best_particle_compares_log_weights_as_float64():
 def test_resample_particles_returns_float64_particles(ess_fraction):
     """float32 particles come back float64 whether resampled (``None``: always) or not (uniform weights, ESS = P)."""
     x = np.array([0.1, -2.3, 5.0, 7.0], dtype=np.float32)
-    out, log_w, resampled = steps.resample_particles(x, np.zeros(4), np.random.default_rng(2), ess_fraction)
+    out, log_w, resampled = steps.resample_particles(
+        x, np.zeros(4), np.random.default_rng(2), ess_fraction
+    )
     assert resampled == (ess_fraction is None)
     assert out.dtype == np.float64
     assert set(out.tolist()) <= set(x.astype(np.float64).tolist())
@@ -195,7 +245,9 @@ def test_extract_landmarks_of_an_empty_grid_is_an_empty_float_array():
 
 def test_extract_landmarks_single_return_with_min_count_one():
     """One return and ``min_count = 1``: one landmark at its cell centre (the blurred peak is exactly 1)."""
-    np.testing.assert_array_equal(steps.extract_landmarks(_grid([0, 0, 1, 0]), sigma=0.02, min_count=1), [2.5])
+    np.testing.assert_array_equal(
+        steps.extract_landmarks(_grid([0, 0, 1, 0]), sigma=0.02, min_count=1), [2.5]
+    )
 
 
 def test_extract_landmarks_defaults_sigma_and_min_count():
@@ -206,21 +258,30 @@ def test_extract_landmarks_defaults_sigma_and_min_count():
     out = steps.extract_landmarks(_grid(counts, resolution=0.05))
     np.testing.assert_allclose(out, [0.525, 1.025], rtol=0, atol=1e-15)
     counts[20] = 4
-    np.testing.assert_allclose(steps.extract_landmarks(_grid(counts, resolution=0.05)), [0.525], rtol=0, atol=1e-15)
+    np.testing.assert_allclose(
+        steps.extract_landmarks(_grid(counts, resolution=0.05)),
+        [0.525],
+        rtol=0,
+        atol=1e-15,
+    )
 
 
 def test_extract_landmarks_plateau_has_one_peak_its_left_cell():
     """Counts ``[0, 1, 5, 5, 1, 0, 0, 0]`` (a sharp blur: blurred = counts): the plateau 5, 5 is one peak, its left
     cell 2 (``> left``, ``>= right``), whose centroid over cells 1..3 (window ``max(1, ceil(3 s)) = 1``) is
     ``(1.5 + 5 * 2.5 + 5 * 3.5) / 11`` (rounded to 1e-9 m)."""
-    out = steps.extract_landmarks(_grid([0, 1, 5, 5, 1, 0, 0, 0]), sigma=0.02, min_count=5)
+    out = steps.extract_landmarks(
+        _grid([0, 1, 5, 5, 1, 0, 0, 0]), sigma=0.02, min_count=5
+    )
     np.testing.assert_allclose(out, np.round([31.5 / 11], 9), rtol=0, atol=1e-15)
 
 
 def test_extract_landmarks_peaks_at_both_edges():
     """Peaks in the first and the last cell count (the edges are padded with -inf); their windows are cut at the
     grid: centroids ``(5 * 0.5 + 1.5) / 6`` and ``(6.5 + 5 * 7.5) / 6`` (to 1e-9 m)."""
-    out = steps.extract_landmarks(_grid([5, 1, 0, 0, 0, 0, 1, 5]), sigma=0.02, min_count=5)
+    out = steps.extract_landmarks(
+        _grid([5, 1, 0, 0, 0, 0, 1, 5]), sigma=0.02, min_count=5
+    )
     np.testing.assert_allclose(out, np.round([4 / 6, 44 / 6], 9), rtol=0, atol=1e-15)
 
 
@@ -231,11 +292,17 @@ def test_extract_landmarks_centroid_window_is_ceil_three_sigma_in_cells():
     counts[[10, 13, 16, 17]] = [6, 2, 1, 1]
     g = _grid(counts, origin=1.0, resolution=0.05)
     blurred = steps._gaussian_blur(counts, 2.0)
-    assert np.flatnonzero((blurred[1:-1] > blurred[:-2]) & (blurred[1:-1] >= blurred[2:])).tolist() == [9]
+    assert np.flatnonzero(
+        (blurred[1:-1] > blurred[:-2]) & (blurred[1:-1] >= blurred[2:])
+    ).tolist() == [9]
     centres = 1.0 + (np.array([10, 13, 16]) + 0.5) * 0.05
     expected = (6 * centres[0] + 2 * centres[1] + centres[2]) / 9
-    np.testing.assert_allclose(steps.extract_landmarks(g, sigma=0.1, min_count=5), [round(expected, 9)], rtol=0,
-                               atol=1e-15)
+    np.testing.assert_allclose(
+        steps.extract_landmarks(g, sigma=0.1, min_count=5),
+        [round(expected, 9)],
+        rtol=0,
+        atol=1e-15,
+    )
 
 
 def test_extract_landmarks_min_count_zero_keeps_no_empty_cell():
@@ -247,5 +314,7 @@ def test_extract_landmarks_min_count_zero_keeps_no_empty_cell():
 
 def test_extract_landmarks_rounds_to_nine_decimals():
     """Positions are rounded to 1e-9 m: a landmark at 1.623456789123 reads 1.623456789."""
-    out = steps.extract_landmarks(_grid([0, 5, 0], origin=0.123456789123), sigma=0.02, min_count=5)
+    out = steps.extract_landmarks(
+        _grid([0, 5, 0], origin=0.123456789123), sigma=0.02, min_count=5
+    )
     assert out.tolist() == [1.623456789]

@@ -7,9 +7,26 @@ import slamlib.sim2d.steps as steps_2d
 from slamlib.contract import check_steps_module
 from slamlib.resampling import uniform_log_weights
 from slamlib.sim2d import (
-    OccupancyGrid2D, SensorModel2D, World2D, cast_rays, dead_reckon_2d, initialise_particles,
-    make_world, merge_scan, offset_by_motion, perturb_with_noise, pick_best_particle, read_imu,
-    read_scan, read_timing, resample_particles, run_slam_2d, scan_at, score_particles, simulate, transform_scan,
+    OccupancyGrid2D,
+    SensorModel2D,
+    World2D,
+    cast_rays,
+    dead_reckon_2d,
+    initialise_particles,
+    make_world,
+    merge_scan,
+    offset_by_motion,
+    perturb_with_noise,
+    pick_best_particle,
+    read_imu,
+    read_scan,
+    read_timing,
+    resample_particles,
+    run_slam_2d,
+    scan_at,
+    score_particles,
+    simulate,
+    transform_scan,
     wrap_angle,
 )
 
@@ -30,43 +47,69 @@ def test_steps_module_keeps_the_contract():
 
 # ------------------------------------------------------------------------------------------ world and sensor
 def test_ray_caster_hits_a_known_wall_and_a_known_pillar():
-    w = World2D(segments=np.array([[[5.0, -10.0], [5.0, 10.0]]]), circles=np.array([[0.0, 3.0, 0.5]]))
-    r = cast_rays(w, (1.0, 0.0), np.array([0.0, np.pi / 4, np.pi / 2, np.pi]), max_range=20.0)
-    assert r[0] == pytest.approx(4.0)                      # straight at the wall
-    assert r[1] == pytest.approx(4.0 * np.sqrt(2))         # 45 degrees
-    assert r[3] == np.inf                                  # nothing behind
+    w = World2D(
+        segments=np.array([[[5.0, -10.0], [5.0, 10.0]]]),
+        circles=np.array([[0.0, 3.0, 0.5]]),
+    )
+    r = cast_rays(
+        w, (1.0, 0.0), np.array([0.0, np.pi / 4, np.pi / 2, np.pi]), max_range=20.0
+    )
+    assert r[0] == pytest.approx(4.0)  # straight at the wall
+    assert r[1] == pytest.approx(4.0 * np.sqrt(2))  # 45 degrees
+    assert r[3] == np.inf  # nothing behind
     r2 = cast_rays(w, (0.0, 0.0), np.array([np.pi / 2]), max_range=20.0)
-    assert r2[0] == pytest.approx(2.5)                     # pillar at 3 m, radius 0.5
-    assert cast_rays(w, (1.0, 0.0), np.array([0.0]), max_range=3.0)[0] == np.inf   # beyond max range
+    assert r2[0] == pytest.approx(2.5)  # pillar at 3 m, radius 0.5
+    assert (
+        cast_rays(w, (1.0, 0.0), np.array([0.0]), max_range=3.0)[0] == np.inf
+    )  # beyond max range
 
 
 def test_scan_points_lie_on_the_structure(world):
     pose = np.array([0.0, 0.0, 0.3])
-    pts = transform_scan(pose, scan_at(world, pose, SensorModel2D()))        # noise-free
+    pts = transform_scan(pose, scan_at(world, pose, SensorModel2D()))  # noise-free
     a, b = world.segments[:, 0], world.segments[:, 1]
     e = b - a
-    u = np.clip(np.einsum("nsk,sk->ns", pts[:, None] - a[None], e) / np.sum(e**2, 1), 0, 1)
-    d_seg = np.linalg.norm(pts[:, None] - (a[None] + u[..., None] * e[None]), axis=-1).min(axis=1)
-    d_circ = np.abs(np.linalg.norm(pts[:, None] - world.circles[None, :, :2], axis=-1) - world.circles[:, 2]).min(1)
+    u = np.clip(
+        np.einsum("nsk,sk->ns", pts[:, None] - a[None], e) / np.sum(e**2, 1), 0, 1
+    )
+    d_seg = np.linalg.norm(
+        pts[:, None] - (a[None] + u[..., None] * e[None]), axis=-1
+    ).min(axis=1)
+    d_circ = np.abs(
+        np.linalg.norm(pts[:, None] - world.circles[None, :, :2], axis=-1)
+        - world.circles[:, 2]
+    ).min(1)
     assert len(pts) > 100 and np.all(np.minimum(d_seg, d_circ) < 1e-6)
 
 
 def test_simulation_is_deterministic_and_closes_the_loop(world):
     a, b = simulate(world, seed=3, laps=0.2), simulate(world, seed=3, laps=0.2)
     assert np.array_equal(a.true_poses, b.true_poses)
-    assert all(np.array_equal(f.scan, g.scan) and f.speed == g.speed for f, g in zip(a.frames, b.frames))
+    assert all(
+        np.array_equal(f.scan, g.scan) and f.speed == g.speed
+        for f, g in zip(a.frames, b.frames)
+    )
     c = simulate(world, seed=4, laps=0.2)
     assert not np.array_equal(a.frames[5].scan, c.frames[5].scan)
     full = simulate(world, seed=0, sensors=SensorModel2D(n_beams=8))
-    assert np.hypot(*full.true_poses[-1, :2]) < 0.3 and abs(wrap_angle(full.true_poses[-1, 2])) < 0.05
+    assert (
+        np.hypot(*full.true_poses[-1, :2]) < 0.3
+        and abs(wrap_angle(full.true_poses[-1, 2])) < 0.05
+    )
 
 
 # ------------------------------------------------------------------------------------------------- steps
 def test_initialise_and_read(recording):
     p, lw = initialise_particles(7, pose0=(1.0, 2.0, 0.5))
-    assert p.shape == (7, 3) and np.all(p == [1.0, 2.0, 0.5]) and np.allclose(lw, -np.log(7))
+    assert (
+        p.shape == (7, 3) and np.all(p == [1.0, 2.0, 0.5]) and np.allclose(lw, -np.log(7))
+    )
     f = recording.frames[3]
-    assert read_scan(f).shape == f.scan.shape and read_imu(f) == (f.speed, f.yaw_rate) and read_timing(f) == f.dt
+    assert (
+        read_scan(f).shape == f.scan.shape
+        and read_imu(f) == (f.speed, f.yaw_rate)
+        and read_timing(f) == f.dt
+    )
     assert len(read_scan(f, max_points=50)) <= 50
 
 
@@ -88,16 +131,24 @@ def test_offset_by_motion_is_the_exact_arc():
 
 
 def test_noise_free_odometry_reproduces_the_ground_truth(world):
-    rec = simulate(world, seed=1, laps=0.3, sensors=SensorModel2D(speed_noise=0, speed_bias=0, yaw_rate_noise=0,
-                                                                   yaw_rate_bias=0, n_beams=4))
+    rec = simulate(
+        world,
+        seed=1,
+        laps=0.3,
+        sensors=SensorModel2D(
+            speed_noise=0, speed_bias=0, yaw_rate_noise=0, yaw_rate_bias=0, n_beams=4
+        ),
+    )
     assert np.allclose(dead_reckon_2d(rec), rec.true_poses, atol=1e-9)
 
 
 def test_perturb_with_noise_has_the_requested_spread_in_the_body_frame():
     rng = np.random.default_rng(0)
-    p = np.tile([0.0, 0.0, np.pi / 2], (20000, 1))                 # heading +y: forward is world y
+    p = np.tile([0.0, 0.0, np.pi / 2], (20000, 1))  # heading +y: forward is world y
     out = perturb_with_noise(p, (0.3, 0.1, 0.02), rng)
-    assert np.std(out[:, 1]) == pytest.approx(0.3, rel=0.03)      # forward noise along world y
+    assert np.std(out[:, 1]) == pytest.approx(
+        0.3, rel=0.03
+    )  # forward noise along world y
     assert np.std(out[:, 0]) == pytest.approx(0.1, rel=0.03)
     assert np.std(out[:, 2]) == pytest.approx(0.02, rel=0.03)
     assert np.array_equal(perturb_with_noise(p, (0, 0, 0), rng), p)
@@ -108,9 +159,15 @@ def test_transform_scan_is_the_rigid_transform():
     pose = np.array([1.0, 2.0, np.pi / 2])
     assert np.allclose(transform_scan(pose, q), [[1.0, 3.0], [-1.0, 2.0], [2.0, 5.0]])
     many = transform_scan(np.stack([pose, np.zeros(3)]), q)
-    assert many.shape == (2, 3, 2) and np.allclose(many[1], q) and np.allclose(many[0], transform_scan(pose, q))
+    assert (
+        many.shape == (2, 3, 2)
+        and np.allclose(many[1], q)
+        and np.allclose(many[0], transform_scan(pose, q))
+    )
     # distances between points are kept
-    assert np.allclose(np.linalg.norm(many[0, 0] - many[0, 2]), np.linalg.norm(q[0] - q[2]))
+    assert np.allclose(
+        np.linalg.norm(many[0, 0] - many[0, 2]), np.linalg.norm(q[0] - q[2])
+    )
 
 
 @pytest.mark.parametrize("kind", ["density", "likelihood"])
@@ -118,26 +175,47 @@ def test_score_prefers_the_true_pose(world, kind):
     sensors = SensorModel2D()
     grid = OccupancyGrid2D.empty((-12, -8), (32, 24), 0.05, kind=kind)
     rng = np.random.default_rng(0)
-    for x in np.linspace(0.0, 1.2, 7):                      # a map from seven scans along the route
+    for x in np.linspace(0.0, 1.2, 7):  # a map from seven scans along the route
         pose = np.array([x, 0.0, 0.0])
         merge_scan(grid, pose, scan_at(world, pose, sensors, rng))
     truth = np.array([0.7, 0.05, 0.02])
     scan = scan_at(world, truth, sensors, rng)
-    offsets = np.array([[0, 0, 0], [0.1, 0, 0], [0.2, 0, 0], [0, 0.1, 0], [0, 0, 0.02], [-0.1, 0.1, -0.02]])
+    offsets = np.array(
+        [
+            [0, 0, 0],
+            [0.1, 0, 0],
+            [0.2, 0, 0],
+            [0, 0.1, 0],
+            [0, 0, 0.02],
+            [-0.1, 0.1, -0.02],
+        ]
+    )
     s = score_particles(truth + offsets, scan, grid)
     assert s.shape == (6,) and np.argmax(s) == 0 and np.all(s[1:] < s[0] - 5.0), s
-    assert np.array_equal(score_particles(truth, scan, OccupancyGrid2D.empty((0, 0), (1, 1), 0.1)), [0.0])
+    assert np.array_equal(
+        score_particles(truth, scan, OccupancyGrid2D.empty((0, 0), (1, 1), 0.1)), [0.0]
+    )
 
 
 def test_merge_scan_changes_the_map_in_place_and_raises_the_field():
-    grid = OccupancyGrid2D.empty((-5, -5), (5, 5), 0.1, kind="likelihood", sigma=0.1, n_sat=1)
-    same = merge_scan(grid, np.array([1.0, 0.0, np.pi / 2]), np.array([[2.0, 0.0]]))   # world point (1, 2)
+    grid = OccupancyGrid2D.empty(
+        (-5, -5), (5, 5), 0.1, kind="likelihood", sigma=0.1, n_sat=1
+    )
+    same = merge_scan(
+        grid, np.array([1.0, 0.0, np.pi / 2]), np.array([[2.0, 0.0]])
+    )  # world point (1, 2)
     assert same is grid and grid.total == 1
     r, c, inside = grid.cells_of(np.array([1.0, 2.0]))
     assert inside and grid.counts[r, c] == 1
-    assert grid.field_at(np.array([1.0, 2.0])) > 0.7 and grid.field_at(np.array([1.0, 2.5])) < 0.01
-    assert grid.point_terms(np.array([[1.0, 2.0]]))[0] > grid.point_terms(np.array([[3.0, 2.0]]))[0]
-    merge_scan(grid, np.zeros(3), np.array([[100.0, 0.0]]))     # outside the grid: dropped
+    assert (
+        grid.field_at(np.array([1.0, 2.0])) > 0.7
+        and grid.field_at(np.array([1.0, 2.5])) < 0.01
+    )
+    assert (
+        grid.point_terms(np.array([[1.0, 2.0]]))[0]
+        > grid.point_terms(np.array([[3.0, 2.0]]))[0]
+    )
+    merge_scan(grid, np.zeros(3), np.array([[100.0, 0.0]]))  # outside the grid: dropped
     assert grid.total == 1
 
 
@@ -147,11 +225,18 @@ def test_pick_best_and_resample_via_resample_indexes():
     pose, i = pick_best_particle(particles, log_w)
     assert i == 1 and np.array_equal(pose, particles[1])
     pose[0] = -1.0
-    assert particles[1, 0] == 3.0                               # a copy, not a view
-    out, lw, done = resample_particles(particles, log_w, np.random.default_rng(0), ess_fraction=None)
+    assert particles[1, 0] == 3.0  # a copy, not a view
+    out, lw, done = resample_particles(
+        particles, log_w, np.random.default_rng(0), ess_fraction=None
+    )
     assert done and out.shape == (4, 3) and np.allclose(lw, uniform_log_weights(4))
-    assert set(map(tuple, out)) <= set(map(tuple, particles)) and (out == particles[1]).all(1).sum() >= 2
-    kept, lw2, done2 = resample_particles(particles, uniform_log_weights(4), np.random.default_rng(0))
+    assert (
+        set(map(tuple, out)) <= set(map(tuple, particles))
+        and (out == particles[1]).all(1).sum() >= 2
+    )
+    kept, lw2, done2 = resample_particles(
+        particles, uniform_log_weights(4), np.random.default_rng(0)
+    )
     assert not done2 and np.array_equal(kept, particles)
 
 
@@ -161,7 +246,11 @@ def test_filter_beats_dead_reckoning(world, kind):
     for seed in (0, 1):
         rec = simulate(make_world(seed), seed=seed, laps=0.5)
         res = run_slam_2d(rec, n_particles=100, seed=seed, map_kind=kind)
-        assert res.ate < 0.1 and res.ate < res.ate_dead_reckoning / 10, (kind, seed, res.summary())
+        assert res.ate < 0.1 and res.ate < res.ate_dead_reckoning / 10, (
+            kind,
+            seed,
+            res.summary(),
+        )
         assert res.slam_heading_error.max() < np.radians(2)
 
 
@@ -169,7 +258,9 @@ def test_run_is_deterministic_by_seed(recording):
     a = run_slam_2d(recording, n_particles=50, seed=7, max_points=60, keep_history=True)
     b = run_slam_2d(recording, n_particles=50, seed=7, max_points=60, keep_history=True)
     c = run_slam_2d(recording, n_particles=50, seed=8, max_points=60)
-    assert np.array_equal(a.estimated, b.estimated) and np.array_equal(a.world_map.counts, b.world_map.counts)
+    assert np.array_equal(a.estimated, b.estimated) and np.array_equal(
+        a.world_map.counts, b.world_map.counts
+    )
     assert not np.array_equal(a.estimated, c.estimated)
     assert a.particle_history.shape == (len(recording), 50, 3)
 
@@ -190,4 +281,6 @@ def test_sim2d_command_prints_both_maps_and_dead_reckoning(capsys):
 
     assert main(["sim2d", "--laps", "0.15", "--particles", "30", "--beams", "60"]) == 0
     out = capsys.readouterr().out
-    assert "SLAM, density" in out and "SLAM, likelihood" in out and "dead reckoning" in out
+    assert (
+        "SLAM, density" in out and "SLAM, likelihood" in out and "dead reckoning" in out
+    )

@@ -4,7 +4,6 @@ Each test states the formula or rule it pins; expected values are computed indep
 """
 
 import numpy as np
-import pytest
 
 from slamlib import geometry
 from slamlib.slam3d import steps
@@ -16,7 +15,9 @@ def _scan(n=200, seed=0):
     rng = np.random.default_rng(seed)
     az = rng.uniform(-np.pi, np.pi, n)
     r = rng.uniform(3.0, 30.0, n)
-    return np.column_stack([r * np.cos(az), r * np.sin(az), rng.uniform(-1.5, 1.0, n)]).astype(np.float32)
+    return np.column_stack(
+        [r * np.cos(az), r * np.sin(az), rng.uniform(-1.5, 1.0, n)]
+    ).astype(np.float32)
 
 
 TWIST = (np.array([12.0, 0.3, -0.1]), np.array([0.01, -0.02, 0.25]))
@@ -28,7 +29,9 @@ def test_deskew_scan_times_points_by_their_azimuth_in_the_velodyne_frame():
     in the Velodyne frame. A mounting turned 90 degrees about z shifts every firing time by a quarter sweep."""
     pts = _scan()
     config = ScanConfig(sweep_period=0.1)
-    T = geometry.make_pose(geometry.rpy_to_matrix([0.0, 0.0, np.pi / 2]), [0.8, -0.3, 1.7])
+    T = geometry.make_pose(
+        geometry.rpy_to_matrix([0.0, 0.0, np.pi / 2]), [0.8, -0.3, 1.7]
+    )
     velo = (pts.astype(np.float64) - T[:3, 3]) @ T[:3, :3]  # inv(T) p, written out
     expected = deskew(pts, *TWIST, sweep_times(velo, 0.1))
     got = steps.deskew_scan(pts, TWIST, config, T_body_velo=T)
@@ -36,7 +39,9 @@ def test_deskew_scan_times_points_by_their_azimuth_in_the_velodyne_frame():
     np.testing.assert_array_equal(got, expected)
     untilted = steps.deskew_scan(pts, TWIST, config)
     np.testing.assert_array_equal(untilted, deskew(pts, *TWIST, sweep_times(pts, 0.1)))
-    assert np.abs(got - untilted).max() > 0.1  # the mounting matters: a quarter sweep at 12 m/s is 0.3 m
+    assert (
+        np.abs(got - untilted).max() > 0.1
+    )  # the mounting matters: a quarter sweep at 12 m/s is 0.3 m
 
 
 def test_deskew_scan_moves_points_to_the_pose_time_given_the_scan_offset():
@@ -47,10 +52,16 @@ def test_deskew_scan_moves_points_to_the_pose_time_given_the_scan_offset():
     config = ScanConfig(sweep_period=0.1)
     got = steps.deskew_scan(pts, TWIST, config, time_offset=-0.02)
     np.testing.assert_array_equal(got, deskew(pts, *TWIST, sweep_times(pts, 0.1) - 0.02))
-    np.testing.assert_array_equal(steps.deskew_scan(pts, TWIST, config, time_offset=0.0),
-                                  steps.deskew_scan(pts, TWIST, config))
-    ahead = np.array([[20.0, 0.0, 0.0]], np.float32)  # azimuth 0: fired at the scan's stamp
-    moved = steps.deskew_scan(ahead, (np.array([12.0, 0.0, 0.0]), np.zeros(3)), config, time_offset=-0.02)
+    np.testing.assert_array_equal(
+        steps.deskew_scan(pts, TWIST, config, time_offset=0.0),
+        steps.deskew_scan(pts, TWIST, config),
+    )
+    ahead = np.array(
+        [[20.0, 0.0, 0.0]], np.float32
+    )  # azimuth 0: fired at the scan's stamp
+    moved = steps.deskew_scan(
+        ahead, (np.array([12.0, 0.0, 0.0]), np.zeros(3)), config, time_offset=-0.02
+    )
     np.testing.assert_allclose(moved, [[20.0 - 0.24, 0.0, 0.0]], atol=1e-5)
 
 

@@ -8,16 +8,30 @@ import math
 import numpy as np
 import pytest
 
-from slamlib.slam3d.sweep import COLUMNS, SweepTask, read_table, run_sweep, sweep_tasks, write_table
+from slamlib.slam3d.sweep import (
+    COLUMNS,
+    SweepTask,
+    read_table,
+    run_sweep,
+    sweep_tasks,
+    write_table,
+)
 
 
 def test_tasks_are_the_cross_product_with_kiss_icp_once_per_drive():
-    tasks = sweep_tasks(["07", "loop"], [0, 1], ["raw", "odometry"], ["slamlib", "kiss_icp"],
-                        [{"particles": 100}, {"particles": 300}], (0, 50))
+    tasks = sweep_tasks(
+        ["07", "loop"],
+        [0, 1],
+        ["raw", "odometry"],
+        ["slamlib", "kiss_icp"],
+        [{"particles": 100}, {"particles": 300}],
+        (0, 50),
+    )
     assert len(tasks) == 2 * 2 * 2 * (2 + 1)
     assert len({t.drive_key() for t in tasks}) == 8
-    assert sum(t.method == "kiss_icp" for t in tasks) == 8 and all(t.settings == {} for t in tasks
-                                                                      if t.method == "kiss_icp")
+    assert sum(t.method == "kiss_icp" for t in tasks) == 8 and all(
+        t.settings == {} for t in tasks if t.method == "kiss_icp"
+    )
     with pytest.raises(ValueError, match="layout must be one of"):
         sweep_tasks(["07"], [0], ["bag"])
     with pytest.raises(ValueError, match="method must be one of"):
@@ -28,32 +42,59 @@ def test_tasks_are_the_cross_product_with_kiss_icp_once_per_drive():
 def cluster():
     from distributed import LocalCluster
 
-    c = LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None)
+    c = LocalCluster(
+        n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None
+    )
     yield c
     c.close()
 
 
 def test_sweep_on_a_dask_cluster_writes_one_tidy_row_per_run(cluster, tmp_path):
-    tasks = sweep_tasks(["loop"], [0, 1], ["raw", "odometry"], ["slamlib", "kiss_icp"], [{"particles": 40}], (0, 6))
-    rows = run_sweep(tasks, tmp_path / "data", scheduler=cluster.scheduler_address, progress=False)
+    tasks = sweep_tasks(
+        ["loop"],
+        [0, 1],
+        ["raw", "odometry"],
+        ["slamlib", "kiss_icp"],
+        [{"particles": 40}],
+        (0, 6),
+    )
+    rows = run_sweep(
+        tasks, tmp_path / "data", scheduler=cluster.scheduler_address, progress=False
+    )
     assert len(rows) == len(tasks) == 8
-    assert len(list((tmp_path / "data").iterdir())) == 4  # one drive per (seed, layout), generated once
+    assert (
+        len(list((tmp_path / "data").iterdir())) == 4
+    )  # one drive per (seed, layout), generated once
     for task, row in zip(tasks, rows):
         assert tuple(row) == COLUMNS
-        assert (row["seed"], row["layout"], row["method"]) == (task.seed, task.layout, task.method)
+        assert (row["seed"], row["layout"], row["method"]) == (
+            task.seed,
+            task.layout,
+            task.method,
+        )
         assert row["frames"] == 6 and math.isfinite(row["ate_rmse_m"]) and row["fps"] > 0
-        assert math.isnan(row["kitti_t_err_percent"])  # a 6-frame drive is far shorter than 100 m
+        assert math.isnan(
+            row["kitti_t_err_percent"]
+        )  # a 6-frame drive is far shorter than 100 m
         assert math.isnan(row["dead_reckoning_kitti_t_err_percent"])
         # dead reckoning: slamlib's IMU-only twin, on the raw layout (the odometry layout has no IMU)
-        assert math.isfinite(row["dead_reckoning_ate_rmse_m"]) == (task.method == "slamlib" and task.layout == "raw")
-        assert row["settings"] == ('{"particles": 40}' if task.method == "slamlib" else "")
+        assert math.isfinite(row["dead_reckoning_ate_rmse_m"]) == (
+            task.method == "slamlib" and task.layout == "raw"
+        )
+        assert row["settings"] == (
+            '{"particles": 40}' if task.method == "slamlib" else ""
+        )
     # the same seed gives the same drive: slamlib's result on it does not depend on which worker ran it
-    again = run_sweep(tasks[:1], tmp_path / "data", scheduler=cluster.scheduler_address, progress=False)
+    again = run_sweep(
+        tasks[:1], tmp_path / "data", scheduler=cluster.scheduler_address, progress=False
+    )
     assert again[0]["ate_rmse_m"] == rows[0]["ate_rmse_m"]
     path = write_table(rows, tmp_path / "sweep.csv")
     back = read_table(path)
     assert [r["method"] for r in back] == [r["method"] for r in rows]
-    np.testing.assert_allclose([r["ate_rmse_m"] for r in back], [r["ate_rmse_m"] for r in rows], rtol=1e-12)
+    np.testing.assert_allclose(
+        [r["ate_rmse_m"] for r in back], [r["ate_rmse_m"] for r in rows], rtol=1e-12
+    )
 
 
 def test_a_failing_task_names_itself(cluster, tmp_path):
@@ -62,17 +103,20 @@ def test_a_failing_task_names_itself(cluster, tmp_path):
         run_sweep(bad, tmp_path, scheduler=cluster.scheduler_address, progress=False)
 
 
-@pytest.mark.parametrize("argv, message", [
-    (["--routes", "99"], "--routes: 99 not one of"),
-    (["--seeds", "a"], "--seeds must be comma-separated int"),
-    (["--seeds", "-1"], "--seeds must be >= 0"),
-    (["--layouts", "bag"], "--layouts: bag not one of"),
-    (["--particles", "0"], "--particles must be in"),
-    (["--refine", "-1"], "--refine must be in"),
-    (["--tilt-sigma", "nan"], "--tilt-sigma must be a finite number"),
-    (["--workers", "0"], "--workers must be >= 1"),
-    (["--routes", "07,loop", "--frames", "5:9"], "always starts at its beginning"),
-])
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["--routes", "99"], "--routes: 99 not one of"),
+        (["--seeds", "a"], "--seeds must be comma-separated int"),
+        (["--seeds", "-1"], "--seeds must be >= 0"),
+        (["--layouts", "bag"], "--layouts: bag not one of"),
+        (["--particles", "0"], "--particles must be in"),
+        (["--refine", "-1"], "--refine must be in"),
+        (["--tilt-sigma", "nan"], "--tilt-sigma must be a finite number"),
+        (["--workers", "0"], "--workers must be >= 1"),
+        (["--routes", "07,loop", "--frames", "5:9"], "always starts at its beginning"),
+    ],
+)
 def test_sweep_options_are_checked_before_any_work(tmp_path, argv, message):
     from slamlib.cli import main
 
@@ -101,30 +145,52 @@ def test_drive_options_name_their_drives_and_reach_the_generator(monkeypatch, tm
     plain = sweep_tasks(["07"], [0], ["raw"], ["slamlib"], [{}], (0, 5))[0]
     same = sweep_tasks(["07"], [0], ["raw"], ["slamlib"], [{}], (0, 5), DriveOptions())[0]
     assert plain.drive_key() == same.drive_key() and plain.drive.label() == ""
-    options = [DriveOptions(distortion=True), DriveOptions(traffic=2.0), DriveOptions(bias_walk=True),
-               DriveOptions(True, 1.0, True)]
-    keys = {sweep_tasks(["07"], [0], ["raw"], ["slamlib"], [{}], (0, 5), o)[0].drive_key() for o in options}
+    options = [
+        DriveOptions(distortion=True),
+        DriveOptions(traffic=2.0),
+        DriveOptions(bias_walk=True),
+        DriveOptions(True, 1.0, True),
+    ]
+    keys = {
+        sweep_tasks(["07"], [0], ["raw"], ["slamlib"], [{}], (0, 5), o)[0].drive_key()
+        for o in options
+    }
     assert len(keys) == 4 and plain.drive_key() not in keys
     assert DriveOptions(True, 2.0, True).label() == "distortion, traffic x2, bias walk"
     with pytest.raises(ValueError, match="traffic must be a finite number >= 0"):
         DriveOptions(traffic=-1.0)
     calls = []
     monkeypatch.setattr(synth, "write_drive", lambda *a, **kw: calls.append(("raw", kw)))
-    monkeypatch.setattr(synth, "write_sequence", lambda *a, **kw: calls.append(("odometry", kw)))
+    monkeypatch.setattr(
+        synth, "write_sequence", lambda *a, **kw: calls.append(("odometry", kw))
+    )
     for layout in ("raw", "odometry"):
-        drive_task(sweep_tasks(["07"], [0], [layout], ["slamlib"], [{}], (0, 5), DriveOptions(True, 2.0, True))[0],
-                   tmp_path)
+        drive_task(
+            sweep_tasks(
+                ["07"],
+                [0],
+                [layout],
+                ["slamlib"],
+                [{}],
+                (0, 5),
+                DriveOptions(True, 2.0, True),
+            )[0],
+            tmp_path,
+        )
     (raw, kw_raw), (odo, kw_odo) = calls
     assert kw_raw["distortion"] is True and kw_raw["traffic"] == KITTI_CITY.scaled(2.0)
     assert kw_raw["noise"] == synth.WANDERING_BIASES and "noise" not in kw_odo
     assert kw_odo["distortion"] is True and kw_odo["traffic"] == KITTI_CITY.scaled(2.0)
 
 
-@pytest.mark.parametrize("argv, message", [
-    (["--traffic", "0"], r"--traffic must be a density scale in \(0, 10\], got "),
-    (["--traffic", "11"], r"--traffic must be a density scale in \(0, 10\], got "),
-    (["--traffic", "nan"], r"--traffic must be a density scale in \(0, 10\], got "),
-])
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["--traffic", "0"], r"--traffic must be a density scale in \(0, 10\], got "),
+        (["--traffic", "11"], r"--traffic must be a density scale in \(0, 10\], got "),
+        (["--traffic", "nan"], r"--traffic must be a density scale in \(0, 10\], got "),
+    ],
+)
 def test_sweep_drive_options_are_checked(tmp_path, argv, message):
     from slamlib.cli import main
 
@@ -141,30 +207,90 @@ def test_a_sweep_with_every_drive_option_runs_end_to_end(cluster, tmp_path):
     from slamlib.slam3d.sweep import DriveOptions
     from slamlib.synth.writer import MARKER, drive_dir
 
-    tasks = sweep_tasks(["loop"], [0], ["raw"], ["slamlib", "kiss_icp"], [{"particles": 40, "deskew": True}], (0, 6),
-                        DriveOptions(True, 1.0, True))
-    rows = run_sweep(tasks, tmp_path / "data", scheduler=cluster.scheduler_address, progress=False)
+    tasks = sweep_tasks(
+        ["loop"],
+        [0],
+        ["raw"],
+        ["slamlib", "kiss_icp"],
+        [{"particles": 40, "deskew": True}],
+        (0, 6),
+        DriveOptions(True, 1.0, True),
+    )
+    rows = run_sweep(
+        tasks, tmp_path / "data", scheduler=cluster.scheduler_address, progress=False
+    )
     assert [r["drive"] for r in rows] == ["distortion, traffic x1, bias walk"] * 2
     assert all(math.isfinite(r["ate_rmse_m"]) for r in rows)
     assert json.loads(rows[0]["settings"]) == {"deskew": True, "particles": 40}
-    marker = json.loads((drive_dir(tmp_path / "data" / tasks[0].drive_key(), "2011_09_26", 1) / MARKER).read_text())
-    assert marker["distortion"] is True and "traffic" in marker and marker["noise"]["gyro_bias_walk"] > 0
+    marker = json.loads(
+        (
+            drive_dir(tmp_path / "data" / tasks[0].drive_key(), "2011_09_26", 1) / MARKER
+        ).read_text()
+    )
+    assert (
+        marker["distortion"] is True
+        and "traffic" in marker
+        and marker["noise"]["gyro_bias_walk"] > 0
+    )
 
 
-def test_the_sweep_command_writes_its_table_plot_and_provenance(cluster, tmp_path, capsys):
+def test_the_sweep_command_writes_its_table_plot_and_provenance(
+    cluster, tmp_path, capsys
+):
     from slamlib.cli import main
     from slamlib.synth import GENERATOR_VERSION
 
     out = tmp_path / "out"
-    assert main(["sweep", "--out", str(out), "--data", str(tmp_path / "data"), "--routes", "loop", "--frames", "4",
-                 "--seeds", "0", "--methods", "slamlib", "--particles", "20", "--refine", "1",
-                 "--tilt-sigma", "0.01", "--scan-match", "--no-progress",
-                 "--scheduler", cluster.scheduler_address]) == 0
+    assert (
+        main(
+            [
+                "sweep",
+                "--out",
+                str(out),
+                "--data",
+                str(tmp_path / "data"),
+                "--routes",
+                "loop",
+                "--frames",
+                "4",
+                "--seeds",
+                "0",
+                "--methods",
+                "slamlib",
+                "--particles",
+                "20",
+                "--refine",
+                "1",
+                "--tilt-sigma",
+                "0.01",
+                "--scan-match",
+                "--no-progress",
+                "--scheduler",
+                cluster.scheduler_address,
+            ]
+        )
+        == 0
+    )
     rows = read_table(out / "sweep.csv")
-    assert [(r["route"], r["seed"], r["method"], r["frames"]) for r in rows] == [("loop", 0, "slamlib", 4)]
-    assert json.loads(rows[0]["settings"]) == {"particles": 20, "refine": 1, "tilt_sigma": 0.01, "scan_match": True}
+    assert [(r["route"], r["seed"], r["method"], r["frames"]) for r in rows] == [
+        ("loop", 0, "slamlib", 4)
+    ]
+    assert json.loads(rows[0]["settings"]) == {
+        "particles": 20,
+        "refine": 1,
+        "tilt_sigma": 0.01,
+        "scan_match": True,
+    }
     info = json.loads((out / "sweep.json").read_text())
-    assert info["command"].startswith("slamlib sweep ") and "--particles 20" in info["command"]
-    assert info["generator_version"] == GENERATOR_VERSION and info["scheduler"] == cluster.scheduler_address
+    assert (
+        info["command"].startswith("slamlib sweep ")
+        and "--particles 20" in info["command"]
+    )
+    assert (
+        info["generator_version"] == GENERATOR_VERSION
+        and info["scheduler"] == cluster.scheduler_address
+    )
     assert info["machine"]["cores"] >= 1 and info["seconds"] > 0
-    assert (out / "sweep.png").stat().st_size > 0 and "sweep.json" in capsys.readouterr().out
+    assert (
+        out / "sweep.png"
+    ).stat().st_size > 0 and "sweep.json" in capsys.readouterr().out

@@ -9,8 +9,20 @@ from slamlib.kitti.scan_stats import elevation_fractions
 from slamlib.kitti.timestamps import read_timestamps_ns
 from slamlib.odometry import dead_reckon
 from slamlib.paths import kitti_sample_dir
-from slamlib.synth import (WANDERING_BIASES, ZERO_NOISE, Hdl64, ImuNoise, hdl64_elevations, kitti_route, loop_route,
-                           oxts_packets, ray_directions, resolve_route, simulate_scan, write_drive)
+from slamlib.synth import (
+    WANDERING_BIASES,
+    ZERO_NOISE,
+    Hdl64,
+    ImuNoise,
+    hdl64_elevations,
+    kitti_route,
+    loop_route,
+    oxts_packets,
+    ray_directions,
+    resolve_route,
+    simulate_scan,
+    write_drive,
+)
 from slamlib.synth.writer import drive_dir
 
 FAST_LIDAR = Hdl64(columns=500)
@@ -25,14 +37,25 @@ def tiny_drive(tmp_path_factory):
 
 def test_layout_is_kitti_raw(tiny_drive):
     d = drive_dir(tiny_drive, "2011_09_26", 1)
-    for name in ("calib_imu_to_velo.txt", "calib_velo_to_cam.txt", "calib_cam_to_cam.txt"):
-        assert (tiny_drive / "2011_09_26" / name).read_bytes() == \
-            (kitti_sample_dir() / "raw" / "2011_09_26" / name).read_bytes()
-    assert sorted(p.name for p in (d / "oxts" / "data").iterdir()) == [f"{i:010d}.txt" for i in range(5)]
-    assert sorted(p.name for p in (d / "velodyne_points" / "data").iterdir()) == [f"{i:010d}.bin" for i in range(5)]
+    for name in (
+        "calib_imu_to_velo.txt",
+        "calib_velo_to_cam.txt",
+        "calib_cam_to_cam.txt",
+    ):
+        assert (tiny_drive / "2011_09_26" / name).read_bytes() == (
+            kitti_sample_dir() / "raw" / "2011_09_26" / name
+        ).read_bytes()
+    assert sorted(p.name for p in (d / "oxts" / "data").iterdir()) == [
+        f"{i:010d}.txt" for i in range(5)
+    ]
+    assert sorted(p.name for p in (d / "velodyne_points" / "data").iterdir()) == [
+        f"{i:010d}.bin" for i in range(5)
+    ]
     for name in ("timestamps.txt", "timestamps_start.txt", "timestamps_end.txt"):
         lines = (d / "velodyne_points" / name).read_text().splitlines()
-        assert len(lines) == 5 and all(len(x) == 29 and x.startswith("2011-09-26 ") for x in lines)
+        assert len(lines) == 5 and all(
+            len(x) == 29 and x.startswith("2011-09-26 ") for x in lines
+        )
     assert (d / "oxts" / "dataformat.txt").exists()
 
 
@@ -42,7 +65,9 @@ def test_pykitti_loads_and_ground_truth_matches_route(tiny_drive):
     scan = data.get_velo(2)
     assert scan.shape[1] == 4 and scan.dtype == np.float32 and len(scan) > 50000
     route, _ = resolve_route("07", (0, 5))
-    ns = read_timestamps_ns(drive_dir(tiny_drive, "2011_09_26", 1) / "oxts" / "timestamps.txt")
+    ns = read_timestamps_ns(
+        drive_dir(tiny_drive, "2011_09_26", 1) / "oxts" / "timestamps.txt"
+    )
     truth = route.pose(route.t0 + (ns - ns[0]) * 1e-9)
     T0 = data.oxts[0].T_w_imu
     for k, o in enumerate(data.oxts):
@@ -52,9 +77,15 @@ def test_pykitti_loads_and_ground_truth_matches_route(tiny_drive):
 
 
 def test_deterministic_from_seed(tmp_path):
-    a = write_drive(tmp_path / "a", "loop", frames=3, seed=7, lidar=FAST_LIDAR, progress=False)[0]
-    b = write_drive(tmp_path / "b", "loop", frames=3, seed=7, lidar=FAST_LIDAR, progress=False)[0]
-    c = write_drive(tmp_path / "c", "loop", frames=3, seed=8, lidar=FAST_LIDAR, progress=False)[0]
+    a = write_drive(
+        tmp_path / "a", "loop", frames=3, seed=7, lidar=FAST_LIDAR, progress=False
+    )[0]
+    b = write_drive(
+        tmp_path / "b", "loop", frames=3, seed=7, lidar=FAST_LIDAR, progress=False
+    )[0]
+    c = write_drive(
+        tmp_path / "c", "loop", frames=3, seed=8, lidar=FAST_LIDAR, progress=False
+    )[0]
     rel = "2011_09_26/2011_09_26_drive_0001_sync/velodyne_points/data/0000000002.bin"
     assert (a / rel).read_bytes() == (b / rel).read_bytes()
     assert (a / rel).read_bytes() != (c / rel).read_bytes()
@@ -70,11 +101,19 @@ def test_scan_statistics_close_to_real(tiny_drive, tmp_path):
     The real sample is one place (stop-and-go traffic); a single synthetic place differs more, mostly in the
     top bin (sky or facade at the horizon), so the statistic is taken over five places of the route.
     """
-    real = [np.fromfile(p, np.float32).reshape(-1, 4) for p in sorted((kitti_sample_dir() / "velodyne_sample").glob("*.bin"))]
+    real = [
+        np.fromfile(p, np.float32).reshape(-1, 4)
+        for p in sorted((kitti_sample_dir() / "velodyne_sample").glob("*.bin"))
+    ]
     syn = []
     for k, frames in enumerate(PLACES):
-        base = tiny_drive if frames == (0, 5) else write_drive(tmp_path / str(k), "07", frames=frames, seed=3,
-                                                               progress=False)[0]
+        base = (
+            tiny_drive
+            if frames == (0, 5)
+            else write_drive(
+                tmp_path / str(k), "07", frames=frames, seed=3, progress=False
+            )[0]
+        )
         data = pykitti.raw(str(base), "2011_09_26", "0001")
         syn += [data.get_velo(k) for k in range(5)]
     n_real = np.mean([len(s) for s in real])
@@ -143,7 +182,7 @@ def test_oxts_pose_fields_exact_on_loop():
 def test_route_07_is_planar_z_up():
     r = kitti_route("07")
     p = r.position(np.linspace(r.t0, r.t1, 1000))
-    assert 650 < r.length() < 740          # KITTI reports 694.7 m for sequence 07
+    assert 650 < r.length() < 740  # KITTI reports 694.7 m for sequence 07
     assert np.ptp(p[:, 2]) < 0.05 * np.ptp(p[:, :2], axis=0).max()
     f = r.specific_force_body(np.linspace(r.t0, r.t1, 200))
     assert abs(np.median(f[:, 2]) - 9.81) < 0.3
@@ -164,7 +203,9 @@ def test_bias_walk_is_a_wiener_process_sampled_at_the_times():
     rng = np.random.default_rng(40)
     walks = np.stack([bias_walk(t, 0.2, rng) for _ in range(4000)])  # (4000, 5, 3)
     assert np.all(walks[:, 0] == 0.0)
-    var = walks.reshape(4000, 5, 3).var(axis=0).mean(axis=1)  # per time, averaged over the 3 axes
+    var = (
+        walks.reshape(4000, 5, 3).var(axis=0).mean(axis=1)
+    )  # per time, averaged over the 3 axes
     np.testing.assert_allclose(var[1:], 0.04 * t[1:], rtol=0.06)
     inc = np.diff(walks, axis=1)
     r = np.corrcoef(inc[:, 1, 0], inc[:, 2, 0])[0, 1]
@@ -178,16 +219,29 @@ def test_wandering_biases_change_only_velocity_and_gyro_fields():
     the two gyro groups, which both carry the same walk; the walk's spread after 600 s is ``q sqrt(600)``."""
     r = kitti_route("07", (0, 60))
     t = np.linspace(r.t0, r.t1, 60)
-    base, walk = oxts_packets(r, t, ImuNoise(), seed=3), oxts_packets(r, t, WANDERING_BIASES, seed=3)
+    base, walk = (
+        oxts_packets(r, t, ImuNoise(), seed=3),
+        oxts_packets(r, t, WANDERING_BIASES, seed=3),
+    )
     same = np.r_[0:8, 11:17, 23:30]
     np.testing.assert_array_equal(walk[:, same], base[:, same])
     d_xyz, d_flu = walk[:, 17:20] - base[:, 17:20], walk[:, 20:23] - base[:, 20:23]
     np.testing.assert_allclose(d_xyz, d_flu, atol=1e-15)
     assert np.all(d_xyz[0] == 0) and np.all(np.abs(d_xyz[1:]).max(axis=0) > 0)
-    assert np.all(walk[0, 8:11] == base[0, 8:11]) and np.abs(walk[1:, 8:11] - base[1:, 8:11]).max() > 0
-    ends = np.array([oxts_packets(r, np.array([0.0, 600.0]), WANDERING_BIASES, seed=s)[1, 20:23]
-                     - oxts_packets(r, np.array([0.0, 600.0]), ImuNoise(), seed=s)[1, 20:23] for s in range(400)])
-    assert ends.std() == pytest.approx(WANDERING_BIASES.gyro_bias_walk * np.sqrt(600.0), rel=0.1)
+    assert (
+        np.all(walk[0, 8:11] == base[0, 8:11])
+        and np.abs(walk[1:, 8:11] - base[1:, 8:11]).max() > 0
+    )
+    ends = np.array(
+        [
+            oxts_packets(r, np.array([0.0, 600.0]), WANDERING_BIASES, seed=s)[1, 20:23]
+            - oxts_packets(r, np.array([0.0, 600.0]), ImuNoise(), seed=s)[1, 20:23]
+            for s in range(400)
+        ]
+    )
+    assert ends.std() == pytest.approx(
+        WANDERING_BIASES.gyro_bias_walk * np.sqrt(600.0), rel=0.1
+    )
 
 
 def test_oxts_stamps_follow_the_real_sawtooth():
@@ -212,12 +266,16 @@ def test_oxts_stamps_follow_the_real_sawtooth():
 def test_a_scene_of_boxes_is_hit_where_its_faces_are():
     from slamlib.synth import Scene
 
-    scene = Scene.from_boxes([((10.0, -2.0, 0.0), (10.5, 2.0, 3.0)), ((-8.0, -1.0, 0.0), (-7.0, 1.0, 1.0))])
+    scene = Scene.from_boxes(
+        [((10.0, -2.0, 0.0), (10.5, 2.0, 3.0)), ((-8.0, -1.0, 0.0), (-7.0, 1.0, 1.0))]
+    )
     assert scene.n_triangles == 24 and set(scene.kind) == {Scene.KINDS.index("wall")}
     lidar = Hdl64(columns=360, beam_stride=4, sigma_range=0.0, dropout=0.0)
     origin = np.eye(4)
     origin[2, 3] = 0.5
-    scan = simulate_scan(scene.raycasting_scene(), scene.albedo, origin, np.random.default_rng(0), lidar)
+    scan = simulate_scan(
+        scene.raycasting_scene(), scene.albedo, origin, np.random.default_rng(0), lidar
+    )
     ahead = scan[(np.abs(scan[:, 1]) < 1.5) & (scan[:, 0] > 0)]
     behind = scan[(np.abs(scan[:, 1]) < 0.5) & (scan[:, 0] < 0)]
     np.testing.assert_allclose(ahead[:, 0], 10.0, atol=1e-4)  # the near face of each box
@@ -234,12 +292,22 @@ def test_default_drive_is_realistic_unless_asked_for_the_still_one(tmp_path, mon
 
     monkeypatch.setenv("SLAMLIB_CACHE", str(tmp_path))
     calls = []
-    monkeypatch.setattr(drive_module, "write_drive", lambda basedir, *a, **kw: calls.append((basedir, kw)))
+    monkeypatch.setattr(
+        drive_module, "write_drive", lambda basedir, *a, **kw: calls.append((basedir, kw))
+    )
     drive_module.default_drive(progress=False)
     drive_module.default_drive(progress=False, realism=False)
     drive_module.default_drive(progress=False, noise=ZERO_NOISE)
     (real_dir, real), (still_dir, still), (_, quiet) = calls
-    assert real["distortion"] is True and real["traffic"] == KITTI_CITY and real["noise"] == WANDERING_BIASES
-    assert still["distortion"] is False and still["traffic"] is None and still["noise"] == ImuNoise()
+    assert (
+        real["distortion"] is True
+        and real["traffic"] == KITTI_CITY
+        and real["noise"] == WANDERING_BIASES
+    )
+    assert (
+        still["distortion"] is False
+        and still["traffic"] is None
+        and still["noise"] == ImuNoise()
+    )
     assert quiet["distortion"] is True and quiet["noise"] == ZERO_NOISE
     assert len({real_dir, still_dir, calls[2][0]}) == 3

@@ -9,7 +9,14 @@ import pytest
 from slamlib.cli import main
 from slamlib.commands import synth as synth_command
 from slamlib.kitti import KittiRawDrive
-from slamlib.synth import DEFAULT_FRAMES, ROUTE_NAMES, WANDERING_BIASES, ZERO_NOISE, Hdl64, ImuNoise
+from slamlib.synth import (
+    DEFAULT_FRAMES,
+    ROUTE_NAMES,
+    WANDERING_BIASES,
+    ZERO_NOISE,
+    Hdl64,
+    ImuNoise,
+)
 from slamlib.synth.writer import MARKER, drive_dir
 
 TINY = ["--columns", "200", "--frames", "0:3", "--no-progress"]
@@ -35,7 +42,11 @@ def test_writes_a_drive_pykitti_reads(tmp_path, capsys):
     drive = KittiRawDrive(out, "2011_09_26", 7)
     assert len(drive) == 3 and np.allclose(drive.ground_truth_poses()[0], np.eye(4))
     marker = json.loads((drive_dir(out, "2011_09_26", 7) / MARKER).read_text())
-    assert marker["seed"] == 2 and marker["lidar"]["columns"] == 200 and marker["route"] == "kitti07"
+    assert (
+        marker["seed"] == 2
+        and marker["lidar"]["columns"] == 200
+        and marker["route"] == "kitti07"
+    )
 
 
 def test_no_scans_writes_no_bin_files(tmp_path, capsys):
@@ -50,21 +61,45 @@ def test_no_scans_writes_no_bin_files(tmp_path, capsys):
 
 def test_imu_noise_zero_gives_exact_fields(tmp_path):
     out = tmp_path / "z"
-    assert main(["synth", "--out", str(out), "--route", "loop", "--frames", "4", "--imu-noise", "0", "--no-scans",
-                 "--no-progress"]) == 0
+    assert (
+        main(
+            [
+                "synth",
+                "--out",
+                str(out),
+                "--route",
+                "loop",
+                "--frames",
+                "4",
+                "--imu-noise",
+                "0",
+                "--no-scans",
+                "--no-progress",
+            ]
+        )
+        == 0
+    )
     marker = json.loads((drive_dir(out, "2011_09_26", 1) / MARKER).read_text())
     assert marker["noise"] == ZERO_NOISE.as_dict() and marker["frames"] == 4
     packets = pykitti.raw(str(out), "2011_09_26", "0001").oxts
     vf = np.array([p.packet.vf for p in packets])
     wu = np.array([p.packet.wu for p in packets])
-    assert np.allclose(vf, 8.0, atol=1e-6) and np.allclose(wu, 8.0 / 60.0, atol=1e-6)  # the 60 m, 8 m/s circle
+    assert np.allclose(vf, 8.0, atol=1e-6) and np.allclose(
+        wu, 8.0 / 60.0, atol=1e-6
+    )  # the 60 m, 8 m/s circle
 
 
 def test_imu_noise_scaled():
-    assert ImuNoise().scaled(0) == ZERO_NOISE and ImuNoise().scaled(0).as_dict() == ZERO_NOISE.as_dict()
+    assert (
+        ImuNoise().scaled(0) == ZERO_NOISE
+        and ImuNoise().scaled(0).as_dict() == ZERO_NOISE.as_dict()
+    )
     assert ImuNoise().scaled(1) == ImuNoise()
     two = ImuNoise().scaled(2)
-    assert two.gyro_bias == tuple(2 * x for x in ImuNoise().gyro_bias) and two.vel_sigma == 2 * ImuNoise().vel_sigma
+    assert (
+        two.gyro_bias == tuple(2 * x for x in ImuNoise().gyro_bias)
+        and two.vel_sigma == 2 * ImuNoise().vel_sigma
+    )
     with pytest.raises(ValueError):
         ImuNoise().scaled(-0.5)
 
@@ -72,35 +107,50 @@ def test_imu_noise_scaled():
 def test_rewrites_its_own_drive_but_never_a_real_one(tmp_path, capsys):
     out = tmp_path / "o"
     assert main(["synth", "--out", str(out), "--no-scans", *TINY]) == 0
-    assert main(["synth", "--out", str(out), "--no-scans", "--seed", "1", *TINY]) == 0   # ours: replaced
+    assert (
+        main(["synth", "--out", str(out), "--no-scans", "--seed", "1", *TINY]) == 0
+    )  # ours: replaced
     real = drive_dir(out, "2011_09_26", 2)
     real.mkdir(parents=True)
     (real / "keep.txt").write_text("real data")
     with pytest.raises(SystemExit) as exc:
         main(["synth", "--out", str(out), "--drive", "2", "--no-scans", *TINY])
-    assert "not a slamlib synthetic drive" in str(exc.value) and (real / "keep.txt").exists()
+    assert (
+        "not a slamlib synthetic drive" in str(exc.value) and (real / "keep.txt").exists()
+    )
     (out / "2011_09_30").mkdir()
-    (out / "2011_09_30" / "calib_imu_to_velo.txt").write_text("R: 1 0 0 0 1 0 0 0 1\nT: 0 0 0\n")
+    (out / "2011_09_30" / "calib_imu_to_velo.txt").write_text(
+        "R: 1 0 0 0 1 0 0 0 1\nT: 0 0 0\n"
+    )
     with pytest.raises(SystemExit) as exc:
         main(["synth", "--out", str(out), "--date", "2011_09_30", "--no-scans", *TINY])
     assert "differs from the 2011_09_26 calibration" in str(exc.value)
 
 
-@pytest.mark.parametrize("args, message", [
-    (["--frames", "0:5000"], "out of range"),                       # past the end of sequence 07 (1101 key frames)
-    (["--frames", "5000:"], "out of range"),
-    (["--frames", "1095:1101"], "spans only"),                      # the last key frames span fewer frames
-    (["--frames", "3:2"], "selects no frames"),
-    (["--frames", "a:b"], "--frames must look like"),
-    (["--route", "loop", "--frames", "5:9"], "always starts at its beginning"),
-    (["--route", "straight", "--frames", "5000"], "spans at most"),
-    (["--imu-noise", "-1"], "--imu-noise"),
-    (["--imu-noise", "nan"], "--imu-noise"),
-    (["--date", "2011-09-26"], "YYYY_MM_DD"),
-    (["--drive", "10000"], "--drive"),
-    (["--columns", "3"], "--columns"),
-    (["--seed", "-2"], "--seed"),
-])
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (
+            ["--frames", "0:5000"],
+            "out of range",
+        ),  # past the end of sequence 07 (1101 key frames)
+        (["--frames", "5000:"], "out of range"),
+        (
+            ["--frames", "1095:1101"],
+            "spans only",
+        ),  # the last key frames span fewer frames
+        (["--frames", "3:2"], "selects no frames"),
+        (["--frames", "a:b"], "--frames must look like"),
+        (["--route", "loop", "--frames", "5:9"], "always starts at its beginning"),
+        (["--route", "straight", "--frames", "5000"], "spans at most"),
+        (["--imu-noise", "-1"], "--imu-noise"),
+        (["--imu-noise", "nan"], "--imu-noise"),
+        (["--date", "2011-09-26"], "YYYY_MM_DD"),
+        (["--drive", "10000"], "--drive"),
+        (["--columns", "3"], "--columns"),
+        (["--seed", "-2"], "--seed"),
+    ],
+)
 def test_bad_arguments_exit_with_one_line(tmp_path, args, message):
     out = tmp_path / "bad"
     with pytest.raises(SystemExit) as exc:
@@ -118,20 +168,46 @@ def test_unknown_route_is_an_argparse_error(tmp_path, capsys):
 
 def test_parse_route_frames():
     p = synth_command.parse_route_frames
-    assert p("10:20", "07") == (10, 20) and p("10:", "00") == (10, None) and p("25", "05") == (0, 25)
+    assert (
+        p("10:20", "07") == (10, 20)
+        and p("10:", "00") == (10, None)
+        and p("25", "05") == (0, 25)
+    )
     assert p(":7", "07") == (0, 7)
-    assert p("40", "loop") == 40 and p("0:40", "straight") == 40 and p("0:", "loop") is None
+    assert (
+        p("40", "loop") == 40 and p("0:40", "straight") == 40 and p("0:", "loop") is None
+    )
 
 
 def test_bias_walk_flag_writes_wandering_biases(tmp_path):
     """``--bias-walk`` writes the drive with :data:`WANDERING_BIASES` (recorded in the marker, scaled by
     ``--imu-noise``); without it the biases stay constant (walks 0)."""
     out = tmp_path / "w"
-    assert main(["synth", "--out", str(out), "--route", "loop", "--frames", "4", "--imu-noise", "2", "--bias-walk",
-                 "--no-scans", "--no-progress"]) == 0
+    assert (
+        main(
+            [
+                "synth",
+                "--out",
+                str(out),
+                "--route",
+                "loop",
+                "--frames",
+                "4",
+                "--imu-noise",
+                "2",
+                "--bias-walk",
+                "--no-scans",
+                "--no-progress",
+            ]
+        )
+        == 0
+    )
     marker = json.loads((drive_dir(out, "2011_09_26", 1) / MARKER).read_text())
     assert marker["noise"] == WANDERING_BIASES.scaled(2).as_dict()
-    assert marker["noise"]["gyro_bias_walk"] == 4e-4 and ImuNoise().as_dict()["gyro_bias_walk"] == 0.0
+    assert (
+        marker["noise"]["gyro_bias_walk"] == 4e-4
+        and ImuNoise().as_dict()["gyro_bias_walk"] == 0.0
+    )
 
 
 @pytest.mark.parametrize("layout", ["raw", "odometry"])
@@ -141,7 +217,29 @@ def test_distortion_flag_writes_swept_scans(tmp_path, layout):
 
     for flag, name in (([], "plain"), (["--distortion"], "swept")):
         out = tmp_path / name
-        assert main(["synth", "--out", str(out), "--route", "loop", "--frames", "3", "--columns", "90",
-                     "--layout", layout, "--no-progress"] + flag) == 0
-        folder = drive_dir(out, "2011_09_26", 1) if layout == "raw" else out / "sequences" / "00"
+        assert (
+            main(
+                [
+                    "synth",
+                    "--out",
+                    str(out),
+                    "--route",
+                    "loop",
+                    "--frames",
+                    "3",
+                    "--columns",
+                    "90",
+                    "--layout",
+                    layout,
+                    "--no-progress",
+                ]
+                + flag
+            )
+            == 0
+        )
+        folder = (
+            drive_dir(out, "2011_09_26", 1)
+            if layout == "raw"
+            else out / "sequences" / "00"
+        )
         assert read_marker(folder).get("distortion", False) is bool(flag)

@@ -6,13 +6,40 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from slamlib.synth import (Hdl64, drive_traffic, loop_route, simulate_scan, straight_route, write_drive,
-                           write_sequence)
+from slamlib.synth import (
+    Hdl64,
+    drive_traffic,
+    loop_route,
+    simulate_scan,
+    straight_route,
+    write_drive,
+    write_sequence,
+)
 from slamlib.synth.drive import _streams, resolve_route
-from slamlib.synth.lidar import MOVER_BLOCKS, SCAN_PERIOD_S, _sweep_blocks, column_time_offsets, ray_columns
-from slamlib.synth.traffic import (CYCLE_LANE, CYCLIST_SPEED, FOLLOW_GAP_S, FOLLOW_MIN_DIST, KEEP_RIGHT, KINDS,
-                                   LEFT_LANE, ONCOMING_SPEED, OVERTAKE_EXCESS, PEDESTRIAN_SPEED, SIDEWALK,
-                                   SIDEWALK_JITTER, TrafficConfig, build_traffic, points_in_boxes)
+from slamlib.synth.lidar import (
+    MOVER_BLOCKS,
+    SCAN_PERIOD_S,
+    _sweep_blocks,
+    column_time_offsets,
+    ray_columns,
+)
+from slamlib.synth.traffic import (
+    CYCLE_LANE,
+    CYCLIST_SPEED,
+    FOLLOW_GAP_S,
+    FOLLOW_MIN_DIST,
+    KEEP_RIGHT,
+    KINDS,
+    LEFT_LANE,
+    ONCOMING_SPEED,
+    OVERTAKE_EXCESS,
+    PEDESTRIAN_SPEED,
+    SIDEWALK,
+    SIDEWALK_JITTER,
+    TrafficConfig,
+    build_traffic,
+    points_in_boxes,
+)
 from slamlib.synth.writer import drive_dir, read_marker
 
 TINY = Hdl64(columns=64, beam_stride=4)
@@ -25,14 +52,24 @@ AHEAD, BEHIND, ONCOMING, OVERTAKING, CYCLIST, PEDESTRIAN = range(len(KINDS))
 #: per machine family, each recorded by running that commit's own code on such a machine.
 #: The swept ones re-recorded for synth-4 (the first scan's sweep continues the route's motion before its start,
 #: :meth:`Route.pose_extended`; tests/test_sweep_distortion.py checks that change by itself), from commit 99bf131.
-GOLDEN = {("drive", False): {"4644ac3449cce5c9447507f2f29e793a4e08dcd5fb0d06d01d79a2c0b019b1b0",  # AMD EPYC, AVX2
-                             "4a04125b7a857a99adba0617861ad3e9852f9043d0ee0031ddd61ac1e24f92b6"},  # Xeon, AVX-512
-          ("drive", True): {"110f60d5ef61b199fbe9662c729850905be60384c1b8f4665459a44e40960ab1",
-                            "f37d8a373ce6e914e2f82f9fd1f00902039e86f08021bc309bc56edc1f5e6830"},
-          ("sequence", False): {"6789b46f8c6512dbf8739bb47aa548346345ad211e6d930c557d5b467ca49920",
-                                "37d5187cffac43c4cbf84dc51a4e59754e66e560038030d8a4cde6c6643df2b0"},
-          ("sequence", True): {"f16fe11e9fcae77d499e2f416fab1ccde334885736e9f7c239b17c3eaf3fc12b",
-                               "a0804e149aeb19131be33168a11d104bcbd4c11d284d34a5cedbf2d3bd95a3c5"}}
+GOLDEN = {
+    ("drive", False): {
+        "4644ac3449cce5c9447507f2f29e793a4e08dcd5fb0d06d01d79a2c0b019b1b0",  # AMD EPYC, AVX2
+        "4a04125b7a857a99adba0617861ad3e9852f9043d0ee0031ddd61ac1e24f92b6",
+    },  # Xeon, AVX-512
+    ("drive", True): {
+        "110f60d5ef61b199fbe9662c729850905be60384c1b8f4665459a44e40960ab1",
+        "f37d8a373ce6e914e2f82f9fd1f00902039e86f08021bc309bc56edc1f5e6830",
+    },
+    ("sequence", False): {
+        "6789b46f8c6512dbf8739bb47aa548346345ad211e6d930c557d5b467ca49920",
+        "37d5187cffac43c4cbf84dc51a4e59754e66e560038030d8a4cde6c6643df2b0",
+    },
+    ("sequence", True): {
+        "f16fe11e9fcae77d499e2f416fab1ccde334885736e9f7c239b17c3eaf3fc12b",
+        "a0804e149aeb19131be33168a11d104bcbd4c11d284d34a5cedbf2d3bd95a3c5",
+    },
+}
 
 
 def _digest(root: Path) -> str:
@@ -46,11 +83,25 @@ def _digest(root: Path) -> str:
 
 
 def _traffic(route, duration, config=TrafficConfig(), seed=1):
-    return build_traffic(route, route.t0, route.t0 + duration, config, np.random.default_rng(seed))
+    return build_traffic(
+        route, route.t0, route.t0 + duration, config, np.random.default_rng(seed)
+    )
 
 
 def _arrays(tr):
-    return [tr.kind, tr.lateral, tr.heading, tr.size, tr.albedo, tr.b, tr.c, tr.t_ref, tr.gap, tr.t_on, tr.t_off]
+    return [
+        tr.kind,
+        tr.lateral,
+        tr.heading,
+        tr.size,
+        tr.albedo,
+        tr.b,
+        tr.c,
+        tr.t_ref,
+        tr.gap,
+        tr.t_on,
+        tr.t_off,
+    ]
 
 
 def test_deterministic_by_seed():
@@ -72,9 +123,14 @@ def test_counts_scale_with_density():
     assert np.all(one >= np.round(base.per_km() * r.length() / 1000) - 1)
     # every kind but the overtaking cars, which fit only into gaps of the oncoming lane, keeps its rate
     rest = np.arange(len(KINDS)) != OVERTAKING
-    assert np.all(one > 0) and np.all(np.abs(three[rest] - 3 * one[rest]) <= 0.1 * 3 * one[rest] + 1)
+    assert np.all(one > 0) and np.all(
+        np.abs(three[rest] - 3 * one[rest]) <= 0.1 * 3 * one[rest] + 1
+    )
     assert len(_traffic(r, 60, base.scaled(0))) == 0
-    assert base.scaled(2).density == 2.0 and base.scaled(2).per_km()[ONCOMING] == 2 * base.oncoming
+    assert (
+        base.scaled(2).density == 2.0
+        and base.scaled(2).per_km()[ONCOMING] == 2 * base.oncoming
+    )
     with pytest.raises(ValueError):
         TrafficConfig(density=-1.0)
 
@@ -112,21 +168,35 @@ def test_lanes_directions_and_speeds_on_a_straight_route():
             sign = 1 if kind == AHEAD else -1
             assert np.allclose(c[:, 1], 0.0, atol=1e-9) and along.all()
             gap = sign * (c[:, 0] - ego_x)
-            assert gap.min() >= FOLLOW_MIN_DIST and gap.max() <= 10.0 * FOLLOW_GAP_S[1] + 1.0
+            assert (
+                gap.min() >= FOLLOW_MIN_DIST and gap.max() <= 10.0 * FOLLOW_GAP_S[1] + 1.0
+            )
             assert np.allclose(vx, 10.0, atol=0.05)
         elif kind == ONCOMING:
             assert np.allclose(c[:, 1], LEFT_LANE) and not along.any()
-            assert np.all((-vx >= ONCOMING_SPEED[0] - 1e-6) & (-vx <= ONCOMING_SPEED[1] + 1e-6))
+            assert np.all(
+                (-vx >= ONCOMING_SPEED[0] - 1e-6) & (-vx <= ONCOMING_SPEED[1] + 1e-6)
+            )
         elif kind == OVERTAKING:
             assert np.allclose(c[:, 1], LEFT_LANE) and along.all()
-            assert np.all((vx - 10.0 >= OVERTAKE_EXCESS[0] - 1e-6) & (vx - 10.0 <= OVERTAKE_EXCESS[1] + 1e-6))
+            assert np.all(
+                (vx - 10.0 >= OVERTAKE_EXCESS[0] - 1e-6)
+                & (vx - 10.0 <= OVERTAKE_EXCESS[1] + 1e-6)
+            )
         elif kind == CYCLIST:
             assert np.allclose(c[:, 1], CYCLE_LANE) and along.all()
-            assert np.all((vx >= CYCLIST_SPEED[0] - 1e-6) & (vx <= CYCLIST_SPEED[1] + 1e-6))
+            assert np.all(
+                (vx >= CYCLIST_SPEED[0] - 1e-6) & (vx <= CYCLIST_SPEED[1] + 1e-6)
+            )
         else:
             speed = np.abs(vx)
-            assert np.all((speed >= PEDESTRIAN_SPEED[0] - 1e-6) & (speed <= PEDESTRIAN_SPEED[1] + 1e-6))
-            assert np.all(np.sign(vx) == np.where(along[1:], 1, -1))  # walks the way it faces
+            assert np.all(
+                (speed >= PEDESTRIAN_SPEED[0] - 1e-6)
+                & (speed <= PEDESTRIAN_SPEED[1] + 1e-6)
+            )
+            assert np.all(
+                np.sign(vx) == np.where(along[1:], 1, -1)
+            )  # walks the way it faces
             # on a sidewalk, keeping to its right: -y of the sidewalk's middle walking along +x, +y walking back
             middle = np.sign(c[:, 1]) * SIDEWALK
             keep = np.where(along, -KEEP_RIGHT, KEEP_RIGHT)
@@ -144,9 +214,14 @@ def test_lanes_follow_a_curved_route():
         bx = tr.boxes(t)
         rel = bx["centre"][:, :2] - [0.0, 60.0]
         radius = np.linalg.norm(rel, axis=1)
-        on_circle = np.abs(tr.line.ego_s(t) - tr.arc_length(t)[bx["index"]]) < r.length() - tr.line.length
+        on_circle = (
+            np.abs(tr.line.ego_s(t) - tr.arc_length(t)[bx["index"]])
+            < r.length() - tr.line.length
+        )
         lateral = tr.lateral[bx["index"]]
-        keep = on_circle & (np.arctan2(rel[:, 1], rel[:, 0]) > -np.pi / 2 + 0.1)  # not on the straight extensions
+        keep = on_circle & (
+            np.arctan2(rel[:, 1], rel[:, 0]) > -np.pi / 2 + 0.1
+        )  # not on the straight extensions
         assert np.allclose(radius[keep], 60.0 - lateral[keep], atol=0.05)
         tangent = np.arctan2(rel[:, 1], rel[:, 0]) + np.pi / 2
         dyaw = np.angle(np.exp(1j * (bx["yaw"] - tangent)))
@@ -166,13 +241,22 @@ def _corners(centre_xy, yaw, length, width):
     u = np.array([[1, 1], [1, -1], [-1, -1], [-1, 1]]) / 2
     local = u[None] * np.stack([length, width], axis=1)[:, None, :]
     c, s = np.cos(yaw)[:, None], np.sin(yaw)[:, None]
-    return np.stack([c * local[..., 0] - s * local[..., 1], s * local[..., 0] + c * local[..., 1]], -1) \
+    return (
+        np.stack(
+            [
+                c * local[..., 0] - s * local[..., 1],
+                s * local[..., 0] + c * local[..., 1],
+            ],
+            -1,
+        )
         + centre_xy[:, None, :]
+    )
 
 
 def _gap(a, b):
     """Distance (m) between convex quadrilaterals ``a (M, 4, 2)`` and ``b (M, 4, 2)``, 0 where they overlap
     (separating axis test over the edge normals; else the least vertex-to-edge distance)."""
+
     def edges(q):
         return q, np.roll(q, -1, axis=1) - q
 
@@ -186,7 +270,11 @@ def _gap(a, b):
     def vertex_edge(p, q):
         o, e = edges(q)
         d = p[:, :, None, :] - o[:, None, :, :]  # (M, 4 vertices, 4 edges, 2)
-        t = np.clip(np.einsum("mved,med->mve", d, e) / np.einsum("med,med->me", e, e)[:, None, :], 0.0, 1.0)
+        t = np.clip(
+            np.einsum("mved,med->mve", d, e) / np.einsum("med,med->me", e, e)[:, None, :],
+            0.0,
+            1.0,
+        )
         return np.linalg.norm(d - t[..., None] * e[:, None], axis=-1).min(axis=(1, 2))
 
     apart = separated(a, b) | separated(b, a)
@@ -211,17 +299,28 @@ def test_movers_keep_away_from_the_ego_car(route):
         d = np.linalg.norm(bx["centre"][:, :2] - T[:2, 3], axis=1)
         nearest = min(nearest, d.min())
         ego_yaw = np.arctan2(T[1, 0], T[0, 0])
-        ego_centre = T[:2, 3] + (x0 + x1) / 2 * np.array([np.cos(ego_yaw), np.sin(ego_yaw)])
+        ego_centre = T[:2, 3] + (x0 + x1) / 2 * np.array(
+            [np.cos(ego_yaw), np.sin(ego_yaw)]
+        )
         m = len(d)
-        ego = _corners(np.tile(ego_centre, (m, 1)), np.full(m, ego_yaw), np.full(m, x1 - x0), np.full(m, 2 * half))
-        boxes = _corners(bx["centre"][:, :2], bx["yaw"], bx["size"][:, 0], bx["size"][:, 1])
+        ego = _corners(
+            np.tile(ego_centre, (m, 1)),
+            np.full(m, ego_yaw),
+            np.full(m, x1 - x0),
+            np.full(m, 2 * half),
+        )
+        boxes = _corners(
+            bx["centre"][:, :2], bx["yaw"], bx["size"][:, 0], bx["size"][:, 1]
+        )
         gap_nearest = min(gap_nearest, _gap(ego, boxes).min())
         lane = np.isin(bx["kind"], (AHEAD, BEHIND))
         if lane.any():
             gap = np.abs(tr.arc_length(t)[bx["index"][lane]] - tr.line.ego_s(t))
             lane_nearest = min(lane_nearest, gap.min())
     assert 3.0 < nearest < 4.0  # cyclists ride 3.2 m from the ego lane and are passed
-    assert 0.5 < gap_nearest < 2.5  # an oncoming car on a corner of 07 swings to 0.9 m of the (generous) footprint
+    assert (
+        0.5 < gap_nearest < 2.5
+    )  # an oncoming car on a corner of 07 swings to 0.9 m of the (generous) footprint
     assert lane_nearest >= FOLLOW_MIN_DIST
 
 
@@ -229,8 +328,13 @@ def test_footprint_gap_helper():
     """_gap on known cases: apart along x by 1 m, touching diagonally at sqrt(2), overlapping."""
     one = np.ones(1)
     a = _corners(np.zeros((1, 2)), np.zeros(1), 2 * one, 2 * one)
-    for centre, yaw, expected in [((3.0, 0.0), 0.0, 1.0), ((3.0, 3.0), 0.0, np.sqrt(2)), ((1.5, 0.5), 0.3, 0.0),
-                                  ((0.0, 1.0 + np.sqrt(2)), np.pi / 4, 0.0), ((0.0, 1.5 + np.sqrt(2)), np.pi / 4, 0.5)]:
+    for centre, yaw, expected in [
+        ((3.0, 0.0), 0.0, 1.0),
+        ((3.0, 3.0), 0.0, np.sqrt(2)),
+        ((1.5, 0.5), 0.3, 0.0),
+        ((0.0, 1.0 + np.sqrt(2)), np.pi / 4, 0.0),
+        ((0.0, 1.5 + np.sqrt(2)), np.pi / 4, 0.5),
+    ]:
         b = _corners(np.array([centre]), np.array([yaw]), 2 * one, 2 * one)
         assert _gap(a, b)[0] == pytest.approx(expected, abs=1e-9)
 
@@ -241,8 +345,14 @@ def test_movers_of_one_lane_never_overlap():
     for t in np.arange(0.0, 60.0, 0.05):
         bx = tr.boxes(t)
         c, size = bx["centre"], bx["size"]
-        dx = np.abs(c[:, None, 0] - c[None, :, 0]) < (size[:, None, 0] + size[None, :, 0]) / 2
-        dy = np.abs(c[:, None, 1] - c[None, :, 1]) < (size[:, None, 1] + size[None, :, 1]) / 2
+        dx = (
+            np.abs(c[:, None, 0] - c[None, :, 0])
+            < (size[:, None, 0] + size[None, :, 0]) / 2
+        )
+        dy = (
+            np.abs(c[:, None, 1] - c[None, :, 1])
+            < (size[:, None, 1] + size[None, :, 1]) / 2
+        )
         overlap = dx & dy
         np.fill_diagonal(overlap, False)
         assert not overlap.any(), f"boxes overlap at t = {t}"
@@ -254,14 +364,19 @@ def test_sweep_blocks_bound_the_mover_time_error():
     offsets = column_time_offsets(model)
     seen = np.zeros(len(cols), dtype=int)
     for dt, sel, _ in _sweep_blocks(cols, model, np.zeros((model.columns, 3))):
-        assert np.all(np.abs(offsets[cols[sel]] - dt) <= SCAN_PERIOD_S / (2 * MOVER_BLOCKS) + 1e-12)
+        assert np.all(
+            np.abs(offsets[cols[sel]] - dt) <= SCAN_PERIOD_S / (2 * MOVER_BLOCKS) + 1e-12
+        )
         seen[sel] += 1
     assert np.all(seen == 1)
 
 
 def test_first_four_random_streams_unchanged():
     for seed in (0, 7):
-        old = [np.random.default_rng(s).integers(2**63, size=3) for s in np.random.SeedSequence(seed).spawn(4)]
+        old = [
+            np.random.default_rng(s).integers(2**63, size=3)
+            for s in np.random.SeedSequence(seed).spawn(4)
+        ]
         new = _streams(seed)
         assert len(new) == 5
         assert all(np.array_equal(o, g.integers(2**63, size=3)) for o, g in zip(old, new))
@@ -271,23 +386,56 @@ def test_first_four_random_streams_unchanged():
 @pytest.mark.parametrize("distortion", [False, True])
 def test_no_traffic_output_unchanged(tmp_path, layout, distortion):
     if layout == "drive":
-        base = write_drive(tmp_path, "straight", frames=3, seed=5, lidar=TINY, progress=False,
-                           distortion=distortion, traffic=None)[0]
+        base = write_drive(
+            tmp_path,
+            "straight",
+            frames=3,
+            seed=5,
+            lidar=TINY,
+            progress=False,
+            distortion=distortion,
+            traffic=None,
+        )[0]
     else:
-        base = write_sequence(tmp_path, "straight", 3, frames=3, seed=5, lidar=TINY, progress=False,
-                              distortion=distortion)[0]
+        base = write_sequence(
+            tmp_path,
+            "straight",
+            3,
+            frames=3,
+            seed=5,
+            lidar=TINY,
+            progress=False,
+            distortion=distortion,
+        )[0]
     digest = _digest(base)
     assert digest in GOLDEN[(layout, distortion)], (
         f"{digest}: not the no-traffic output recorded on AMD EPYC / Intel Xeon; on another kind of CPU, record "
-        "the digest of commit 33dd4d1's (swept: 99bf131's) code on it before trusting this test")
+        "the digest of commit 33dd4d1's (swept: 99bf131's) code on it before trusting this test"
+    )
 
 
 def test_traffic_without_movers_casts_the_same_scans(tmp_path):
     """Density 0 with the left parking kept: the mover path runs with no movers and must change no byte."""
-    off = write_drive(tmp_path / "off", "straight", frames=3, seed=5, lidar=TINY, progress=False, distortion=True)[0]
+    off = write_drive(
+        tmp_path / "off",
+        "straight",
+        frames=3,
+        seed=5,
+        lidar=TINY,
+        progress=False,
+        distortion=True,
+    )[0]
     empty = TrafficConfig(density=0.0, clear_left_parking=False)
-    on = write_drive(tmp_path / "on", "straight", frames=3, seed=5, lidar=TINY, progress=False, distortion=True,
-                     traffic=empty)[0]
+    on = write_drive(
+        tmp_path / "on",
+        "straight",
+        frames=3,
+        seed=5,
+        lidar=TINY,
+        progress=False,
+        distortion=True,
+        traffic=empty,
+    )[0]
     assert _digest(off) == _digest(on)
     assert "traffic" not in read_marker(drive_dir(off, "2011_09_26", 1))
     assert read_marker(drive_dir(on, "2011_09_26", 1))["traffic"] == empty.as_dict()
@@ -297,14 +445,29 @@ def test_scans_see_the_movers_where_they_are(tmp_path):
     """A straight drive at 3x density without sweep distortion: each scan, put in the world frame with the true
     Velodyne pose, has points inside the cars near the road at that frame's time; the same drive with density 0
     (the same town, no movers) has none there."""
-    from slamlib.kitti.calib import load_T_velo_imu
     from slamlib.geometry import invert_pose
+    from slamlib.kitti.calib import load_T_velo_imu
     from slamlib.paths import kitti_sample_dir
 
     cfg, seed, n = TrafficConfig().scaled(3), 11, 4
-    on = write_drive(tmp_path / "on", "straight", frames=n, seed=seed, lidar=SMALL, progress=False, traffic=cfg)[0]
-    off = write_drive(tmp_path / "off", "straight", frames=n, seed=seed, lidar=SMALL, progress=False,
-                      traffic=TrafficConfig(density=0.0))[0]
+    on = write_drive(
+        tmp_path / "on",
+        "straight",
+        frames=n,
+        seed=seed,
+        lidar=SMALL,
+        progress=False,
+        traffic=cfg,
+    )[0]
+    off = write_drive(
+        tmp_path / "off",
+        "straight",
+        frames=n,
+        seed=seed,
+        lidar=SMALL,
+        progress=False,
+        traffic=TrafficConfig(density=0.0),
+    )[0]
     r, t_route, movers = drive_traffic("straight", n, seed, cfg)
     T_imu_velo = invert_pose(load_T_velo_imu(kitti_sample_dir() / "raw" / "2011_09_26"))
     near_cars = 0
@@ -312,10 +475,21 @@ def test_scans_see_the_movers_where_they_are(tmp_path):
         T = r.pose(t_route[k])[0] @ T_imu_velo
         counts = {}
         for name, base in (("on", on), ("off", off)):
-            rel = f"2011_09_26/2011_09_26_drive_0001_sync/velodyne_points/data/{k:010d}.bin"
-            p = np.fromfile(base / rel, np.float32).reshape(-1, 4)[:, :3].astype(np.float64)
+            rel = (
+                f"2011_09_26/2011_09_26_drive_0001_sync/velodyne_points/data/{k:010d}.bin"
+            )
+            p = (
+                np.fromfile(base / rel, np.float32)
+                .reshape(-1, 4)[:, :3]
+                .astype(np.float64)
+            )
             # points above 0.3 m over each box's base: the road under a (sunk) box does not count
-            inside = points_in_boxes(p @ T[:3, :3].T + T[:3, 3], movers.boxes(t_route[k]), margin=0.05, lift=0.3)
+            inside = points_in_boxes(
+                p @ T[:3, :3].T + T[:3, 3],
+                movers.boxes(t_route[k]),
+                margin=0.05,
+                lift=0.3,
+            )
             counts[name] = inside.sum(axis=1)
         bx = movers.boxes(t_route[k])
         dist = np.linalg.norm(bx["centre"][:, :2] - T[:2, 3], axis=1)
@@ -338,7 +512,21 @@ def test_command_traffic_option(tmp_path):
     assert markers[0]["traffic"] == TrafficConfig().scaled(2.5).as_dict()
     assert markers[1]["traffic"] == TrafficConfig().as_dict()
     assert "traffic" not in markers[2]
-    assert main(["synth", "--out", str(tmp_path / "d"), "--layout", "odometry", "--traffic", "0.5", *tiny]) == 0
+    assert (
+        main(
+            [
+                "synth",
+                "--out",
+                str(tmp_path / "d"),
+                "--layout",
+                "odometry",
+                "--traffic",
+                "0.5",
+                *tiny,
+            ]
+        )
+        == 0
+    )
     assert read_marker(tmp_path / "d" / "sequences" / "00")["traffic"]["density"] == 0.5
 
 
@@ -348,7 +536,9 @@ def test_command_rejects_a_bad_traffic_scale(tmp_path, capsys, value):
 
     with pytest.raises(SystemExit) as err:
         main(["synth", "--out", str(tmp_path), "--traffic", value, "--no-progress"])
-    assert str(err.value).startswith("slamlib synth: --traffic must be") and value in str(err.value)
+    assert str(err.value).startswith("slamlib synth: --traffic must be") and value in str(
+        err.value
+    )
     assert not any(tmp_path.iterdir())
 
 
@@ -357,7 +547,11 @@ def _box_mesh(centre, size):
     from slamlib.synth.scene import _BOX
 
     v, f = _BOX
-    return ((v * size + centre).astype(np.float32), f.astype(np.uint32), np.full(len(f), 0.5, np.float32))
+    return (
+        (v * size + centre).astype(np.float32),
+        f.astype(np.uint32),
+        np.full(len(f), 0.5, np.float32),
+    )
 
 
 def _outside(points, centre, size):
@@ -375,9 +569,13 @@ def test_swept_scan_sees_a_mover_where_it_is_when_each_column_fires():
     import open3d as o3d
 
     model = Hdl64(columns=720, beam_stride=2, sigma_range=0.0, dropout=0.0)
-    far = o3d.t.geometry.RaycastingScene()  # the static world: one triangle far out of range
-    far.add_triangles(o3d.core.Tensor(np.array([[500, 0, 0], [500, 1, 0], [500, 0, 1]], np.float32)),
-                      o3d.core.Tensor(np.array([[0, 1, 2]], np.uint32)))
+    far = (
+        o3d.t.geometry.RaycastingScene()
+    )  # the static world: one triangle far out of range
+    far.add_triangles(
+        o3d.core.Tensor(np.array([[500, 0, 0], [500, 1, 0], [500, 0, 1]], np.float32)),
+        o3d.core.Tensor(np.array([[0, 1, 2]], np.uint32)),
+    )
     ego_v, car_v, size = 10.0, 14.0, np.array([4.2, 1.8, 1.5])
     offsets = column_time_offsets(model)
     poses = np.tile(np.eye(4), (model.columns, 1, 1))
@@ -386,25 +584,51 @@ def test_swept_scan_sees_a_mover_where_it_is_when_each_column_fires():
     def car_at(dt):
         return np.array([car_v * dt, 5.0, -1.73])
 
-    scan = simulate_scan(far, np.zeros(1, np.float32), np.eye(4), np.random.default_rng(0), model,
-                         column_poses=poses, movers=lambda dts: [_box_mesh(car_at(dt), size) for dt in dts])
+    scan = simulate_scan(
+        far,
+        np.zeros(1, np.float32),
+        np.eye(4),
+        np.random.default_rng(0),
+        model,
+        column_poses=poses,
+        movers=lambda dts: [_box_mesh(car_at(dt), size) for dt in dts],
+    )
     assert len(scan) > 100
     az = np.arctan2(scan[:, 1], scan[:, 0]) % (2 * np.pi)
     col = np.rint(az / (2 * np.pi) * model.columns).astype(int) % model.columns
     world = scan[:, :3].astype(np.float64) + poses[col, :3, 3]
     bound = car_v * SCAN_PERIOD_S / (2 * MOVER_BLOCKS)
-    true_time = np.array([_outside(world[i:i + 1], car_at(offsets[c]), size)[0] for i, c in enumerate(col)])
+    true_time = np.array(
+        [
+            _outside(world[i : i + 1], car_at(offsets[c]), size)[0]
+            for i, c in enumerate(col)
+        ]
+    )
     assert true_time.max() <= bound + 1e-3
     assert _outside(world, car_at(0.0), size).max() > 0.2
 
 
 def test_a_one_frame_drive_has_traffic(tmp_path):
     """One frame spans no time: the centre line still covers a second of the route, so movers have a direction."""
-    tr = build_traffic(straight_route(), 5.0, 5.0, TrafficConfig(), np.random.default_rng(0))
+    tr = build_traffic(
+        straight_route(), 5.0, 5.0, TrafficConfig(), np.random.default_rng(0)
+    )
     assert len(tr) > 0 and np.all(np.isfinite(tr.arc_length(5.0)))
     bx = tr.boxes(5.0)
-    assert len(bx["index"]) > 0 and np.all(np.isfinite(bx["centre"])) and np.all(np.isfinite(bx["speed"]))
-    write_drive(tmp_path, "straight", frames=1, seed=1, lidar=TINY, progress=False, traffic=TrafficConfig())
+    assert (
+        len(bx["index"]) > 0
+        and np.all(np.isfinite(bx["centre"]))
+        and np.all(np.isfinite(bx["speed"]))
+    )
+    write_drive(
+        tmp_path,
+        "straight",
+        frames=1,
+        seed=1,
+        lidar=TINY,
+        progress=False,
+        traffic=TrafficConfig(),
+    )
 
 
 @pytest.mark.parametrize("distortion", [False, True])
@@ -415,12 +639,26 @@ def test_azimuth_culling_changes_no_hit(tmp_path, monkeypatch, distortion):
 
     cast = lidar._cast_movers
     hits = {"culled": [], "every": []}
-    kw = dict(frames=2, seed=4, lidar=Hdl64(columns=2000, beam_stride=4), progress=False, distortion=distortion,
-              traffic=TrafficConfig().scaled(3))
+    kw = dict(
+        frames=2,
+        seed=4,
+        lidar=Hdl64(columns=2000, beam_stride=4),
+        progress=False,
+        distortion=distortion,
+        traffic=TrafficConfig().scaled(3),
+    )
     for name in hits:
         if name == "every":
-            monkeypatch.setattr(lidar, "_azimuth_mask", lambda o, spread, azimuth, v, f: np.ones(len(azimuth), bool))
-        monkeypatch.setattr(lidar, "_cast_movers", lambda *a, out=hits[name]: out.append(cast(*a)) or out[-1])
+            monkeypatch.setattr(
+                lidar,
+                "_azimuth_mask",
+                lambda o, spread, azimuth, v, f: np.ones(len(azimuth), bool),
+            )
+        monkeypatch.setattr(
+            lidar,
+            "_cast_movers",
+            lambda *a, out=hits[name]: out.append(cast(*a)) or out[-1],
+        )
         write_drive(tmp_path / name, "07", **kw)
     assert _digest(tmp_path / "culled") == _digest(tmp_path / "every")
     for a, b in zip(hits["culled"], hits["every"]):
@@ -443,8 +681,12 @@ def test_left_parking_cleared_and_nothing_else_changed():
     y_both = triangles(both, both.kind == car)[..., 1].mean(1)
     y_right = triangles(right, right.kind == car)[..., 1].mean(1)
     assert (y_both > 0).sum() > 10 and (y_both < 0).sum() > 10
-    assert np.all(y_right < 0) and np.array_equal(np.sort(y_right), np.sort(y_both[y_both < 0]))
-    assert np.array_equal(triangles(both, both.kind != car), triangles(right, right.kind != car))
+    assert np.all(y_right < 0) and np.array_equal(
+        np.sort(y_right), np.sort(y_both[y_both < 0])
+    )
+    assert np.array_equal(
+        triangles(both, both.kind != car), triangles(right, right.kind != car)
+    )
 
 
 def test_movers_move_smoothly_along_a_kitti_route():
@@ -457,15 +699,27 @@ def test_movers_move_smoothly_along_a_kitti_route():
         bx = tr.boxes(t)
         cur = dict(zip(bx["index"], zip(bx["centre"], bx["yaw"])))
         for i in cur.keys() & (prev or {}).keys():
-            assert np.linalg.norm(cur[i][0][:2] - prev[i][0][:2]) < 2.5, (KINDS[tr.kind[i]], t)
-            assert abs(np.angle(np.exp(1j * (cur[i][1] - prev[i][1])))) < 0.5, (KINDS[tr.kind[i]], t)
+            assert np.linalg.norm(cur[i][0][:2] - prev[i][0][:2]) < 2.5, (
+                KINDS[tr.kind[i]],
+                t,
+            )
+            assert abs(np.angle(np.exp(1j * (cur[i][1] - prev[i][1])))) < 0.5, (
+                KINDS[tr.kind[i]],
+                t,
+            )
             steps += 1
         prev = cur
     assert steps > 10000
 
 
 def test_a_drive_with_traffic_is_deterministic_by_seed(tmp_path):
-    kw = dict(frames=3, lidar=TINY, progress=False, distortion=True, traffic=TrafficConfig().scaled(2))
+    kw = dict(
+        frames=3,
+        lidar=TINY,
+        progress=False,
+        distortion=True,
+        traffic=TrafficConfig().scaled(2),
+    )
     a = write_drive(tmp_path / "a", "straight", seed=6, **kw)[0]
     b = write_drive(tmp_path / "b", "straight", seed=6, **kw)[0]
     c = write_drive(tmp_path / "c", "straight", seed=7, **kw)[0]
@@ -485,13 +739,30 @@ def test_drive_traffic_gives_the_movers_the_scans_hold(tmp_path):
     route, t_route, movers = drive_traffic("straight", n, seed, cfg)
     counts = {}
     for name, config in (("on", cfg), ("off", TrafficConfig(density=0.0))):
-        drive = KittiRawDrive(write_drive(tmp_path / name, "straight", frames=n, seed=seed, lidar=SMALL,
-                                          progress=False, traffic=config)[0], "2011_09_26", 1)
-        T0 = route.pose(t_route[0])[0]  # the drive's world (the IMU at frame 0) in the route's
+        drive = KittiRawDrive(
+            write_drive(
+                tmp_path / name,
+                "straight",
+                frames=n,
+                seed=seed,
+                lidar=SMALL,
+                progress=False,
+                traffic=config,
+            )[0],
+            "2011_09_26",
+            1,
+        )
+        T0 = route.pose(t_route[0])[
+            0
+        ]  # the drive's world (the IMU at frame 0) in the route's
         counts[name] = []
         for k, f in enumerate(drive):
             T = T0 @ f.T_w_velo
             p = f.scan[:, :3].astype(np.float64) @ T[:3, :3].T + T[:3, 3]
-            above = p[:, 2] > route.pose(t_route[k])[0][2, 3] - 0.5  # above the road (the IMU is 0.93 m up)
+            above = (
+                p[:, 2] > route.pose(t_route[k])[0][2, 3] - 0.5
+            )  # above the road (the IMU is 0.93 m up)
             counts[name].append(int(movers.inside(p[above], t_route[k]).sum()))
-    assert min(counts["on"]) > 200 and max(counts["off"]) < 0.05 * min(counts["on"]), counts
+    assert min(counts["on"]) > 200 and max(counts["off"]) < 0.05 * min(counts["on"]), (
+        counts
+    )

@@ -8,7 +8,14 @@ from hypothesis.extra.numpy import arrays
 from scipy.spatial.transform import Rotation
 
 from slamlib.errors import DataFormatError
-from slamlib.kitti import read_kitti_poses, read_times, read_tum, write_kitti_poses, write_times, write_tum
+from slamlib.kitti import (
+    read_kitti_poses,
+    read_times,
+    read_tum,
+    write_kitti_poses,
+    write_times,
+    write_tum,
+)
 from slamlib.paths import kitti_sample_dir
 
 finite = st.floats(min_value=-1e4, max_value=1e4, allow_nan=False, allow_infinity=False)
@@ -55,7 +62,12 @@ def test_tum_round_trip(tmp_path_factory, qt, t0):
     np.testing.assert_array_equal(T_back[:, :3, 3], T[:, :3, 3])
     np.testing.assert_allclose(T_back[:, :3, :3], T[:, :3, :3], atol=1e-12)
     # quaternions are written scalar-last, unit norm
-    q = np.array([[float(v) for v in line.split()[4:]] for line in path.read_text().splitlines()[1:]])
+    q = np.array(
+        [
+            [float(v) for v in line.split()[4:]]
+            for line in path.read_text().splitlines()[1:]
+        ]
+    )
     np.testing.assert_allclose(np.linalg.norm(q, axis=1), 1, atol=1e-12)
 
 
@@ -67,12 +79,16 @@ def test_tum_quaternion_convention(tmp_path):
     write_tum(tmp_path / "a.txt", [5.0], T)
     vals = [float(v) for v in (tmp_path / "a.txt").read_text().split()]
     np.testing.assert_allclose(vals[:4], [5, 1, 2, 3])
-    np.testing.assert_allclose(np.abs(vals[4:]), [0, 0, np.sqrt(0.5), np.sqrt(0.5)], atol=1e-12)
+    np.testing.assert_allclose(
+        np.abs(vals[4:]), [0, 0, np.sqrt(0.5), np.sqrt(0.5)], atol=1e-12
+    )
     assert vals[6] * vals[7] > 0
 
 
 @settings(max_examples=30, deadline=None)
-@given(arrays(np.float64, st.integers(0, 20), elements=st.floats(0, 1e6, allow_nan=False)))
+@given(
+    arrays(np.float64, st.integers(0, 20), elements=st.floats(0, 1e6, allow_nan=False))
+)
 def test_times_round_trip(tmp_path_factory, t):
     path = tmp_path_factory.mktemp("s") / "times.txt"
     write_times(path, t)
@@ -104,15 +120,32 @@ def test_kitti_bad_lines(tmp_path):
     good = " ".join(["1", "0", "0", "0", "0", "1", "0", "0", "0", "0", "1", "0"])
     p = tmp_path / "bad_poses.txt"
     _bad(p, good + "\n" + "1 2 3\n", 2, "3 numbers, expected 12", read_kitti_poses)
-    _bad(p, good + "\n\n" + good.replace("0", "x", 1) + "\n", 3, "not a number", read_kitti_poses)
+    _bad(
+        p,
+        good + "\n\n" + good.replace("0", "x", 1) + "\n",
+        3,
+        "not a number",
+        read_kitti_poses,
+    )
     _bad(p, good.replace("1", "nan", 1) + "\n", 1, "not finite", read_kitti_poses)
-    _bad(p, good + "\n" + good.replace("1", "2", 1) + "\n", 2, "not a rotation",
-         lambda q: read_kitti_poses(q, check_rotation=True))
+    _bad(
+        p,
+        good + "\n" + good.replace("1", "2", 1) + "\n",
+        2,
+        "not a rotation",
+        lambda q: read_kitti_poses(q, check_rotation=True),
+    )
 
 
 def test_tum_bad_lines(tmp_path):
     p = tmp_path / "bad_tum.txt"
-    _bad(p, "# header\n0 1 2 3 0 0 0 1\n1 1 2 3 0 0 1\n", 3, "7 numbers, expected 8", read_tum)
+    _bad(
+        p,
+        "# header\n0 1 2 3 0 0 0 1\n1 1 2 3 0 0 1\n",
+        3,
+        "7 numbers, expected 8",
+        read_tum,
+    )
     _bad(p, "0 1 2 3 0 0 0 0\n", 1, "zero norm", read_tum)
     _bad(p, "0 1 2 3 0 0 0 one\n", 1, "not a number", read_tum)
 
@@ -120,12 +153,20 @@ def test_tum_bad_lines(tmp_path):
 def test_times_bad_lines(tmp_path):
     p = tmp_path / "bad_times.txt"
     _bad(p, "0.0\n0.1 0.2\n", 2, "2 numbers, expected 1", read_times)
-    _bad(p, "0.0\n0.1\n0.1\n", 3, "not later", lambda q: read_times(q, strictly_increasing=True))
+    _bad(
+        p,
+        "0.0\n0.1\n0.1\n",
+        3,
+        "not later",
+        lambda q: read_times(q, strictly_increasing=True),
+    )
 
 
 def test_missing_file(tmp_path):
     for reader in (read_kitti_poses, read_tum, read_times):
-        with pytest.raises(DataFormatError, match="nofile.txt: trajectory file not found"):
+        with pytest.raises(
+            DataFormatError, match="nofile.txt: trajectory file not found"
+        ):
             reader(tmp_path / "nofile.txt")
 
 

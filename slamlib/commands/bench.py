@@ -27,15 +27,26 @@ PACKAGE = "benchmarks"
 
 def add_arguments(parser) -> None:
     parser.add_argument("name", nargs="?", help="benchmark to run; --list shows them")
-    parser.add_argument("--list", action="store_true", help="list the benchmarks and exit")
-    parser.add_argument("--quick", action="store_true", help="small sizes, for a smoke test")
-    parser.add_argument("--static", action="store_true",
-                        help="static analysis instead of timings, for the benchmarks that offer it (cuda: every "
-                             "kernel compiled for A100/H100 without a GPU; registers, spills, occupancy); "
-                             "writes NAME-static.json")
-    parser.add_argument("--out", type=Path, default=None,
-                        help="output JSON path (default NAME.json, NAME-quick.json with --quick, in the checkout's "
-                             "benchmarks/results/ or $SLAMLIB_BENCH_RESULTS)")
+    parser.add_argument(
+        "--list", action="store_true", help="list the benchmarks and exit"
+    )
+    parser.add_argument(
+        "--quick", action="store_true", help="small sizes, for a smoke test"
+    )
+    parser.add_argument(
+        "--static",
+        action="store_true",
+        help="static analysis instead of timings, for the benchmarks that offer it (cuda: every "
+        "kernel compiled for A100/H100 without a GPU; registers, spills, occupancy); "
+        "writes NAME-static.json",
+    )
+    parser.add_argument(
+        "--out",
+        type=Path,
+        default=None,
+        help="output JSON path (default NAME.json, NAME-quick.json with --quick, in the checkout's "
+        "benchmarks/results/ or $SLAMLIB_BENCH_RESULTS)",
+    )
 
 
 def load_benchmarks() -> ModuleType:
@@ -48,15 +59,24 @@ def load_benchmarks() -> ModuleType:
     root = paths.benchmarks_dir()
     init = root / "__init__.py"
     if not (init.is_file() and (root.parent / "pyproject.toml").is_file()):
-        raise SystemExit("slamlib bench runs from a source checkout of slamlib (git clone the slamlib repository; "
-                         f"pip install -e .): no benchmarks/ package beside {root.parent / 'slamlib'}")
+        raise SystemExit(
+            "slamlib bench runs from a source checkout of slamlib (git clone the slamlib repository; "
+            f"pip install -e .): no benchmarks/ package beside {root.parent / 'slamlib'}"
+        )
     loaded = sys.modules.get(PACKAGE)
     if loaded is not None:
-        if getattr(loaded, "__file__", None) and Path(loaded.__file__).resolve() == init.resolve():
+        if (
+            getattr(loaded, "__file__", None)
+            and Path(loaded.__file__).resolve() == init.resolve()
+        ):
             return loaded
-        raise SystemExit(f"slamlib bench: another module named {PACKAGE!r} is already imported "
-                         f"({getattr(loaded, '__file__', loaded)}), not {init}")
-    spec = importlib.util.spec_from_file_location(PACKAGE, init, submodule_search_locations=[str(root)])
+        raise SystemExit(
+            f"slamlib bench: another module named {PACKAGE!r} is already imported "
+            f"({getattr(loaded, '__file__', loaded)}), not {init}"
+        )
+    spec = importlib.util.spec_from_file_location(
+        PACKAGE, init, submodule_search_locations=[str(root)]
+    )
     module = importlib.util.module_from_spec(spec)
     sys.modules[PACKAGE] = module
     try:
@@ -71,7 +91,9 @@ def load_benchmark(name: str) -> ModuleType:
     """The module of benchmark ``name`` (``HELP``, ``run(quick)``), loaded by :func:`load_benchmarks`."""
     registry = load_benchmarks().BENCHMARKS
     if name not in registry:
-        raise SystemExit(f"slamlib bench: unknown benchmark {name!r}; known: {', '.join(registry)}")
+        raise SystemExit(
+            f"slamlib bench: unknown benchmark {name!r}; known: {', '.join(registry)}"
+        )
     return importlib.import_module(registry[name])
 
 
@@ -88,7 +110,11 @@ def main(args) -> int:
         print(f"slamlib bench: {args.name} offers no --static analysis", file=sys.stderr)
         return 2
     result = {"benchmark": args.name, "quick": bool(args.quick), "machine": describe()}
-    result.update(module.run(quick=args.quick, static=True) if static else module.run(quick=args.quick))
+    result.update(
+        module.run(quick=args.quick, static=True)
+        if static
+        else module.run(quick=args.quick)
+    )
     suffix = ("-static" if static else "") + ("-quick" if args.quick else "")
     out = args.out or paths.bench_results_dir() / f"{args.name}{suffix}.json"
     out.parent.mkdir(parents=True, exist_ok=True)

@@ -20,104 +20,228 @@ import argparse
 from pathlib import Path
 
 NAME = "run"
-HELP = ("Run 3D particle SLAM on a KITTI raw drive or odometry sequence (default: the synthetic drive); write "
-        "trajectories, map, metrics.")
+HELP = (
+    "Run 3D particle SLAM on a KITTI raw drive or odometry sequence (default: the synthetic drive); write "
+    "trajectories, map, metrics."
+)
 
 
 def add_arguments(parser) -> None:
-    g = parser.add_argument_group("data (omit them all for the embedded synthetic default drive)")
-    g.add_argument("--basedir", type=Path, default=None, help="KITTI raw root folder holding DATE/")
+    g = parser.add_argument_group(
+        "data (omit them all for the embedded synthetic default drive)"
+    )
+    g.add_argument(
+        "--basedir", type=Path, default=None, help="KITTI raw root folder holding DATE/"
+    )
     g.add_argument("--date", default=None, help="recording date, e.g. 2011_09_26")
     g.add_argument("--drive", default=None, help="drive number, e.g. 0005 or 5")
-    g.add_argument("--odometry-dir", type=Path, default=None, metavar="DIR",
-                   help="instead of a raw drive: a KITTI odometry folder holding sequences/NN (and poses/NN.txt); "
-                        "no IMU there, so the run is LIDAR-only")
-    g.add_argument("--sequence", default=None, metavar="NN", help="with --odometry-dir: the sequence, e.g. 07")
-    g.add_argument("--full-default", action="store_true",
-                   help="with no --basedir: the whole synthetic drive (~1,100 frames, ~690 m) instead of 300 frames")
-    g.add_argument("--still-default", action="store_true",
-                   help="with no --basedir: the default drive without sweep distortion, traffic and wandering IMU "
-                        "biases (the book's first chapters explain SLAM on it)")
-    g.add_argument("--frames", default=None, metavar="A:B",
-                   help="frame range A:B (drive frame numbers, B exclusive; A:, :B or B also work); default all")
+    g.add_argument(
+        "--odometry-dir",
+        type=Path,
+        default=None,
+        metavar="DIR",
+        help="instead of a raw drive: a KITTI odometry folder holding sequences/NN (and poses/NN.txt); "
+        "no IMU there, so the run is LIDAR-only",
+    )
+    g.add_argument(
+        "--sequence",
+        default=None,
+        metavar="NN",
+        help="with --odometry-dir: the sequence, e.g. 07",
+    )
+    g.add_argument(
+        "--full-default",
+        action="store_true",
+        help="with no --basedir: the whole synthetic drive (~1,100 frames, ~690 m) instead of 300 frames",
+    )
+    g.add_argument(
+        "--still-default",
+        action="store_true",
+        help="with no --basedir: the default drive without sweep distortion, traffic and wandering IMU "
+        "biases (the book's first chapters explain SLAM on it)",
+    )
+    g.add_argument(
+        "--frames",
+        default=None,
+        metavar="A:B",
+        help="frame range A:B (drive frame numbers, B exclusive; A:, :B or B also work); default all",
+    )
     from slamlib.kernels import BACKENDS
-    from slamlib.slam3d.config import MAP_KINDS, OLD_MAP_NAMES, FilterConfig, MapConfig, SLAM3DConfig
+    from slamlib.slam3d.config import (
+        MAP_KINDS,
+        OLD_MAP_NAMES,
+        FilterConfig,
+        MapConfig,
+        SLAM3DConfig,
+    )
 
     f = parser.add_argument_group("filter (defaults from slamlib.slam3d.config)")
-    f.add_argument("--particles", type=int, default=FilterConfig.particles,
-                   help=f"number of particles (default {FilterConfig.particles})")
-    f.add_argument("--points", type=int, default=FilterConfig.scored_points,
-                   help=f"scan points scored per particle per frame (default {FilterConfig.scored_points})")
-    f.add_argument("--map", dest="map_kind", choices=MAP_KINDS + tuple(OLD_MAP_NAMES), default=MapConfig.kind,
-                   metavar="{" + ",".join(MAP_KINDS) + "}",
-                   help=f"map structure: hashed NDT voxels or exact points in a Morton BVH (default {MapConfig.kind}; "
-                        f"the old names {' and '.join(OLD_MAP_NAMES)} still work)")
-    f.add_argument("--lidar-only", action="store_true",
-                   help="ignore the IMU: step 3 holds the filter's own last motion (constant velocity), as on data "
-                        "without an IMU (the odometry layout, where it is always on)")
-    f.add_argument("--deskew", action=argparse.BooleanOptionalAction, default=None,
-                   help="motion-compensate each scan to the frame's pose time, or not (ScanConfig.deskew; default: "
-                        "when the scans were taken over a sweep and not yet motion-compensated, as those of real "
-                        "KITTI raw drives and the default drive are; not the KITTI odometry benchmark's, which "
-                        "KITTI compensated, nor synthetic drives written without --distortion)")
-    f.add_argument("--scan-match", action=argparse.BooleanOptionalAction, default=None,
-                   help="after step 9, Gauss-Newton the best pose to the map score's nearest peak on the whole scan "
-                        "and move the particles with it, or not (FilterConfig.scan_match; default: LIDAR-only)")
-    f.add_argument("--noise", type=float, default=1.0, metavar="SCALE",
-                   help="scale of step 6's motion noise (all six sigmas; default 1.0 = the tuned defaults)")
-    f.add_argument("--temperature", type=float, default=FilterConfig.temperature,
-                   help=f"likelihood temperature: log L = score / (N * T) (default {FilterConfig.temperature})")
-    f.add_argument("--refine", type=int, default=FilterConfig.refine,
-                   help=f"coarse-to-fine annealing rounds per frame (default {FilterConfig.refine})")
-    f.add_argument("--tilt-sigma", type=float, default=FilterConfig.tilt_sigma, metavar="RAD",
-                   help="hold roll and pitch to the accelerometer's gravity with this uncertainty (FilterConfig."
-                        f"tilt_sigma, radians; 0 = off, the default {FilterConfig.tilt_sigma:g}; needs an IMU)")
-    f.add_argument("--transient-span", type=int, default=MapConfig.transient_span, metavar="FRAMES",
-                   help="every FRAMES frames evict the map voxels hit only within fewer than FRAMES frames and not "
-                        "since: the trails of moving cars and people (MapConfig.transient_span; 0 = off, the "
-                        f"default {MapConfig.transient_span}; the voxel_hash map only)")
-    f.add_argument("--seed", type=int, default=SLAM3DConfig.seed,
-                   help=f"seed of the filter's random numbers (default {SLAM3DConfig.seed})")
-    f.add_argument("--backend", choices=BACKENDS, default=SLAM3DConfig.backend,
-                   help=f"compute backend (default {SLAM3DConfig.backend})")
+    f.add_argument(
+        "--particles",
+        type=int,
+        default=FilterConfig.particles,
+        help=f"number of particles (default {FilterConfig.particles})",
+    )
+    f.add_argument(
+        "--points",
+        type=int,
+        default=FilterConfig.scored_points,
+        help=f"scan points scored per particle per frame (default {FilterConfig.scored_points})",
+    )
+    f.add_argument(
+        "--map",
+        dest="map_kind",
+        choices=MAP_KINDS + tuple(OLD_MAP_NAMES),
+        default=MapConfig.kind,
+        metavar="{" + ",".join(MAP_KINDS) + "}",
+        help=f"map structure: hashed NDT voxels or exact points in a Morton BVH (default {MapConfig.kind}; "
+        f"the old names {' and '.join(OLD_MAP_NAMES)} still work)",
+    )
+    f.add_argument(
+        "--lidar-only",
+        action="store_true",
+        help="ignore the IMU: step 3 holds the filter's own last motion (constant velocity), as on data "
+        "without an IMU (the odometry layout, where it is always on)",
+    )
+    f.add_argument(
+        "--deskew",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="motion-compensate each scan to the frame's pose time, or not (ScanConfig.deskew; default: "
+        "when the scans were taken over a sweep and not yet motion-compensated, as those of real "
+        "KITTI raw drives and the default drive are; not the KITTI odometry benchmark's, which "
+        "KITTI compensated, nor synthetic drives written without --distortion)",
+    )
+    f.add_argument(
+        "--scan-match",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="after step 9, Gauss-Newton the best pose to the map score's nearest peak on the whole scan "
+        "and move the particles with it, or not (FilterConfig.scan_match; default: LIDAR-only)",
+    )
+    f.add_argument(
+        "--noise",
+        type=float,
+        default=1.0,
+        metavar="SCALE",
+        help="scale of step 6's motion noise (all six sigmas; default 1.0 = the tuned defaults)",
+    )
+    f.add_argument(
+        "--temperature",
+        type=float,
+        default=FilterConfig.temperature,
+        help=f"likelihood temperature: log L = score / (N * T) (default {FilterConfig.temperature})",
+    )
+    f.add_argument(
+        "--refine",
+        type=int,
+        default=FilterConfig.refine,
+        help=f"coarse-to-fine annealing rounds per frame (default {FilterConfig.refine})",
+    )
+    f.add_argument(
+        "--tilt-sigma",
+        type=float,
+        default=FilterConfig.tilt_sigma,
+        metavar="RAD",
+        help="hold roll and pitch to the accelerometer's gravity with this uncertainty (FilterConfig."
+        f"tilt_sigma, radians; 0 = off, the default {FilterConfig.tilt_sigma:g}; needs an IMU)",
+    )
+    f.add_argument(
+        "--transient-span",
+        type=int,
+        default=MapConfig.transient_span,
+        metavar="FRAMES",
+        help="every FRAMES frames evict the map voxels hit only within fewer than FRAMES frames and not "
+        "since: the trails of moving cars and people (MapConfig.transient_span; 0 = off, the "
+        f"default {MapConfig.transient_span}; the voxel_hash map only)",
+    )
+    f.add_argument(
+        "--seed",
+        type=int,
+        default=SLAM3DConfig.seed,
+        help=f"seed of the filter's random numbers (default {SLAM3DConfig.seed})",
+    )
+    f.add_argument(
+        "--backend",
+        choices=BACKENDS,
+        default=SLAM3DConfig.backend,
+        help=f"compute backend (default {SLAM3DConfig.backend})",
+    )
     o = parser.add_argument_group("output")
-    o.add_argument("--out", type=Path, default=Path("slam3d_run"), help="output folder (default ./slam3d_run)")
-    o.add_argument("--overwrite", action="store_true",
-                   help="replace result files (slam_poses.txt, map.ply, ...) already in --out that an earlier run "
-                        "did not write (an earlier run's results are always replaced), and an existing --video file")
-    o.add_argument("--map-format", choices=("ply", "pcd"), default="ply", help="map file format (default ply)")
+    o.add_argument(
+        "--out",
+        type=Path,
+        default=Path("slam3d_run"),
+        help="output folder (default ./slam3d_run)",
+    )
+    o.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace result files (slam_poses.txt, map.ply, ...) already in --out that an earlier run "
+        "did not write (an earlier run's results are always replaced), and an existing --video file",
+    )
+    o.add_argument(
+        "--map-format",
+        choices=("ply", "pcd"),
+        default="ply",
+        help="map file format (default ply)",
+    )
     o.add_argument("--no-plots", action="store_true", help="do not write the PNG plots")
     o.add_argument("--no-progress", action="store_true", help="no progress bar")
-    o.add_argument("--video", type=Path, default=None, metavar="PATH",
-                   help="also write a video of the map being built (top-down map, trajectory, current pose): "
-                        "PATH ending in .mp4 (needs imageio-ffmpeg) or .gif (Pillow)")
+    o.add_argument(
+        "--video",
+        type=Path,
+        default=None,
+        metavar="PATH",
+        help="also write a video of the map being built (top-down map, trajectory, current pose): "
+        "PATH ending in .mp4 (needs imageio-ffmpeg) or .gif (Pillow)",
+    )
 
 
 def _drive_hint(basedir: Path, date: str | None, drive: str | None) -> str:
     """What exists under ``basedir``, to make a wrong --basedir / --date / --drive easy to fix."""
     if not basedir.is_dir():
         return f"--basedir {basedir} is not a folder"
-    dates = sorted(p.name for p in basedir.iterdir() if p.is_dir() and p.name[:4].isdigit())
+    dates = sorted(
+        p.name for p in basedir.iterdir() if p.is_dir() and p.name[:4].isdigit()
+    )
     if date is None or date not in dates:
         return f"--date {date!r} not found in {basedir}; dates there: {', '.join(dates) or 'none'}"
-    drives = sorted(p.name.split("_drive_")[1].split("_")[0] for p in (basedir / date).iterdir()
-                    if p.is_dir() and "_drive_" in p.name)
-    if any(d == str(drive) or (d.isdigit() and str(drive).isdigit() and int(d) == int(drive)) for d in drives):
+    drives = sorted(
+        p.name.split("_drive_")[1].split("_")[0]
+        for p in (basedir / date).iterdir()
+        if p.is_dir() and "_drive_" in p.name
+    )
+    if any(
+        d == str(drive) or (d.isdigit() and str(drive).isdigit() and int(d) == int(drive))
+        for d in drives
+    ):
         return ""  # the drive is there: the error is about its contents, which the message names
     return f"--drive {drive!r} not found in {basedir / date}; drives there: {', '.join(drives) or 'none'}"
 
 
 #: The ``slamlib run`` option of each setting name that appears in the configuration's ValueError messages.
-_OPTION_OF = {"particles": "--particles", "scored_points": "--points", "temperature": "--temperature",
-              "refine": "--refine", "tilt_sigma": "--tilt-sigma", "seed": "--seed", "sigma": "--noise", "kind": "--map",
-              "backend": "--backend", "transient_span": "--transient-span"}
+_OPTION_OF = {
+    "particles": "--particles",
+    "scored_points": "--points",
+    "temperature": "--temperature",
+    "refine": "--refine",
+    "tilt_sigma": "--tilt-sigma",
+    "seed": "--seed",
+    "sigma": "--noise",
+    "kind": "--map",
+    "backend": "--backend",
+    "transient_span": "--transient-span",
+}
 
 
 def _option_error(exc: ValueError) -> str:
     """``--option: message`` for a configuration ValueError (``--a, --b: message`` when it names several settings)."""
     text = str(exc)
     hits = sorted((text.find(k), opt) for k, opt in _OPTION_OF.items() if k in text)
-    options = list(dict.fromkeys(opt for _, opt in hits))  # every option the message is about, in its order
+    options = list(
+        dict.fromkeys(opt for _, opt in hits)
+    )  # every option the message is about, in its order
     return f"{', '.join(options)}: {text}" if options else text
 
 
@@ -133,23 +257,34 @@ def main(args) -> int:
     given = [x is not None for x in (args.basedir, args.date, args.drive)]
     odometry = args.odometry_dir is not None or args.sequence is not None
     if any(given) and not all(given):
-        raise SystemExit("slamlib run: give all of --basedir, --date and --drive, or none (synthetic default drive)")
+        raise SystemExit(
+            "slamlib run: give all of --basedir, --date and --drive, or none (synthetic default drive)"
+        )
     if odometry and (args.odometry_dir is None or args.sequence is None):
         raise SystemExit("slamlib run: give both --odometry-dir and --sequence")
     if odometry and any(given):
-        raise SystemExit("slamlib run: give either a raw drive (--basedir, --date, --drive) or an odometry sequence "
-                         "(--odometry-dir, --sequence), not both")
-    for flag, on in (("--full-default", args.full_default), ("--still-default", args.still_default)):
+        raise SystemExit(
+            "slamlib run: give either a raw drive (--basedir, --date, --drive) or an odometry sequence "
+            "(--odometry-dir, --sequence), not both"
+        )
+    for flag, on in (
+        ("--full-default", args.full_default),
+        ("--still-default", args.still_default),
+    ):
         if on and (odometry or any(given)):
-            raise SystemExit(f"slamlib run: {flag} chooses among the synthetic default drives; it does not apply to "
-                             "a drive given by --basedir or --odometry-dir")
+            raise SystemExit(
+                f"slamlib run: {flag} chooses among the synthetic default drives; it does not apply to "
+                "a drive given by --basedir or --odometry-dir"
+            )
     import math
 
     for option, value in (("--particles", args.particles), ("--points", args.points)):
         if value < 1:
             raise SystemExit(f"slamlib run: {option} must be >= 1, got {value}")
     if not (math.isfinite(args.noise) and args.noise >= 0):
-        raise SystemExit(f"slamlib run: --noise must be finite and >= 0, got {args.noise}")
+        raise SystemExit(
+            f"slamlib run: --noise must be finite and >= 0, got {args.noise}"
+        )
     from slamlib.slam3d.run import check_output_dir
 
     try:
@@ -167,75 +302,144 @@ def main(args) -> int:
     if kind != args.map_kind:
         print(f"slamlib run: note: --map {args.map_kind} is now called --map {kind}")
     try:
-        cfg = SLAM3DConfig.of(particles=args.particles, scored_points=args.points, kind=kind, backend=args.backend,
-                              seed=args.seed, refine=args.refine, temperature=args.temperature, deskew=args.deskew,
-                              scan_match=args.scan_match, tilt_sigma=args.tilt_sigma, transient_span=args.transient_span)
-        cfg = replace(cfg, motion=replace(cfg.motion.scaled(float(args.noise)),
-                                          model="constant_velocity" if args.lidar_only or odometry else "imu"))
+        cfg = SLAM3DConfig.of(
+            particles=args.particles,
+            scored_points=args.points,
+            kind=kind,
+            backend=args.backend,
+            seed=args.seed,
+            refine=args.refine,
+            temperature=args.temperature,
+            deskew=args.deskew,
+            scan_match=args.scan_match,
+            tilt_sigma=args.tilt_sigma,
+            transient_span=args.transient_span,
+        )
+        cfg = replace(
+            cfg,
+            motion=replace(
+                cfg.motion.scaled(float(args.noise)),
+                model="constant_velocity" if args.lidar_only or odometry else "imu",
+            ),
+        )
     except ValueError as exc:
         raise SystemExit(f"slamlib run: {_option_error(exc)}") from None
     if odometry:
-        basedir, date, drive_id, source = args.odometry_dir, None, args.sequence, "kitti odometry"
+        basedir, date, drive_id, source = (
+            args.odometry_dir,
+            None,
+            args.sequence,
+            "kitti odometry",
+        )
     elif all(given):
-        drive_id = int(args.drive) if str(args.drive).isdigit() else args.drive  # "5" and "0005" both work
+        drive_id = (
+            int(args.drive) if str(args.drive).isdigit() else args.drive
+        )  # "5" and "0005" both work
         basedir, date, source = args.basedir, args.date, "kitti"
     else:
         from slamlib.synth import default_drive
 
-        basedir, date, drive_id = default_drive(full=args.full_default, realism=not args.still_default,
-                                                progress=not args.no_progress)
-        source = ("synthetic default drive" + (" (full)" if args.full_default else "")
-                  + (" (still)" if args.still_default else ""))
+        basedir, date, drive_id = default_drive(
+            full=args.full_default,
+            realism=not args.still_default,
+            progress=not args.no_progress,
+        )
+        source = (
+            "synthetic default drive"
+            + (" (full)" if args.full_default else "")
+            + (" (still)" if args.still_default else "")
+        )
     try:
         if odometry:
             from slamlib.kitti import KittiOdometrySequence
 
             probe = KittiOdometrySequence(basedir, drive_id)
-            drive = KittiOdometrySequence(basedir, drive_id, frames=parse_frames(args.frames, probe.n_sequence_frames))
+            drive = KittiOdometrySequence(
+                basedir,
+                drive_id,
+                frames=parse_frames(args.frames, probe.n_sequence_frames),
+            )
         else:
             probe = KittiRawDrive(basedir, date, drive_id)
             sl = parse_frames(args.frames, probe.n_drive_frames)
             drive = KittiRawDrive(basedir, date, drive_id, frames=sl)
     except DataFormatError as exc:
         hint = _drive_hint(Path(basedir), date, drive_id) if all(given) else ""
-        raise SystemExit(f"slamlib run: {exc}" + (f"\n  hint: {hint}" if hint else "")) from None
+        raise SystemExit(
+            f"slamlib run: {exc}" + (f"\n  hint: {hint}" if hint else "")
+        ) from None
     except ValueError as exc:
         raise SystemExit(f"slamlib run: {exc}") from None
     if len(drive) < 2:
         if args.frames is not None:
-            raise SystemExit(f"slamlib run: --frames {args.frames!r} selects {len(drive)} frame(s) of the drive; "
-                             "need at least 2")
-        raise SystemExit(f"slamlib run: the drive has {len(drive)} frame(s); need at least 2")
+            raise SystemExit(
+                f"slamlib run: --frames {args.frames!r} selects {len(drive)} frame(s) of the drive; "
+                "need at least 2"
+            )
+        raise SystemExit(
+            f"slamlib run: the drive has {len(drive)} frame(s); need at least 2"
+        )
 
-    print(f"slamlib run: {source}: {drive.path} frames {drive.frames[0]}..{drive.frames[-1]} ({len(drive)}), "
-          f"{cfg.filter.particles} particles x {cfg.filter.scored_points} points, map {cfg.map.kind}, "
-          f"backend {cfg.backend}" + (", LIDAR-only (constant velocity)" if cfg.motion.model != "imu" else ""))
+    print(
+        f"slamlib run: {source}: {drive.path} frames {drive.frames[0]}..{drive.frames[-1]} ({len(drive)}), "
+        f"{cfg.filter.particles} particles x {cfg.filter.scored_points} points, map {cfg.map.kind}, "
+        f"backend {cfg.backend}"
+        + (", LIDAR-only (constant velocity)" if cfg.motion.model != "imu" else "")
+    )
     try:
         if args.video is not None:
             from slamlib.slam3d.video import snapshot_every_for
 
-            run = run_drive(drive, cfg, progress=not args.no_progress, snapshot_every=snapshot_every_for(len(drive)))
+            run = run_drive(
+                drive,
+                cfg,
+                progress=not args.no_progress,
+                snapshot_every=snapshot_every_for(len(drive)),
+            )
         else:
             run = run_drive(drive, cfg, progress=not args.no_progress)
     except BackendUnavailableError as exc:
         raise SystemExit(f"slamlib run: {exc}") from None
-    except (DataFormatError, ValueError) as exc:  # bad frame data (e.g. IMU values beyond physical limits)
+    except (
+        DataFormatError,
+        ValueError,
+    ) as exc:  # bad frame data (e.g. IMU values beyond physical limits)
         raise SystemExit(f"slamlib run: {exc}") from None
     try:
-        files = save_run(run, args.out, map_format=args.map_format, plots=not args.no_plots,
-                         extra={"source": source, "basedir": str(basedir), "date": date,
-                                ("sequence" if odometry else "drive"): str(drive_id)})
-    except (ValueError, OSError) as exc:  # a non-finite pose refused by the writers, a full disk, ...
-        raise SystemExit(f"slamlib run: could not write the results into {args.out}: {exc}") from None
+        files = save_run(
+            run,
+            args.out,
+            map_format=args.map_format,
+            plots=not args.no_plots,
+            extra={
+                "source": source,
+                "basedir": str(basedir),
+                "date": date,
+                ("sequence" if odometry else "drive"): str(drive_id),
+            },
+        )
+    except (
+        ValueError,
+        OSError,
+    ) as exc:  # a non-finite pose refused by the writers, a full disk, ...
+        raise SystemExit(
+            f"slamlib run: could not write the results into {args.out}: {exc}"
+        ) from None
     print(f"{len(run.poses)} frames in {run.seconds:.1f} s: {run.fps:.1f} frames/s")
     info = json.loads(Path(files["metrics"]).read_text())
     if "metrics" in info:
         m = info["metrics"]
+
         def num(x):  # metrics.json holds null for a non-finite number
             return float("nan") if x is None else x
 
-        print(f"path {num(m['path_length_m']):.0f} m{'':8s}{'ATE RMSE (m)':>14s}{'KITTI t_err (%)':>17s}")
-        for key, label in (("slam", "particle SLAM"), ("dead_reckoning", "dead reckoning")):
+        print(
+            f"path {num(m['path_length_m']):.0f} m{'':8s}{'ATE RMSE (m)':>14s}{'KITTI t_err (%)':>17s}"
+        )
+        for key, label in (
+            ("slam", "particle SLAM"),
+            ("dead_reckoning", "dead reckoning"),
+        ):
             if key not in m:  # LIDAR-only: no dead reckoning
                 continue
             k = num(m[key].get("kitti_t_err_percent"))
@@ -246,6 +450,8 @@ def main(args) -> int:
         from slamlib.slam3d.video import write_map_video
 
         v = write_map_video(run, args.video, progress=not args.no_progress)
-        print(f"wrote {v['frames']} video frames ({v['seconds']:.1f} s, {v['bytes'] / 1e6:.2f} MB) to {args.video}")
+        print(
+            f"wrote {v['frames']} video frames ({v['seconds']:.1f} s, {v['bytes'] / 1e6:.2f} MB) to {args.video}"
+        )
     print(f"wrote {len(files)} files to {args.out}")
     return 0

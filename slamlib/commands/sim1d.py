@@ -5,19 +5,52 @@ from __future__ import annotations
 from pathlib import Path
 
 NAME = "sim1d"
-HELP = "Run 1D particle SLAM on a simulated line world; print SLAM vs dead-reckoning errors."
+HELP = (
+    "Run 1D particle SLAM on a simulated line world; print SLAM vs dead-reckoning errors."
+)
 
 
 def add_arguments(parser) -> None:
-    parser.add_argument("--particles", type=int, default=200, help="number of particles P (default 200)")
-    parser.add_argument("--frames", type=int, default=300, help="number of ~10 Hz frames (default 300, 30 s)")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the world, the sensors and the filter")
-    parser.add_argument("--motion-noise", type=float, default=0.2,
-                        help="velocity sensor noise sigma_v in m/s (default 0.2); the filter assumes the same")
-    parser.add_argument("--sensor-noise", type=float, default=0.05,
-                        help="range sensor noise sigma_r in m (default 0.05); the filter assumes the same")
-    parser.add_argument("--bias", type=float, default=0.1, help="velocity sensor bias in m/s (default 0.1)")
-    parser.add_argument("--plot", type=Path, default=None, metavar="PATH", help="write a figure of the run here")
+    parser.add_argument(
+        "--particles", type=int, default=200, help="number of particles P (default 200)"
+    )
+    parser.add_argument(
+        "--frames",
+        type=int,
+        default=300,
+        help="number of ~10 Hz frames (default 300, 30 s)",
+    )
+    parser.add_argument(
+        "--seed",
+        type=int,
+        default=0,
+        help="seed of the world, the sensors and the filter",
+    )
+    parser.add_argument(
+        "--motion-noise",
+        type=float,
+        default=0.2,
+        help="velocity sensor noise sigma_v in m/s (default 0.2); the filter assumes the same",
+    )
+    parser.add_argument(
+        "--sensor-noise",
+        type=float,
+        default=0.05,
+        help="range sensor noise sigma_r in m (default 0.05); the filter assumes the same",
+    )
+    parser.add_argument(
+        "--bias",
+        type=float,
+        default=0.1,
+        help="velocity sensor bias in m/s (default 0.1)",
+    )
+    parser.add_argument(
+        "--plot",
+        type=Path,
+        default=None,
+        metavar="PATH",
+        help="write a figure of the run here",
+    )
     parser.add_argument("--progress", action="store_true", help="show a progress bar")
 
 
@@ -35,7 +68,9 @@ def save_plot(fig, path: Path, command: str) -> None:
         path.parent.mkdir(parents=True, exist_ok=True)
         fig.savefig(path, dpi=110)
     except OSError as exc:
-        raise SystemExit(f"slamlib {command}: --plot: could not write {path}: {exc}") from None
+        raise SystemExit(
+            f"slamlib {command}: --plot: could not write {path}: {exc}"
+        ) from None
     finally:
         plt.close(fig)
     print(f"wrote {path}")
@@ -51,8 +86,10 @@ def check_plot_path(path: Path) -> None:
     formats = Figure().canvas.get_supported_filetypes()
     suffix = path.suffix.lower().lstrip(".")
     if suffix not in formats:
-        raise ValueError(f"{path}: unknown figure format {path.suffix or '(none)'!r}; use one of "
-                         f"{', '.join('.' + k for k in sorted(formats))}")
+        raise ValueError(
+            f"{path}: unknown figure format {path.suffix or '(none)'!r}; use one of "
+            f"{', '.join('.' + k for k in sorted(formats))}"
+        )
     if path.is_dir():
         raise ValueError(f"{path} is a folder")
     parent = path.parent
@@ -63,20 +100,27 @@ def check_plot_path(path: Path) -> None:
 
 
 def main(args) -> int:
+    import math
+
     import numpy as np
 
     from slamlib.sim1d import SensorModel1D, make_world, run_slam_1d, simulate
 
-    import math
-
     if not 1 <= args.particles <= MAX_PARTICLES:
-        raise SystemExit(f"slamlib sim1d: --particles must be in [1, {MAX_PARTICLES:,}], got {args.particles}")
+        raise SystemExit(
+            f"slamlib sim1d: --particles must be in [1, {MAX_PARTICLES:,}], got {args.particles}"
+        )
     if not 2 <= args.frames <= MAX_FRAMES:
-        raise SystemExit(f"slamlib sim1d: --frames must be in [2, {MAX_FRAMES:,}], got {args.frames}")
+        raise SystemExit(
+            f"slamlib sim1d: --frames must be in [2, {MAX_FRAMES:,}], got {args.frames}"
+        )
     if args.seed < 0:
         raise SystemExit(f"slamlib sim1d: --seed must be >= 0, got {args.seed}")
-    for option, value in (("--motion-noise", args.motion_noise), ("--sensor-noise", args.sensor_noise),
-                          ("--bias", args.bias)):
+    for option, value in (
+        ("--motion-noise", args.motion_noise),
+        ("--sensor-noise", args.sensor_noise),
+        ("--bias", args.bias),
+    ):
         if not math.isfinite(value):
             raise SystemExit(f"slamlib sim1d: {option} must be finite, got {value}")
     if args.motion_noise < 0 or args.sensor_noise <= 0:
@@ -87,23 +131,44 @@ def main(args) -> int:
         except ValueError as exc:
             raise SystemExit(f"slamlib sim1d: --plot: {exc}") from None
     try:
-        sensors = SensorModel1D(velocity_noise=args.motion_noise, range_noise=args.sensor_noise,
-                                velocity_bias=args.bias)
-        recording = simulate(make_world(seed=args.seed), n_frames=args.frames, seed=args.seed, sensors=sensors)
-        result = run_slam_1d(recording, n_particles=args.particles, seed=args.seed, progress=args.progress,
-                             keep_history=False)
+        sensors = SensorModel1D(
+            velocity_noise=args.motion_noise,
+            range_noise=args.sensor_noise,
+            velocity_bias=args.bias,
+        )
+        recording = simulate(
+            make_world(seed=args.seed),
+            n_frames=args.frames,
+            seed=args.seed,
+            sensors=sensors,
+        )
+        result = run_slam_1d(
+            recording,
+            n_particles=args.particles,
+            seed=args.seed,
+            progress=args.progress,
+            keep_history=False,
+        )
     except ValueError as exc:
         raise SystemExit(f"slamlib sim1d: {exc}") from None
     s = result.summary()
     lm = result.landmark_errors()
-    print(f"1D particle SLAM: {args.particles} particles, {s['frames']} frames "
-          f"({result.times[-1]:.1f} s, {result.true_positions[-1]:.1f} m), seed {args.seed}")
+    print(
+        f"1D particle SLAM: {args.particles} particles, {s['frames']} frames "
+        f"({result.times[-1]:.1f} s, {result.true_positions[-1]:.1f} m), seed {args.seed}"
+    )
     print(f"{'':18s}{'final |error| (m)':>20s}{'mean |error| (m)':>20s}")
-    print(f"{'particle SLAM':18s}{s['slam_final_error_m']:20.3f}{s['slam_mean_error_m']:20.3f}")
-    print(f"{'dead reckoning':18s}{s['dead_reckoning_final_error_m']:20.3f}{s['dead_reckoning_mean_error_m']:20.3f}")
-    print(f"resampled on {s['resamplings']} of {s['frames']} frames; map: {result.landmarks_estimated.size} "
-          f"landmarks, median error {np.median(lm) if lm.size else float('nan'):.3f} m "
-          f"over {lm.size} observed")
+    print(
+        f"{'particle SLAM':18s}{s['slam_final_error_m']:20.3f}{s['slam_mean_error_m']:20.3f}"
+    )
+    print(
+        f"{'dead reckoning':18s}{s['dead_reckoning_final_error_m']:20.3f}{s['dead_reckoning_mean_error_m']:20.3f}"
+    )
+    print(
+        f"resampled on {s['resamplings']} of {s['frames']} frames; map: {result.landmarks_estimated.size} "
+        f"landmarks, median error {np.median(lm) if lm.size else float('nan'):.3f} m "
+        f"over {lm.size} observed"
+    )
     if args.plot is not None:
         import matplotlib
 

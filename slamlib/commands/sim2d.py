@@ -10,14 +10,40 @@ HELP = "Run 2D particle SLAM (density grid or likelihood field) on a simulated c
 
 
 def add_arguments(parser) -> None:
-    parser.add_argument("--particles", type=int, default=200, help="number of particles P (default 200)")
-    parser.add_argument("--laps", type=float, default=1.0, help="laps of the ~76 m loop (default 1)")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the world, the sensors and the filter")
-    parser.add_argument("--map", choices=("likelihood", "density", "both"), default="both",
-                        help="map kind: likelihood field, the seed's density grid, or both (default)")
-    parser.add_argument("--resolution", type=float, default=0.05, help="map cell size in m (default 0.05)")
-    parser.add_argument("--beams", type=int, default=180, help="LIDAR beams over 360 degrees (default 180)")
-    parser.add_argument("--plot", type=Path, default=None, metavar="PATH", help="write a figure of the paths here")
+    parser.add_argument(
+        "--particles", type=int, default=200, help="number of particles P (default 200)"
+    )
+    parser.add_argument(
+        "--laps", type=float, default=1.0, help="laps of the ~76 m loop (default 1)"
+    )
+    parser.add_argument(
+        "--seed",
+        type=int,
+        default=0,
+        help="seed of the world, the sensors and the filter",
+    )
+    parser.add_argument(
+        "--map",
+        choices=("likelihood", "density", "both"),
+        default="both",
+        help="map kind: likelihood field, the seed's density grid, or both (default)",
+    )
+    parser.add_argument(
+        "--resolution", type=float, default=0.05, help="map cell size in m (default 0.05)"
+    )
+    parser.add_argument(
+        "--beams",
+        type=int,
+        default=180,
+        help="LIDAR beams over 360 degrees (default 180)",
+    )
+    parser.add_argument(
+        "--plot",
+        type=Path,
+        default=None,
+        metavar="PATH",
+        help="write a figure of the paths here",
+    )
     parser.add_argument("--progress", action="store_true", help="show a progress bar")
 
 
@@ -29,17 +55,20 @@ MAX_BEAMS = 3600
 
 
 def main(args) -> int:
+    from slamlib.commands.sim1d import check_plot_path, save_plot
     from slamlib.sim2d import SensorModel2D, make_world, run_slam_2d, simulate
 
-    from slamlib.commands.sim1d import check_plot_path, save_plot
-
-    for option, value, low, high in (("--particles", args.particles, 1, MAX_PARTICLES),
-                                     ("--laps", args.laps, 0.0, MAX_LAPS),
-                                     ("--resolution", args.resolution, MIN_RESOLUTION_M, MAX_RESOLUTION_M),
-                                     ("--beams", args.beams, 1, MAX_BEAMS)):
+    for option, value, low, high in (
+        ("--particles", args.particles, 1, MAX_PARTICLES),
+        ("--laps", args.laps, 0.0, MAX_LAPS),
+        ("--resolution", args.resolution, MIN_RESOLUTION_M, MAX_RESOLUTION_M),
+        ("--beams", args.beams, 1, MAX_BEAMS),
+    ):
         if not (low <= value <= high) or (option == "--laps" and value == 0):
             what = "in (0, " if option == "--laps" else f"in [{low:g}, "
-            raise SystemExit(f"slamlib sim2d: {option} must be {what}{high:g}], got {value}")
+            raise SystemExit(
+                f"slamlib sim2d: {option} must be {what}{high:g}], got {value}"
+            )
     if args.seed < 0:
         raise SystemExit(f"slamlib sim2d: --seed must be >= 0, got {args.seed}")
     if args.plot is not None:
@@ -48,21 +77,38 @@ def main(args) -> int:
         except ValueError as exc:
             raise SystemExit(f"slamlib sim2d: --plot: {exc}") from None
     world = make_world(seed=args.seed)
-    recording = simulate(world, laps=args.laps, seed=args.seed, sensors=SensorModel2D(n_beams=args.beams))
+    recording = simulate(
+        world, laps=args.laps, seed=args.seed, sensors=SensorModel2D(n_beams=args.beams)
+    )
     kinds = ("density", "likelihood") if args.map == "both" else (args.map,)
-    results = {kind: run_slam_2d(recording, n_particles=args.particles, seed=args.seed, map_kind=kind,
-                                 resolution=args.resolution, progress=args.progress) for kind in kinds}
+    results = {
+        kind: run_slam_2d(
+            recording,
+            n_particles=args.particles,
+            seed=args.seed,
+            map_kind=kind,
+            resolution=args.resolution,
+            progress=args.progress,
+        )
+        for kind in kinds
+    }
     first = next(iter(results.values()))
-    print(f"2D particle SLAM: {args.particles} particles, {len(recording)} frames ({recording.times[-1]:.1f} s, "
-          f"{args.laps:g} lap(s)), {args.resolution:g} m cells, seed {args.seed}")
+    print(
+        f"2D particle SLAM: {args.particles} particles, {len(recording)} frames ({recording.times[-1]:.1f} s, "
+        f"{args.laps:g} lap(s)), {args.resolution:g} m cells, seed {args.seed}"
+    )
     print(f"{'':26s}{'ATE (m)':>10s}{'final error (m)':>18s}{'final heading (deg)':>22s}")
     for kind, res in results.items():
         s = res.summary()
-        print(f"{'SLAM, ' + kind:26s}{s['slam_ate_m']:10.3f}{s['slam_final_error_m']:18.3f}"
-              f"{s['slam_final_heading_error_deg']:22.2f}")
+        print(
+            f"{'SLAM, ' + kind:26s}{s['slam_ate_m']:10.3f}{s['slam_final_error_m']:18.3f}"
+            f"{s['slam_final_heading_error_deg']:22.2f}"
+        )
     s = first.summary()
-    print(f"{'dead reckoning':26s}{s['dead_reckoning_ate_m']:10.3f}{s['dead_reckoning_final_error_m']:18.3f}"
-          f"{s['dead_reckoning_final_heading_error_deg']:22.2f}")
+    print(
+        f"{'dead reckoning':26s}{s['dead_reckoning_ate_m']:10.3f}{s['dead_reckoning_final_error_m']:18.3f}"
+        f"{s['dead_reckoning_final_heading_error_deg']:22.2f}"
+    )
     if args.plot is not None:
         import matplotlib
 
@@ -70,6 +116,11 @@ def main(args) -> int:
 
         from slamlib.sim2d.plot import plot_trajectories
 
-        save_plot(plot_trajectories(first, world, label=f"particle SLAM, {next(iter(results))}"), args.plot,
-                  "sim2d")
+        save_plot(
+            plot_trajectories(
+                first, world, label=f"particle SLAM, {next(iter(results))}"
+            ),
+            args.plot,
+            "sim2d",
+        )
     return 0

@@ -32,47 +32,123 @@ OUT_FILES = ("sweep.csv", "sweep.json", "sweep.png")
 
 
 def add_arguments(parser) -> None:
-    parser.add_argument("--out", type=Path, required=True, help="output folder for sweep.csv and sweep.png")
-    parser.add_argument("--overwrite", action="store_true", help="replace sweep.csv / sweep.png already in --out")
-    parser.add_argument("--routes", default="07", help="comma-separated routes: 00, 05, 07, straight, loop (default 07)")
-    parser.add_argument("--frames", default="0:150", metavar="A:B",
-                        help="KITTI routes: key frames A:B (A: to the end); straight / loop: N or 0:N (default 0:150)")
-    parser.add_argument("--seeds", default="0,1", help="comma-separated seeds: one synthetic drive and filter seed each "
-                                                       "(default 0,1)")
-    parser.add_argument("--layouts", default="raw", help="comma-separated: raw (LIDAR + IMU), odometry (LIDAR only) "
-                                                         "(default raw)")
-    parser.add_argument("--methods", default="slamlib,kiss_icp", help="comma-separated: slamlib, kiss_icp "
-                                                                      "(default both)")
-    parser.add_argument("--particles", default=None, help="comma-separated particle counts, one slamlib setting "
-                                                          "each (default: the filter's default)")
-    parser.add_argument("--refine", type=int, default=None, metavar="K",
-                        help="slamlib's coarse-to-fine annealing rounds per frame (FilterConfig.refine) in every "
-                             "setting (default: the filter's default)")
-    parser.add_argument("--tilt-sigma", type=float, default=None, metavar="RAD",
-                        help="slamlib holds roll and pitch to the accelerometer's gravity with this uncertainty "
-                             "(FilterConfig.tilt_sigma, radians; 0 = off, the default)")
-    parser.add_argument("--deskew", action=argparse.BooleanOptionalAction, default=None,
-                        help="slamlib de-skews every scan with the frame's motion, or none (ScanConfig.deskew; "
-                             "default: the swept scans, those of drives with --distortion; KISS-ICP de-skews "
-                             "whenever the drives have --distortion)")
-    parser.add_argument("--scan-match", action=argparse.BooleanOptionalAction, default=None,
-                        help="slamlib scan-matches its best pose after step 9, or never (FilterConfig.scan_match; "
-                             "default: LIDAR-only runs)")
-    real = parser.add_argument_group("drive realism (default: a still town, unswept scans, constant IMU biases)")
-    real.add_argument("--distortion", action="store_true",
-                      help="scans swept column by column as a real HDL-64E (slamlib.synth.lidar)")
-    real.add_argument("--traffic", type=float, nargs="?", const=1.0, default=None, metavar="SCALE",
-                      help="moving cars, cyclists and pedestrians at SCALE times a KITTI city drive's density "
-                           "(default without SCALE: 1)")
-    real.add_argument("--bias-walk", action="store_true",
-                      help="the IMU biases wander as random walks (slamlib.synth.WANDERING_BIASES; raw layout)")
-    parser.add_argument("--data", type=Path, default=None,
-                        help="folder for the generated drives, reused by later sweeps (default: the cache, "
-                             "$SLAMLIB_CACHE/sweep)")
-    parser.add_argument("--scheduler", default=None, metavar="ADDRESS",
-                        help="address of an existing Dask scheduler (default: a local cluster on this machine)")
-    parser.add_argument("--workers", type=int, default=None,
-                        help="worker processes of the local cluster (default: one per core)")
+    parser.add_argument(
+        "--out",
+        type=Path,
+        required=True,
+        help="output folder for sweep.csv and sweep.png",
+    )
+    parser.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace sweep.csv / sweep.png already in --out",
+    )
+    parser.add_argument(
+        "--routes",
+        default="07",
+        help="comma-separated routes: 00, 05, 07, straight, loop (default 07)",
+    )
+    parser.add_argument(
+        "--frames",
+        default="0:150",
+        metavar="A:B",
+        help="KITTI routes: key frames A:B (A: to the end); straight / loop: N or 0:N (default 0:150)",
+    )
+    parser.add_argument(
+        "--seeds",
+        default="0,1",
+        help="comma-separated seeds: one synthetic drive and filter seed each "
+        "(default 0,1)",
+    )
+    parser.add_argument(
+        "--layouts",
+        default="raw",
+        help="comma-separated: raw (LIDAR + IMU), odometry (LIDAR only) (default raw)",
+    )
+    parser.add_argument(
+        "--methods",
+        default="slamlib,kiss_icp",
+        help="comma-separated: slamlib, kiss_icp (default both)",
+    )
+    parser.add_argument(
+        "--particles",
+        default=None,
+        help="comma-separated particle counts, one slamlib setting "
+        "each (default: the filter's default)",
+    )
+    parser.add_argument(
+        "--refine",
+        type=int,
+        default=None,
+        metavar="K",
+        help="slamlib's coarse-to-fine annealing rounds per frame (FilterConfig.refine) in every "
+        "setting (default: the filter's default)",
+    )
+    parser.add_argument(
+        "--tilt-sigma",
+        type=float,
+        default=None,
+        metavar="RAD",
+        help="slamlib holds roll and pitch to the accelerometer's gravity with this uncertainty "
+        "(FilterConfig.tilt_sigma, radians; 0 = off, the default)",
+    )
+    parser.add_argument(
+        "--deskew",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="slamlib de-skews every scan with the frame's motion, or none (ScanConfig.deskew; "
+        "default: the swept scans, those of drives with --distortion; KISS-ICP de-skews "
+        "whenever the drives have --distortion)",
+    )
+    parser.add_argument(
+        "--scan-match",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="slamlib scan-matches its best pose after step 9, or never (FilterConfig.scan_match; "
+        "default: LIDAR-only runs)",
+    )
+    real = parser.add_argument_group(
+        "drive realism (default: a still town, unswept scans, constant IMU biases)"
+    )
+    real.add_argument(
+        "--distortion",
+        action="store_true",
+        help="scans swept column by column as a real HDL-64E (slamlib.synth.lidar)",
+    )
+    real.add_argument(
+        "--traffic",
+        type=float,
+        nargs="?",
+        const=1.0,
+        default=None,
+        metavar="SCALE",
+        help="moving cars, cyclists and pedestrians at SCALE times a KITTI city drive's density "
+        "(default without SCALE: 1)",
+    )
+    real.add_argument(
+        "--bias-walk",
+        action="store_true",
+        help="the IMU biases wander as random walks (slamlib.synth.WANDERING_BIASES; raw layout)",
+    )
+    parser.add_argument(
+        "--data",
+        type=Path,
+        default=None,
+        help="folder for the generated drives, reused by later sweeps (default: the cache, "
+        "$SLAMLIB_CACHE/sweep)",
+    )
+    parser.add_argument(
+        "--scheduler",
+        default=None,
+        metavar="ADDRESS",
+        help="address of an existing Dask scheduler (default: a local cluster on this machine)",
+    )
+    parser.add_argument(
+        "--workers",
+        type=int,
+        default=None,
+        help="worker processes of the local cluster (default: one per core)",
+    )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
@@ -120,7 +196,9 @@ def main(args) -> int:
         from slamlib.slam3d.config import MAX_PARTICLES
 
         if any(not 1 <= p <= MAX_PARTICLES for p in counts):
-            _fail(f"--particles must be in [1, {MAX_PARTICLES:,}], got {args.particles!r}")
+            _fail(
+                f"--particles must be in [1, {MAX_PARTICLES:,}], got {args.particles!r}"
+            )
         settings = [{"particles": p} for p in counts]
     from slamlib.commands.synth import check_traffic_scale
 
@@ -137,7 +215,9 @@ def main(args) -> int:
         settings = [dict(s, refine=args.refine) for s in settings]
     if args.tilt_sigma is not None:
         if not (math.isfinite(args.tilt_sigma) and args.tilt_sigma >= 0):
-            _fail(f"--tilt-sigma must be a finite number >= 0 (radians), got {args.tilt_sigma}")
+            _fail(
+                f"--tilt-sigma must be a finite number >= 0 (radians), got {args.tilt_sigma}"
+            )
         settings = [dict(s, tilt_sigma=args.tilt_sigma) for s in settings]
     if args.deskew is not None:
         settings = [dict(s, deskew=args.deskew) for s in settings]
@@ -153,14 +233,18 @@ def main(args) -> int:
             _fail(str(exc))
         frames.add((f[0], f[1]) if isinstance(f, tuple) else (0, f))
     if len(frames) != 1:
-        _fail("--frames must mean the same for every route: use A:B for KITTI routes and straight / loop alike")
+        _fail(
+            "--frames must mean the same for every route: use A:B for KITTI routes and straight / loop alike"
+        )
     (frames,) = frames
     out = args.out
     if out.exists() and not out.is_dir():
         _fail(f"--out {out} exists and is not a folder")
     clash = [n for n in OUT_FILES if (out / n).exists()]
     if clash and not args.overwrite:
-        _fail(f"--out {out} holds {', '.join(clash)}: pass --overwrite to replace, or choose another folder")
+        _fail(
+            f"--out {out} holds {', '.join(clash)}: pass --overwrite to replace, or choose another folder"
+        )
     if "kiss_icp" in methods:
         from slamlib.peers import INSTALL_HINT, kiss_icp_available
 
@@ -169,26 +253,48 @@ def main(args) -> int:
     try:
         import distributed  # noqa: F401
     except ImportError:
-        _fail("slamlib sweep needs Dask: pip install 'dask[distributed]' (or pip install -e '.[sweep]')")
+        _fail(
+            "slamlib sweep needs Dask: pip install 'dask[distributed]' (or pip install -e '.[sweep]')"
+        )
 
     from slamlib.paths import cache_dir
+    from slamlib.slam3d.sweep import (
+        DriveOptions,
+        plot_sweep,
+        run_sweep,
+        sweep_tasks,
+        write_table,
+    )
     from slamlib.synth import GENERATOR_VERSION
-    from slamlib.slam3d.sweep import DriveOptions, plot_sweep, run_sweep, sweep_tasks, write_table
 
     drive = DriveOptions(args.distortion, args.traffic or 0.0, args.bias_walk)
     tasks = sweep_tasks(routes, seeds, layouts, methods, settings, frames, drive)
     data = args.data if args.data is not None else cache_dir() / "sweep"
-    print(f"slamlib sweep: {len(tasks)} runs ({', '.join(routes)} x seeds {', '.join(map(str, seeds))} x "
-          f"{', '.join(layouts)} x {', '.join(methods)}), drives {drive.label() or 'still, unswept'} in {data}, "
-          f"scheduler {args.scheduler or 'local cluster'}")
+    print(
+        f"slamlib sweep: {len(tasks)} runs ({', '.join(routes)} x seeds {', '.join(map(str, seeds))} x "
+        f"{', '.join(layouts)} x {', '.join(methods)}), drives {drive.label() or 'still, unswept'} in {data}, "
+        f"scheduler {args.scheduler or 'local cluster'}"
+    )
     from slamlib.machine import describe
 
     started = time.perf_counter()
-    info = {"command": "slamlib " + " ".join(shlex.quote(a) for a in args.argv), "machine": describe(),
-            "workers": args.workers, "scheduler": args.scheduler, "generator_version": GENERATOR_VERSION,
-            "kiss_icp_version": _version("kiss-icp"), "slamlib_version": _version("slamlib")}
+    info = {
+        "command": "slamlib " + " ".join(shlex.quote(a) for a in args.argv),
+        "machine": describe(),
+        "workers": args.workers,
+        "scheduler": args.scheduler,
+        "generator_version": GENERATOR_VERSION,
+        "kiss_icp_version": _version("kiss-icp"),
+        "slamlib_version": _version("slamlib"),
+    }
     try:
-        rows = run_sweep(tasks, data, scheduler=args.scheduler, workers=args.workers, progress=not args.no_progress)
+        rows = run_sweep(
+            tasks,
+            data,
+            scheduler=args.scheduler,
+            workers=args.workers,
+            progress=not args.no_progress,
+        )
     except (OSError, TimeoutError) as exc:
         _fail(f"could not reach or run the Dask cluster: {exc}")
     out.mkdir(parents=True, exist_ok=True)
@@ -203,9 +309,15 @@ def main(args) -> int:
     fig = plot_sweep(rows)
     fig.savefig(out / "sweep.png", dpi=100, bbox_inches="tight")
     plt.close(fig)
-    print(f"{'route':>8s} {'seed':>4s} {'layout':>8s} {'method':>9s} {'settings':>18s} {'t_err %':>8s} {'ATE m':>7s}")
+    print(
+        f"{'route':>8s} {'seed':>4s} {'layout':>8s} {'method':>9s} {'settings':>18s} {'t_err %':>8s} {'ATE m':>7s}"
+    )
     for r in rows:
-        print(f"{r['route']:>8s} {r['seed']:4d} {r['layout']:>8s} {r['method']:>9s} {r['settings']:>18s} "
-              f"{r['kitti_t_err_percent']:8.3f} {r['ate_rmse_m']:7.3f}")
-    print(f"wrote {out / 'sweep.csv'}, {out / 'sweep.json'} (command, machine, versions) and {out / 'sweep.png'}")
+        print(
+            f"{r['route']:>8s} {r['seed']:4d} {r['layout']:>8s} {r['method']:>9s} {r['settings']:>18s} "
+            f"{r['kitti_t_err_percent']:8.3f} {r['ate_rmse_m']:7.3f}"
+        )
+    print(
+        f"wrote {out / 'sweep.csv'}, {out / 'sweep.json'} (command, machine, versions) and {out / 'sweep.png'}"
+    )
     return 0

@@ -30,47 +30,108 @@ ROUTES = ("straight", "loop", "00", "05", "07")
 #: dropped).
 MAX_TRAFFIC = 10.0
 KITTI_ROUTES = ("00", "05", "07")
-DEFAULT_FRAMES = "0:300"        # slamlib.synth.DEFAULT_FRAMES
-DEFAULT_COLUMNS = 2000          # slamlib.synth.Hdl64().columns
+DEFAULT_FRAMES = "0:300"  # slamlib.synth.DEFAULT_FRAMES
+DEFAULT_COLUMNS = 2000  # slamlib.synth.Hdl64().columns
 
 
 def add_arguments(parser) -> None:
-    parser.add_argument("--out", type=Path, required=True, metavar="BASEDIR",
-                        help="output root: the drive is written to BASEDIR/DATE/DATE_drive_NNNN_sync")
-    parser.add_argument("--route", choices=ROUTES, default="07",
-                        help="trajectory: a straight line (10 m/s, 60 s), a 60 m circle (8 m/s), or the real ground "
-                             "truth of KITTI odometry sequence 00, 05 or 07 (default 07)")
-    parser.add_argument("--frames", default=DEFAULT_FRAMES, metavar="A:B",
-                        help="KITTI routes: odometry key frames A:B (B exclusive; A: to the end; N = 0:N); "
-                             f"straight / loop: a count N or 0:N frames from the route's start (default {DEFAULT_FRAMES})")
-    parser.add_argument("--seed", type=int, default=0, help="master seed: same arguments, same bytes (default 0)")
-    parser.add_argument("--date", default="2011_09_26", help="recording date folder YYYY_MM_DD (default 2011_09_26; "
-                        "the calibration is always the real 2011_09_26 one)")
-    parser.add_argument("--drive", type=int, default=1, help="drive number 0..9999 (default 1 -> drive_0001)")
-    parser.add_argument("--columns", type=int, default=DEFAULT_COLUMNS,
-                        help=f"LIDAR azimuth steps per turn (default {DEFAULT_COLUMNS}, 0.18 deg like KITTI; fewer for "
-                             "small test drives)")
-    parser.add_argument("--imu-noise", type=float, default=1.0, metavar="SCALE",
-                        help="multiply every IMU noise, bias and scale error by SCALE (default 1; 0 = exact fields)")
-    parser.add_argument("--bias-walk", action="store_true",
-                        help="the IMU's velocity and gyro biases wander as random walks "
-                             "(slamlib.synth.WANDERING_BIASES: 5 mm/s and 0.2 mrad/s per sqrt(s)), scaled by --imu-noise")
-    parser.add_argument("--distortion", action="store_true",
-                        help="sweep each scan column by column as KITTI's HDL-64E does (slamlib.synth.lidar): the car "
-                             "moves during the 0.1 s turn (default: every scan cast from one pose); slamlib run "
-                             "de-skews such a drive's scans by default")
-    parser.add_argument("--layout", choices=("raw", "odometry"), default="raw",
-                        help="raw: a KITTI raw drive (OXTS + scans; default); odometry: a KITTI odometry sequence "
-                             "OUT/sequences/NN (scans, calib.txt, times.txt) with ground truth OUT/poses/NN.txt and no "
-                             "IMU, for slamlib run --odometry-dir OUT --sequence NN (LIDAR-only)")
-    parser.add_argument("--sequence", type=int, default=None, metavar="NN",
-                        help="with --layout odometry: the sequence number 0..99 (default: the route's, e.g. 07, or 0)")
-    parser.add_argument("--traffic", type=float, nargs="?", const=1.0, default=None, metavar="SCALE",
-                        help="moving cars, cyclists and pedestrians in the scans (slamlib.synth.traffic), SCALE times "
-                             "the density of a KITTI city drive (default without SCALE: 1; without --traffic: a static "
-                             f"town); SCALE in (0, {MAX_TRAFFIC:g}]")
-    parser.add_argument("--no-scans", action="store_true",
-                        help="write OXTS packets and timestamps only (no Velodyne scans; slamlib run needs scans)")
+    parser.add_argument(
+        "--out",
+        type=Path,
+        required=True,
+        metavar="BASEDIR",
+        help="output root: the drive is written to BASEDIR/DATE/DATE_drive_NNNN_sync",
+    )
+    parser.add_argument(
+        "--route",
+        choices=ROUTES,
+        default="07",
+        help="trajectory: a straight line (10 m/s, 60 s), a 60 m circle (8 m/s), or the real ground "
+        "truth of KITTI odometry sequence 00, 05 or 07 (default 07)",
+    )
+    parser.add_argument(
+        "--frames",
+        default=DEFAULT_FRAMES,
+        metavar="A:B",
+        help="KITTI routes: odometry key frames A:B (B exclusive; A: to the end; N = 0:N); "
+        f"straight / loop: a count N or 0:N frames from the route's start (default {DEFAULT_FRAMES})",
+    )
+    parser.add_argument(
+        "--seed",
+        type=int,
+        default=0,
+        help="master seed: same arguments, same bytes (default 0)",
+    )
+    parser.add_argument(
+        "--date",
+        default="2011_09_26",
+        help="recording date folder YYYY_MM_DD (default 2011_09_26; "
+        "the calibration is always the real 2011_09_26 one)",
+    )
+    parser.add_argument(
+        "--drive",
+        type=int,
+        default=1,
+        help="drive number 0..9999 (default 1 -> drive_0001)",
+    )
+    parser.add_argument(
+        "--columns",
+        type=int,
+        default=DEFAULT_COLUMNS,
+        help=f"LIDAR azimuth steps per turn (default {DEFAULT_COLUMNS}, 0.18 deg like KITTI; fewer for "
+        "small test drives)",
+    )
+    parser.add_argument(
+        "--imu-noise",
+        type=float,
+        default=1.0,
+        metavar="SCALE",
+        help="multiply every IMU noise, bias and scale error by SCALE (default 1; 0 = exact fields)",
+    )
+    parser.add_argument(
+        "--bias-walk",
+        action="store_true",
+        help="the IMU's velocity and gyro biases wander as random walks "
+        "(slamlib.synth.WANDERING_BIASES: 5 mm/s and 0.2 mrad/s per sqrt(s)), scaled by --imu-noise",
+    )
+    parser.add_argument(
+        "--distortion",
+        action="store_true",
+        help="sweep each scan column by column as KITTI's HDL-64E does (slamlib.synth.lidar): the car "
+        "moves during the 0.1 s turn (default: every scan cast from one pose); slamlib run "
+        "de-skews such a drive's scans by default",
+    )
+    parser.add_argument(
+        "--layout",
+        choices=("raw", "odometry"),
+        default="raw",
+        help="raw: a KITTI raw drive (OXTS + scans; default); odometry: a KITTI odometry sequence "
+        "OUT/sequences/NN (scans, calib.txt, times.txt) with ground truth OUT/poses/NN.txt and no "
+        "IMU, for slamlib run --odometry-dir OUT --sequence NN (LIDAR-only)",
+    )
+    parser.add_argument(
+        "--sequence",
+        type=int,
+        default=None,
+        metavar="NN",
+        help="with --layout odometry: the sequence number 0..99 (default: the route's, e.g. 07, or 0)",
+    )
+    parser.add_argument(
+        "--traffic",
+        type=float,
+        nargs="?",
+        const=1.0,
+        default=None,
+        metavar="SCALE",
+        help="moving cars, cyclists and pedestrians in the scans (slamlib.synth.traffic), SCALE times "
+        "the density of a KITTI city drive (default without SCALE: 1; without --traffic: a static "
+        f"town); SCALE in (0, {MAX_TRAFFIC:g}]",
+    )
+    parser.add_argument(
+        "--no-scans",
+        action="store_true",
+        help="write OXTS packets and timestamps only (no Velodyne scans; slamlib run needs scans)",
+    )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
@@ -88,7 +149,9 @@ def parse_route_frames(text: str, route: str):
     s = str(text).strip()
     m = re.fullmatch(r"(\d*)\s*:\s*(\d*)|(\d+)", s)
     if m is None:
-        raise ValueError(f"--frames must look like A:B, A:, :B or N (integers >= 0), got {text!r}")
+        raise ValueError(
+            f"--frames must look like A:B, A:, :B or N (integers >= 0), got {text!r}"
+        )
     if m.group(3) is not None:
         start, stop = 0, int(m.group(3))
     else:
@@ -99,7 +162,9 @@ def parse_route_frames(text: str, route: str):
     if route in KITTI_ROUTES:
         return (start, stop)
     if start != 0:
-        raise ValueError(f"--frames {text!r}: route {route!r} always starts at its beginning; give a count N or 0:N")
+        raise ValueError(
+            f"--frames {text!r}: route {route!r} always starts at its beginning; give a count N or 0:N"
+        )
     return stop
 
 
@@ -116,42 +181,64 @@ def _check_target(basedir: Path, date: str, drive: int) -> None:
 
     ddir = drive_dir(basedir, date, drive)
     if (basedir / date).exists() and not (basedir / date).is_dir():
-        _fail(f"{basedir / date} exists and is not a folder; choose another --out or --date")
+        _fail(
+            f"{basedir / date} exists and is not a folder; choose another --out or --date"
+        )
     if ddir.is_symlink() or (ddir.exists() and not ddir.is_dir()):
-        _fail(f"{ddir} exists and is not a folder; choose another --out, --date or --drive")
+        _fail(
+            f"{ddir} exists and is not a folder; choose another --out, --date or --drive"
+        )
     if ddir.is_dir() and not is_own_drive(ddir) and any(ddir.iterdir()):
-        _fail(f"{ddir} exists and is not a slamlib synthetic drive (no {MARKER}); choose another --out, --date or "
-              "--drive")
+        _fail(
+            f"{ddir} exists and is not a slamlib synthetic drive (no {MARKER}); choose another --out, --date or "
+            "--drive"
+        )
     from slamlib.paths import kitti_sample_dir
 
     for name in CALIB_FILES:
         mine = kitti_sample_dir() / "raw" / "2011_09_26" / name
         theirs = basedir / date / name
         if theirs.is_file() and theirs.read_bytes() != mine.read_bytes():
-            _fail(f"{theirs} exists and differs from the 2011_09_26 calibration this command writes; "
-                  "choose another --out or --date")
+            _fail(
+                f"{theirs} exists and differs from the 2011_09_26 calibration this command writes; "
+                "choose another --out or --date"
+            )
 
 
 def main(args) -> int:
     import datetime as dt
     import time
 
-    from slamlib.synth import WANDERING_BIASES, Hdl64, ImuNoise, resolve_route, write_drive
+    from slamlib.synth import (
+        WANDERING_BIASES,
+        Hdl64,
+        ImuNoise,
+        resolve_route,
+        write_drive,
+    )
 
     if not 0 <= args.drive <= 9999:
         _fail(f"--drive must be in 0..9999, got {args.drive}")
     try:
         dt.datetime.strptime(args.date, "%Y_%m_%d")
     except ValueError:
-        _fail(f"--date must be a date written YYYY_MM_DD (e.g. 2011_09_26), got {args.date!r}")
+        _fail(
+            f"--date must be a date written YYYY_MM_DD (e.g. 2011_09_26), got {args.date!r}"
+        )
     if not 8 <= args.columns <= MAX_COLUMNS:
         _fail(f"--columns must be in [8, {MAX_COLUMNS:,}], got {args.columns}")
     if not args.imu_noise <= MAX_IMU_NOISE:
-        _fail(f"--imu-noise must be a finite number in [0, {MAX_IMU_NOISE:g}], got {args.imu_noise}")
+        _fail(
+            f"--imu-noise must be a finite number in [0, {MAX_IMU_NOISE:g}], got {args.imu_noise}"
+        )
     try:
-        noise = (WANDERING_BIASES if args.bias_walk else ImuNoise()).scaled(args.imu_noise)
+        noise = (WANDERING_BIASES if args.bias_walk else ImuNoise()).scaled(
+            args.imu_noise
+        )
     except ValueError:
-        _fail(f"--imu-noise must be a finite number in [0, {MAX_IMU_NOISE:g}], got {args.imu_noise}")
+        _fail(
+            f"--imu-noise must be a finite number in [0, {MAX_IMU_NOISE:g}], got {args.imu_noise}"
+        )
     if args.seed < 0:
         _fail(f"--seed must be >= 0, got {args.seed}")
     traffic = _traffic(args.traffic)
@@ -165,15 +252,19 @@ def main(args) -> int:
         keys = len(kitti_route(args.route).times)
         start, stop = frames
         if start > keys - 4 or (stop is not None and stop > keys):
-            _fail(f"route {args.route} has key frames 0..{keys - 1}: --frames {args.frames!r} is out of range "
-                  f"(a drive needs at least 4 key frames of the sequence)")
+            _fail(
+                f"route {args.route} has key frames 0..{keys - 1}: --frames {args.frames!r} is out of range "
+                f"(a drive needs at least 4 key frames of the sequence)"
+            )
     try:
         route, n = resolve_route(args.route, frames)
     except ValueError as exc:
         _fail(f"--frames {args.frames!r}: {exc}")
     if args.route in KITTI_ROUTES and frames[1] is not None and n < frames[1] - frames[0]:
-        _fail(f"route {args.route} has key frames 0..{keys - 1}: --frames {args.frames!r} spans only {n} frames, "
-              f"asked for {frames[1] - frames[0]}")
+        _fail(
+            f"route {args.route} has key frames 0..{keys - 1}: --frames {args.frames!r} spans only {n} frames, "
+            f"asked for {frames[1] - frames[0]}"
+        )
     basedir = args.out
     if basedir.exists() and not basedir.is_dir():
         _fail(f"--out {basedir} exists and is not a folder")
@@ -183,16 +274,35 @@ def main(args) -> int:
         _fail("--sequence goes with --layout odometry")
     _check_target(basedir, args.date, args.drive)
 
-    frames_text = (f"key frames {frames[0]}:{'' if frames[1] is None else frames[1]}" if args.route in KITTI_ROUTES
-                   else "the whole route" if frames is None else f"frames 0:{frames}")
-    print(f"slamlib synth: route {args.route} ({frames_text}) -> {n} frames, seed {args.seed}, "
-          f"{args.columns} LIDAR columns, IMU noise x{args.imu_noise:g}"
-          + (", wandering biases" if args.bias_walk else "") + (", swept scans" if args.distortion else "")
-          + (", no scans" if args.no_scans else ""))
+    frames_text = (
+        f"key frames {frames[0]}:{'' if frames[1] is None else frames[1]}"
+        if args.route in KITTI_ROUTES
+        else "the whole route"
+        if frames is None
+        else f"frames 0:{frames}"
+    )
+    print(
+        f"slamlib synth: route {args.route} ({frames_text}) -> {n} frames, seed {args.seed}, "
+        f"{args.columns} LIDAR columns, IMU noise x{args.imu_noise:g}"
+        + (", wandering biases" if args.bias_walk else "")
+        + (", swept scans" if args.distortion else "")
+        + (", no scans" if args.no_scans else "")
+    )
     t0 = time.perf_counter()
-    write_drive(basedir, args.route, date=args.date, drive=args.drive, frames=frames, seed=args.seed, noise=noise,
-                lidar=Hdl64(columns=args.columns), scans=not args.no_scans, progress=not args.no_progress,
-                traffic=traffic, distortion=args.distortion)
+    write_drive(
+        basedir,
+        args.route,
+        date=args.date,
+        drive=args.drive,
+        frames=frames,
+        seed=args.seed,
+        noise=noise,
+        lidar=Hdl64(columns=args.columns),
+        scans=not args.no_scans,
+        progress=not args.no_progress,
+        traffic=traffic,
+        distortion=args.distortion,
+    )
     seconds = time.perf_counter() - t0
     from slamlib.synth.writer import drive_dir
 
@@ -202,8 +312,10 @@ def main(args) -> int:
     print("read it with:")
     print(f"  pykitti.raw({str(basedir)!r}, {args.date!r}, {drive!r})")
     if args.no_scans:
-        print("  (no Velodyne scans were written: pykitti reads the OXTS packets and timestamps; slamlib run needs "
-              "scans)")
+        print(
+            "  (no Velodyne scans were written: pykitti reads the OXTS packets and timestamps; slamlib run needs "
+            "scans)"
+        )
     else:
         print(f"  slamlib run --basedir {basedir} --date {args.date} --drive {drive}")
     return 0
@@ -212,7 +324,9 @@ def main(args) -> int:
 def check_traffic_scale(scale: float) -> None:
     """``ValueError`` naming ``--traffic`` unless ``0 < scale <= MAX_TRAFFIC`` (nan too); also for ``slamlib sweep``."""
     if not 0.0 < scale <= MAX_TRAFFIC:
-        raise ValueError(f"--traffic must be a density scale in (0, {MAX_TRAFFIC:g}], got {scale}")
+        raise ValueError(
+            f"--traffic must be a density scale in (0, {MAX_TRAFFIC:g}], got {scale}"
+        )
 
 
 def _traffic(scale):
@@ -235,19 +349,38 @@ def _write_sequence(args, basedir: Path, frames, n: int, traffic=None) -> int:
     from slamlib.synth import Hdl64, write_sequence
 
     if args.no_scans:
-        _fail("--no-scans does not go with --layout odometry: an odometry sequence is its scans")
-    sequence = args.sequence if args.sequence is not None else (int(args.route) if args.route in KITTI_ROUTES else 0)
+        _fail(
+            "--no-scans does not go with --layout odometry: an odometry sequence is its scans"
+        )
+    sequence = (
+        args.sequence
+        if args.sequence is not None
+        else (int(args.route) if args.route in KITTI_ROUTES else 0)
+    )
     if not 0 <= sequence <= 99:
         _fail(f"--sequence must be in 0..99, got {sequence}")
-    print(f"slamlib synth: route {args.route} -> {n} frames, seed {args.seed}, {args.columns} LIDAR columns, "
-          f"KITTI odometry layout, sequence {sequence:02d}")
+    print(
+        f"slamlib synth: route {args.route} -> {n} frames, seed {args.seed}, {args.columns} LIDAR columns, "
+        f"KITTI odometry layout, sequence {sequence:02d}"
+    )
     t0 = time.perf_counter()
     try:
-        write_sequence(basedir, args.route, sequence, frames=frames, seed=args.seed, lidar=Hdl64(columns=args.columns),
-                       progress=not args.no_progress, traffic=traffic, distortion=args.distortion)
+        write_sequence(
+            basedir,
+            args.route,
+            sequence,
+            frames=frames,
+            seed=args.seed,
+            lidar=Hdl64(columns=args.columns),
+            progress=not args.no_progress,
+            traffic=traffic,
+            distortion=args.distortion,
+        )
     except FileExistsError as exc:
         _fail(f"{exc}")
-    print(f"wrote {n} frames in {time.perf_counter() - t0:.1f} s to {basedir / 'sequences' / f'{sequence:02d}'}")
+    print(
+        f"wrote {n} frames in {time.perf_counter() - t0:.1f} s to {basedir / 'sequences' / f'{sequence:02d}'}"
+    )
     print("read it with:")
     print(f"  pykitti.odometry({str(basedir)!r}, {f'{sequence:02d}'!r})")
     print(f"  slamlib run --odometry-dir {basedir} --sequence {sequence:02d}")

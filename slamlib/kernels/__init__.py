@@ -23,14 +23,23 @@ Every backend provides the same four functions (CONTRIBUTING.md, "Backend interf
 from __future__ import annotations
 
 import importlib
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 from slamlib.errors import BackendUnavailableError
 
 BACKENDS = ("numpy", "cpu", "cuda")
-_MODULES = {"numpy": "slamlib.kernels.reference", "cpu": "slamlib.kernels.cpu", "cuda": "slamlib.kernels.cuda"}
-_FUNCTIONS = ("move_particles", "transform_points", "score_particles", "systematic_resample")
+_MODULES = {
+    "numpy": "slamlib.kernels.reference",
+    "cpu": "slamlib.kernels.cpu",
+    "cuda": "slamlib.kernels.cuda",
+}
+_FUNCTIONS = (
+    "move_particles",
+    "transform_points",
+    "score_particles",
+    "systematic_resample",
+)
 
 
 @dataclass(frozen=True)
@@ -67,7 +76,8 @@ def get_backend(name: str = "cpu") -> Backend:
         if name == "cuda":
             raise BackendUnavailableError(
                 f"the CUDA backend cannot be imported ({exc}); install it with `pip install numba-cuda[cu12]` "
-                "on a machine with an NVIDIA GPU, or use backend=\"cpu\"") from exc
+                'on a machine with an NVIDIA GPU, or use backend="cpu"'
+            ) from exc
         raise
     check = getattr(module, "check_available", None)
     if check is not None:

@@ -42,7 +42,13 @@ import numpy as np
 from numba import njit, prange
 
 from slamlib.kernels.device import make_point_functions
-from slamlib.kernels.memory_hints import LINE_BYTES, LINE_F32, prefetch, store_fence, stream_line
+from slamlib.kernels.memory_hints import (
+    LINE_BYTES,
+    LINE_F32,
+    prefetch,
+    store_fence,
+    stream_line,
+)
 from slamlib.maps.base import KIND_MORTON, KIND_VOXEL_HASH
 from slamlib.noise import N_COMPONENTS, LutNoise, frame_key, make_lut_functions
 
@@ -72,6 +78,7 @@ _thread_hash = _L["thread_hash"]
 _hash_index = _L["hash_index"]
 # unsigned index arithmetic: no negative-index wrap-around test in the loops, so LLVM vectorises them
 _U1, _U2, _U3, _U4, _U5, _U6, _U9 = (np.uint64(k) for k in (1, 2, 3, 4, 5, 6, 9))
+
 
 @njit(cache=True, inline="always")
 def _ceil_div(n, chunk):
@@ -103,10 +110,23 @@ def _move_particle(R, t, R_new, t_new, r, rs, cs, q, ts, d, n, sx, sy, sz):
     of the result needs row ``a`` of ``R_i`` only, so ``R_new`` may be ``R`` (in place)."""
     for a in range(3):
         k = r + rs * np.uint64(a)
-        a0, a1, a2 = _row_times(R[k], R[k + cs], R[k + cs + cs], d[0], d[1], d[2], d[3], d[4], d[5], d[6], d[7],
-                                d[8])
-        R_new[k], R_new[k + cs], R_new[k + cs + cs] = _row_times(a0, a1, a2, n[0], n[1], n[2], n[3], n[4], n[5],
-                                                                 n[6], n[7], n[8])
+        a0, a1, a2 = _row_times(
+            R[k],
+            R[k + cs],
+            R[k + cs + cs],
+            d[0],
+            d[1],
+            d[2],
+            d[3],
+            d[4],
+            d[5],
+            d[6],
+            d[7],
+            d[8],
+        )
+        R_new[k], R_new[k + cs], R_new[k + cs + cs] = _row_times(
+            a0, a1, a2, n[0], n[1], n[2], n[3], n[4], n[5], n[6], n[7], n[8]
+        )
         m = q + ts * np.uint64(a)
         t_new[m] = _row_step(t[m], a0, a1, a2, sx, sy, sz)
 
@@ -137,7 +157,9 @@ def _make_move_kernels(soa: bool):
         if soa:
             _move_particle(R, t, R_new, t_new, i, _U3 * p, p, i, p, d, n, sx, sy, sz)
         else:
-            _move_particle(R, t, R_new, t_new, _U9 * i, _U3, _U1, _U3 * i, _U1, d, n, sx, sy, sz)
+            _move_particle(
+                R, t, R_new, t_new, _U9 * i, _U3, _U1, _U3 * i, _U1, d, n, sx, sy, sz
+            )
 
     @njit(parallel=True, cache=True)
     def _move_nb(R, t, d, trans_delta, noise, sigma, R_new, t_new, P, block):
@@ -146,32 +168,83 @@ def _make_move_kernels(soa: bool):
         for b in prange(_ceil_div(P, block)):
             for i in range(np.uint64(b * block), np.uint64(min(P, (b + 1) * block))):
                 e, es = (i, p) if soa else (_U6 * i, _U1)  # noise[i, k] = noise[e + k es]
-                n = _rpy_rotation(sigma[3] * noise[e + _U3 * es], sigma[4] * noise[e + _U4 * es],
-                                  sigma[5] * noise[e + _U5 * es])
-                move_one(R, t, R_new, t_new, i, p, d, n, trans_delta[0] + sigma[0] * noise[e],
-                         trans_delta[1] + sigma[1] * noise[e + es], trans_delta[2] + sigma[2] * noise[e + _U2 * es])
+                n = _rpy_rotation(
+                    sigma[3] * noise[e + _U3 * es],
+                    sigma[4] * noise[e + _U4 * es],
+                    sigma[5] * noise[e + _U5 * es],
+                )
+                move_one(
+                    R,
+                    t,
+                    R_new,
+                    t_new,
+                    i,
+                    p,
+                    d,
+                    n,
+                    trans_delta[0] + sigma[0] * noise[e],
+                    trans_delta[1] + sigma[1] * noise[e + es],
+                    trans_delta[2] + sigma[2] * noise[e + _U2 * es],
+                )
 
     def make_lut(with_trig):
         @njit(parallel=True, cache=True)
-        def _move_lut_nb(R, t, d, trans_delta, sigma, key, perm, bits, normal, step_tab, trig_tab, R_new, t_new, P,
-                         block):
+        def _move_lut_nb(
+            R,
+            t,
+            d,
+            trans_delta,
+            sigma,
+            key,
+            perm,
+            bits,
+            normal,
+            step_tab,
+            trig_tab,
+            R_new,
+            t_new,
+            P,
+            block,
+        ):
             """The fused move with LUT noise drawn in the loop (one counter hash per particle) over flat particles."""
             p = np.uint64(P)
             for b in prange(_ceil_div(P, block)):
                 for i in range(np.uint64(b * block), np.uint64(min(P, (b + 1) * block))):
-                    h = _thread_hash(i, key)  # one hash per particle; the six table indexes come from it
+                    h = _thread_hash(
+                        i, key
+                    )  # one hash per particle; the six table indexes come from it
                     i3 = _hash_index(h, 3, perm, bits)
                     i4 = _hash_index(h, 4, perm, bits)
                     i5 = _hash_index(h, 5, perm, bits)
                     if with_trig:  # a constant of the build, like soa
-                        n = _rpy_rotation_cs(trig_tab[0, i3, 0], trig_tab[0, i3, 1], trig_tab[1, i4, 0],
-                                             trig_tab[1, i4, 1], trig_tab[2, i5, 0], trig_tab[2, i5, 1])
+                        n = _rpy_rotation_cs(
+                            trig_tab[0, i3, 0],
+                            trig_tab[0, i3, 1],
+                            trig_tab[1, i4, 0],
+                            trig_tab[1, i4, 1],
+                            trig_tab[2, i5, 0],
+                            trig_tab[2, i5, 1],
+                        )
                     else:
-                        n = _rpy_rotation(sigma[3] * normal[i3], sigma[4] * normal[i4], sigma[5] * normal[i5])
-                    move_one(R, t, R_new, t_new, i, p, d, n,
-                             trans_delta[0] + step_tab[0, _hash_index(h, 0, perm, bits)],
-                             trans_delta[1] + step_tab[1, _hash_index(h, 1, perm, bits)],
-                             trans_delta[2] + step_tab[2, _hash_index(h, 2, perm, bits)])
+                        n = _rpy_rotation(
+                            sigma[3] * normal[i3],
+                            sigma[4] * normal[i4],
+                            sigma[5] * normal[i5],
+                        )
+                    move_one(
+                        R,
+                        t,
+                        R_new,
+                        t_new,
+                        i,
+                        p,
+                        d,
+                        n,
+                        trans_delta[0] + step_tab[0, _hash_index(h, 0, perm, bits)],
+                        trans_delta[1] + step_tab[1, _hash_index(h, 1, perm, bits)],
+                        trans_delta[2] + step_tab[2, _hash_index(h, 2, perm, bits)],
+                    )
+
         return _move_lut_nb
 
     return _move_nb, make_lut(True), make_lut(False)
@@ -200,7 +273,9 @@ def _check_particles(R, t):
     R = np.ascontiguousarray(R, dtype=np.float64)
     t = np.ascontiguousarray(t, dtype=np.float64)
     if R.ndim != 3 or R.shape[1:] != (3, 3) or t.shape != (R.shape[0], 3):
-        raise ValueError(f"particles need R (P, 3, 3) and t (P, 3), got {R.shape} and {t.shape}")
+        raise ValueError(
+            f"particles need R (P, 3, 3) and t (P, 3), got {R.shape} and {t.shape}"
+        )
     return R, t
 
 
@@ -214,16 +289,28 @@ def _vector(x, n, name):
 
 def _check_out(out, like, name):
     """``out`` as a destination for an array shaped and typed like ``like``: C-contiguous, same dtype and shape."""
-    if not (isinstance(out, np.ndarray) and out.dtype == like.dtype and out.shape == like.shape
-            and out.flags.c_contiguous and out.flags.writeable):
-        raise ValueError(f"{name} must be a writeable C-contiguous {like.dtype} array of shape {like.shape}")
+    if not (
+        isinstance(out, np.ndarray)
+        and out.dtype == like.dtype
+        and out.shape == like.shape
+        and out.flags.c_contiguous
+        and out.flags.writeable
+    ):
+        raise ValueError(
+            f"{name} must be a writeable C-contiguous {like.dtype} array of shape {like.shape}"
+        )
     if out is not like and np.may_share_memory(out, like) and not _same_memory(out, like):
-        raise ValueError(f"{name} overlaps its input without being the same array (in place needs out=the input)")
+        raise ValueError(
+            f"{name} overlaps its input without being the same array (in place needs out=the input)"
+        )
     return out
 
 
 def _same_memory(a, b):
-    return a.__array_interface__["data"][0] == b.__array_interface__["data"][0] and a.shape == b.shape
+    return (
+        a.__array_interface__["data"][0] == b.__array_interface__["data"][0]
+        and a.shape == b.shape
+    )
 
 
 def move_particles(R, t, rpy_delta, trans_delta, noise, sigma, out=None):
@@ -258,12 +345,18 @@ def move_particles_soa(R, t, rpy_delta, trans_delta, noise, sigma, out=None):
 
 
 def _check_particles_soa(R, t):
-    dtype = np.float32 if getattr(R, "dtype", None) == np.float32 and getattr(t, "dtype", None) == np.float32 \
+    dtype = (
+        np.float32
+        if getattr(R, "dtype", None) == np.float32
+        and getattr(t, "dtype", None) == np.float32
         else np.float64
+    )
     R = np.ascontiguousarray(R, dtype=dtype)
     t = np.ascontiguousarray(t, dtype=dtype)
     if R.ndim != 3 or R.shape[:2] != (3, 3) or t.shape != (3, R.shape[2]):
-        raise ValueError(f"component-major particles need R (3, 3, P) and t (3, P), got {R.shape} and {t.shape}")
+        raise ValueError(
+            f"component-major particles need R (3, 3, P) and t (3, P), got {R.shape} and {t.shape}"
+        )
     return R, t
 
 
@@ -273,7 +366,9 @@ def _move(R, t, P, rpy_delta, trans_delta, noise, sigma, out, soa):
     sigma = _vector(sigma, 6, "sigma")
     rpy = _vector(rpy_delta, 3, "rpy_delta")
     trans = _vector(trans_delta, 3, "trans_delta").astype(dtype)
-    d = tuple(np.asarray(_rpy_rotation(*rpy), dtype))  # dR as a row-major 9-tuple: registers in the loop
+    d = tuple(
+        np.asarray(_rpy_rotation(*rpy), dtype)
+    )  # dR as a row-major 9-tuple: registers in the loop
     if out is None:
         R_new, t_new = np.empty_like(R), np.empty_like(t)
     else:
@@ -286,22 +381,50 @@ def _move(R, t, P, rpy_delta, trans_delta, noise, sigma, out, soa):
         tables = noise.tables
         T = tables.normal.shape[0]
         if tables.perm.shape != (N_COMPONENTS, T) or T != 1 << tables.bits:
-            raise ValueError("LutNoise tables need normal (T,) and perm (6, T) with T = 2**bits")
+            raise ValueError(
+                "LutNoise tables need normal (T,) and perm (6, T) with T = 2**bits"
+            )
         with_trig = P > LUT_TRIG_TABLE_RATIO * T
         step_tab = np.empty((3, T))
         trig_tab = np.zeros((3, T, 2) if with_trig else (3, 1, 2))
         _lut_tables_nb(tables.normal, sigma, step_tab, trig_tab, with_trig)
         key = np.uint64(frame_key(np.uint64(noise.step), np.uint64(noise.seed)))
-        _launch(_MOVE[soa][1 if with_trig else 2], P, PARTICLE_BLOCK, *flat, d, trans, sigma.astype(dtype), key,
-                tables.perm, np.int64(tables.bits), tables.normal, step_tab.astype(dtype), trig_tab.astype(dtype),
-                *flat_new, P)
+        _launch(
+            _MOVE[soa][1 if with_trig else 2],
+            P,
+            PARTICLE_BLOCK,
+            *flat,
+            d,
+            trans,
+            sigma.astype(dtype),
+            key,
+            tables.perm,
+            np.int64(tables.bits),
+            tables.normal,
+            step_tab.astype(dtype),
+            trig_tab.astype(dtype),
+            *flat_new,
+            P,
+        )
         return R_new, t_new
     shape = (6, P) if soa else (P, 6)
     noise = np.ascontiguousarray(noise, dtype=dtype)
     if noise.shape != shape:
-        raise ValueError(f"noise must have shape {'(6, P)' if soa else '(P, 6)'} = {shape}, got {noise.shape}")
-    _launch(_MOVE[soa][0], P, PARTICLE_BLOCK, *flat, d, trans, noise.reshape(-1),
-            sigma.astype(dtype), *flat_new, P)
+        raise ValueError(
+            f"noise must have shape {'(6, P)' if soa else '(P, 6)'} = {shape}, got {noise.shape}"
+        )
+    _launch(
+        _MOVE[soa][0],
+        P,
+        PARTICLE_BLOCK,
+        *flat,
+        d,
+        trans,
+        noise.reshape(-1),
+        sigma.astype(dtype),
+        *flat_new,
+        P,
+    )
     return R_new, t_new
 
 
@@ -377,12 +500,16 @@ def _transform_stream_nb(R, t, x, y, head, chunk):
             # is fully unrolled into slower straight-line code (measured 84 against 54 ms at 1e8 points)
             for j in range(min(STREAM_GROUP, n - a)):
                 k = _U3 * np.uint64(j)
-                wx, wy, wz = _world_point(R, t, 0, x[k0 + k], x[k0 + k + _U1], x[k0 + k + _U2])
+                wx, wy, wz = _world_point(
+                    R, t, 0, x[k0 + k], x[k0 + k + _U1], x[k0 + k + _U2]
+                )
                 lines[k] = wx
                 lines[k + _U1] = wy
                 lines[k + _U2] = wz
             for q in range(3):
-                stream_line(y, k0 + np.uint64(LINE_F32 * q), lines, np.uint64(LINE_F32 * q))
+                stream_line(
+                    y, k0 + np.uint64(LINE_F32 * q), lines, np.uint64(LINE_F32 * q)
+                )
         store_fence()  # the stores are weakly ordered: all in memory before the caller reads y
 
 
@@ -404,7 +531,14 @@ def _stream_head(y):
     ``address(y) + 12 h = 0 (mod 64)`` (one exists for any 4-byte aligned ``y``: 3 is invertible mod 16);
     None for a misaligned ``y``. ``y`` is the float32 output, (N, 3) or flat (3N,)."""
     address = y.__array_interface__["data"][0]
-    return next((h for h in range(STREAM_GROUP) if (address + _POINT_BYTES * h) % LINE_BYTES == 0), None)
+    return next(
+        (
+            h
+            for h in range(STREAM_GROUP)
+            if (address + _POINT_BYTES * h) % LINE_BYTES == 0
+        ),
+        None,
+    )
 
 
 def transform_points(T, points, out=None):
@@ -421,16 +555,22 @@ def transform_points(T, points, out=None):
     T = np.asarray(T)  # cast to float32 below
     pts = np.ascontiguousarray(points, dtype=np.float32)
     if T.shape != (4, 4) or pts.ndim != 2 or pts.shape[1] != 3:
-        raise ValueError(f"need T (4, 4) and points (N, 3), got {T.shape} and {pts.shape}")
+        raise ValueError(
+            f"need T (4, 4) and points (N, 3), got {T.shape} and {pts.shape}"
+        )
     # the pose as a batch of one particle: R (1, 3, 3), t (1, 3) float32
     R32 = np.ascontiguousarray(T[None, :3, :3], dtype=np.float32)
     t32 = np.ascontiguousarray(T[None, :3, 3], dtype=np.float32)
     fresh = out is None
     if fresh:
         out = np.empty_like(pts)
-    elif out is pts or (isinstance(out, np.ndarray) and out.shape == pts.shape and _same_memory(out, pts)):
+    elif out is pts or (
+        isinstance(out, np.ndarray) and out.shape == pts.shape and _same_memory(out, pts)
+    ):
         _check_out(out, pts, "out")
-        _launch(_transform_inplace_nb, len(pts), TRANSFORM_CHUNK, R32, t32, out.reshape(-1))
+        _launch(
+            _transform_inplace_nb, len(pts), TRANSFORM_CHUNK, R32, t32, out.reshape(-1)
+        )
         return out
     else:
         _check_out(out, pts, "out")
@@ -438,7 +578,15 @@ def transform_points(T, points, out=None):
     # hit, where non-temporal ones would first have to push the line out (measured 1.3x slower at 1e7 and 1e8)
     head = _stream_head(out) if len(pts) >= STREAM_MIN_POINTS and not fresh else None
     if head is None:
-        _launch(_transform_nb, len(pts), TRANSFORM_CHUNK, R32, t32, pts.reshape(-1), out.reshape(-1))
+        _launch(
+            _transform_nb,
+            len(pts),
+            TRANSFORM_CHUNK,
+            R32,
+            t32,
+            pts.reshape(-1),
+            out.reshape(-1),
+        )
     else:
         # one task per thread: each task ends with a store fence, which waits for its write-combining buffers
         per_thread = max(1, _ceil_div(len(pts) // STREAM_GROUP, numba.get_num_threads()))
@@ -476,7 +624,20 @@ _NO_BLOCK = np.int64(-(2**62))
 
 
 @njit(parallel=True, cache=True)
-def _score_voxel_nb(R, t, pts, keys, mean, icov, inv_h, log2_capacity, max_probe, m_max, pt_chunk, part_chunk):
+def _score_voxel_nb(
+    R,
+    t,
+    pts,
+    keys,
+    mean,
+    icov,
+    inv_h,
+    log2_capacity,
+    max_probe,
+    m_max,
+    pt_chunk,
+    part_chunk,
+):
     P = R.shape[0]
     N = pts.shape[0]
     npc, nqc = _n_chunks(N, P, pt_chunk, part_chunk)
@@ -484,11 +645,15 @@ def _score_voxel_nb(R, t, pts, keys, mean, icov, inv_h, log2_capacity, max_probe
     miss = -0.5 * m_max
     for task in prange(npc * nqc):
         c, j0, j1, i0, i1 = _task_span(task, nqc, N, P, pt_chunk, part_chunk)
-        slots = np.empty(8, np.int64)  # the 8 corner slots of the block (cx, cy, cz), looked up once per block
+        slots = np.empty(
+            8, np.int64
+        )  # the 8 corner slots of the block (cx, cy, cz), looked up once per block
         cx = cy = cz = _NO_BLOCK  # no block yet
         for j in range(j0, j1):
             x, y, z = np.float64(pts[j, 0]), np.float64(pts[j, 1]), np.float64(pts[j, 2])
-            for i in range(i0, i1):  # the particles' copies of point j fall in the same few blocks of voxels
+            for i in range(
+                i0, i1
+            ):  # the particles' copies of point j fall in the same few blocks of voxels
                 wx, wy, wz = _world_point(R, t, i, x, y, z)
                 ux0, uy0, uz0, fx, fy, fz, ok = _voxel_cell(wx, wy, wz, inv_h)
                 if not ok:
@@ -497,10 +662,14 @@ def _score_voxel_nb(R, t, pts, keys, mean, icov, inv_h, log2_capacity, max_probe
                 if ux0 != cx or uy0 != cy or uz0 != cz:
                     cx, cy, cz = ux0, uy0, uz0
                     for k in range(8):
-                        slots[k] = _corner_slot(cx, cy, cz, k, keys, log2_capacity, max_probe)
+                        slots[k] = _corner_slot(
+                            cx, cy, cz, k, keys, log2_capacity, max_probe
+                        )
                 total = 0.0  # voxel_term's sum, in its corner order: the same bits
                 for k in range(8):
-                    total += _corner_weight(fx, fy, fz, k) * _slot_term(wx, wy, wz, slots[k], mean, icov, m_max)
+                    total += _corner_weight(fx, fy, fz, k) * _slot_term(
+                        wx, wy, wz, slots[k], mean, icov, m_max
+                    )
                 partial[c, i] += total
     return _sum_chunks(partial)
 
@@ -555,8 +724,26 @@ def _push(stack, sp, lo, hi, level, nx, ny, nz):
 
 
 @njit(cache=True)
-def morton_nn_nb(wx, wy, wz, codes, points, cell_codes, cell_start, cell_lo, cell_hi, quantum, cell_level, best,
-                 best_j, stack, leaf, cache_code, cache_k, cache_bits):
+def morton_nn_nb(
+    wx,
+    wy,
+    wz,
+    codes,
+    points,
+    cell_codes,
+    cell_start,
+    cell_lo,
+    cell_hi,
+    quantum,
+    cell_level,
+    best,
+    best_j,
+    stack,
+    leaf,
+    cache_code,
+    cache_k,
+    cache_bits,
+):
     """Nearest stored point to world point ``(wx, wy, wz)`` closer than ``sqrt(best)``: ``(best, best_j)``.
 
     Exact branch-and-bound search of the implicit octree over the sorted Morton codes (see ``MortonLookup``):
@@ -577,7 +764,9 @@ def morton_nn_nb(wx, wy, wz, codes, points, cell_codes, cell_start, cell_lo, cel
     size0 = np.float64(np.int64(1) << cell_level)
     lim = _cells_per_axis(cell_level)
     q2 = quantum * quantum
-    for rnd in range(2):  # round 0: the cell that holds the point; round 1: the other seven
+    for rnd in range(
+        2
+    ):  # round 0: the cell that holds the point; round 1: the other seven
         for blk in range(8):
             cx = cx0 + (blk & 1)
             cy = cy0 + ((blk >> 1) & 1)
@@ -590,7 +779,9 @@ def morton_nn_nb(wx, wy, wz, codes, points, cell_codes, cell_start, cell_lo, cel
             box2 = (gx * gx + gy * gy + gz * gz) * q2
             if (rnd == 0) != (box2 == 0.0) or box2 >= best:
                 continue
-            k = _find_cell_cached_nb(cell_codes, _morton(cx, cy, cz), cache_code, cache_k, cache_bits)
+            k = _find_cell_cached_nb(
+                cell_codes, _morton(cx, cy, cz), cache_code, cache_k, cache_bits
+            )
             if k < 0:
                 continue
             gx = max(np.float64(cell_lo[k, 0]) - wx, 0.0, wx - np.float64(cell_hi[k, 0]))
@@ -614,7 +805,9 @@ def morton_nn_nb(wx, wy, wz, codes, points, cell_codes, cell_start, cell_lo, cel
                 if (gx * gx + gy * gy + gz * gz) * q2 >= best:
                     continue
                 if hi - lo <= leaf or lev == 0:
-                    best, best_j = _nearest_in_run(points, lo, hi, wx, wy, wz, best, best_j)
+                    best, best_j = _nearest_in_run(
+                        points, lo, hi, wx, wy, wz, best, best_j
+                    )
                     continue
                 shift = 3 * (lev - 1)
                 parent = (codes[lo] >> shift) >> 3
@@ -625,7 +818,11 @@ def morton_nn_nb(wx, wy, wz, codes, points, cell_codes, cell_start, cell_lo, cel
                     hxi = np.int64(ux - nx * size >= half)
                     hyi = np.int64(uy - ny * size >= half)
                     hzi = np.int64(uz - nz * size >= half)
-                    if (ux < (nx + 1) * size and uy < (ny + 1) * size and uz < (nz + 1) * size):
+                    if (
+                        ux < (nx + 1) * size
+                        and uy < (ny + 1) * size
+                        and uz < (nz + 1) * size
+                    ):
                         hold = hxi | (hyi << 1) | (hzi << 2)
                 start = lo
                 hold_lo = 0
@@ -646,18 +843,51 @@ def morton_nn_nb(wx, wy, wz, codes, points, cell_codes, cell_start, cell_lo, cel
                             hold_lo = start
                             hold_hi = l2
                         else:
-                            sp = _push(stack, sp, start, l2, lev - 1, 2 * nx + (ch & 1), 2 * ny + ((ch >> 1) & 1),
-                                       2 * nz + (ch >> 2))
+                            sp = _push(
+                                stack,
+                                sp,
+                                start,
+                                l2,
+                                lev - 1,
+                                2 * nx + (ch & 1),
+                                2 * ny + ((ch >> 1) & 1),
+                                2 * nz + (ch >> 2),
+                            )
                     start = l2
                 if hold_hi > hold_lo:
-                    sp = _push(stack, sp, hold_lo, hold_hi, lev - 1, 2 * nx + (hold & 1), 2 * ny + ((hold >> 1) & 1),
-                               2 * nz + (hold >> 2))
+                    sp = _push(
+                        stack,
+                        sp,
+                        hold_lo,
+                        hold_hi,
+                        lev - 1,
+                        2 * nx + (hold & 1),
+                        2 * ny + ((hold >> 1) & 1),
+                        2 * nz + (hold >> 2),
+                    )
     return best, best_j
 
 
 @njit(parallel=True, cache=True)
-def _score_morton_nb(R, t, pts, codes, points, cell_codes, cell_start, cell_lo, cell_hi, quantum, cell_level,
-                     radius, sigma, pt_chunk, part_chunk, leaf, cache_bits):
+def _score_morton_nb(
+    R,
+    t,
+    pts,
+    codes,
+    points,
+    cell_codes,
+    cell_start,
+    cell_lo,
+    cell_hi,
+    quantum,
+    cell_level,
+    radius,
+    sigma,
+    pt_chunk,
+    part_chunk,
+    leaf,
+    cache_bits,
+):
     P = R.shape[0]
     N = pts.shape[0]
     npc, nqc = _n_chunks(N, P, pt_chunk, part_chunk)
@@ -675,11 +905,32 @@ def _score_morton_nb(R, t, pts, codes, points, cell_codes, cell_start, cell_lo, 
             for i in range(i0, i1):
                 wx, wy, wz = _world_point(R, t, i, x, y, z)
                 best, found = r2, -1
-                if prev >= 0:  # warm start: the previous particle's neighbour bounds this one's distance
-                    best, found = _nearest_in_run(points, prev, prev + 1, wx, wy, wz, r2, -1)
-                best, prev = morton_nn_nb(wx, wy, wz, codes, points, cell_codes, cell_start, cell_lo, cell_hi,
-                                          quantum, cell_level, best, found, stack, leaf, cache_code, cache_k,
-                                          cache_bits)
+                if (
+                    prev >= 0
+                ):  # warm start: the previous particle's neighbour bounds this one's distance
+                    best, found = _nearest_in_run(
+                        points, prev, prev + 1, wx, wy, wz, r2, -1
+                    )
+                best, prev = morton_nn_nb(
+                    wx,
+                    wy,
+                    wz,
+                    codes,
+                    points,
+                    cell_codes,
+                    cell_start,
+                    cell_lo,
+                    cell_hi,
+                    quantum,
+                    cell_level,
+                    best,
+                    found,
+                    stack,
+                    leaf,
+                    cache_code,
+                    cache_k,
+                    cache_bits,
+                )
                 partial[c, i] += scale * best
     return _sum_chunks(partial)
 
@@ -694,14 +945,40 @@ def score_particles(R, t, points, lookup):
     if pts.ndim != 2 or pts.shape[1] != 3:
         raise ValueError(f"points must have shape (N, 3), got {pts.shape}")
     if lookup.kind == KIND_VOXEL_HASH:
-        return _score_voxel_nb(R, t, pts, lookup.keys, lookup.mean, lookup.icov, float(lookup.inv_voxel_size),
-                               int(lookup.log2_capacity), int(lookup.max_probe), float(lookup.m_max), POINT_CHUNK,
-                               PARTICLE_CHUNK)
+        return _score_voxel_nb(
+            R,
+            t,
+            pts,
+            lookup.keys,
+            lookup.mean,
+            lookup.icov,
+            float(lookup.inv_voxel_size),
+            int(lookup.log2_capacity),
+            int(lookup.max_probe),
+            float(lookup.m_max),
+            POINT_CHUNK,
+            PARTICLE_CHUNK,
+        )
     if lookup.kind == KIND_MORTON:
-        return _score_morton_nb(R, t, pts, lookup.codes, lookup.points, lookup.cell_codes, lookup.cell_start,
-                                lookup.cell_lo, lookup.cell_hi,
-                                float(lookup.quantum), int(lookup.cell_level), float(lookup.radius),
-                                float(lookup.sigma), POINT_CHUNK, PARTICLE_CHUNK, MORTON_LEAF, CELL_CACHE_BITS)
+        return _score_morton_nb(
+            R,
+            t,
+            pts,
+            lookup.codes,
+            lookup.points,
+            lookup.cell_codes,
+            lookup.cell_start,
+            lookup.cell_lo,
+            lookup.cell_hi,
+            float(lookup.quantum),
+            int(lookup.cell_level),
+            float(lookup.radius),
+            float(lookup.sigma),
+            POINT_CHUNK,
+            PARTICLE_CHUNK,
+            MORTON_LEAF,
+            CELL_CACHE_BITS,
+        )
     raise ValueError(f"unknown lookup kind {lookup.kind!r}")
 
 
@@ -722,8 +999,16 @@ def _systematic_nb(c, u0):
 def systematic_resample(weights, u0):
     """Systematic resampling (P,) int64 (see :func:`slamlib.kernels.reference.systematic_resample`), O(P)."""
     w = np.ascontiguousarray(weights, dtype=np.float64)
-    if w.ndim != 1 or w.size == 0 or np.any(~np.isfinite(w)) or np.any(w < 0) or not w.sum() > 0:
-        raise ValueError("weights must be a non-empty 1-D array of finite non-negative numbers with positive sum")
+    if (
+        w.ndim != 1
+        or w.size == 0
+        or np.any(~np.isfinite(w))
+        or np.any(w < 0)
+        or not w.sum() > 0
+    ):
+        raise ValueError(
+            "weights must be a non-empty 1-D array of finite non-negative numbers with positive sum"
+        )
     if not 0.0 <= u0 < 1.0:
         raise ValueError(f"u0 must be in [0, 1), got {u0}")
     c = np.cumsum(w / w.sum())  # the same normalised cumulative sum as the reference

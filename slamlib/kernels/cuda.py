@@ -53,7 +53,7 @@ the simulator), :func:`check_available` raises :class:`~slamlib.errors.BackendUn
 from __future__ import annotations
 
 from collections import OrderedDict
-from functools import lru_cache
+from functools import cache
 
 import numpy as np
 
@@ -80,7 +80,8 @@ SCORE_LAYOUTS = ("block", "tiles")
 
 UNAVAILABLE_MESSAGE = (
     "the CUDA backend needs an NVIDIA GPU with its driver and numba-cuda: install it with "
-    "`pip install numba-cuda[cu12]` on a machine with a CUDA driver, or use backend=\"cpu\"")
+    '`pip install numba-cuda[cu12]` on a machine with a CUDA driver, or use backend="cpu"'
+)
 
 
 def check_available() -> None:
@@ -89,13 +90,19 @@ def check_available() -> None:
     The CUDA simulator (``NUMBA_ENABLE_CUDASIM=1``) counts as available.
     """
     if cuda is None:
-        raise BackendUnavailableError(UNAVAILABLE_MESSAGE + " (numba.cuda cannot be imported)")
+        raise BackendUnavailableError(
+            UNAVAILABLE_MESSAGE + " (numba.cuda cannot be imported)"
+        )
     try:
         ok = cuda.is_available()
     except Exception as exc:  # noqa: BLE001 - any driver failure means "not available"
-        raise BackendUnavailableError(f"{UNAVAILABLE_MESSAGE} ({type(exc).__name__}: {exc})") from None
+        raise BackendUnavailableError(
+            f"{UNAVAILABLE_MESSAGE} ({type(exc).__name__}: {exc})"
+        ) from None
     if not ok:
-        raise BackendUnavailableError(UNAVAILABLE_MESSAGE + " (no CUDA driver or GPU found)")
+        raise BackendUnavailableError(
+            UNAVAILABLE_MESSAGE + " (no CUDA driver or GPU found)"
+        )
 
 
 # ------------------------------------------------------------------------------------------------ host helpers
@@ -138,11 +145,17 @@ def lookup_to_device(lookup):
     """
     version = int(getattr(lookup, "version", 0))
     if not version or not any(isinstance(v, np.ndarray) for v in lookup):
-        return type(lookup)(*(to_device(v) if isinstance(v, np.ndarray) else v for v in lookup))
+        return type(lookup)(
+            *(to_device(v) if isinstance(v, np.ndarray) else v for v in lookup)
+        )
     key = (int(lookup.kind), version)
     arrays = _lookup_cache.get(key)
     if arrays is None:
-        arrays = {f: to_device(v) for f, v in zip(lookup._fields, lookup) if isinstance(v, np.ndarray)}
+        arrays = {
+            f: to_device(v)
+            for f, v in zip(lookup._fields, lookup)
+            if isinstance(v, np.ndarray)
+        }
         _lookup_cache[key] = arrays
         while len(_lookup_cache) > LOOKUP_CACHE_SIZE:
             _lookup_cache.popitem(last=False)
@@ -189,28 +202,53 @@ if cuda is not None:
         return np.float64(noise[i, k])
 
     @cuda.jit
-    def _rotation_kernel(R, dR, sigma, noise, use_lut, normal, perm, bits, step, seed, R_new):
+    def _rotation_kernel(
+        R, dR, sigma, noise, use_lut, normal, perm, bits, step, seed, R_new
+    ):
         i = cuda.grid(1)
         if i >= R.shape[0]:
             return
         N = cuda.local.array((3, 3), np.float64)
         A = cuda.local.array((3, 3), np.float64)
-        _rpy_matrix(sigma[3] * _noise(i, 3, noise, use_lut, normal, perm, bits, step, seed),
-                    sigma[4] * _noise(i, 4, noise, use_lut, normal, perm, bits, step, seed),
-                    sigma[5] * _noise(i, 5, noise, use_lut, normal, perm, bits, step, seed), N)
+        _rpy_matrix(
+            sigma[3] * _noise(i, 3, noise, use_lut, normal, perm, bits, step, seed),
+            sigma[4] * _noise(i, 4, noise, use_lut, normal, perm, bits, step, seed),
+            sigma[5] * _noise(i, 5, noise, use_lut, normal, perm, bits, step, seed),
+            N,
+        )
         _pose_times(R, i, dR, A)  # A = R_i dR
         _compose_rotation(A, N, R_new, i)
 
     @cuda.jit
-    def _translation_kernel(R, t, dR, trans_delta, sigma, noise, use_lut, normal, perm, bits, step, seed, t_new):
+    def _translation_kernel(
+        R,
+        t,
+        dR,
+        trans_delta,
+        sigma,
+        noise,
+        use_lut,
+        normal,
+        perm,
+        bits,
+        step,
+        seed,
+        t_new,
+    ):
         i = cuda.grid(1)
         if i >= R.shape[0]:
             return
         A = cuda.local.array((3, 3), np.float64)
         _pose_times(R, i, dR, A)
-        sx = trans_delta[0] + sigma[0] * _noise(i, 0, noise, use_lut, normal, perm, bits, step, seed)
-        sy = trans_delta[1] + sigma[1] * _noise(i, 1, noise, use_lut, normal, perm, bits, step, seed)
-        sz = trans_delta[2] + sigma[2] * _noise(i, 2, noise, use_lut, normal, perm, bits, step, seed)
+        sx = trans_delta[0] + sigma[0] * _noise(
+            i, 0, noise, use_lut, normal, perm, bits, step, seed
+        )
+        sy = trans_delta[1] + sigma[1] * _noise(
+            i, 1, noise, use_lut, normal, perm, bits, step, seed
+        )
+        sz = trans_delta[2] + sigma[2] * _noise(
+            i, 2, noise, use_lut, normal, perm, bits, step, seed
+        )
         _compose_translation(t, A, sx, sy, sz, t_new, i)
 
     @cuda.jit
@@ -225,7 +263,9 @@ if cuda is not None:
     def _transform_kernel(R, t, pts, out):
         """Grid-stride loop over the points; ``R`` (1, 3, 3), ``t`` (1, 3) float32: one pose."""
         for j in range(cuda.grid(1), pts.shape[0], cuda.gridsize(1)):
-            out[j, 0], out[j, 1], out[j, 2] = _world_point(R, t, 0, pts[j, 0], pts[j, 1], pts[j, 2])
+            out[j, 0], out[j, 1], out[j, 2] = _world_point(
+                R, t, 0, pts[j, 0], pts[j, 1], pts[j, 2]
+            )
 
     @cuda.jit
     def _search_kernel(c, u0, out):
@@ -264,7 +304,7 @@ if cuda is not None:
             out[i] += block_scan[b - 1]
 
 
-@lru_cache(maxsize=None)
+@cache
 def _block_sum_function(threads: int):
     """The block-wide tree reduction for a block size ``threads`` (a power of two) as a device function."""
     if threads < 1 or threads & (threads - 1):
@@ -285,33 +325,55 @@ def _block_sum_function(threads: int):
     return _block_sum
 
 
-@lru_cache(maxsize=None)
+@cache
 def _block_kernels(threads: int):
     """The shared-memory kernels for a block size ``threads`` (a power of two; compiled once per size)."""
     _block_sum = _block_sum_function(threads)
 
     @cuda.jit
-    def score_voxel(R, t, pts, keys, mean, icov, inv_h, log2_capacity, max_probe, m_max, out):
+    def score_voxel(
+        R, t, pts, keys, mean, icov, inv_h, log2_capacity, max_probe, m_max, out
+    ):
         i = cuda.blockIdx.x  # one block per particle
         tid = cuda.threadIdx.x
         s = cuda.shared.array(threads, np.float64)
         acc = 0.0
         for j in range(tid, pts.shape[0], threads):
-            wx, wy, wz = _world_point(R, t, i, np.float64(pts[j, 0]), np.float64(pts[j, 1]), np.float64(pts[j, 2]))
-            acc += _voxel_term(wx, wy, wz, keys, mean, icov, inv_h, log2_capacity, max_probe, m_max)
+            wx, wy, wz = _world_point(
+                R,
+                t,
+                i,
+                np.float64(pts[j, 0]),
+                np.float64(pts[j, 1]),
+                np.float64(pts[j, 2]),
+            )
+            acc += _voxel_term(
+                wx, wy, wz, keys, mean, icov, inv_h, log2_capacity, max_probe, m_max
+            )
         _block_sum(s, tid, acc)
         if tid == 0:
             out[i] = s[0]
 
     @cuda.jit
-    def score_morton(R, t, pts, points, cell_codes, cell_start, quantum, cell_level, r2, scale, out):
+    def score_morton(
+        R, t, pts, points, cell_codes, cell_start, quantum, cell_level, r2, scale, out
+    ):
         i = cuda.blockIdx.x
         tid = cuda.threadIdx.x
         s = cuda.shared.array(threads, np.float64)
         acc = 0.0
         for j in range(tid, pts.shape[0], threads):
-            wx, wy, wz = _world_point(R, t, i, np.float64(pts[j, 0]), np.float64(pts[j, 1]), np.float64(pts[j, 2]))
-            acc += scale * _morton_d2(wx, wy, wz, points, cell_codes, cell_start, quantum, cell_level, r2)
+            wx, wy, wz = _world_point(
+                R,
+                t,
+                i,
+                np.float64(pts[j, 0]),
+                np.float64(pts[j, 1]),
+                np.float64(pts[j, 2]),
+            )
+            acc += scale * _morton_d2(
+                wx, wy, wz, points, cell_codes, cell_start, quantum, cell_level, r2
+            )
         _block_sum(s, tid, acc)
         if tid == 0:
             out[i] = s[0]
@@ -339,36 +401,69 @@ def _block_kernels(threads: int):
     return score_voxel, score_morton, scan_block
 
 
-@lru_cache(maxsize=None)
+@cache
 def _tile_kernels(threads: int):
     """The scoring kernels of the tiled layout for a block size ``threads`` (a power of two): block ``(i, k)``
     writes the sum over particle ``i``'s points ``k * tile .. (k + 1) * tile - 1`` to ``partial[i, k]``."""
     _block_sum = _block_sum_function(threads)
 
     @cuda.jit
-    def score_voxel_tiles(R, t, pts, keys, mean, icov, inv_h, log2_capacity, max_probe, m_max, tile, partial):
+    def score_voxel_tiles(
+        R, t, pts, keys, mean, icov, inv_h, log2_capacity, max_probe, m_max, tile, partial
+    ):
         i = cuda.blockIdx.x  # particle
         k = cuda.blockIdx.y  # tile of points
         tid = cuda.threadIdx.x
         s = cuda.shared.array(threads, np.float64)
         acc = 0.0
         for j in range(k * tile + tid, min((k + 1) * tile, pts.shape[0]), threads):
-            wx, wy, wz = _world_point(R, t, i, np.float64(pts[j, 0]), np.float64(pts[j, 1]), np.float64(pts[j, 2]))
-            acc += _voxel_term(wx, wy, wz, keys, mean, icov, inv_h, log2_capacity, max_probe, m_max)
+            wx, wy, wz = _world_point(
+                R,
+                t,
+                i,
+                np.float64(pts[j, 0]),
+                np.float64(pts[j, 1]),
+                np.float64(pts[j, 2]),
+            )
+            acc += _voxel_term(
+                wx, wy, wz, keys, mean, icov, inv_h, log2_capacity, max_probe, m_max
+            )
         _block_sum(s, tid, acc)
         if tid == 0:
             partial[i, k] = s[0]
 
     @cuda.jit
-    def score_morton_tiles(R, t, pts, points, cell_codes, cell_start, quantum, cell_level, r2, scale, tile, partial):
+    def score_morton_tiles(
+        R,
+        t,
+        pts,
+        points,
+        cell_codes,
+        cell_start,
+        quantum,
+        cell_level,
+        r2,
+        scale,
+        tile,
+        partial,
+    ):
         i = cuda.blockIdx.x
         k = cuda.blockIdx.y
         tid = cuda.threadIdx.x
         s = cuda.shared.array(threads, np.float64)
         acc = 0.0
         for j in range(k * tile + tid, min((k + 1) * tile, pts.shape[0]), threads):
-            wx, wy, wz = _world_point(R, t, i, np.float64(pts[j, 0]), np.float64(pts[j, 1]), np.float64(pts[j, 2]))
-            acc += scale * _morton_d2(wx, wy, wz, points, cell_codes, cell_start, quantum, cell_level, r2)
+            wx, wy, wz = _world_point(
+                R,
+                t,
+                i,
+                np.float64(pts[j, 0]),
+                np.float64(pts[j, 1]),
+                np.float64(pts[j, 2]),
+            )
+            acc += scale * _morton_d2(
+                wx, wy, wz, points, cell_codes, cell_start, quantum, cell_level, r2
+            )
         _block_sum(s, tid, acc)
         if tid == 0:
             partial[i, k] = s[0]
@@ -380,12 +475,16 @@ def _tile_kernels(threads: int):
 def _particles(R, t):
     if is_device_array(R):
         if R.ndim != 3 or R.shape[1:] != (3, 3) or t.shape != (R.shape[0], 3):
-            raise ValueError(f"particles need R (P, 3, 3) and t (P, 3), got {R.shape} and {t.shape}")
+            raise ValueError(
+                f"particles need R (P, 3, 3) and t (P, 3), got {R.shape} and {t.shape}"
+            )
         return R, t, True
     R = np.ascontiguousarray(R, dtype=np.float64)
     t = np.ascontiguousarray(t, dtype=np.float64)
     if R.ndim != 3 or R.shape[1:] != (3, 3) or t.shape != (R.shape[0], 3):
-        raise ValueError(f"particles need R (P, 3, 3) and t (P, 3), got {R.shape} and {t.shape}")
+        raise ValueError(
+            f"particles need R (P, 3, 3) and t (P, 3), got {R.shape} and {t.shape}"
+        )
     return to_device(R), to_device(t), False
 
 
@@ -411,24 +510,48 @@ def move_particles(R, t, rpy_delta, trans_delta, noise, sigma, threads: int = TH
             raise ValueError("LutNoise step and seed must be >= 0")
         use_lut = True
         normal, perm = to_device(noise.tables.normal), to_device(noise.tables.perm)
-        bits, step, seed = np.int64(noise.tables.bits), np.int64(noise.step), np.int64(noise.seed)
+        bits, step, seed = (
+            np.int64(noise.tables.bits),
+            np.int64(noise.step),
+            np.int64(noise.seed),
+        )
         noise_d = to_device(np.zeros((1, N_COMPONENTS)))
     else:
         use_lut = False
         if not is_device_array(noise):
             noise = np.ascontiguousarray(noise, dtype=np.float64)
         if noise.shape != (P, N_COMPONENTS):
-            raise ValueError(f"noise must have shape (P, 6) = ({P}, 6), got {noise.shape}")
+            raise ValueError(
+                f"noise must have shape (P, 6) = ({P}, 6), got {noise.shape}"
+            )
         noise_d = to_device(noise)
-        normal, perm = to_device(np.zeros(1, np.float32)), to_device(np.zeros((N_COMPONENTS, 1), np.int32))
+        normal, perm = (
+            to_device(np.zeros(1, np.float32)),
+            to_device(np.zeros((N_COMPONENTS, 1), np.int32)),
+        )
         bits = step = seed = np.int64(0)
     R_new = cuda.device_array((P, 3, 3), np.float64)
     t_new = cuda.device_array((P, 3), np.float64)
     if P:
         grid = _blocks(P, threads)
-        _rotation_kernel[grid, threads](R_d, dR, sig, noise_d, use_lut, normal, perm, bits, step, seed, R_new)
-        _translation_kernel[grid, threads](R_d, t_d, dR, trans, sig, noise_d, use_lut, normal, perm, bits, step,
-                                           seed, t_new)
+        _rotation_kernel[grid, threads](
+            R_d, dR, sig, noise_d, use_lut, normal, perm, bits, step, seed, R_new
+        )
+        _translation_kernel[grid, threads](
+            R_d,
+            t_d,
+            dR,
+            trans,
+            sig,
+            noise_d,
+            use_lut,
+            normal,
+            perm,
+            bits,
+            step,
+            seed,
+            t_new,
+        )
     if on_device:
         return R_new, t_new
     return R_new.copy_to_host(), t_new.copy_to_host()
@@ -439,13 +562,20 @@ def lut_normal_device(noise: LutNoise, n: int, threads: int = THREADS):
     check_available()
     out = cuda.device_array((n, N_COMPONENTS), np.float32)
     if n:
-        _lut_fill_kernel[_blocks(n, threads), threads](to_device(noise.tables.normal), to_device(noise.tables.perm),
-                                                       np.int64(noise.tables.bits), np.int64(noise.step),
-                                                       np.int64(noise.seed), out)
+        _lut_fill_kernel[_blocks(n, threads), threads](
+            to_device(noise.tables.normal),
+            to_device(noise.tables.perm),
+            np.int64(noise.tables.bits),
+            np.int64(noise.step),
+            np.int64(noise.seed),
+            out,
+        )
     return out
 
 
-def transform_points(T, points, out=None, threads: int = THREADS, max_blocks: int = MAX_BLOCKS):
+def transform_points(
+    T, points, out=None, threads: int = THREADS, max_blocks: int = MAX_BLOCKS
+):
     """``p' = R p + t`` for ``T`` (4, 4) and ``points`` (N, 3) float32 -> (N, 3) float32 (float32 arithmetic).
 
     One thread per point in a grid-stride loop of at most ``max_blocks`` blocks. Returns a device array when
@@ -457,15 +587,30 @@ def transform_points(T, points, out=None, threads: int = THREADS, max_blocks: in
     on_device = is_device_array(points)
     pts = points if on_device else np.ascontiguousarray(points, dtype=np.float32)
     if T.shape != (4, 4) or pts.ndim != 2 or pts.shape[1] != 3:
-        raise ValueError(f"need T (4, 4) and points (N, 3), got {T.shape} and {pts.shape}")
+        raise ValueError(
+            f"need T (4, 4) and points (N, 3), got {T.shape} and {pts.shape}"
+        )
     pts_d = to_device(pts)
-    if out is not None and (out.shape != pts_d.shape or np.dtype(out.dtype) != np.float32):
-        raise ValueError(f"out must be a float32 array of shape {pts_d.shape}, got {out.dtype} {out.shape}")
-    res = out if out is not None and is_device_array(out) else cuda.device_array(pts_d.shape, np.float32)
+    if out is not None and (
+        out.shape != pts_d.shape or np.dtype(out.dtype) != np.float32
+    ):
+        raise ValueError(
+            f"out must be a float32 array of shape {pts_d.shape}, got {out.dtype} {out.shape}"
+        )
+    res = (
+        out
+        if out is not None and is_device_array(out)
+        else cuda.device_array(pts_d.shape, np.float32)
+    )
     if pts_d.shape[0]:
-        _transform_kernel[_blocks(pts_d.shape[0], threads, max_blocks), threads](  # the pose as a batch of one
+        _transform_kernel[
+            _blocks(pts_d.shape[0], threads, max_blocks), threads
+        ](  # the pose as a batch of one
             to_device(np.ascontiguousarray(T[None, :3, :3], dtype=np.float32)),
-            to_device(np.ascontiguousarray(T[None, :3, 3], dtype=np.float32)), pts_d, res)
+            to_device(np.ascontiguousarray(T[None, :3, 3], dtype=np.float32)),
+            pts_d,
+            res,
+        )
     if out is not None:
         if not is_device_array(out):
             res.copy_to_host(out)
@@ -473,8 +618,15 @@ def transform_points(T, points, out=None, threads: int = THREADS, max_blocks: in
     return res if on_device else res.copy_to_host()
 
 
-def score_particles(R, t, points, lookup, threads: int = SCORE_THREADS, layout: str = "block",
-                    tile_points: int = TILE_POINTS):
+def score_particles(
+    R,
+    t,
+    points,
+    lookup,
+    threads: int = SCORE_THREADS,
+    layout: str = "block",
+    tile_points: int = TILE_POINTS,
+):
     """Fused transform + map lookup log-likelihood (P,) float64, one block of ``threads`` per particle.
 
     ``layout="tiles"``: blocks over particles x tiles of ``tile_points`` points, partial sums added by a second
@@ -487,7 +639,11 @@ def score_particles(R, t, points, lookup, threads: int = SCORE_THREADS, layout: 
     """
     check_available()
     R_d, t_d, on_device = _particles(R, t)
-    pts = points if is_device_array(points) else np.ascontiguousarray(points, dtype=np.float32)
+    pts = (
+        points
+        if is_device_array(points)
+        else np.ascontiguousarray(points, dtype=np.float32)
+    )
     if pts.ndim != 2 or pts.shape[1] != 3:
         raise ValueError(f"points must have shape (N, 3), got {pts.shape}")
     if layout not in SCORE_LAYOUTS:
@@ -507,17 +663,41 @@ def score_particles(R, t, points, lookup, threads: int = SCORE_THREADS, layout: 
     lk = lookup_to_device(lookup)  # uploads the map only when its version changed
     if lk.kind == KIND_VOXEL_HASH:
         if P:
-            score_voxel[P, threads](R_d, t_d, pts_d, lk.keys, lk.mean, lk.icov, float(lk.inv_voxel_size),
-                                    np.int64(lk.log2_capacity), np.int64(lk.max_probe), float(lk.m_max), out)
+            score_voxel[P, threads](
+                R_d,
+                t_d,
+                pts_d,
+                lk.keys,
+                lk.mean,
+                lk.icov,
+                float(lk.inv_voxel_size),
+                np.int64(lk.log2_capacity),
+                np.int64(lk.max_probe),
+                float(lk.m_max),
+                out,
+            )
     elif lk.kind == KIND_MORTON:
         scale = -0.5 / float(lk.sigma) ** 2
         r2 = float(lk.radius) ** 2
-        if P and lk.cell_codes.shape[0] == 0:  # empty map: every point costs the truncation
+        if (
+            P and lk.cell_codes.shape[0] == 0
+        ):  # empty map: every point costs the truncation
             vals = np.full(P, scale * r2 * pts_d.shape[0])
             return to_device(vals) if on_device else vals
         if P:
-            score_morton[P, threads](R_d, t_d, pts_d, lk.points, lk.cell_codes, lk.cell_start, float(lk.quantum),
-                                     np.int64(lk.cell_level), r2, scale, out)
+            score_morton[P, threads](
+                R_d,
+                t_d,
+                pts_d,
+                lk.points,
+                lk.cell_codes,
+                lk.cell_start,
+                float(lk.quantum),
+                np.int64(lk.cell_level),
+                r2,
+                scale,
+                out,
+            )
     else:
         raise ValueError(f"unknown lookup kind {lookup.kind!r}")
     return out if on_device else out.copy_to_host()
@@ -528,13 +708,21 @@ class _TileLaunch:
     ``tile_kernel[(P, n_tiles), threads](*args, tile, partial)``, then the row sums of ``partial`` into ``out``."""
 
     def __init__(self, tile_kernel, n_tiles, tile, partial, out):
-        self.kernel, self.n_tiles, self.tile, self.partial, self.out = tile_kernel, n_tiles, tile, partial, out
+        self.kernel, self.n_tiles, self.tile, self.partial, self.out = (
+            tile_kernel,
+            n_tiles,
+            tile,
+            partial,
+            out,
+        )
 
     def __getitem__(self, config):
         P, threads = config
 
         def launch(*args):
-            self.kernel[(P, self.n_tiles), threads](*args[:-1], np.int64(self.tile), self.partial)
+            self.kernel[(P, self.n_tiles), threads](
+                *args[:-1], np.int64(self.tile), self.partial
+            )
             _sum_tiles_kernel[_blocks(P, THREADS), THREADS](self.partial, self.out)
 
         return launch
@@ -569,8 +757,16 @@ def systematic_resample(weights, u0, threads: int = SCORE_THREADS):
     on_device = is_device_array(weights)
     if not on_device:
         w = np.ascontiguousarray(weights, dtype=np.float64)
-        if w.ndim != 1 or w.size == 0 or np.any(~np.isfinite(w)) or np.any(w < 0) or not w.sum() > 0:
-            raise ValueError("weights must be a non-empty 1-D array of finite non-negative numbers with positive sum")
+        if (
+            w.ndim != 1
+            or w.size == 0
+            or np.any(~np.isfinite(w))
+            or np.any(w < 0)
+            or not w.sum() > 0
+        ):
+            raise ValueError(
+                "weights must be a non-empty 1-D array of finite non-negative numbers with positive sum"
+            )
         weights = w
     c = inclusive_scan(weights, threads)
     P = c.shape[0]

@@ -43,16 +43,34 @@ DEFAULT_CCS = ((8, 0), (9, 0))
 #: Capability"; shared memory: the largest carve-out, 164 KB on 8.0 and 228 KB on 9.0, 1 KB reserved per block;
 #: register allocation: 256 registers per warp granularity) and the SM count of the named card.
 GPUS = {
-    "A100": {"cc": (8, 0), "sms": 108, "max_warps_per_sm": 64, "max_blocks_per_sm": 32, "regs_per_sm": 65536,
-             "reg_alloc_unit": 256, "smem_per_sm": 164 * 1024, "smem_reserved_per_block": 1024,
-             "smem_alloc_unit": 128},
-    "H100": {"cc": (9, 0), "sms": 132, "max_warps_per_sm": 64, "max_blocks_per_sm": 32, "regs_per_sm": 65536,
-             "reg_alloc_unit": 256, "smem_per_sm": 228 * 1024, "smem_reserved_per_block": 1024,
-             "smem_alloc_unit": 128},
+    "A100": {
+        "cc": (8, 0),
+        "sms": 108,
+        "max_warps_per_sm": 64,
+        "max_blocks_per_sm": 32,
+        "regs_per_sm": 65536,
+        "reg_alloc_unit": 256,
+        "smem_per_sm": 164 * 1024,
+        "smem_reserved_per_block": 1024,
+        "smem_alloc_unit": 128,
+    },
+    "H100": {
+        "cc": (9, 0),
+        "sms": 132,
+        "max_warps_per_sm": 64,
+        "max_blocks_per_sm": 32,
+        "regs_per_sm": 65536,
+        "reg_alloc_unit": 256,
+        "smem_per_sm": 228 * 1024,
+        "smem_reserved_per_block": 1024,
+        "smem_alloc_unit": 128,
+    },
 }
 
-_TOOLCHAIN_HINT = ("the CUDA compile check needs NVVM, NVRTC and nvJitLink from the package registry: "
-                   "`make setup` installs them (pip install -c requirements.lock -e '.[cudacompile]')")
+_TOOLCHAIN_HINT = (
+    "the CUDA compile check needs NVVM, NVRTC and nvJitLink from the package registry: "
+    "`make setup` installs them (pip install -c requirements.lock -e '.[cudacompile]')"
+)
 
 
 # ------------------------------------------------------------------------------------------ argument types
@@ -61,7 +79,11 @@ def type_spec(numba_type) -> str | dict:
     from numba.core import types
 
     if isinstance(numba_type, types.Array):
-        return {"dtype": str(numba_type.dtype), "ndim": numba_type.ndim, "layout": numba_type.layout}
+        return {
+            "dtype": str(numba_type.dtype),
+            "ndim": numba_type.ndim,
+            "layout": numba_type.layout,
+        }
     return str(numba_type)
 
 
@@ -83,7 +105,13 @@ class _Recorder:
     """Stands in for a kernel: ``rec[grid, block](*args)`` notes the launch, then launches the real kernel."""
 
     def __init__(self, kernel, name, threads, log, wrapper, launch=True):
-        self.kernel, self.name, self.threads, self.log, self.wrapper = kernel, name, threads, log, wrapper
+        self.kernel, self.name, self.threads, self.log, self.wrapper = (
+            kernel,
+            name,
+            threads,
+            log,
+            wrapper,
+        )
         self.launch = launch
 
     def __getitem__(self, config):
@@ -93,9 +121,16 @@ class _Recorder:
             from numba import typeof
             from numba.core.typing.typeof import Purpose
 
-            self.log.append({"kernel": self.name, "threads": self.threads, "wrapper": self.wrapper[0],
-                             "grid": _dim(grid), "block": _dim(block),
-                             "args": [type_spec(typeof(a, Purpose.argument)) for a in args]})
+            self.log.append(
+                {
+                    "kernel": self.name,
+                    "threads": self.threads,
+                    "wrapper": self.wrapper[0],
+                    "grid": _dim(grid),
+                    "block": _dim(block),
+                    "args": [type_spec(typeof(a, Purpose.argument)) for a in args],
+                }
+            )
             if self.launch:
                 self.kernel[config](*args)
 
@@ -104,8 +139,10 @@ class _Recorder:
 
 #: The per-block-size kernels of :mod:`slamlib.kernels.cuda`: factory name -> the names of the kernels it returns,
 #: in order (:func:`slamlib.kernels.cuda._block_kernels`, :func:`slamlib.kernels.cuda._tile_kernels`).
-FACTORIES = {"_block_kernels": ("score_voxel", "score_morton", "scan_block"),
-             "_tile_kernels": ("score_voxel_tiles", "score_morton_tiles")}
+FACTORIES = {
+    "_block_kernels": ("score_voxel", "score_morton", "scan_block"),
+    "_tile_kernels": ("score_voxel_tiles", "score_morton_tiles"),
+}
 #: Names of every per-block-size kernel.
 BLOCK_KERNELS = tuple(name for names in FACTORIES.values() for name in names)
 
@@ -116,7 +153,9 @@ def module_kernels(kc) -> list[str]:
     for name, obj in vars(kc).items():
         if hasattr(obj, "targetoptions"):  # numba-cuda's CUDADispatcher
             device = obj.targetoptions.get("device")
-        elif hasattr(obj, "_device") and hasattr(obj, "fn"):  # the simulator's FakeCUDAKernel
+        elif hasattr(obj, "_device") and hasattr(
+            obj, "fn"
+        ):  # the simulator's FakeCUDAKernel
             device = obj._device
         else:
             continue
@@ -125,7 +164,9 @@ def module_kernels(kc) -> list[str]:
     return sorted(names)
 
 
-def capture_launches(block_sizes=None, particles: int = 3, points: int = 5, launch: bool = True) -> list[dict]:
+def capture_launches(
+    block_sizes=None, particles: int = 3, points: int = 5, launch: bool = True
+) -> list[dict]:
     """Run every host wrapper of :mod:`slamlib.kernels.cuda` on tiny inputs (in the simulator) and return one
     record per distinct launch: kernel name, ``threads`` (block size of the per-block-size kernels, else
     ``None``), launch ``grid`` / ``block`` and ``args`` (:func:`type_spec` of each argument), the wrapper.
@@ -138,8 +179,10 @@ def capture_launches(block_sizes=None, particles: int = 3, points: int = 5, laun
     from numba import config as numba_config
 
     if not numba_config.ENABLE_CUDASIM:
-        raise RuntimeError("capture_launches runs the wrappers in the CUDA simulator: set NUMBA_ENABLE_CUDASIM=1 "
-                           "before numba is imported")
+        raise RuntimeError(
+            "capture_launches runs the wrappers in the CUDA simulator: set NUMBA_ENABLE_CUDASIM=1 "
+            "before numba is imported"
+        )
     from slamlib import geometry
     from slamlib.kernels import cuda as kc
     from slamlib.maps import MortonBVHMap, VoxelHashMap
@@ -152,8 +195,11 @@ def capture_launches(block_sizes=None, particles: int = 3, points: int = 5, laun
 
     def recording(factory):
         def kernels(threads):
-            return tuple(_Recorder(k, n, int(threads), log, wrapper, launch)
-                         for k, n in zip(saved_factories[factory](threads), FACTORIES[factory]))
+            return tuple(
+                _Recorder(k, n, int(threads), log, wrapper, launch)
+                for k, n in zip(saved_factories[factory](threads), FACTORIES[factory])
+            )
+
         return kernels
 
     sizes = tuple(block_sizes) if block_sizes else (kc.SCORE_THREADS,)
@@ -174,7 +220,9 @@ def capture_launches(block_sizes=None, particles: int = 3, points: int = 5, laun
             setattr(kc, factory, recording(factory))
         wrapper[0] = "move_particles"
         kc.move_particles(R, t, [0, 0, 0.1], [1, 0, 0], rng.normal(size=(P, 6)), sigma)
-        kc.move_particles(R, t, [0, 0, 0.1], [1, 0, 0], LutNoise(make_tables(0, bits=4), 1, 2), sigma)
+        kc.move_particles(
+            R, t, [0, 0, 0.1], [1, 0, 0], LutNoise(make_tables(0, bits=4), 1, 2), sigma
+        )
         wrapper[0] = "lut_normal_device"
         kc.lut_normal_device(LutNoise(make_tables(0, bits=4), 1, 2), P)
         wrapper[0] = "transform_points"
@@ -182,9 +230,15 @@ def capture_launches(block_sizes=None, particles: int = 3, points: int = 5, laun
         for threads in sizes:
             wrapper[0] = "score_particles"
             for layout in kc.SCORE_LAYOUTS:
-                kc.score_particles(R, t, pts, voxel.lookup(), threads=threads, layout=layout)
-                kc.score_particles(R, t, pts, morton.lookup(), threads=threads, layout=layout)
-            wrapper[0] = "systematic_resample"  # more weights than threads: the block totals are scanned too
+                kc.score_particles(
+                    R, t, pts, voxel.lookup(), threads=threads, layout=layout
+                )
+                kc.score_particles(
+                    R, t, pts, morton.lookup(), threads=threads, layout=layout
+                )
+            wrapper[0] = (
+                "systematic_resample"  # more weights than threads: the block totals are scanned too
+            )
             kc.systematic_resample(rng.random(max(P, threads + 1)), 0.5, threads=threads)
     finally:
         for name, kernel in saved.items():
@@ -201,8 +255,10 @@ def capture_launches(block_sizes=None, particles: int = 3, points: int = 5, laun
 
 
 # ------------------------------------------------------------------------------------------------ compiling
-_SUMMARY = (r"Function properties for '{entry}':\s*\n[^\n]*?used (\d+) registers[^\n]*?(\d+) stack, (\d+) bytes smem"
-            r"[^\n]*?(\d+) bytes lmem")
+_SUMMARY = (
+    r"Function properties for '{entry}':\s*\n[^\n]*?used (\d+) registers[^\n]*?(\d+) stack, (\d+) bytes smem"
+    r"[^\n]*?(\d+) bytes lmem"
+)
 
 
 def parse_ptxas_log(log: str, entry: str) -> dict:
@@ -219,11 +275,21 @@ def parse_ptxas_log(log: str, entry: str) -> dict:
     """
     m = re.search(_SUMMARY.format(entry=re.escape(entry)), log)
     if m is None:
-        raise ValueError(f"no resource summary for {entry!r} in the nvJitLink log:\n{log[:2000]}")
-    return {"registers": int(m.group(1)), "stack_bytes": int(m.group(2)), "shared_bytes": int(m.group(3)),
-            "local_bytes": int(m.group(4)),
-            "spill_stores_bytes": sum(int(v) for v in re.findall(r"(\d+) bytes spill stores", log)),
-            "spill_loads_bytes": sum(int(v) for v in re.findall(r"(\d+) bytes spill loads", log))}
+        raise ValueError(
+            f"no resource summary for {entry!r} in the nvJitLink log:\n{log[:2000]}"
+        )
+    return {
+        "registers": int(m.group(1)),
+        "stack_bytes": int(m.group(2)),
+        "shared_bytes": int(m.group(3)),
+        "local_bytes": int(m.group(4)),
+        "spill_stores_bytes": sum(
+            int(v) for v in re.findall(r"(\d+) bytes spill stores", log)
+        ),
+        "spill_loads_bytes": sum(
+            int(v) for v in re.findall(r"(\d+) bytes spill loads", log)
+        ),
+    }
 
 
 def _patch_current_device(cc) -> None:
@@ -264,10 +330,19 @@ def compile_launch(launch: dict, cc) -> dict:
     try:
         sig = tuple(spec_type(s) for s in launch["args"])
         kernel = kernel_dispatcher(launch["kernel"], launch["threads"])
-        opts = kernel.targetoptions  # the kernel's own cuda.jit options, as a launch would compile it
-        ptx, _ = cuda.compile_ptx(kernel.py_func, sig, cc=tuple(cc), debug=opts.get("debug"),
-                                  lineinfo=opts.get("lineinfo", False), fastmath=opts.get("fastmath", False),
-                                  opt=opts.get("opt"), launch_bounds=opts.get("launch_bounds"))
+        opts = (
+            kernel.targetoptions
+        )  # the kernel's own cuda.jit options, as a launch would compile it
+        ptx, _ = cuda.compile_ptx(
+            kernel.py_func,
+            sig,
+            cc=tuple(cc),
+            debug=opts.get("debug"),
+            lineinfo=opts.get("lineinfo", False),
+            fastmath=opts.get("fastmath", False),
+            opt=opts.get("opt"),
+            launch_bounds=opts.get("launch_bounds"),
+        )
         entry = re.search(r"\.entry\s+(\S+?)\s*\(", ptx).group(1)
         log = link_log(ptx, cc, opts.get("max_registers"))
     except Exception as exc:  # noqa: BLE001 - every compile failure is reported, and fails the check
@@ -282,7 +357,9 @@ def link_log(ptx: str, cc, max_registers: int | None = None) -> str:
     the kernel's ``cuda.jit(max_registers=...)``, ptxas' ``-maxrregcount``)."""
     from cuda.core import Linker, LinkerOptions, ObjectCode
 
-    options = LinkerOptions(arch=f"sm_{cc[0]}{cc[1]}", verbose=True, max_register_count=max_registers)
+    options = LinkerOptions(
+        arch=f"sm_{cc[0]}{cc[1]}", verbose=True, max_register_count=max_registers
+    )
     linker = Linker(ObjectCode.from_ptx(ptx.encode()), options=options)
     linker.link("cubin")
     return linker.get_info_log()
@@ -293,8 +370,16 @@ def toolchain_versions() -> dict:
     from importlib import metadata
 
     out = {}
-    for pkg in ("numba", "numba-cuda", "llvmlite", "cuda-bindings", "cuda-core", "nvidia-nvvm", "nvidia-cuda-nvrtc",
-                "nvidia-nvjitlink"):
+    for pkg in (
+        "numba",
+        "numba-cuda",
+        "llvmlite",
+        "cuda-bindings",
+        "cuda-core",
+        "nvidia-nvvm",
+        "nvidia-cuda-nvrtc",
+        "nvidia-nvjitlink",
+    ):
         try:
             out[pkg] = metadata.version(pkg)
         except metadata.PackageNotFoundError:
@@ -307,7 +392,9 @@ def compile_all(launches: list[dict], cc) -> list[dict]:
     from numba import config as numba_config
 
     if numba_config.ENABLE_CUDASIM:
-        raise RuntimeError("compiling for a real card needs the CUDA simulator off (NUMBA_ENABLE_CUDASIM unset)")
+        raise RuntimeError(
+            "compiling for a real card needs the CUDA simulator off (NUMBA_ENABLE_CUDASIM unset)"
+        )
     _patch_current_device(cc)
     return [compile_launch(launch, cc) for launch in launches]
 
@@ -328,12 +415,19 @@ def occupancy(registers: int, shared_bytes: int, block: int, gpu: str) -> dict:
         "blocks": g["max_blocks_per_sm"],
         "warps": g["max_warps_per_sm"] // warps,
         "registers": (g["regs_per_sm"] // regs_per_warp) // warps,
-        "shared": g["smem_per_sm"] // (-(-(int(shared_bytes) + g["smem_reserved_per_block"])
-                                         // g["smem_alloc_unit"]) * g["smem_alloc_unit"]),
+        "shared": g["smem_per_sm"]
+        // (
+            -(-(int(shared_bytes) + g["smem_reserved_per_block"]) // g["smem_alloc_unit"])
+            * g["smem_alloc_unit"]
+        ),
     }
     blocks = min(limits.values())
-    return {"blocks_per_sm": blocks, "limited_by": min(limits, key=limits.get), "active_warps": blocks * warps,
-            "occupancy": blocks * warps / g["max_warps_per_sm"]}
+    return {
+        "blocks_per_sm": blocks,
+        "limited_by": min(limits, key=limits.get),
+        "active_warps": blocks * warps,
+        "occupancy": blocks * warps / g["max_warps_per_sm"],
+    }
 
 
 def launch_fill(grid: int, block: int, occ: dict, gpu: str) -> dict:
@@ -348,29 +442,47 @@ def launch_fill(grid: int, block: int, occ: dict, gpu: str) -> dict:
     warps = -(-int(block) // 32)
     resident = occ["blocks_per_sm"] * g["sms"]
     per_sm = min(grid / g["sms"], occ["blocks_per_sm"])
-    return {"grid": int(grid), "sms": g["sms"], "blocks_per_sm": grid / g["sms"],
-            "busy_sms": min(grid, g["sms"]) / g["sms"], "waves": grid / resident,
-            "warp_fraction": per_sm * warps / g["max_warps_per_sm"]}
+    return {
+        "grid": int(grid),
+        "sms": g["sms"],
+        "blocks_per_sm": grid / g["sms"],
+        "busy_sms": min(grid, g["sms"]) / g["sms"],
+        "waves": grid / resident,
+        "warp_fraction": per_sm * warps / g["max_warps_per_sm"],
+    }
 
 
 # ------------------------------------------------------------------------------------------ orchestration
 def _env(simulator: bool) -> dict:
-    env = {k: v for k, v in os.environ.items() if k not in ("NUMBA_ENABLE_CUDASIM", "SLAMLIB_REAL_CUDA")}
+    env = {
+        k: v
+        for k, v in os.environ.items()
+        if k not in ("NUMBA_ENABLE_CUDASIM", "SLAMLIB_REAL_CUDA")
+    }
     if simulator:
         env["NUMBA_ENABLE_CUDASIM"] = "1"
     return env
 
 
 def _run_json(args: list[str], simulator: bool, stdin: str | None = None):
-    proc = subprocess.run([sys.executable, "-m", "slamlib.kernels.cuda_static", *args], input=stdin,
-                          capture_output=True, text=True, env=_env(simulator))
+    proc = subprocess.run(
+        [sys.executable, "-m", "slamlib.kernels.cuda_static", *args],
+        input=stdin,
+        capture_output=True,
+        text=True,
+        env=_env(simulator),
+    )
     if proc.returncode != 0:
-        raise RuntimeError(f"`python -m slamlib.kernels.cuda_static {' '.join(args)}` failed "
-                           f"({proc.returncode}):\n{proc.stderr[-4000:]}")
+        raise RuntimeError(
+            f"`python -m slamlib.kernels.cuda_static {' '.join(args)}` failed "
+            f"({proc.returncode}):\n{proc.stderr[-4000:]}"
+        )
     return json.loads(proc.stdout)
 
 
-def static_report(ccs=DEFAULT_CCS, block_sizes=None, fill_sizes: dict | None = None) -> dict:
+def static_report(
+    ccs=DEFAULT_CCS, block_sizes=None, fill_sizes: dict | None = None
+) -> dict:
     """Capture the launches (simulator subprocess), compile them for every ``cc`` (one clean subprocess per
     target, run side by side) and add the occupancy on the card of each target (:data:`GPUS`).
 
@@ -384,19 +496,34 @@ def static_report(ccs=DEFAULT_CCS, block_sizes=None, fill_sizes: dict | None = N
     launches = _run_json(["capture", *threads_args], simulator=True)
     grids = {}
     if fill_sizes:
-        sized = _run_json(["capture", *threads_args, f"--particles={int(fill_sizes['particles'])}",
-                           f"--points={int(fill_sizes['points'])}", "--dry"], simulator=True)
+        sized = _run_json(
+            [
+                "capture",
+                *threads_args,
+                f"--particles={int(fill_sizes['particles'])}",
+                f"--points={int(fill_sizes['points'])}",
+                "--dry",
+            ],
+            simulator=True,
+        )
         grids = {(r["kernel"], r["threads"]): r["grid"] for r in sized}
     payload = json.dumps(launches)
     with ThreadPoolExecutor(len(ccs)) as pool:
-        per_cc = list(pool.map(lambda cc: _run_json(["compile", f"--cc={cc[0]}{cc[1]}"], False, payload), ccs))
+        per_cc = list(
+            pool.map(
+                lambda cc: _run_json(["compile", f"--cc={cc[0]}{cc[1]}"], False, payload),
+                ccs,
+            )
+        )
     results = []
     for batch in per_cc:
         for rec in batch["results"]:
             gpu = next((n for n, g in GPUS.items() if list(g["cc"]) == rec["cc"]), None)
             rec["gpu"] = gpu
             if rec["ok"] and gpu:
-                rec["occupancy"] = occupancy(rec["registers"], rec["shared_bytes"], rec["block"], gpu)
+                rec["occupancy"] = occupancy(
+                    rec["registers"], rec["shared_bytes"], rec["block"], gpu
+                )
                 grid = grids.get((rec["kernel"], rec["threads"]))
                 if grid is not None:
                     rec["fill"] = launch_fill(grid, rec["block"], rec["occupancy"], gpu)
@@ -421,21 +548,53 @@ def main(argv=None) -> int:
 
     parser = argparse.ArgumentParser(prog="python -m slamlib.kernels.cuda_static")
     parser.add_argument("command", choices=["capture", "compile"])
-    parser.add_argument("--threads", type=int, action="append", help="block size of the per-block-size kernels")
-    parser.add_argument("--cc", default="90", help="compute capability to compile for, e.g. 80 or 90")
-    parser.add_argument("--particles", type=int, default=3, help="capture: particles passed to the wrappers")
-    parser.add_argument("--points", type=int, default=5, help="capture: scan points passed to the wrappers")
-    parser.add_argument("--dry", action="store_true", help="capture: record the launches without running them")
+    parser.add_argument(
+        "--threads",
+        type=int,
+        action="append",
+        help="block size of the per-block-size kernels",
+    )
+    parser.add_argument(
+        "--cc", default="90", help="compute capability to compile for, e.g. 80 or 90"
+    )
+    parser.add_argument(
+        "--particles",
+        type=int,
+        default=3,
+        help="capture: particles passed to the wrappers",
+    )
+    parser.add_argument(
+        "--points",
+        type=int,
+        default=5,
+        help="capture: scan points passed to the wrappers",
+    )
+    parser.add_argument(
+        "--dry",
+        action="store_true",
+        help="capture: record the launches without running them",
+    )
     args = parser.parse_args(argv)
     if args.command == "capture":
-        json.dump(capture_launches(args.threads, args.particles, args.points, launch=not args.dry), sys.stdout)
+        json.dump(
+            capture_launches(
+                args.threads, args.particles, args.points, launch=not args.dry
+            ),
+            sys.stdout,
+        )
         return 0
     reason = check_toolchain()
     if reason:
         print(reason, file=sys.stderr)
         return 2
     cc = (int(args.cc[:-1]), int(args.cc[-1]))
-    json.dump({"toolchain": toolchain_versions(), "results": compile_all(json.load(sys.stdin), cc)}, sys.stdout)
+    json.dump(
+        {
+            "toolchain": toolchain_versions(),
+            "results": compile_all(json.load(sys.stdin), cc),
+        },
+        sys.stdout,
+    )
     return 0
 
 

@@ -19,7 +19,8 @@ search, k-d tree) that the tests compare every backend with.
 
 Rules that keep the builds identical: float math uses only ``+ - * /``, ``math.floor``, ``math.sin/cos``,
 ``abs`` and ``min`` (IEEE-exact, or a libm call: ``sin``/``cos`` may differ in the last bit between libraries),
-compiled without ``fastmath`` (the one exception, the CPU ``transform_points``, agrees to float32 rounding); ``math.floor`` is only called on
+compiled without ``fastmath`` (the one exception, the CPU ``transform_points``, agrees to float32 rounding);
+``math.floor`` is only called on
 finite values of modest size (range checks come first), since under the CUDA simulator it is Python's
 ``math.floor`` that raises on NaN; integer math is on typed numpy scalars (see :mod:`slamlib.maps.codes`).
 Array arguments are indexed, never allocated, so the same source runs with numpy arrays, Numba arrays and
@@ -29,7 +30,7 @@ CUDA local / global memory.
 from __future__ import annotations
 
 import math
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 
@@ -107,28 +108,59 @@ def make_point_functions(deco: Callable = _identity) -> dict:
     morton, find_cell = F["morton"], F["find_cell"]
 
     def rpy_rotation_cs(cr, sr, cp, sp, cy, sy):
-        return (cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr,
-                sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr,
-                -sp, cp * sr, cp * cr)
+        return (
+            cy * cp,
+            cy * sp * sr - sy * cr,
+            cy * sp * cr + sy * sr,
+            sy * cp,
+            sy * sp * sr + cy * cr,
+            sy * sp * cr - cy * sr,
+            -sp,
+            cp * sr,
+            cp * cr,
+        )
 
     rpy_rotation_cs = deco(rpy_rotation_cs)
 
     def rpy_matrix_cs(cr, sr, cp, sp, cy, sy, out):
-        (out[0, 0], out[0, 1], out[0, 2], out[1, 0], out[1, 1], out[1, 2],
-         out[2, 0], out[2, 1], out[2, 2]) = rpy_rotation_cs(cr, sr, cp, sp, cy, sy)
+        (
+            out[0, 0],
+            out[0, 1],
+            out[0, 2],
+            out[1, 0],
+            out[1, 1],
+            out[1, 2],
+            out[2, 0],
+            out[2, 1],
+            out[2, 2],
+        ) = rpy_rotation_cs(cr, sr, cp, sp, cy, sy)
 
     rpy_matrix_cs = deco(rpy_matrix_cs)
 
     def rpy_rotation(r, p, y):
-        return rpy_rotation_cs(math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), math.sin(y))
+        return rpy_rotation_cs(
+            math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), math.sin(y)
+        )
 
     rpy_rotation = deco(rpy_rotation)
 
     def rpy_matrix(r, p, y, out):
-        rpy_matrix_cs(math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), math.sin(y), out)
+        rpy_matrix_cs(
+            math.cos(r),
+            math.sin(r),
+            math.cos(p),
+            math.sin(p),
+            math.cos(y),
+            math.sin(y),
+            out,
+        )
 
     def row_times(r0, r1, r2, m00, m01, m02, m10, m11, m12, m20, m21, m22):
-        return (r0 * m00 + r1 * m10 + r2 * m20, r0 * m01 + r1 * m11 + r2 * m21, r0 * m02 + r1 * m12 + r2 * m22)
+        return (
+            r0 * m00 + r1 * m10 + r2 * m20,
+            r0 * m01 + r1 * m11 + r2 * m21,
+            r0 * m02 + r1 * m12 + r2 * m22,
+        )
 
     row_times = deco(row_times)
 
@@ -139,36 +171,72 @@ def make_point_functions(deco: Callable = _identity) -> dict:
 
     def pose_times(R, i, M, A):
         for a in range(3):
-            A[a, 0], A[a, 1], A[a, 2] = row_times(R[i, a, 0], R[i, a, 1], R[i, a, 2], M[0, 0], M[0, 1], M[0, 2],
-                                                  M[1, 0], M[1, 1], M[1, 2], M[2, 0], M[2, 1], M[2, 2])
+            A[a, 0], A[a, 1], A[a, 2] = row_times(
+                R[i, a, 0],
+                R[i, a, 1],
+                R[i, a, 2],
+                M[0, 0],
+                M[0, 1],
+                M[0, 2],
+                M[1, 0],
+                M[1, 1],
+                M[1, 2],
+                M[2, 0],
+                M[2, 1],
+                M[2, 2],
+            )
 
     def compose_rotation(A, N, R_new, i):
         for a in range(3):
             R_new[i, a, 0], R_new[i, a, 1], R_new[i, a, 2] = row_times(
-                A[a, 0], A[a, 1], A[a, 2], N[0, 0], N[0, 1], N[0, 2], N[1, 0], N[1, 1], N[1, 2], N[2, 0], N[2, 1],
-                N[2, 2])
+                A[a, 0],
+                A[a, 1],
+                A[a, 2],
+                N[0, 0],
+                N[0, 1],
+                N[0, 2],
+                N[1, 0],
+                N[1, 1],
+                N[1, 2],
+                N[2, 0],
+                N[2, 1],
+                N[2, 2],
+            )
 
     def compose_translation(t, A, sx, sy, sz, t_new, i):
         for a in range(3):
             t_new[i, a] = row_step(t[i, a], A[a, 0], A[a, 1], A[a, 2], sx, sy, sz)
 
     def world_point(R, t, i, x, y, z):
-        return (R[i, 0, 0] * x + R[i, 0, 1] * y + R[i, 0, 2] * z + t[i, 0],
-                R[i, 1, 0] * x + R[i, 1, 1] * y + R[i, 1, 2] * z + t[i, 1],
-                R[i, 2, 0] * x + R[i, 2, 1] * y + R[i, 2, 2] * z + t[i, 2])
+        return (
+            R[i, 0, 0] * x + R[i, 0, 1] * y + R[i, 0, 2] * z + t[i, 0],
+            R[i, 1, 0] * x + R[i, 1, 1] * y + R[i, 1, 2] * z + t[i, 1],
+            R[i, 2, 0] * x + R[i, 2, 1] * y + R[i, 2, 2] * z + t[i, 2],
+        )
 
     def voxel_cell(wx, wy, wz, inv_h):
         gx = wx * inv_h - 0.5  # voxel centres at integers
         gy = wy * inv_h - 0.5
         gz = wz * inv_h - 0.5
-        if not (abs(gx) <= VOXEL_GRID_LIMIT and abs(gy) <= VOXEL_GRID_LIMIT and abs(gz) <= VOXEL_GRID_LIMIT):
+        if not (
+            abs(gx) <= VOXEL_GRID_LIMIT
+            and abs(gy) <= VOXEL_GRID_LIMIT
+            and abs(gz) <= VOXEL_GRID_LIMIT
+        ):
             # far outside the key range, or NaN (checked before floor: see the module docstring)
             return AXIS_OFFSET_I64, AXIS_OFFSET_I64, AXIS_OFFSET_I64, 0.0, 0.0, 0.0, False
         bx = math.floor(gx)
         by = math.floor(gy)
         bz = math.floor(gz)
-        return (np.int64(bx) + AXIS_OFFSET_I64, np.int64(by) + AXIS_OFFSET_I64, np.int64(bz) + AXIS_OFFSET_I64,
-                gx - bx, gy - by, gz - bz, True)
+        return (
+            np.int64(bx) + AXIS_OFFSET_I64,
+            np.int64(by) + AXIS_OFFSET_I64,
+            np.int64(bz) + AXIS_OFFSET_I64,
+            gx - bx,
+            gy - by,
+            gz - bz,
+            True,
+        )
 
     voxel_cell = deco(voxel_cell)
 
@@ -195,10 +263,17 @@ def make_point_functions(deco: Callable = _identity) -> dict:
         ex = wx - np.float64(mean[s, 0])
         ey = wy - np.float64(mean[s, 1])
         ez = wz - np.float64(mean[s, 2])
-        m = (np.float64(icov[s, 0]) * ex * ex + np.float64(icov[s, 3]) * ey * ey
-             + np.float64(icov[s, 5]) * ez * ez
-             + 2.0 * (np.float64(icov[s, 1]) * ex * ey + np.float64(icov[s, 2]) * ex * ez
-                      + np.float64(icov[s, 4]) * ey * ez))
+        m = (
+            np.float64(icov[s, 0]) * ex * ex
+            + np.float64(icov[s, 3]) * ey * ey
+            + np.float64(icov[s, 5]) * ez * ez
+            + 2.0
+            * (
+                np.float64(icov[s, 1]) * ex * ey
+                + np.float64(icov[s, 2]) * ex * ez
+                + np.float64(icov[s, 4]) * ey * ez
+            )
+        )
         return -0.5 * min(m, m_max)
 
     slot_term = deco(slot_term)
@@ -210,7 +285,9 @@ def make_point_functions(deco: Callable = _identity) -> dict:
         total = 0.0
         for k in range(8):
             s = corner_slot(ux0, uy0, uz0, k, keys, log2_capacity, max_probe)
-            total += corner_weight(fx, fy, fz, k) * slot_term(wx, wy, wz, s, mean, icov, m_max)
+            total += corner_weight(fx, fy, fz, k) * slot_term(
+                wx, wy, wz, s, mean, icov, m_max
+            )
         return total
 
     def cells_per_axis(cell_level):
@@ -229,9 +306,24 @@ def make_point_functions(deco: Callable = _identity) -> dict:
         gz = uz / size - 0.5
         ncell = np.float64(cells_per_axis(cell_level))
         # floor(g) in [-1, ncell) <=> g in [-1, ncell); NaN fails too (checked before floor)
-        if not (gx >= -1.0 and gy >= -1.0 and gz >= -1.0 and gx < ncell and gy < ncell and gz < ncell):
+        if not (
+            gx >= -1.0
+            and gy >= -1.0
+            and gz >= -1.0
+            and gx < ncell
+            and gy < ncell
+            and gz < ncell
+        ):
             return ux, uy, uz, np.int64(0), np.int64(0), np.int64(0), False
-        return (ux, uy, uz, np.int64(math.floor(gx)), np.int64(math.floor(gy)), np.int64(math.floor(gz)), True)
+        return (
+            ux,
+            uy,
+            uz,
+            np.int64(math.floor(gx)),
+            np.int64(math.floor(gy)),
+            np.int64(math.floor(gz)),
+            True,
+        )
 
     cell_block = deco(cell_block)
 
@@ -263,18 +355,35 @@ def make_point_functions(deco: Callable = _identity) -> dict:
             k = find_cell(cell_codes, morton(cx, cy, cz))
             if k < 0:
                 continue
-            best, _ = nearest_in_run(points, cell_start[k], cell_start[k + 1], wx, wy, wz, best, np.int64(-1))
+            best, _ = nearest_in_run(
+                points, cell_start[k], cell_start[k + 1], wx, wy, wz, best, np.int64(-1)
+            )
         return best
 
     out = dict(F)
-    out.update({"rpy_matrix": deco(rpy_matrix), "rpy_matrix_cs": rpy_matrix_cs, "rpy_rotation_cs": rpy_rotation_cs,
-                "rpy_rotation": rpy_rotation,
-                "row_times": row_times, "row_step": row_step, "pose_times": deco(pose_times),
-                "compose_rotation": deco(compose_rotation), "compose_translation": deco(compose_translation),
-                "world_point": deco(world_point), "voxel_term": deco(voxel_term), "voxel_cell": voxel_cell,
-                "corner_slot": corner_slot, "corner_weight": corner_weight, "slot_term": slot_term,
-                "cells_per_axis": cells_per_axis,
-                "cell_block": cell_block, "nearest_in_run": nearest_in_run, "morton_d2": deco(morton_d2)})
+    out.update(
+        {
+            "rpy_matrix": deco(rpy_matrix),
+            "rpy_matrix_cs": rpy_matrix_cs,
+            "rpy_rotation_cs": rpy_rotation_cs,
+            "rpy_rotation": rpy_rotation,
+            "row_times": row_times,
+            "row_step": row_step,
+            "pose_times": deco(pose_times),
+            "compose_rotation": deco(compose_rotation),
+            "compose_translation": deco(compose_translation),
+            "world_point": deco(world_point),
+            "voxel_term": deco(voxel_term),
+            "voxel_cell": voxel_cell,
+            "corner_slot": corner_slot,
+            "corner_weight": corner_weight,
+            "slot_term": slot_term,
+            "cells_per_axis": cells_per_axis,
+            "cell_block": cell_block,
+            "nearest_in_run": nearest_in_run,
+            "morton_d2": deco(morton_d2),
+        }
+    )
     return out
 
 

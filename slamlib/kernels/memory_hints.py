@@ -50,7 +50,7 @@ def stream_line(dst, i, src, j):
     """``dst[i:i + 16] = src[j:j + 16]`` (float32, 1-D): one whole 64-byte line, stored non-temporally when
     compiled. ``dst[i]`` must start a line (address a multiple of :data:`LINE_BYTES`); ``src`` may be
     unaligned. Indexes are not checked."""
-    dst[i:i + LINE_F32] = src[j:j + LINE_F32]
+    dst[i : i + LINE_F32] = src[j : j + LINE_F32]
 
 
 def prefetch(arr, i):
@@ -75,7 +75,9 @@ def _stream_line_ir(typingctx, dst, i, src, j):
         dst_ptr = builder.bitcast(builder.gep(d_arr.data, [di]), vec.as_pointer())
         line = builder.load(src_ptr, align=4)
         store = builder.store(line, dst_ptr, align=LINE_BYTES)
-        store.set_metadata("nontemporal", builder.module.add_metadata([ir.Constant(ir.IntType(32), 1)]))
+        store.set_metadata(
+            "nontemporal", builder.module.add_metadata([ir.Constant(ir.IntType(32), 1)])
+        )
         return context.get_dummy_value()
 
     return sig, codegen
@@ -90,9 +92,19 @@ def _prefetch_ir(typingctx, arr, i):
         i32 = ir.IntType(32)
         a_arr = context.make_array(sig.args[0])(context, builder, a)
         ptr = builder.bitcast(builder.gep(a_arr.data, [ia]), ir.IntType(8).as_pointer())
-        fn = cgutils.get_or_insert_function(builder.module, ir.FunctionType(ir.VoidType(), [ptr.type, i32, i32, i32]),
-                                            "llvm.prefetch.p0")
-        builder.call(fn, [ptr] + [ir.Constant(i32, k) for k in (_PREFETCH_READ, _PREFETCH_KEEP, _PREFETCH_DATA)])
+        fn = cgutils.get_or_insert_function(
+            builder.module,
+            ir.FunctionType(ir.VoidType(), [ptr.type, i32, i32, i32]),
+            "llvm.prefetch.p0",
+        )
+        builder.call(
+            fn,
+            [ptr]
+            + [
+                ir.Constant(i32, k)
+                for k in (_PREFETCH_READ, _PREFETCH_KEEP, _PREFETCH_DATA)
+            ],
+        )
         return context.get_dummy_value()
 
     return sig, codegen
@@ -102,8 +114,9 @@ def _prefetch_ir(typingctx, arr, i):
 def _store_fence_ir(typingctx):
     def codegen(context, builder, sig, args):
         if _X86:  # LLVM lowers a seq_cst fence to ``lock or``, which the SDM does not promise orders WC stores
-            sfence = cgutils.get_or_insert_function(builder.module, ir.FunctionType(ir.VoidType(), []),
-                                                    "llvm.x86.sse.sfence")
+            sfence = cgutils.get_or_insert_function(
+                builder.module, ir.FunctionType(ir.VoidType(), []), "llvm.x86.sse.sfence"
+            )
             builder.call(sfence, [])
         else:
             builder.fence("seq_cst")

@@ -64,12 +64,16 @@ def move_particles(R, t, rpy_delta, trans_delta, noise, sigma, out=None):
 def transform_points(T, points, out=None):
     """``p' = R p + t`` for ``T`` (4, 4) and ``points`` (N, 3) float32 -> (N, 3) float32 (computed in float64,
     rounded once). ``out`` (N, 3) float32 receives the result and is returned (``out=points``: in place)."""
-    pts = np.asarray(points, dtype=np.float32).astype(np.float64)  # float32 inputs, float64 arithmetic
+    pts = np.asarray(points, dtype=np.float32).astype(
+        np.float64
+    )  # float32 inputs, float64 arithmetic
     res = geometry.transform_points(np.asarray(T, dtype=np.float64), pts)
     if out is None:
         return res.astype(np.float32)
     if out.shape != res.shape or out.dtype != np.float32:
-        raise ValueError(f"out must be a float32 array of shape {res.shape}, got {out.dtype} {out.shape}")
+        raise ValueError(
+            f"out must be a float32 array of shape {res.shape}, got {out.dtype} {out.shape}"
+        )
     out[...] = res
     return out
 
@@ -82,8 +86,17 @@ def _voxel_terms_at(world, keys_query, ok, lookup, stored, occupied):
     s = occupied[pos[hit]]
     d = world[hit] - lookup.mean[s].astype(np.float64)
     a = lookup.icov[s].astype(np.float64)
-    m = (a[:, 0] * d[:, 0] ** 2 + a[:, 3] * d[:, 1] ** 2 + a[:, 5] * d[:, 2] ** 2
-         + 2.0 * (a[:, 1] * d[:, 0] * d[:, 1] + a[:, 2] * d[:, 0] * d[:, 2] + a[:, 4] * d[:, 1] * d[:, 2]))
+    m = (
+        a[:, 0] * d[:, 0] ** 2
+        + a[:, 3] * d[:, 1] ** 2
+        + a[:, 5] * d[:, 2] ** 2
+        + 2.0
+        * (
+            a[:, 1] * d[:, 0] * d[:, 1]
+            + a[:, 2] * d[:, 0] * d[:, 2]
+            + a[:, 4] * d[:, 1] * d[:, 2]
+        )
+    )
     terms[hit] = -0.5 * np.minimum(m, lookup.m_max)
     return terms
 
@@ -100,7 +113,9 @@ def _terms_voxel_hash(world, lookup):
     total = np.zeros(len(world))
     for corner in np.ndindex(2, 2, 2):
         d = np.asarray(corner)
-        u, ok_c = axis_indices(base + d, 1.0)  # voxel index + 2**20 (exact: base + d is integral)
+        u, ok_c = axis_indices(
+            base + d, 1.0
+        )  # voxel index + 2**20 (exact: base + d is integral)
         keys = pack_keys(np.where(ok_c[:, None], u, 0))
         w = np.prod(np.where(d == 1, f, 1.0 - f), axis=1)
         total += w * _voxel_terms_at(world, keys, ok_c, lookup, stored, occupied)
@@ -152,8 +167,16 @@ def systematic_resample(weights, u0):
     random offset passed in as ``u0`` in ``[0, 1)``). Weights must be non-negative with a positive sum.
     """
     w = np.asarray(weights, dtype=np.float64)
-    if w.ndim != 1 or w.size == 0 or np.any(~np.isfinite(w)) or np.any(w < 0) or not w.sum() > 0:
-        raise ValueError("weights must be a non-empty 1-D array of finite non-negative numbers with positive sum")
+    if (
+        w.ndim != 1
+        or w.size == 0
+        or np.any(~np.isfinite(w))
+        or np.any(w < 0)
+        or not w.sum() > 0
+    ):
+        raise ValueError(
+            "weights must be a non-empty 1-D array of finite non-negative numbers with positive sum"
+        )
     if not 0.0 <= u0 < 1.0:
         raise ValueError(f"u0 must be in [0, 1), got {u0}")
     c = np.cumsum(w / w.sum())

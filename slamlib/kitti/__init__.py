@@ -46,7 +46,13 @@ Trajectory files (:mod:`slamlib.kitti.trajectory_io`): :func:`read_kitti_poses`,
 Every reader raises :class:`slamlib.errors.DataFormatError` (``"path:line: message"``) on bad input.
 """
 
-from slamlib.kitti.calib import REQUIRED_KEYS, check_calibration, load_T_velo_imu, read_calib_file, read_rigid
+from slamlib.kitti.calib import (
+    REQUIRED_KEYS,
+    check_calibration,
+    load_T_velo_imu,
+    read_calib_file,
+    read_rigid,
+)
 from slamlib.kitti.oxts import (
     OXTS_FIELDS,
     OxtsPacket,
@@ -60,7 +66,12 @@ from slamlib.kitti.oxts import (
 )
 from slamlib.kitti.raw import Frame, ImuArrays, KittiRawDrive, drive_folder_name
 from slamlib.kitti.sequence import KittiOdometrySequence, OdometryFrame, sequence_name
-from slamlib.kitti.timestamps import format_timestamp_ns, parse_timestamp_ns, read_timestamps_ns, write_timestamps_ns
+from slamlib.kitti.timestamps import (
+    format_timestamp_ns,
+    parse_timestamp_ns,
+    read_timestamps_ns,
+    write_timestamps_ns,
+)
 from slamlib.kitti.trajectory_io import (
     read_kitti_poses,
     read_times,
@@ -69,15 +80,47 @@ from slamlib.kitti.trajectory_io import (
     write_times,
     write_tum,
 )
-from slamlib.kitti.velodyne import SYNTH_MARKER, read_velodyne_scan, scans_swept, write_velodyne_scan
+from slamlib.kitti.velodyne import (
+    SYNTH_MARKER,
+    read_velodyne_scan,
+    scans_swept,
+    write_velodyne_scan,
+)
 
 __all__ = [
-    "KittiRawDrive", "Frame", "ImuArrays", "drive_folder_name", "KittiOdometrySequence", "OdometryFrame",
+    "KittiRawDrive",
+    "Frame",
+    "ImuArrays",
+    "drive_folder_name",
+    "KittiOdometrySequence",
+    "OdometryFrame",
     "sequence_name",
-    "OXTS_FIELDS", "OxtsPacket", "read_oxts_packet", "write_oxts_packet", "parse_oxts_line", "format_oxts_packet",
-    "mercator_scale", "enu_pose_from_packet", "poses_from_packets",
-    "read_timestamps_ns", "write_timestamps_ns", "parse_timestamp_ns", "format_timestamp_ns",
-    "read_velodyne_scan", "write_velodyne_scan", "scans_swept", "SYNTH_MARKER",
-    "REQUIRED_KEYS", "read_calib_file", "read_rigid", "check_calibration", "load_T_velo_imu",
-    "read_kitti_poses", "write_kitti_poses", "read_tum", "write_tum", "read_times", "write_times",
+    "OXTS_FIELDS",
+    "OxtsPacket",
+    "read_oxts_packet",
+    "write_oxts_packet",
+    "parse_oxts_line",
+    "format_oxts_packet",
+    "mercator_scale",
+    "enu_pose_from_packet",
+    "poses_from_packets",
+    "read_timestamps_ns",
+    "write_timestamps_ns",
+    "parse_timestamp_ns",
+    "format_timestamp_ns",
+    "read_velodyne_scan",
+    "write_velodyne_scan",
+    "scans_swept",
+    "SYNTH_MARKER",
+    "REQUIRED_KEYS",
+    "read_calib_file",
+    "read_rigid",
+    "check_calibration",
+    "load_T_velo_imu",
+    "read_kitti_poses",
+    "write_kitti_poses",
+    "read_tum",
+    "write_tum",
+    "read_times",
+    "write_times",
 ]

@@ -34,7 +34,7 @@ from __future__ import annotations
 
 import math
 import os
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 from pykitti.utils import OxtsPacket, pose_from_oxts_packet, transform_from_rot_trans
@@ -86,8 +86,14 @@ OXTS_RANGES: dict[str, tuple[float, float]] = {
     "alt": (MIN_ALTITUDE_M, MAX_ALTITUDE_M),
     **{k: (-MAX_ABS_ANGLE_RAD, MAX_ABS_ANGLE_RAD) for k in ("roll", "pitch", "yaw")},
     **{k: (-MAX_SPEED_MPS, MAX_SPEED_MPS) for k in ("vn", "ve", "vf", "vl", "vu")},
-    **{k: (-MAX_ACCELERATION_MPS2, MAX_ACCELERATION_MPS2) for k in ("ax", "ay", "az", "af", "al", "au")},
-    **{k: (-MAX_ANGULAR_RATE_RADPS, MAX_ANGULAR_RATE_RADPS) for k in ("wx", "wy", "wz", "wf", "wl", "wu")},
+    **{
+        k: (-MAX_ACCELERATION_MPS2, MAX_ACCELERATION_MPS2)
+        for k in ("ax", "ay", "az", "af", "al", "au")
+    },
+    **{
+        k: (-MAX_ANGULAR_RATE_RADPS, MAX_ANGULAR_RATE_RADPS)
+        for k in ("wx", "wy", "wz", "wf", "wl", "wu")
+    },
     "pos_accuracy": (0.0, math.inf),
     "vel_accuracy": (0.0, math.inf),
 }
@@ -102,7 +108,9 @@ def oxts_range_problem(name: str, value: float) -> str | None:
     return f"OXTS field {name} = {value!r} is outside its physical range [{rng[0]:g}, {rng[1]:g}]"
 
 
-def parse_oxts_line(text: str, path: str | os.PathLike = "<string>", line: int | None = 1) -> OxtsPacket:
+def parse_oxts_line(
+    text: str, path: str | os.PathLike = "<string>", line: int | None = 1
+) -> OxtsPacket:
     """Parse one OXTS line of 30 numbers into an :class:`OxtsPacket` (floats, last five ``int``).
 
     Raises
@@ -116,19 +124,29 @@ def parse_oxts_line(text: str, path: str | os.PathLike = "<string>", line: int |
     parts = text.split()
     if len(parts) != len(OXTS_FIELDS):
         raise DataFormatError(
-            path, f"OXTS line has {len(parts)} fields, expected {len(OXTS_FIELDS)} (see oxts/dataformat.txt)", line
+            path,
+            f"OXTS line has {len(parts)} fields, expected {len(OXTS_FIELDS)} (see oxts/dataformat.txt)",
+            line,
         )
     values: list = []
     for k, (name, tok) in enumerate(zip(OXTS_FIELDS, parts)):
         try:
             v = float(tok)
         except ValueError:
-            raise DataFormatError(path, f"OXTS field {k + 1} ({name}) is not a number: {tok!r}", line) from None
+            raise DataFormatError(
+                path, f"OXTS field {k + 1} ({name}) is not a number: {tok!r}", line
+            ) from None
         if not math.isfinite(v):
-            raise DataFormatError(path, f"OXTS field {k + 1} ({name}) is not finite: {tok!r}", line)
+            raise DataFormatError(
+                path, f"OXTS field {k + 1} ({name}) is not finite: {tok!r}", line
+            )
         if k >= len(OXTS_FIELDS) - N_INT_FIELDS:
             if v != int(v):
-                raise DataFormatError(path, f"OXTS field {k + 1} ({name}) must be an integer, got {tok!r}", line)
+                raise DataFormatError(
+                    path,
+                    f"OXTS field {k + 1} ({name}) must be an integer, got {tok!r}",
+                    line,
+                )
             v = int(v)
         else:
             problem = oxts_range_problem(name, v)
@@ -149,13 +167,19 @@ def read_oxts_packet(path: str | os.PathLike) -> OxtsPacket:
     path = os.fspath(path)
     if not os.path.isfile(path):
         raise DataFormatError(path, "OXTS packet file not found")
-    with open(path, "r", encoding="ascii", errors="replace") as f:
+    with open(path, encoding="ascii", errors="replace") as f:
         lines = f.read().splitlines()
     data = [(i + 1, s) for i, s in enumerate(lines) if s.strip()]
     if not data:
-        raise DataFormatError(path, "OXTS packet file is empty (expected one line of 30 numbers)")
+        raise DataFormatError(
+            path, "OXTS packet file is empty (expected one line of 30 numbers)"
+        )
     if len(data) > 1:
-        raise DataFormatError(path, "OXTS packet file has more than one data line (expected exactly one)", data[1][0])
+        raise DataFormatError(
+            path,
+            "OXTS packet file has more than one data line (expected exactly one)",
+            data[1][0],
+        )
     line_no, text = data[0]
     return parse_oxts_line(text, path, line_no)
 
@@ -170,12 +194,16 @@ def check_oxts_for_pykitti(path: str | os.PathLike) -> None:
         The first blank line (file and 1-based line named).
     """
     path = os.fspath(path)
-    with open(path, "r", encoding="ascii", errors="replace") as f:
+    with open(path, encoding="ascii", errors="replace") as f:
         lines = f.readlines()
     for i, text in enumerate(lines, start=1):
         if not text.split():
-            raise DataFormatError(path, "blank line in an OXTS packet file: pykitti reads every line as a packet "
-                                        "(expected exactly one line of 30 numbers)", i)
+            raise DataFormatError(
+                path,
+                "blank line in an OXTS packet file: pykitti reads every line as a packet "
+                "(expected exactly one line of 30 numbers)",
+                i,
+            )
 
 
 def format_oxts_packet(packet: OxtsPacket | Sequence[float]) -> str:
@@ -184,10 +212,14 @@ def format_oxts_packet(packet: OxtsPacket | Sequence[float]) -> str:
     if len(vals) != len(OXTS_FIELDS):
         raise ValueError(f"an OXTS packet has {len(OXTS_FIELDS)} values, got {len(vals)}")
     n_float = len(OXTS_FIELDS) - N_INT_FIELDS
-    return " ".join([repr(float(v)) for v in vals[:n_float]] + [str(int(v)) for v in vals[n_float:]])
+    return " ".join(
+        [repr(float(v)) for v in vals[:n_float]] + [str(int(v)) for v in vals[n_float:]]
+    )
 
 
-def write_oxts_packet(path: str | os.PathLike, packet: OxtsPacket | Sequence[float]) -> None:
+def write_oxts_packet(
+    path: str | os.PathLike, packet: OxtsPacket | Sequence[float]
+) -> None:
     """Write one packet as ``oxts/data/NNNNNNNNNN.txt`` (one line, newline-terminated)."""
     with open(path, "w", encoding="ascii") as f:
         f.write(format_oxts_packet(packet) + "\n")
@@ -201,10 +233,14 @@ def mercator_scale(lat_deg: float) -> float:
 def enu_pose_from_packet(packet: OxtsPacket, scale: float) -> np.ndarray:
     """4x4 ``T_enu_imu`` of one packet (pykitti's Mercator convention, absolute, no origin shift)."""
     R, t = pose_from_oxts_packet(packet, scale)
-    return transform_from_rot_trans(np.asarray(R, dtype=np.float64), np.asarray(t, dtype=np.float64))
+    return transform_from_rot_trans(
+        np.asarray(R, dtype=np.float64), np.asarray(t, dtype=np.float64)
+    )
 
 
-def poses_from_packets(packets: Sequence[OxtsPacket], reference: OxtsPacket | None = None) -> np.ndarray:
+def poses_from_packets(
+    packets: Sequence[OxtsPacket], reference: OxtsPacket | None = None
+) -> np.ndarray:
     """Ground-truth IMU poses ``T_w_imu`` (N, 4, 4), world = IMU pose of ``reference`` (default: packets[0]).
 
     ``T_w_imu[i] = inv(T_enu_imu(reference)) @ T_enu_imu(packets[i])`` with the Mercator scale of the

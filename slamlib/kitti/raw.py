@@ -21,18 +21,27 @@ whatever ``frames`` selects); ``T_w_imu`` from the OXTS packets in pykitti's Mer
 from __future__ import annotations
 
 import os
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Iterator
 
 import numpy as np
 
 from slamlib.errors import DataFormatError
-from slamlib.kitti.calib import check_calibration, check_calibration_for_pykitti, load_T_velo_imu
+from slamlib.kitti.calib import (
+    check_calibration,
+    check_calibration_for_pykitti,
+    load_T_velo_imu,
+)
 from slamlib.kitti.oxts import OXTS_FIELDS as _FIELDS
-from slamlib.kitti.oxts import OxtsPacket, check_oxts_for_pykitti, poses_from_packets, read_oxts_packet
+from slamlib.kitti.oxts import (
+    OxtsPacket,
+    check_oxts_for_pykitti,
+    poses_from_packets,
+    read_oxts_packet,
+)
 from slamlib.kitti.timestamps import check_timestamps_for_pykitti, read_timestamps_ns
-from slamlib.kitti.velodyne import read_velodyne_scan, scans_swept
+from slamlib.kitti.velodyne import SWEEP_PERIOD_S, read_velodyne_scan, scans_swept
 
 __all__ = ["Frame", "ImuArrays", "KittiRawDrive", "drive_folder_name"]
 
@@ -127,11 +136,15 @@ class ImuArrays:
     specific_force: np.ndarray
 
 
-def check_numbered_files(folder: Path, ext: str, n: int, what: str, against: str, digits: int = 10) -> None:
+def check_numbered_files(
+    folder: Path, ext: str, n: int, what: str, against: str, digits: int = 10
+) -> None:
     """DataFormatError naming ``folder`` unless it holds ``0..n-1`` as zero-padded ``digits``-digit names ending in
     ``ext`` (KITTI raw: 10 digits; odometry scans: 6). ``what`` names the files, ``against`` what counts them."""
     if not folder.is_dir():
-        raise DataFormatError(folder, f"folder of {what} not found (needed for {n} frames)")
+        raise DataFormatError(
+            folder, f"folder of {what} not found (needed for {n} frames)"
+        )
     names = {e.name for e in os.scandir(folder) if e.name.endswith(ext)}
     missing = [i for i in range(n) if f"{i:0{digits}d}{ext}" not in names]
     if missing:
@@ -147,12 +160,18 @@ def _normalise_frames(frames, n: int) -> np.ndarray:
         return np.arange(n, dtype=np.int64)
     if isinstance(frames, slice):
         return np.arange(n, dtype=np.int64)[frames]
-    given = np.asarray(list(frames) if not isinstance(frames, (range, np.ndarray)) else frames)
+    given = np.asarray(
+        list(frames) if not isinstance(frames, (range, np.ndarray)) else frames
+    )
     if given.ndim != 1:
-        raise ValueError("frames must be a range, a slice or a 1-D sequence of frame numbers")
+        raise ValueError(
+            "frames must be a range, a slice or a 1-D sequence of frame numbers"
+        )
     if np.issubdtype(given.dtype, np.integer):
         whole = np.ones(given.shape, bool)
-    elif np.issubdtype(given.dtype, np.floating):  # 2.0 is frame 2; 0.5 is no frame (astype would truncate it)
+    elif np.issubdtype(
+        given.dtype, np.floating
+    ):  # 2.0 is frame 2; 0.5 is no frame (astype would truncate it)
         whole = np.isfinite(given) & (given == np.floor(given))
     else:
         whole = np.zeros(given.shape, bool)
@@ -160,7 +179,9 @@ def _normalise_frames(frames, n: int) -> np.ndarray:
         raise ValueError(f"frames must be whole frame numbers, got {given[~whole][0]!r}")
     idx = given.astype(np.int64)
     if idx.size and (idx.min() < 0 or idx.max() >= n):
-        raise ValueError(f"frames out of range: the drive has frames 0..{n - 1}, asked for {idx.min()}..{idx.max()}")
+        raise ValueError(
+            f"frames out of range: the drive has frames 0..{n - 1}, asked for {idx.min()}..{idx.max()}"
+        )
     return idx
 
 
@@ -209,8 +230,15 @@ class KittiRawDrive:
     ...     frame.scan, frame.velocity, frame.angular_rate, frame.dt, frame.T_w_velo
     """
 
-    def __init__(self, basedir, date: str, drive: str | int, frames=None, dataset: str = "sync",
-                 progress: bool = False):
+    def __init__(
+        self,
+        basedir,
+        date: str,
+        drive: str | int,
+        frames=None,
+        dataset: str = "sync",
+        progress: bool = False,
+    ):
         self.basedir = Path(basedir)
         self.date = str(date)
         self.drive = _drive_str(drive)
@@ -226,28 +254,46 @@ class KittiRawDrive:
             )
         check_calibration(self.calib_dir)
         self.T_velo_imu = load_T_velo_imu(self.calib_dir)
-        self.T_imu_velo = np.linalg.inv(self.T_velo_imu)  # general inverse, as T_w_velo = T_w_imu @ inv(T_velo_imu)
-        self.swept = scans_swept(self.path)  # real scans are; a synthetic drive's only if written with distortion
+        self.T_imu_velo = np.linalg.inv(
+            self.T_velo_imu
+        )  # general inverse, as T_w_velo = T_w_imu @ inv(T_velo_imu)
+        self.swept = scans_swept(
+            self.path
+        )  # real scans are; a synthetic drive's only if written with distortion
 
         self.oxts_dir = self.path / "oxts" / "data"
         self.velo_dir = self.path / "velodyne_points" / "data"
         self.all_timestamps_ns = read_timestamps_ns(self.path / "oxts" / "timestamps.txt")
         n = self.n_drive_frames = int(self.all_timestamps_ns.size)
-        self._check_files(self.oxts_dir, ".txt", n, "OXTS packets", "timestamps in oxts/timestamps.txt")
+        self._check_files(
+            self.oxts_dir, ".txt", n, "OXTS packets", "timestamps in oxts/timestamps.txt"
+        )
         self._check_files(self.velo_dir, ".bin", n, "Velodyne scans", "OXTS packets")
 
         velo_ts = self.path / "velodyne_points" / "timestamps.txt"
         # Scan times are informational (dt comes from the OXTS times): format checked, order not required.
-        self.all_velo_timestamps_ns = (read_timestamps_ns(velo_ts, strictly_increasing=False)
-                                       if velo_ts.is_file() else None)
-        if self.all_velo_timestamps_ns is not None and self.all_velo_timestamps_ns.size < n:
-            raise DataFormatError(velo_ts, f"has {self.all_velo_timestamps_ns.size} timestamps, fewer than the "
-                                           f"{n} OXTS packets")
+        self.all_velo_timestamps_ns = (
+            read_timestamps_ns(velo_ts, strictly_increasing=False)
+            if velo_ts.is_file()
+            else None
+        )
+        if (
+            self.all_velo_timestamps_ns is not None
+            and self.all_velo_timestamps_ns.size < n
+        ):
+            raise DataFormatError(
+                velo_ts,
+                f"has {self.all_velo_timestamps_ns.size} timestamps, fewer than the "
+                f"{n} OXTS packets",
+            )
 
         self.frames = _normalise_frames(frames, n)
         self.timestamps_ns = self.all_timestamps_ns[self.frames]
-        self.velo_timestamps_ns = (None if self.all_velo_timestamps_ns is None
-                                   else self.all_velo_timestamps_ns[self.frames])
+        self.velo_timestamps_ns = (
+            None
+            if self.all_velo_timestamps_ns is None
+            else self.all_velo_timestamps_ns[self.frames]
+        )
         # The world frame: IMU pose of the drive's first frame.
         self.reference_packet = read_oxts_packet(self.oxts_path(0))
         self._packets: dict[int, OxtsPacket] = {0: self.reference_packet}
@@ -281,12 +327,23 @@ class KittiRawDrive:
 
             check_calibration_for_pykitti(self.calib_dir)
             check_timestamps_for_pykitti(self.path / "oxts" / "timestamps.txt")
-            first = min(e.name for e in os.scandir(self.oxts_dir) if e.name.endswith(".txt") and e.name[0] != ".")
-            if first != self.oxts_path(0).name:  # pykitti takes the first *.txt by name as frame 0
-                raise DataFormatError(self.oxts_dir / first, "pykitti would read this file as frame 0's OXTS packet "
-                                                             "(it sorts every *.txt in oxts/data): move it out")
+            first = min(
+                e.name
+                for e in os.scandir(self.oxts_dir)
+                if e.name.endswith(".txt") and e.name[0] != "."
+            )
+            if (
+                first != self.oxts_path(0).name
+            ):  # pykitti takes the first *.txt by name as frame 0
+                raise DataFormatError(
+                    self.oxts_dir / first,
+                    "pykitti would read this file as frame 0's OXTS packet "
+                    "(it sorts every *.txt in oxts/data): move it out",
+                )
             check_oxts_for_pykitti(self.oxts_path(0))
-            self._pykitti = pykitti.raw(str(self.basedir), self.date, self.drive, frames=[0], dataset=self.dataset)
+            self._pykitti = pykitti.raw(
+                str(self.basedir), self.date, self.drive, frames=[0], dataset=self.dataset
+            )
         return self._pykitti
 
     @property
@@ -311,7 +368,9 @@ class KittiRawDrive:
 
     def T_w_imu_of(self, index: int) -> np.ndarray:
         """Ground-truth ``T_w_imu`` (4x4) of drive frame ``index`` (world = IMU pose at frame 0)."""
-        return poses_from_packets([self.oxts_packet(index)], reference=self.reference_packet)[0]
+        return poses_from_packets(
+            [self.oxts_packet(index)], reference=self.reference_packet
+        )[0]
 
     def _frame(self, pos: int, prev_ns: int | None) -> Frame:
         index = int(self.frames[pos])
@@ -333,10 +392,25 @@ class KittiRawDrive:
             T_w_imu=T_w_imu,
             T_w_velo=T_w_imu @ self.T_imu_velo,
             velodyne_path=self.velodyne_path(index),
-            scan_time_offset_s=(0.0 if self.all_velo_timestamps_ns is None
-                                else (int(self.all_velo_timestamps_ns[index]) - ts) * 1e-9),
+            scan_time_offset_s=self._scan_time_offset(index, ts),
             swept=self.swept,
         )
+
+    def _scan_time_offset(self, index: int, ts: int) -> float:
+        """The scan's timestamp minus the pose's (s) of drive frame ``index`` (0 without scan stamps); a
+        DataFormatError naming both timestamp files and the line when the two are more than one sweep apart
+        (:data:`~slamlib.kitti.velodyne.SWEEP_PERIOD_S`): no real pairing of a scan with its pose gives that."""
+        if self.all_velo_timestamps_ns is None:
+            return 0.0
+        offset = (int(self.all_velo_timestamps_ns[index]) - ts) * 1e-9
+        if not abs(offset) <= SWEEP_PERIOD_S:
+            raise DataFormatError(
+                self.path / "velodyne_points" / "timestamps.txt",
+                f"scan stamp is {offset:+.6f} s from the pose stamp on the same line of "
+                f"oxts/timestamps.txt, more than one sweep ({SWEEP_PERIOD_S} s): the two files disagree",
+                line=index + 1,
+            )
+        return offset
 
     def __getitem__(self, pos: int) -> Frame:
         """Frame at position ``pos`` of the selection (negative counts from the end); ``dt`` to position pos-1."""
@@ -352,7 +426,13 @@ class KittiRawDrive:
         from tqdm.auto import tqdm
 
         prev = None
-        for pos in tqdm(range(len(self)), desc="frames", unit="frame", disable=not self.progress, leave=False):
+        for pos in tqdm(
+            range(len(self)),
+            desc="frames",
+            unit="frame",
+            disable=not self.progress,
+            leave=False,
+        ):
             frame = self._frame(pos, prev)
             prev = frame.timestamp_ns
             yield frame
@@ -361,12 +441,20 @@ class KittiRawDrive:
     def _all_packets(self) -> list[OxtsPacket]:
         from tqdm.auto import tqdm
 
-        it = tqdm(self.frames, desc="OXTS", unit="packet", disable=not self.progress, leave=False)
+        it = tqdm(
+            self.frames,
+            desc="OXTS",
+            unit="packet",
+            disable=not self.progress,
+            leave=False,
+        )
         return [self.oxts_packet(i) for i in it]
 
     def oxts_array(self) -> np.ndarray:
         """All 30 OXTS fields of the selected frames, ``(N, 30)`` float64 in :data:`OXTS_FIELDS` order."""
-        return np.array([tuple(p) for p in self._all_packets()], dtype=np.float64).reshape(len(self), 30)
+        return np.array(
+            [tuple(p) for p in self._all_packets()], dtype=np.float64
+        ).reshape(len(self), 30)
 
     def ground_truth_poses(self, frame: str = "imu") -> np.ndarray:
         """Ground-truth poses of the selected frames, ``(N, 4, 4)``: ``frame='imu'`` -> ``T_w_imu``,
@@ -395,4 +483,3 @@ class KittiRawDrive:
             acceleration=pick(("af", "al", "au")),
             specific_force=pick(("ax", "ay", "az")),
         )
-

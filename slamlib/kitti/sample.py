@@ -12,7 +12,6 @@ import os
 import shutil
 from pathlib import Path
 
-
 from slamlib.kitti.calib import CAM_TO_CAM, IMU_TO_VELO, VELO_TO_CAM
 from slamlib.kitti.oxts import read_oxts_packet, write_oxts_packet
 from slamlib.kitti.raw import drive_folder_name
@@ -20,8 +19,16 @@ from slamlib.kitti.timestamps import read_timestamps_ns, write_timestamps_ns
 from slamlib.kitti.velodyne import SWEEP_PERIOD_S, read_velodyne_scan, write_velodyne_scan
 from slamlib.paths import kitti_sample_dir
 
-__all__ = ["SAMPLE_DATE", "SAMPLE_DRIVE", "sample_raw_paths", "make_tiny_drive", "REAL_SCANS", "real_scan_path",
-           "real_scan_frames", "NOMINAL_SCAN_PERIOD"]
+__all__ = [
+    "SAMPLE_DATE",
+    "SAMPLE_DRIVE",
+    "sample_raw_paths",
+    "make_tiny_drive",
+    "REAL_SCANS",
+    "real_scan_path",
+    "real_scan_frames",
+    "NOMINAL_SCAN_PERIOD",
+]
 
 #: How many consecutive real Velodyne scans the package ships (``velodyne_sample/``: frames 0 and 9 as ``.bin``,
 #: 1-8 xz-compressed as ``.bin.xz``, ~0.64 MB each instead of 1.8 MB).
@@ -53,8 +60,14 @@ def sample_raw_paths() -> dict[str, Path]:
     }
 
 
-def make_tiny_drive(basedir: str | os.PathLike, n_frames: int = 5, point_stride: int = 50,
-                    yaw_rate: float = 0.05, date: str = SAMPLE_DATE, drive: str = SAMPLE_DRIVE) -> Path:
+def make_tiny_drive(
+    basedir: str | os.PathLike,
+    n_frames: int = 5,
+    point_stride: int = 50,
+    yaw_rate: float = 0.05,
+    date: str = SAMPLE_DATE,
+    drive: str = SAMPLE_DRIVE,
+) -> Path:
     """Write a small KITTI raw drive under ``basedir`` and return its drive folder.
 
     OXTS packet ``i`` is the real packet with the position moved ``i`` steps along the heading (forward speed
@@ -70,44 +83,59 @@ def make_tiny_drive(basedir: str | os.PathLike, n_frames: int = 5, point_stride:
     (drive_dir / "velodyne_points" / "data").mkdir(parents=True, exist_ok=True)
     for name in (IMU_TO_VELO, VELO_TO_CAM, CAM_TO_CAM):
         shutil.copyfile(p[name], date_dir / name)
-    shutil.copyfile(p["drive_dir"] / "oxts" / "dataformat.txt", drive_dir / "oxts" / "dataformat.txt")
+    shutil.copyfile(
+        p["drive_dir"] / "oxts" / "dataformat.txt", drive_dir / "oxts" / "dataformat.txt"
+    )
 
     ts = read_timestamps_ns(p["oxts_timestamps"])
     if not 1 <= n_frames <= ts.size:
         raise ValueError(f"n_frames must be in 1..{ts.size}")
     ts = ts[:n_frames]
     write_timestamps_ns(drive_dir / "oxts" / "timestamps.txt", ts)
-    write_timestamps_ns(drive_dir / "velodyne_points" / "timestamps.txt",
-                        read_timestamps_ns(p["velo_timestamps"])[:n_frames])
+    write_timestamps_ns(
+        drive_dir / "velodyne_points" / "timestamps.txt",
+        read_timestamps_ns(p["velo_timestamps"])[:n_frames],
+    )
 
     base = read_oxts_packet(p["oxts_packet"])
     r = 6378137.0
     lat, lon, yaw = base.lat, base.lon, base.yaw
-    scans = [read_velodyne_scan(p["scan0"])[::point_stride], read_velodyne_scan(p["scan9"])[::point_stride]]
+    scans = [
+        read_velodyne_scan(p["scan0"])[::point_stride],
+        read_velodyne_scan(p["scan9"])[::point_stride],
+    ]
     for i in range(n_frames):
         if i > 0:
             dt = (ts[i] - ts[i - 1]) * 1e-9
             step = base.vf * dt
-            lat += math.degrees(step * math.sin(yaw) / r)  # yaw 0 = east, counter-clockwise
+            lat += math.degrees(
+                step * math.sin(yaw) / r
+            )  # yaw 0 = east, counter-clockwise
             lon += math.degrees(step * math.cos(yaw) / (r * math.cos(math.radians(lat))))
             yaw += yaw_rate * dt
-        write_oxts_packet(drive_dir / "oxts" / "data" / f"{i:010d}.txt",
-                          base._replace(lat=lat, lon=lon, yaw=yaw, wu=yaw_rate))
-        write_velodyne_scan(drive_dir / "velodyne_points" / "data" / f"{i:010d}.bin", scans[i % 2])
+        write_oxts_packet(
+            drive_dir / "oxts" / "data" / f"{i:010d}.txt",
+            base._replace(lat=lat, lon=lon, yaw=yaw, wu=yaw_rate),
+        )
+        write_velodyne_scan(
+            drive_dir / "velodyne_points" / "data" / f"{i:010d}.bin", scans[i % 2]
+        )
     return drive_dir
-
-
 
 
 def real_scan_path(k: int) -> Path:
     """The shipped real scan ``k`` (0..9): ``velodyne_sample/NNNNNNNNNN.bin`` or ``.bin.xz``."""
     if not 0 <= int(k) < REAL_SCANS:
-        raise ValueError(f"the package ships real scans 0..{REAL_SCANS - 1}, asked for {k}")
+        raise ValueError(
+            f"the package ships real scans 0..{REAL_SCANS - 1}, asked for {k}"
+        )
     base = kitti_sample_dir() / "velodyne_sample" / f"{int(k):010d}.bin"
     return base if base.is_file() else base.with_name(base.name + ".xz")
 
 
-def real_scan_frames(frames=range(REAL_SCANS), period: float = NOMINAL_SCAN_PERIOD) -> list:
+def real_scan_frames(
+    frames=range(REAL_SCANS), period: float = NOMINAL_SCAN_PERIOD
+) -> list:
     """The shipped real scans as LIDAR-only frames (:class:`slamlib.kitti.OdometryFrame`, no IMU, no ground
     truth), ``period`` seconds apart (nominal: their timestamps are not shipped). For ``slamlib.slam3d.run_drive``.
     They are raw scans, not motion-compensated: ``swept`` is True (the filter de-skews them by default).
@@ -116,7 +144,15 @@ def real_scan_frames(frames=range(REAL_SCANS), period: float = NOMINAL_SCAN_PERI
 
     out = []
     for pos, k in enumerate(frames):
-        out.append(OdometryFrame(index=int(k), time_s=float(k) * period, dt=0.0 if pos == 0 else
-                                 float(k - frames[pos - 1]) * period, scan=read_velodyne_scan(real_scan_path(k)),
-                                 T_w_body=None, velodyne_path=real_scan_path(k), swept=True))
+        out.append(
+            OdometryFrame(
+                index=int(k),
+                time_s=float(k) * period,
+                dt=0.0 if pos == 0 else float(k - frames[pos - 1]) * period,
+                scan=read_velodyne_scan(real_scan_path(k)),
+                T_w_body=None,
+                velodyne_path=real_scan_path(k),
+                swept=True,
+            )
+        )
     return out

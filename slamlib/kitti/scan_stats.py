@@ -28,8 +28,19 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["ELEVATION_BINS_DEG", "azimuth", "elevation", "ranges", "ring_index", "ring_counts",
-           "elevation_fractions", "front_view", "range_image", "IcpResult", "icp_align"]
+__all__ = [
+    "ELEVATION_BINS_DEG",
+    "azimuth",
+    "elevation",
+    "ranges",
+    "ring_index",
+    "ring_counts",
+    "elevation_fractions",
+    "front_view",
+    "range_image",
+    "IcpResult",
+    "icp_align",
+]
 
 #: Elevation bin edges (deg) for comparing scans: the HDL-64E's +2 to -24.9 deg field of view in 5-degree bins
 #: (the two end bins stretched to hold the top and bottom beams).
@@ -88,7 +99,9 @@ def elevation_fractions(scan, edges_deg=ELEVATION_BINS_DEG) -> np.ndarray:
     ``h_i / sum(h)`` with ``h`` the histogram counts: points outside the edges are not counted, and the
     fractions sum to 1 (NaN for a scan with no point inside the edges).
     """
-    h = np.histogram(np.degrees(elevation(scan)), bins=np.asarray(edges_deg, dtype=np.float64))[0]
+    h = np.histogram(
+        np.degrees(elevation(scan)), bins=np.asarray(edges_deg, dtype=np.float64)
+    )[0]
     total = h.sum()
     return h / total if total else np.full(len(h), np.nan)
 
@@ -106,12 +119,19 @@ def front_view(points, az_limits_deg=(-60.0, 60.0), max_range: float = np.inf):
     keep = (az >= az_limits_deg[0]) & (az <= az_limits_deg[1]) & (r <= max_range)
     order = np.argsort(-r[keep], kind="stable")
     az, r = az[keep][order], r[keep][order]
-    el = np.degrees(np.arcsin(np.clip(p[keep][order][:, 2] / np.maximum(r, 1e-12), -1.0, 1.0)))
+    el = np.degrees(
+        np.arcsin(np.clip(p[keep][order][:, 2] / np.maximum(r, 1e-12), -1.0, 1.0))
+    )
     return az, el, r
 
 
-def range_image(scan, az_limits_deg=(-180.0, 180.0), columns: int = 2000, n_rings: int = 64,
-                min_drop: float = np.pi / 2) -> np.ndarray:
+def range_image(
+    scan,
+    az_limits_deg=(-180.0, 180.0),
+    columns: int = 2000,
+    n_rings: int = 64,
+    min_drop: float = np.pi / 2,
+) -> np.ndarray:
     """The scan on the sensor's own grid: ``(n_rings, W)`` float64 ranges (m), NaN where no return.
 
     Row ``i`` is ring ``i`` (:func:`ring_index`; ring 0, the top laser in KITTI, at the top). Columns are
@@ -160,8 +180,16 @@ class IcpResult:
     max_distance: float
 
 
-def icp_align(source, target, init=None, voxel_size: float = 0.2, max_distances=(1.0, 0.5, 0.25),
-              min_range: float = 3.0, max_range: float = 80.0, max_iteration: int = 60) -> IcpResult:
+def icp_align(
+    source,
+    target,
+    init=None,
+    voxel_size: float = 0.2,
+    max_distances=(1.0, 0.5, 0.25),
+    min_range: float = 3.0,
+    max_range: float = 80.0,
+    max_iteration: int = 60,
+) -> IcpResult:
     """Rigid pose ``T_target_source`` aligning two scans by point-to-plane ICP (open3d), coarse to fine.
 
     Both scans are cropped to ``min_range <= r <= max_range`` (m; drops the returns off the car itself),
@@ -182,23 +210,37 @@ def icp_align(source, target, init=None, voxel_size: float = 0.2, max_distances=
     def cloud(points):
         p = _xyz(points)
         r = np.linalg.norm(p, axis=1)
-        pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(p[(r >= min_range) & (r <= max_range)]))
+        pc = o3d.geometry.PointCloud(
+            o3d.utility.Vector3dVector(p[(r >= min_range) & (r <= max_range)])
+        )
         pc = pc.voxel_down_sample(voxel_size)
-        pc.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=3 * voxel_size, max_nn=30))
+        pc.estimate_normals(
+            o3d.geometry.KDTreeSearchParamHybrid(radius=3 * voxel_size, max_nn=30)
+        )
         return pc
 
     src, tgt = cloud(source), cloud(target)
     if len(src.points) < 3 or len(tgt.points) < 3:
-        raise ValueError("icp_align: fewer than 3 points left in a scan after cropping and down-sampling")
+        raise ValueError(
+            "icp_align: fewer than 3 points left in a scan after cropping and down-sampling"
+        )
     T0 = np.eye(4) if init is None else np.asarray(init, dtype=np.float64)
     T = T0.copy()
     criteria = reg.ICPConvergenceCriteria(max_iteration=max_iteration)
     for d in max_distances:
-        T = reg.registration_icp(src, tgt, float(d), T, reg.TransformationEstimationPointToPlane(),
-                                 criteria).transformation
+        T = reg.registration_icp(
+            src, tgt, float(d), T, reg.TransformationEstimationPointToPlane(), criteria
+        ).transformation
     d = float(max_distances[-1])
     final = reg.evaluate_registration(src, tgt, d, T)
     start = reg.evaluate_registration(src, tgt, d, T0)
-    return IcpResult(T=np.array(T), fitness=float(final.fitness), inlier_rmse=float(final.inlier_rmse),
-                     fitness_init=float(start.fitness), inlier_rmse_init=float(start.inlier_rmse),
-                     n_source=len(src.points), n_target=len(tgt.points), max_distance=d)
+    return IcpResult(
+        T=np.array(T),
+        fitness=float(final.fitness),
+        inlier_rmse=float(final.inlier_rmse),
+        fitness_init=float(start.fitness),
+        inlier_rmse_init=float(start.inlier_rmse),
+        n_source=len(src.points),
+        n_target=len(tgt.points),
+        max_distance=d,
+    )

@@ -26,9 +26,9 @@ suite", CVPR 2012 (the odometry devkit's ``readme.txt`` describes these files).
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Iterator
 
 import numpy as np
 
@@ -37,7 +37,13 @@ from slamlib.kitti.calib import read_calib_file, rigid_transform
 from slamlib.kitti.trajectory_io import read_kitti_poses, read_times
 from slamlib.kitti.velodyne import read_velodyne_scan, scans_swept
 
-__all__ = ["OdometryFrame", "KittiOdometrySequence", "sequence_name", "CALIB_KEYS", "SCAN_DIGITS"]
+__all__ = [
+    "OdometryFrame",
+    "KittiOdometrySequence",
+    "sequence_name",
+    "CALIB_KEYS",
+    "SCAN_DIGITS",
+]
 
 #: Keys of an odometry ``calib.txt`` and how many numbers each holds (``Tr`` is the one slamlib needs).
 CALIB_KEYS = {"P0": 12, "P1": 12, "P2": 12, "P3": 12, "Tr": 12}
@@ -127,7 +133,14 @@ class KittiOdometrySequence:
         synthetic sequence's when written with ``distortion``.
     """
 
-    def __init__(self, basedir, sequence: str | int, frames=None, poses=None, progress: bool = False):
+    def __init__(
+        self,
+        basedir,
+        sequence: str | int,
+        frames=None,
+        poses=None,
+        progress: bool = False,
+    ):
         from slamlib.kitti.raw import _normalise_frames, check_numbered_files
 
         self.basedir = Path(basedir)
@@ -135,35 +148,62 @@ class KittiOdometrySequence:
         self.path = self.basedir / "sequences" / self.sequence
         self.progress = progress
         if not self.path.is_dir():
-            found = sorted(p.name for p in (self.basedir / "sequences").glob("[0-9]*") if p.is_dir()) \
-                if (self.basedir / "sequences").is_dir() else []
-            raise DataFormatError(self.path, "KITTI odometry sequence folder not found (expected "
-                                             f"basedir/sequences/NN); sequences there: {', '.join(found) or 'none'}")
+            found = (
+                sorted(
+                    p.name
+                    for p in (self.basedir / "sequences").glob("[0-9]*")
+                    if p.is_dir()
+                )
+                if (self.basedir / "sequences").is_dir()
+                else []
+            )
+            raise DataFormatError(
+                self.path,
+                "KITTI odometry sequence folder not found (expected "
+                f"basedir/sequences/NN); sequences there: {', '.join(found) or 'none'}",
+            )
         calib = read_calib_file(self.path / "calib.txt", {"Tr": CALIB_KEYS["Tr"]})
         self.calib = calib
         Tr = calib["Tr"].reshape(3, 4)
-        self.Tr = rigid_transform(self.path / "calib.txt", Tr[:, :3], Tr[:, 3], "Tr's 3x3 block", "Tr's offset")
+        self.Tr = rigid_transform(
+            self.path / "calib.txt", Tr[:, :3], Tr[:, 3], "Tr's 3x3 block", "Tr's offset"
+        )
         self.T_velo_imu = np.eye(4)
         # the odometry benchmark's scans are motion-compensated; a synthetic sequence's are swept if written so
         self.swept = scans_swept(self.path, unmarked=False)
         times_path = self.path / "times.txt"
         if not times_path.is_file():
-            raise DataFormatError(times_path, "times file not found (one time in seconds per frame; the odometry "
-                                              "layout needs it for the frame intervals)")
+            raise DataFormatError(
+                times_path,
+                "times file not found (one time in seconds per frame; the odometry "
+                "layout needs it for the frame intervals)",
+            )
         self.times = read_times(times_path, strictly_increasing=True)
         n = self.n_sequence_frames = int(self.times.size)
         if n == 0:
-            raise DataFormatError(times_path, "holds no times: the sequence has no frames")
+            raise DataFormatError(
+                times_path, "holds no times: the sequence has no frames"
+            )
         self.velo_dir = self.path / "velodyne"
-        check_numbered_files(self.velo_dir, ".bin", n, "Velodyne scans", "times in times.txt", SCAN_DIGITS)
-        self.poses_path = Path(poses) if poses is not None else self.basedir / "poses" / f"{self.sequence}.txt"
+        check_numbered_files(
+            self.velo_dir, ".bin", n, "Velodyne scans", "times in times.txt", SCAN_DIGITS
+        )
+        self.poses_path = (
+            Path(poses)
+            if poses is not None
+            else self.basedir / "poses" / f"{self.sequence}.txt"
+        )
         if poses is None and not self.poses_path.is_file():
             self.poses_path, self.ground_truth = None, None
         else:
             P = read_kitti_poses(self.poses_path, check_rotation=True)
             if len(P) < n:
-                raise DataFormatError(self.poses_path, f"ground truth ends after {len(P)} poses, but times.txt has "
-                                                       f"{n} frames: pose {len(P)} (this line) is missing", len(P) + 1)
+                raise DataFormatError(
+                    self.poses_path,
+                    f"ground truth ends after {len(P)} poses, but times.txt has "
+                    f"{n} frames: pose {len(P)} (this line) is missing",
+                    len(P) + 1,
+                )
             Tr_inv = np.linalg.inv(self.Tr)
             self.ground_truth = Tr_inv[None] @ P[:n] @ self.Tr[None]
         self.frames = _normalise_frames(frames, n)
@@ -180,11 +220,20 @@ class KittiOdometrySequence:
 
     def _frame(self, pos: int) -> OdometryFrame:
         index = int(self.frames[pos])
-        dt = 0.0 if pos == 0 else float(self.times[index] - self.times[int(self.frames[pos - 1])])
-        return OdometryFrame(index=index, time_s=float(self.times[index]), dt=dt,
-                             scan=read_velodyne_scan(self.velodyne_path(index)),
-                             T_w_body=None if self.ground_truth is None else self.ground_truth[index],
-                             velodyne_path=self.velodyne_path(index), swept=self.swept)
+        dt = (
+            0.0
+            if pos == 0
+            else float(self.times[index] - self.times[int(self.frames[pos - 1])])
+        )
+        return OdometryFrame(
+            index=index,
+            time_s=float(self.times[index]),
+            dt=dt,
+            scan=read_velodyne_scan(self.velodyne_path(index)),
+            T_w_body=None if self.ground_truth is None else self.ground_truth[index],
+            velodyne_path=self.velodyne_path(index),
+            swept=self.swept,
+        )
 
     def __getitem__(self, pos: int) -> OdometryFrame:
         """Frame at position ``pos`` of the selection (negative counts from the end)."""
@@ -197,11 +246,19 @@ class KittiOdometrySequence:
         """The selected frames in order, each scan read (and validated) when its frame is reached."""
         from tqdm.auto import tqdm
 
-        for pos in tqdm(range(len(self)), desc="frames", unit="frame", disable=not self.progress, leave=False):
+        for pos in tqdm(
+            range(len(self)),
+            desc="frames",
+            unit="frame",
+            disable=not self.progress,
+            leave=False,
+        ):
             yield self._frame(pos)
 
     def ground_truth_poses(self) -> np.ndarray:
         """``T_w_body`` ``(N, 4, 4)`` of the selected frames; ValueError without a poses file."""
         if self.ground_truth is None:
-            raise ValueError(f"{self.path} has no ground truth ({self.basedir / 'poses' / self.sequence}.txt)")
+            raise ValueError(
+                f"{self.path} has no ground truth ({self.basedir / 'poses' / self.sequence}.txt)"
+            )
         return self.ground_truth[self.frames]

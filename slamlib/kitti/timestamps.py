@@ -18,22 +18,31 @@ from __future__ import annotations
 import datetime as _dt
 import os
 import re
-from typing import Iterable
+from collections.abc import Iterable
 
 import numpy as np
 
 from slamlib.errors import DataFormatError
 
-__all__ = ["parse_timestamp_ns", "format_timestamp_ns", "read_timestamps_ns", "write_timestamps_ns",
-           "check_timestamps_for_pykitti"]
+__all__ = [
+    "parse_timestamp_ns",
+    "format_timestamp_ns",
+    "read_timestamps_ns",
+    "write_timestamps_ns",
+    "check_timestamps_for_pykitti",
+]
 
 _PATTERN = re.compile(r"^(\d{4})-(\d{2})-(\d{2}) (\d{2}):(\d{2}):(\d{2})\.(\d{9})$")
 _EPOCH = _dt.datetime(1970, 1, 1)
 _INT64_MIN, _INT64_MAX = -(2**63), 2**63 - 1
-_FORMAT_HINT = "expected 'YYYY-MM-DD HH:MM:SS.fffffffff' (KITTI raw format, 9 fractional digits)"
+_FORMAT_HINT = (
+    "expected 'YYYY-MM-DD HH:MM:SS.fffffffff' (KITTI raw format, 9 fractional digits)"
+)
 
 
-def parse_timestamp_ns(text: str, path: str | os.PathLike = "<string>", line: int | None = None) -> int:
+def parse_timestamp_ns(
+    text: str, path: str | os.PathLike = "<string>", line: int | None = None
+) -> int:
     """Parse one KITTI timestamp ``YYYY-MM-DD HH:MM:SS.fffffffff`` to integer nanoseconds since 1970 (UTC).
 
     Parameters
@@ -61,8 +70,12 @@ def parse_timestamp_ns(text: str, path: str | os.PathLike = "<string>", line: in
     seconds = (whole - _EPOCH) // _dt.timedelta(seconds=1)
     ns = seconds * 1_000_000_000 + int(frac)
     if not _INT64_MIN <= ns <= _INT64_MAX:
-        raise DataFormatError(path, f"bad timestamp {s!r}: outside the years 1678-2262 that int64 nanoseconds "
-                                    "since 1970 can hold", line)
+        raise DataFormatError(
+            path,
+            f"bad timestamp {s!r}: outside the years 1678-2262 that int64 nanoseconds "
+            "since 1970 can hold",
+            line,
+        )
     return ns
 
 
@@ -74,7 +87,9 @@ def format_timestamp_ns(ns: int) -> str:
     return f"{whole:%Y-%m-%d %H:%M:%S}.{frac:09d}"
 
 
-def read_timestamps_ns(path: str | os.PathLike, strictly_increasing: bool = True) -> np.ndarray:
+def read_timestamps_ns(
+    path: str | os.PathLike, strictly_increasing: bool = True
+) -> np.ndarray:
     """Read a KITTI timestamps file: one ``YYYY-MM-DD HH:MM:SS.fffffffff`` per line -> ``(N,)`` int64 ns.
 
     Blank lines at the end of the file are ignored; a blank line in the middle is an error.
@@ -88,7 +103,7 @@ def read_timestamps_ns(path: str | os.PathLike, strictly_increasing: bool = True
     path = os.fspath(path)
     if not os.path.isfile(path):
         raise DataFormatError(path, "timestamps file not found")
-    with open(path, "r", encoding="ascii", errors="replace") as f:
+    with open(path, encoding="ascii", errors="replace") as f:
         lines = f.read().splitlines()
     while lines and not lines[-1].strip():
         lines.pop()
@@ -120,15 +135,18 @@ def check_timestamps_for_pykitti(path: str | os.PathLike) -> None:
         The first line pykitti could not parse (file and 1-based line named).
     """
     path = os.fspath(path)
-    with open(path, "r", encoding="ascii", errors="replace") as f:
+    with open(path, encoding="ascii", errors="replace") as f:
         lines = f.readlines()
     for i, text in enumerate(lines, start=1):
         try:
             _dt.datetime.strptime(text[:-4], "%Y-%m-%d %H:%M:%S.%f")
         except ValueError:
             raise DataFormatError(
-                path, f"pykitti cannot parse timestamp line {text.rstrip(chr(10))!r}: it needs exactly "
-                      "'YYYY-MM-DD HH:MM:SS.fffffffff' on every line (no trailing spaces, no blank lines)", i) from None
+                path,
+                f"pykitti cannot parse timestamp line {text.rstrip(chr(10))!r}: it needs exactly "
+                "'YYYY-MM-DD HH:MM:SS.fffffffff' on every line (no trailing spaces, no blank lines)",
+                i,
+            ) from None
 
 
 def write_timestamps_ns(path: str | os.PathLike, timestamps_ns: Iterable[int]) -> None:

@@ -25,21 +25,34 @@ from scipy.spatial.transform import Rotation
 
 from slamlib.errors import DataFormatError
 
-__all__ = ["read_kitti_poses", "write_kitti_poses", "read_tum", "write_tum", "read_times", "write_times"]
+__all__ = [
+    "read_kitti_poses",
+    "write_kitti_poses",
+    "read_tum",
+    "write_tum",
+    "read_times",
+    "write_times",
+]
 
 
 def _numbers(path, text: str, line: int, count: int | None, what: str) -> list[float]:
     toks = text.split()
     if count is not None and len(toks) != count:
-        raise DataFormatError(path, f"{what} line has {len(toks)} numbers, expected {count}", line)
+        raise DataFormatError(
+            path, f"{what} line has {len(toks)} numbers, expected {count}", line
+        )
     out = []
     for k, tok in enumerate(toks):
         try:
             v = float(tok)
         except ValueError:
-            raise DataFormatError(path, f"{what} value {k + 1} is not a number: {tok!r}", line) from None
+            raise DataFormatError(
+                path, f"{what} value {k + 1} is not a number: {tok!r}", line
+            ) from None
         if not math.isfinite(v):
-            raise DataFormatError(path, f"{what} value {k + 1} is not finite: {tok!r}", line)
+            raise DataFormatError(
+                path, f"{what} value {k + 1} is not finite: {tok!r}", line
+            )
         out.append(v)
     return out
 
@@ -48,7 +61,7 @@ def _data_lines(path, comments: bool):
     path = os.fspath(path)
     if not os.path.isfile(path):
         raise DataFormatError(path, "trajectory file not found")
-    with open(path, "r", encoding="utf-8", errors="replace") as f:
+    with open(path, encoding="utf-8", errors="replace") as f:
         for i, text in enumerate(f, start=1):
             s = text.strip()
             if not s or (comments and s.startswith("#")):
@@ -60,10 +73,14 @@ def _check_poses(poses) -> np.ndarray:
     T = np.asarray(poses, dtype=np.float64)
     if T.ndim != 3 or T.shape[1:] not in ((4, 4), (3, 4)):
         raise ValueError(f"poses must be (N, 4, 4) or (N, 3, 4), got {T.shape}")
-    bad = ~np.isfinite(T).all(axis=(1, 2))  # per pose; an empty trajectory (0, 4, 4) is fine
+    bad = ~np.isfinite(T).all(
+        axis=(1, 2)
+    )  # per pose; an empty trajectory (0, 4, 4) is fine
     if bad.any():
-        raise ValueError(f"refusing to write a trajectory with non-finite (NaN / inf) poses: {int(bad.sum())} of "
-                         f"{T.shape[0]}, the first at index {int(np.argmax(bad))}")
+        raise ValueError(
+            f"refusing to write a trajectory with non-finite (NaN / inf) poses: {int(bad.sum())} of "
+            f"{T.shape[0]}, the first at index {int(np.argmax(bad))}"
+        )
     return T
 
 
@@ -82,7 +99,9 @@ def read_kitti_poses(path: str | os.PathLike, check_rotation: bool = False) -> n
         if check_rotation:
             R = np.array(vals).reshape(3, 4)[:, :3]
             if np.abs(R.T @ R - np.eye(3)).max() > 1e-4 or np.linalg.det(R) <= 0:
-                raise DataFormatError(path, "KITTI pose rotation block is not a rotation matrix", i)
+                raise DataFormatError(
+                    path, "KITTI pose rotation block is not a rotation matrix", i
+                )
         rows.append(vals)
     T = np.zeros((len(rows), 4, 4))
     if rows:
@@ -134,7 +153,9 @@ def write_tum(path: str | os.PathLike, timestamps, poses, header: bool = False) 
     if t.shape[0] != T.shape[0]:
         raise ValueError(f"{t.shape[0]} timestamps for {T.shape[0]} poses")
     if not np.all(np.isfinite(t)):
-        raise ValueError("refusing to write a trajectory with non-finite (NaN / inf) timestamps")
+        raise ValueError(
+            "refusing to write a trajectory with non-finite (NaN / inf) timestamps"
+        )
     q = Rotation.from_matrix(T[:, :3, :3]).as_quat() if T.shape[0] else np.zeros((0, 4))
     with open(path, "w", encoding="ascii") as f:
         if header:
@@ -154,7 +175,9 @@ def read_times(path: str | os.PathLike, strictly_increasing: bool = False) -> np
     for i, s in _data_lines(path, comments=True):
         v = _numbers(path, s, i, 1, "time")[0]
         if strictly_increasing and out and v <= out[-1]:
-            raise DataFormatError(path, f"time {v!r} is not later than the previous {out[-1]!r}", i)
+            raise DataFormatError(
+                path, f"time {v!r} is not later than the previous {out[-1]!r}", i
+            )
         out.append(v)
     return np.array(out, dtype=np.float64)
 

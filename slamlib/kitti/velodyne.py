@@ -15,8 +15,15 @@ import numpy as np
 
 from slamlib.errors import DataFormatError
 
-__all__ = ["POINT_BYTES", "SWEEP_PERIOD_S", "SYNTH_MARKER", "read_velodyne_scan", "write_velodyne_scan",
-           "scans_swept", "read_synth_marker"]
+__all__ = [
+    "POINT_BYTES",
+    "SWEEP_PERIOD_S",
+    "SYNTH_MARKER",
+    "read_velodyne_scan",
+    "write_velodyne_scan",
+    "scans_swept",
+    "read_synth_marker",
+]
 
 #: Bytes per point: 4 float32 values.
 POINT_BYTES = 16
@@ -67,12 +74,16 @@ def read_velodyne_scan(path: str | os.PathLike) -> np.ndarray:
     path = os.fspath(path)
     if not os.path.isfile(path):
         raise DataFormatError(path, "Velodyne scan file not found")
-    if path.endswith(".xz"):  # an xz-compressed .bin (the package's real sample scans): the same bytes inside
+    if path.endswith(
+        ".xz"
+    ):  # an xz-compressed .bin (the package's real sample scans): the same bytes inside
         import lzma
 
         try:
             with lzma.open(path) as f:
-                raw = bytearray(f.read())  # writable: the scan is a writable array, as from a .bin
+                raw = bytearray(
+                    f.read()
+                )  # writable: the scan is a writable array, as from a .bin
         except (lzma.LZMAError, EOFError) as exc:
             raise DataFormatError(path, f"not a readable xz file: {exc}") from None
         size = len(raw)
@@ -80,14 +91,20 @@ def read_velodyne_scan(path: str | os.PathLike) -> np.ndarray:
         size = os.path.getsize(path)
     if size % POINT_BYTES:
         raise DataFormatError(
-            path, f"Velodyne scan has {size} bytes, not a multiple of {POINT_BYTES} (4 float32 per point)"
+            path,
+            f"Velodyne scan has {size} bytes, not a multiple of {POINT_BYTES} (4 float32 per point)",
         )
-    scan = (np.frombuffer(raw, dtype="<f4") if path.endswith(".xz") else np.fromfile(path, dtype="<f4")).reshape(-1, 4)
+    scan = (
+        np.frombuffer(raw, dtype="<f4")
+        if path.endswith(".xz")
+        else np.fromfile(path, dtype="<f4")
+    ).reshape(-1, 4)
     finite = np.isfinite(scan).all(axis=1)
     if not finite.all():
         bad = np.flatnonzero(~finite)
         raise DataFormatError(
-            path, f"Velodyne scan has {bad.size} point(s) with nan/inf values (first at point index {bad[0]})"
+            path,
+            f"Velodyne scan has {bad.size} point(s) with nan/inf values (first at point index {bad[0]})",
         )
     return scan.astype(np.float32, copy=False)
 
@@ -98,5 +115,7 @@ def write_velodyne_scan(path: str | os.PathLike, scan: np.ndarray) -> None:
     if scan.ndim != 2 or scan.shape[1] not in (3, 4):
         raise ValueError(f"scan must be (N, 4) or (N, 3), got {scan.shape}")
     if scan.shape[1] == 3:
-        scan = np.concatenate([scan, np.zeros((scan.shape[0], 1), dtype=scan.dtype)], axis=1)
+        scan = np.concatenate(
+            [scan, np.zeros((scan.shape[0], 1), dtype=scan.dtype)], axis=1
+        )
     np.ascontiguousarray(scan, dtype="<f4").tofile(path)

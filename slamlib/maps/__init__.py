@@ -7,7 +7,13 @@
 ``slamlib.kernels.get_backend(name).score_particles`` reads. See :mod:`slamlib.maps.base` for the layouts.
 """
 
-from slamlib.maps.base import (KIND_MORTON, KIND_VOXEL_HASH, Map3D, MortonLookup, VoxelHashLookup)
+from slamlib.maps.base import (
+    KIND_MORTON,
+    KIND_VOXEL_HASH,
+    Map3D,
+    MortonLookup,
+    VoxelHashLookup,
+)
 from slamlib.maps.morton_bvh import MortonBVHMap
 from slamlib.maps.voxel_hash import VoxelHashMap
 
@@ -17,9 +23,20 @@ MAP_TYPES = {"voxel_hash": VoxelHashMap, "morton_bvh": MortonBVHMap}
 def make_map(kind: str = "voxel_hash", **kwargs) -> Map3D:
     """Construct a map by name (``"voxel_hash"`` or ``"morton_bvh"``) with keyword parameters."""
     if kind not in MAP_TYPES:
-        raise ValueError(f"unknown map kind {kind!r}; choose one of {', '.join(MAP_TYPES)}")
+        raise ValueError(
+            f"unknown map kind {kind!r}; choose one of {', '.join(MAP_TYPES)}"
+        )
     return MAP_TYPES[kind](**kwargs)
 
 
-__all__ = ["Map3D", "VoxelHashMap", "MortonBVHMap", "VoxelHashLookup", "MortonLookup", "KIND_VOXEL_HASH",
-           "KIND_MORTON", "MAP_TYPES", "make_map"]
+__all__ = [
+    "Map3D",
+    "VoxelHashMap",
+    "MortonBVHMap",
+    "VoxelHashLookup",
+    "MortonLookup",
+    "KIND_VOXEL_HASH",
+    "KIND_MORTON",
+    "MAP_TYPES",
+    "make_map",
+]

@@ -35,7 +35,7 @@ Numba's on-disk cache of the ``cache=True`` callers (:mod:`slamlib.maps.voxel_ha
 from __future__ import annotations
 
 import math
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 
@@ -55,17 +55,29 @@ AXIS_OFFSET_F64 = np.float64(AXIS_OFFSET)
 
 # The hash multiplier 0x9E3779B97F4A7C15 (2**64 / golden ratio) in 32-bit halves: the product mod 2**64 is
 # assembled from partial products that each fit in 64 bits (schoolbook multiplication, high x high dropped).
-_HASH_LO, _HASH_HI = np.uint64(HASH_MULTIPLIER & 0xFFFFFFFF), np.uint64(HASH_MULTIPLIER >> 32)
+_HASH_LO, _HASH_HI = (
+    np.uint64(HASH_MULTIPLIER & 0xFFFFFFFF),
+    np.uint64(HASH_MULTIPLIER >> 32),
+)
 _M32 = np.uint64(0xFFFFFFFF)  # low 32 bits
-_S32, _U64_BITS = np.uint64(32), np.uint64(64)  # shift counts, typed so that Numba keeps uint64 arithmetic
+_S32, _U64_BITS = (
+    np.uint64(32),
+    np.uint64(64),
+)  # shift counts, typed so that Numba keeps uint64 arithmetic
 
 #: Masks of the five shift-or-mask steps (shifts 32, 16, 8, 4, 2) that spread the 21 bits of an index to every
 #: third bit (part1by2), the magic-number form of Morton encoding (Karras 2012, "Thinking parallel, part III";
 #: Baert 2013, "Morton encoding/decoding through bit interleaving"): the step with shift s copies every bit
 #: group up by s bits, and its mask keeps, of the original and the copy, the bits at their final spacing.
-MORTON_MASKS = (np.int64(0x001F00000000FFFF), np.int64(0x001F0000FF0000FF), np.int64(0x100F00F00F00F00F),
-                np.int64(0x10C30C30C30C30C3), np.int64(0x1249249249249249))
+MORTON_MASKS = (
+    np.int64(0x001F00000000FFFF),
+    np.int64(0x001F0000FF0000FF),
+    np.int64(0x100F00F00F00F00F),
+    np.int64(0x10C30C30C30C30C3),
+    np.int64(0x1249249249249249),
+)
 _MM32, _MM16, _MM8, _MM4, _MM2 = MORTON_MASKS
+
 
 def _identity(fn):
     return fn
@@ -142,7 +154,11 @@ def make_code_functions(deco: Callable = _identity) -> dict:
     part1by2 = deco(part1by2)
 
     def morton(ux, uy, uz):
-        return part1by2(np.int64(ux)) | (part1by2(np.int64(uy)) << 1) | (part1by2(np.int64(uz)) << 2)
+        return (
+            part1by2(np.int64(ux))
+            | (part1by2(np.int64(uy)) << 1)
+            | (part1by2(np.int64(uz)) << 2)
+        )
 
     def find_cell(cell_codes, code):
         lo = 0
@@ -157,9 +173,16 @@ def make_code_functions(deco: Callable = _identity) -> dict:
             return lo
         return -1
 
-    return {"axis_index": deco(axis_index), "in_range": deco(in_range), "pack_key": deco(pack_key),
-            "hash_slot": hash_slot, "find_slot": deco(find_slot), "part1by2": part1by2, "morton": deco(morton),
-            "find_cell": deco(find_cell)}
+    return {
+        "axis_index": deco(axis_index),
+        "in_range": deco(in_range),
+        "pack_key": deco(pack_key),
+        "hash_slot": hash_slot,
+        "find_slot": deco(find_slot),
+        "part1by2": part1by2,
+        "morton": deco(morton),
+        "find_cell": deco(find_cell),
+    }
 
 
 # ------------------------------------------------------------------------------------------------ Numba CPU

@@ -44,10 +44,24 @@ class MortonBVHMap(Map3D):
     The cell level is the smallest ``L`` with ``quantum * 2**L >= 2 * radius``.
     """
 
-    def __init__(self, radius: float = 0.3, sigma: float = 0.1, quantum: float = 0.01, dedup_level: int = 3,
-                 max_points: int = 4_000_000):
-        if not (radius > 0 and sigma > 0 and quantum > 0 and max_points > 0 and 0 <= dedup_level <= 20):
-            raise ValueError("radius, sigma, quantum, max_points must be > 0 and 0 <= dedup_level <= 20")
+    def __init__(
+        self,
+        radius: float = 0.3,
+        sigma: float = 0.1,
+        quantum: float = 0.01,
+        dedup_level: int = 3,
+        max_points: int = 4_000_000,
+    ):
+        if not (
+            radius > 0
+            and sigma > 0
+            and quantum > 0
+            and max_points > 0
+            and 0 <= dedup_level <= 20
+        ):
+            raise ValueError(
+                "radius, sigma, quantum, max_points must be > 0 and 0 <= dedup_level <= 20"
+            )
         self.radius = float(radius)
         self.sigma = float(sigma)
         self.quantum = float(quantum)
@@ -56,7 +70,9 @@ class MortonBVHMap(Map3D):
         self.cell_level = int(np.ceil(np.log2(2.0 * self.radius / self.quantum)))
         self.cell_level = max(self.cell_level, 0)
         if self.cell_level > 20:
-            raise ValueError("radius too large for quantum: cells would exceed the 21-bit range")
+            raise ValueError(
+                "radius too large for quantum: cells would exceed the 21-bit range"
+            )
         self._codes = np.zeros(0, np.int64)
         self._points = np.zeros((0, 3), np.float32)
         self._cell_codes = np.zeros(0, np.int64)
@@ -105,7 +121,10 @@ class MortonBVHMap(Map3D):
         room = self.max_points - self._codes.size
         if codes.size > room:
             self.n_dropped += int(codes.size - room)
-            codes, pts = codes[:room], pts[:room]  # keeps the lowest codes; documented as "dropped"
+            codes, pts = (
+                codes[:room],
+                pts[:room],
+            )  # keeps the lowest codes; documented as "dropped"
         if codes.size == 0:
             return
         ins = np.searchsorted(self._codes, codes) + np.arange(codes.size)
@@ -122,9 +141,20 @@ class MortonBVHMap(Map3D):
 
     def lookup(self) -> MortonLookup:
         """The flat lookup tuple (the map's arrays, replaced by each merge: call again after merging)."""
-        return MortonLookup(KIND_MORTON, self._codes, self._points, self._cell_codes, self._cell_start,
-                            self._cell_lo, self._cell_hi, self.quantum, self.cell_level, self.radius, self.sigma,
-                            self.version)
+        return MortonLookup(
+            KIND_MORTON,
+            self._codes,
+            self._points,
+            self._cell_codes,
+            self._cell_start,
+            self._cell_lo,
+            self._cell_hi,
+            self.quantum,
+            self.cell_level,
+            self.radius,
+            self.sigma,
+            self.version,
+        )
 
     def points(self) -> np.ndarray:
         """The stored points (M, 3) float32 in Morton order, world frame."""
@@ -134,13 +164,27 @@ class MortonBVHMap(Map3D):
         return int(self._codes.size)
 
     def memory_bytes(self) -> int:
-        return int(sum(a.nbytes for a in (self._codes, self._points, self._cell_codes, self._cell_start,
-                                          self._cell_lo, self._cell_hi)))
+        return int(
+            sum(
+                a.nbytes
+                for a in (
+                    self._codes,
+                    self._points,
+                    self._cell_codes,
+                    self._cell_start,
+                    self._cell_lo,
+                    self._cell_hi,
+                )
+            )
+        )
 
     def prune(self, center, radius: float) -> int:
         """Drop the points farther than ``radius`` metres from ``center`` (3,); return how many were dropped."""
         c = np.asarray(center, dtype=np.float64).reshape(3)
-        keep = np.sum((self._points.astype(np.float64) - c) ** 2, axis=1) <= float(radius) ** 2
+        keep = (
+            np.sum((self._points.astype(np.float64) - c) ** 2, axis=1)
+            <= float(radius) ** 2
+        )
         dropped = int((~keep).sum())
         if dropped:
             self._codes, self._points = self._codes[keep], self._points[keep]
@@ -149,5 +193,7 @@ class MortonBVHMap(Map3D):
         return dropped
 
     def __repr__(self) -> str:
-        return (f"MortonBVHMap(radius={self.radius}, sigma={self.sigma}, quantum={self.quantum}, "
-                f"points={len(self)}, dropped={self.n_dropped})")
+        return (
+            f"MortonBVHMap(radius={self.radius}, sigma={self.sigma}, quantum={self.quantum}, "
+            f"points={len(self)}, dropped={self.n_dropped})"
+        )

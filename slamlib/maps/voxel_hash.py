@@ -29,9 +29,23 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from slamlib.maps.base import EMPTY_KEY, KIND_VOXEL_HASH, Map3D, VoxelHashLookup, as_points
-from slamlib.maps.codes import (AXIS_MASK, AXIS_OFFSET, KEY_SHIFT_Y, KEY_SHIFT_Z, axis_index_nb, hash_slot_nb,
-                                in_range_nb, pack_key_nb)
+from slamlib.maps.base import (
+    EMPTY_KEY,
+    KIND_VOXEL_HASH,
+    Map3D,
+    VoxelHashLookup,
+    as_points,
+)
+from slamlib.maps.codes import (
+    AXIS_MASK,
+    AXIS_OFFSET,
+    KEY_SHIFT_Y,
+    KEY_SHIFT_Z,
+    axis_index_nb,
+    hash_slot_nb,
+    in_range_nb,
+    pack_key_nb,
+)
 
 
 @njit(cache=True)
@@ -68,8 +82,23 @@ def _update_field(s, count, s1, s2, mean, icov, corner_x, corner_y, corner_z, mi
 
 
 @njit(cache=True)
-def _merge_nb(points, keys, count, s1, s2, mean, icov, first, last, stamp, voxel_size, log2_capacity, max_voxels,
-              min_sigma2, state):
+def _merge_nb(
+    points,
+    keys,
+    count,
+    s1,
+    s2,
+    mean,
+    icov,
+    first,
+    last,
+    stamp,
+    voxel_size,
+    log2_capacity,
+    max_voxels,
+    min_sigma2,
+    state,
+):
     """Merge ``points`` (N, 3) f4 into the table; ``state = [n_voxels, max_probe, n_dropped]`` updated in place.
     A new voxel gets ``first = stamp``; every voxel hit gets ``last = stamp``."""
     inv_h = 1.0 / voxel_size
@@ -80,8 +109,14 @@ def _merge_nb(points, keys, count, s1, s2, mean, icov, first, last, stamp, voxel
         x = np.float64(points[j, 0])
         y = np.float64(points[j, 1])
         z = np.float64(points[j, 2])
-        if not (abs(x * inv_h) < 2.0**21 and abs(y * inv_h) < 2.0**21 and abs(z * inv_h) < 2.0**21):
-            state[2] += 1  # non-finite, or so far out that the int64 conversion below could overflow
+        if not (
+            abs(x * inv_h) < 2.0**21
+            and abs(y * inv_h) < 2.0**21
+            and abs(z * inv_h) < 2.0**21
+        ):
+            state[2] += (
+                1  # non-finite, or so far out that the int64 conversion below could overflow
+            )
             continue
         ux = axis_index_nb(x, inv_h)
         uy = axis_index_nb(y, inv_h)
@@ -119,20 +154,52 @@ def _merge_nb(points, keys, count, s1, s2, mean, icov, first, last, stamp, voxel
         s2[s, 4] += ly * lz
         s2[s, 5] += lz * lz
         slots[j] = s
-    for j in range(n):  # refresh the field of every touched voxel (a repeat gives the same field: skip the
-        s = slots[j]      # previous point's voxel, which the next points of a ring often share)
+    for j in range(
+        n
+    ):  # refresh the field of every touched voxel (a repeat gives the same field: skip the
+        s = slots[
+            j
+        ]  # previous point's voxel, which the next points of a ring often share)
         if s >= 0 and (j == 0 or s != slots[j - 1]):
             key = keys[s]
             ux = key & AXIS_MASK
             uy = (key >> KEY_SHIFT_Y) & AXIS_MASK
             uz = (key >> KEY_SHIFT_Z) & AXIS_MASK
-            _update_field(s, count, s1, s2, mean, icov, (ux - AXIS_OFFSET) * voxel_size,
-                          (uy - AXIS_OFFSET) * voxel_size, (uz - AXIS_OFFSET) * voxel_size, min_sigma2)
+            _update_field(
+                s,
+                count,
+                s1,
+                s2,
+                mean,
+                icov,
+                (ux - AXIS_OFFSET) * voxel_size,
+                (uy - AXIS_OFFSET) * voxel_size,
+                (uz - AXIS_OFFSET) * voxel_size,
+                min_sigma2,
+            )
 
 
 @njit(cache=True)
-def _reinsert_nb(old_keys, keep, count, s1, s2, mean, icov, first, last, keys, count2, s12, s22, mean2, icov2, first2,
-                 last2, log2_capacity):
+def _reinsert_nb(
+    old_keys,
+    keep,
+    count,
+    s1,
+    s2,
+    mean,
+    icov,
+    first,
+    last,
+    keys,
+    count2,
+    s12,
+    s22,
+    mean2,
+    icov2,
+    first2,
+    last2,
+    log2_capacity,
+):
     """Insert the kept slots of an old table into the empty table ``keys`` (same capacity); return max probe."""
     mask = (np.int64(1) << log2_capacity) - 1
     max_probe = 0
@@ -189,13 +256,26 @@ class VoxelHashMap(Map3D):
         Merges so far: the map's clock for :meth:`evict_transients`.
     """
 
-    def __init__(self, voxel_size: float = 0.5, capacity: int = 2**18, max_load: float = 0.75,
-                 min_sigma: float = 0.05, m_max: float = 16.0):
+    def __init__(
+        self,
+        voxel_size: float = 0.5,
+        capacity: int = 2**18,
+        max_load: float = 0.75,
+        min_sigma: float = 0.05,
+        m_max: float = 16.0,
+    ):
         capacity = int(capacity)
         if capacity < 16 or capacity & (capacity - 1):
             raise ValueError(f"capacity must be a power of two >= 16, got {capacity}")
-        if not voxel_size > 0 or not 0 < max_load < 1 or not min_sigma > 0 or not m_max > 0:
-            raise ValueError("voxel_size, min_sigma, m_max must be > 0 and 0 < max_load < 1")
+        if (
+            not voxel_size > 0
+            or not 0 < max_load < 1
+            or not min_sigma > 0
+            or not m_max > 0
+        ):
+            raise ValueError(
+                "voxel_size, min_sigma, m_max must be > 0 and 0 < max_load < 1"
+            )
         self.voxel_size = float(voxel_size)
         self.capacity = capacity
         self.log2_capacity = capacity.bit_length() - 1
@@ -209,8 +289,10 @@ class VoxelHashMap(Map3D):
         self._s2 = np.zeros((capacity, 6), np.float64)
         self._mean = np.zeros((capacity, 3), np.float32)
         self._icov = np.zeros((capacity, 6), np.float32)
-        self._first = np.zeros(capacity, np.int32)  # frame of the merge that opened the voxel
-        self._last = np.zeros(capacity, np.int32)   # frame of the last merge that hit it
+        self._first = np.zeros(
+            capacity, np.int32
+        )  # frame of the merge that opened the voxel
+        self._last = np.zeros(capacity, np.int32)  # frame of the last merge that hit it
         self.frames = 0
         self._state = np.zeros(3, np.int64)  # n_voxels, max_probe, n_dropped
         self._changed()
@@ -219,17 +301,40 @@ class VoxelHashMap(Map3D):
     def merge(self, points_world) -> None:
         """Add world points (N, 3) to the voxels' statistics and refresh the touched voxels' Gaussians (Numba)."""
         pts = as_points(points_world, "points_world")
-        _merge_nb(pts, self._keys, self._count, self._s1, self._s2, self._mean, self._icov, self._first, self._last,
-                  np.int32(self.frames), self.voxel_size, self.log2_capacity, self.max_voxels, self.min_sigma**2,
-                  self._state)
+        _merge_nb(
+            pts,
+            self._keys,
+            self._count,
+            self._s1,
+            self._s2,
+            self._mean,
+            self._icov,
+            self._first,
+            self._last,
+            np.int32(self.frames),
+            self.voxel_size,
+            self.log2_capacity,
+            self.max_voxels,
+            self.min_sigma**2,
+            self._state,
+        )
         self.frames += 1
         self._changed()
 
     def lookup(self) -> VoxelHashLookup:
         """The flat lookup tuple (views of the map's buffers; call again after each merge or prune)."""
-        return VoxelHashLookup(KIND_VOXEL_HASH, self._keys, self._mean, self._icov, self.voxel_size,
-                               1.0 / self.voxel_size, self.log2_capacity, int(self._state[1]), self.m_max,
-                               self.version)
+        return VoxelHashLookup(
+            KIND_VOXEL_HASH,
+            self._keys,
+            self._mean,
+            self._icov,
+            self.voxel_size,
+            1.0 / self.voxel_size,
+            self.log2_capacity,
+            int(self._state[1]),
+            self.m_max,
+            self.version,
+        )
 
     def points(self) -> np.ndarray:
         """Voxel means (M, 3) float32 of the occupied voxels, world frame (for plots and PLY export)."""
@@ -249,7 +354,16 @@ class VoxelHashMap(Map3D):
         return int(self._state[0])
 
     def _buffers(self) -> tuple:
-        return self._keys, self._count, self._s1, self._s2, self._mean, self._icov, self._first, self._last
+        return (
+            self._keys,
+            self._count,
+            self._s1,
+            self._s2,
+            self._mean,
+            self._icov,
+            self._first,
+            self._last,
+        )
 
     def memory_bytes(self) -> int:
         return int(sum(a.nbytes for a in self._buffers()))
@@ -286,7 +400,9 @@ class VoxelHashMap(Map3D):
         first, last = self._first[slots], self._last[slots]
         out = (last - first < span) & (self.frames - 1 - last >= span)
         if center is not None:
-            d = self._mean[slots].astype(np.float64) - np.asarray(center, dtype=np.float64).reshape(3)
+            d = self._mean[slots].astype(np.float64) - np.asarray(
+                center, dtype=np.float64
+            ).reshape(3)
             out &= np.sum(d * d, axis=1) <= float(radius) ** 2
         return out
 
@@ -304,14 +420,30 @@ class VoxelHashMap(Map3D):
         evicted = int(np.count_nonzero(self._keys != EMPTY_KEY) - np.count_nonzero(keep))
         if evicted == 0:
             return 0
-        new = tuple(np.full_like(a, EMPTY_KEY) if a is self._keys else np.zeros_like(a) for a in self._buffers())
-        max_probe = _reinsert_nb(self._keys, keep, *self._buffers()[1:], *new, self.log2_capacity)
-        self._keys, self._count, self._s1, self._s2, self._mean, self._icov, self._first, self._last = new
+        new = tuple(
+            np.full_like(a, EMPTY_KEY) if a is self._keys else np.zeros_like(a)
+            for a in self._buffers()
+        )
+        max_probe = _reinsert_nb(
+            self._keys, keep, *self._buffers()[1:], *new, self.log2_capacity
+        )
+        (
+            self._keys,
+            self._count,
+            self._s1,
+            self._s2,
+            self._mean,
+            self._icov,
+            self._first,
+            self._last,
+        ) = new
         self._state[0] = int(np.count_nonzero(keep))
         self._state[1] = max_probe
         self._changed()
         return evicted
 
     def __repr__(self) -> str:
-        return (f"VoxelHashMap(voxel_size={self.voxel_size}, capacity={self.capacity}, voxels={len(self)}, "
-                f"dropped={self.n_dropped})")
+        return (
+            f"VoxelHashMap(voxel_size={self.voxel_size}, capacity={self.capacity}, voxels={len(self)}, "
+            f"dropped={self.n_dropped})"
+        )

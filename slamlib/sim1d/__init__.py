@@ -17,7 +17,13 @@ Example::
     print(result.summary())
 """
 
-from slamlib.sim1d.filter import ParticleSLAM1D, SLAM1DResult, StepInfo, dead_reckon, run_slam_1d
+from slamlib.sim1d.filter import (
+    ParticleSLAM1D,
+    SLAM1DResult,
+    StepInfo,
+    dead_reckon,
+    run_slam_1d,
+)
 from slamlib.sim1d.steps import (
     OccupancyGrid1D,
     extract_landmarks,
@@ -46,9 +52,31 @@ from slamlib.sim1d.world import (
 )
 
 __all__ = [
-    "Frame", "OccupancyGrid1D", "ParticleSLAM1D", "Recording1D", "SLAM1DResult", "SensorModel1D", "StepInfo",
-    "VelocityProfile", "World1D", "dead_reckon", "extract_landmarks", "initialise_particles", "likelihood_field",
-    "make_world", "merge_scan", "offset_by_motion", "perturb_with_noise", "pick_best_particle", "read_imu",
-    "read_scan", "read_timing", "resample_particles", "run_slam_1d", "scan_landmarks", "score_particles",
-    "simulate", "transform_scan",
+    "Frame",
+    "OccupancyGrid1D",
+    "ParticleSLAM1D",
+    "Recording1D",
+    "SLAM1DResult",
+    "SensorModel1D",
+    "StepInfo",
+    "VelocityProfile",
+    "World1D",
+    "dead_reckon",
+    "extract_landmarks",
+    "initialise_particles",
+    "likelihood_field",
+    "make_world",
+    "merge_scan",
+    "offset_by_motion",
+    "perturb_with_noise",
+    "pick_best_particle",
+    "read_imu",
+    "read_scan",
+    "read_timing",
+    "resample_particles",
+    "run_slam_1d",
+    "scan_landmarks",
+    "score_particles",
+    "simulate",
+    "transform_scan",
 ]

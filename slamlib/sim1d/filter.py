@@ -19,7 +19,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from slamlib.resampling import effective_sample_size, normalise_log_weights, weights_from_log_weights
+from slamlib.resampling import (
+    effective_sample_size,
+    normalise_log_weights,
+    weights_from_log_weights,
+)
 from slamlib.sim1d.steps import (
     OccupancyGrid1D,
     extract_landmarks,
@@ -88,16 +92,30 @@ class ParticleSLAM1D:
     grid : the map, changed in place by every :meth:`step`.
     """
 
-    def __init__(self, n_particles: int, grid: OccupancyGrid1D, motion_noise: float, likelihood_sigma: float,
-                 rng: np.random.Generator, eps: float = 0.05, ess_fraction: float | None = 0.5):
+    def __init__(
+        self,
+        n_particles: int,
+        grid: OccupancyGrid1D,
+        motion_noise: float,
+        likelihood_sigma: float,
+        rng: np.random.Generator,
+        eps: float = 0.05,
+        ess_fraction: float | None = 0.5,
+    ):
         if not isinstance(rng, np.random.Generator):
             raise TypeError("rng must be a numpy.random.Generator")
-        for name, value in (("motion_noise", motion_noise), ("likelihood_sigma", likelihood_sigma), ("eps", eps)):
+        for name, value in (
+            ("motion_noise", motion_noise),
+            ("likelihood_sigma", likelihood_sigma),
+            ("eps", eps),
+        ):
             if not (np.isfinite(value) and value >= 0):
                 raise ValueError(f"{name} must be finite and >= 0, got {value!r}")
         if ess_fraction is not None and not 0 <= ess_fraction <= 1:
-            raise ValueError(f"ess_fraction must be in [0, 1] or None, got {ess_fraction!r}")
-        self.particles, self.log_weights = initialise_particles(n_particles)                    # 1
+            raise ValueError(
+                f"ess_fraction must be in [0, 1] or None, got {ess_fraction!r}"
+            )
+        self.particles, self.log_weights = initialise_particles(n_particles)  # 1
         self.grid = grid
         self.motion_noise = float(motion_noise)
         self.likelihood_sigma = float(likelihood_sigma)
@@ -117,20 +135,32 @@ class ParticleSLAM1D:
 
     def step(self, frame: Frame) -> StepInfo:
         """Steps 2-11 for one frame (step 12 is calling this for every frame)."""
-        points = read_scan(frame)                                                               # 2
-        imu = read_imu(frame)                                                                   # 3
-        dt = read_timing(frame)                                                                 # 4
-        moved = offset_by_motion(self.particles, imu, dt)                                       # 5
-        moved = perturb_with_noise(moved, self.motion_noise * dt, self.rng)                     # 6
-        scores = score_particles(moved, points, self.grid, self.likelihood_sigma, self.eps)     # 7 + 8
+        points = read_scan(frame)  # 2
+        imu = read_imu(frame)  # 3
+        dt = read_timing(frame)  # 4
+        moved = offset_by_motion(self.particles, imu, dt)  # 5
+        moved = perturb_with_noise(moved, self.motion_noise * dt, self.rng)  # 6
+        scores = score_particles(
+            moved, points, self.grid, self.likelihood_sigma, self.eps
+        )  # 7 + 8
         log_w = normalise_log_weights(self.log_weights + scores)
-        pose, best = pick_best_particle(moved, log_w)                                           # 9
-        merge_scan(self.grid, pose, points)                                                     # 10
-        self.particles, self.log_weights, resampled = resample_particles(                       # 11
-            moved, log_w, self.rng, self.ess_fraction)
+        pose, best = pick_best_particle(moved, log_w)  # 9
+        merge_scan(self.grid, pose, points)  # 10
+        self.particles, self.log_weights, resampled = resample_particles(  # 11
+            moved, log_w, self.rng, self.ess_fraction
+        )
         weights = weights_from_log_weights(log_w)
-        return StepInfo(moved=moved, scores=scores, log_weights=log_w, weights=weights, best=best, estimate=pose,
-                        mean=float(np.dot(weights, moved)), ess=effective_sample_size(weights), resampled=resampled)
+        return StepInfo(
+            moved=moved,
+            scores=scores,
+            log_weights=log_w,
+            weights=weights,
+            best=best,
+            estimate=pose,
+            mean=float(np.dot(weights, moved)),
+            ess=effective_sample_size(weights),
+            resampled=resampled,
+        )
 
 
 def dead_reckon(recording: Recording1D, x0: float = 0.0) -> np.ndarray:
@@ -210,10 +240,19 @@ MAX_GRID_CELLS = 4_000_000
 MAX_FIELD_WORK = 1e9
 
 
-def run_slam_1d(recording: Recording1D, n_particles: int = 200, seed: int = 0, motion_noise: float | None = None,
-                likelihood_sigma: float | None = None, resolution: float = 0.05, eps: float = 0.05,
-                ess_fraction: float | None = 0.5, keep_history: bool = True, landmark_min_count: int = 5,
-                progress: bool = False) -> SLAM1DResult:
+def run_slam_1d(
+    recording: Recording1D,
+    n_particles: int = 200,
+    seed: int = 0,
+    motion_noise: float | None = None,
+    likelihood_sigma: float | None = None,
+    resolution: float = 0.05,
+    eps: float = 0.05,
+    ess_fraction: float | None = 0.5,
+    keep_history: bool = True,
+    landmark_min_count: int = 5,
+    progress: bool = False,
+) -> SLAM1DResult:
     """Run :class:`ParticleSLAM1D` over every frame of ``recording`` (step 12, the loop).
 
     Parameters
@@ -239,42 +278,87 @@ def run_slam_1d(recording: Recording1D, n_particles: int = 200, seed: int = 0, m
 
     sensors = recording.sensors
     if motion_noise is None:
-        motion_noise = 1.5 * max(sensors.velocity_noise, 0.05) + abs(sensors.velocity_bias)
+        motion_noise = 1.5 * max(sensors.velocity_noise, 0.05) + abs(
+            sensors.velocity_bias
+        )
     if likelihood_sigma is None:
-        likelihood_sigma = max(float(np.hypot(sensors.range_noise, resolution)), 2 * resolution)
+        likelihood_sigma = max(
+            float(np.hypot(sensors.range_noise, resolution)), 2 * resolution
+        )
     if not (np.isfinite(resolution) and resolution > 0):
         raise ValueError(f"resolution must be finite and > 0, got {resolution!r}")
     reach = np.abs(recording.measured_velocities).max() * recording.times[-1] + 1.0
     cells = 2.0 * (reach + sensors.max_range) / resolution
     if not cells <= MAX_GRID_CELLS:
-        raise ValueError(f"the map would need {cells:.3g} cells of {resolution:g} m to cover the +-{reach:.3g} m the "
-                         f"measured velocities (bias included) can reach in {recording.times[-1]:.3g} s, more than "
-                         f"{MAX_GRID_CELLS:,}; use a smaller velocity bias, fewer frames or a coarser resolution")
-    kernel = min(cells, 8.0 * likelihood_sigma / resolution)  # the blur's width in cells (at most the grid)
+        raise ValueError(
+            f"the map would need {cells:.3g} cells of {resolution:g} m to cover the +-{reach:.3g} m the "
+            f"measured velocities (bias included) can reach in {recording.times[-1]:.3g} s, more than "
+            f"{MAX_GRID_CELLS:,}; use a smaller velocity bias, fewer frames or a coarser resolution"
+        )
+    kernel = min(
+        cells, 8.0 * likelihood_sigma / resolution
+    )  # the blur's width in cells (at most the grid)
     if not cells * kernel <= MAX_FIELD_WORK:
-        raise ValueError(f"a likelihood field {likelihood_sigma:.3g} m wide over {cells:.3g} cells of {resolution:g} m "
-                         f"costs {cells * kernel:.3g} operations per frame, more than {MAX_FIELD_WORK:.0e}; use a "
-                         f"smaller range noise or likelihood_sigma, or a coarser resolution")
-    grid = OccupancyGrid1D.empty(-reach - sensors.max_range, reach + sensors.max_range, resolution)
-    slam = ParticleSLAM1D(n_particles, grid, motion_noise, likelihood_sigma, np.random.default_rng(seed), eps=eps,
-                          ess_fraction=ess_fraction)
+        raise ValueError(
+            f"a likelihood field {likelihood_sigma:.3g} m wide over {cells:.3g} cells of {resolution:g} m "
+            f"costs {cells * kernel:.3g} operations per frame, more than {MAX_FIELD_WORK:.0e}; use a "
+            f"smaller range noise or likelihood_sigma, or a coarser resolution"
+        )
+    grid = OccupancyGrid1D.empty(
+        -reach - sensors.max_range, reach + sensors.max_range, resolution
+    )
+    slam = ParticleSLAM1D(
+        n_particles,
+        grid,
+        motion_noise,
+        likelihood_sigma,
+        np.random.default_rng(seed),
+        eps=eps,
+        ess_fraction=ess_fraction,
+    )
     k_frames = len(recording)
     estimated, mean_est, ess, resampled = (np.zeros(k_frames) for _ in range(4))
     resampled = resampled.astype(bool)
-    particle_history = np.zeros((k_frames, n_particles), np.float32) if keep_history else None
-    weight_history = np.zeros((k_frames, n_particles), np.float32) if keep_history else None
-    map_history = np.zeros((k_frames, grid.counts.size), np.int32) if keep_history else None
-    for k, frame in enumerate(tqdm(recording.frames, desc="sim1d SLAM", unit="frame", disable=not progress)):
+    particle_history = (
+        np.zeros((k_frames, n_particles), np.float32) if keep_history else None
+    )
+    weight_history = (
+        np.zeros((k_frames, n_particles), np.float32) if keep_history else None
+    )
+    map_history = (
+        np.zeros((k_frames, grid.counts.size), np.int32) if keep_history else None
+    )
+    for k, frame in enumerate(
+        tqdm(recording.frames, desc="sim1d SLAM", unit="frame", disable=not progress)
+    ):
         info = slam.step(frame)
-        estimated[k], mean_est[k], ess[k], resampled[k] = info.estimate, info.mean, info.ess, info.resampled
+        estimated[k], mean_est[k], ess[k], resampled[k] = (
+            info.estimate,
+            info.mean,
+            info.ess,
+            info.resampled,
+        )
         if keep_history:
             particle_history[k] = info.moved
             weight_history[k] = info.weights
-            map_history[k] = slam.grid.counts  # a copy (into the int32 row): the grid changes in place
+            map_history[k] = (
+                slam.grid.counts
+            )  # a copy (into the int32 row): the grid changes in place
     return SLAM1DResult(
-        times=recording.times.copy(), true_positions=recording.true_positions.copy(), estimated=estimated,
-        mean_estimated=mean_est, dead_reckoned=dead_reckon(recording), ess=ess, resampled=resampled,
-        grid=slam.grid, landmarks_true=recording.world.landmarks.copy(),
+        times=recording.times.copy(),
+        true_positions=recording.true_positions.copy(),
+        estimated=estimated,
+        mean_estimated=mean_est,
+        dead_reckoned=dead_reckon(recording),
+        ess=ess,
+        resampled=resampled,
+        grid=slam.grid,
+        landmarks_true=recording.world.landmarks.copy(),
         landmark_returns=recording.landmark_returns.copy(),
-        landmarks_estimated=extract_landmarks(slam.grid, likelihood_sigma, landmark_min_count),
-        particle_history=particle_history, weight_history=weight_history, map_history=map_history)
+        landmarks_estimated=extract_landmarks(
+            slam.grid, likelihood_sigma, landmark_min_count
+        ),
+        particle_history=particle_history,
+        weight_history=weight_history,
+        map_history=map_history,
+    )

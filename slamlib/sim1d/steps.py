@@ -38,7 +38,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from slamlib.resampling import normalise_log_weights, resample_indexes, uniform_log_weights
+from slamlib.resampling import (
+    normalise_log_weights,
+    resample_indexes,
+    uniform_log_weights,
+)
 from slamlib.sim1d.world import Frame
 
 __all__ = [
@@ -81,16 +85,24 @@ class OccupancyGrid1D:
     counts: np.ndarray
 
     @classmethod
-    def empty(cls, lo: float, hi: float, resolution: float = 0.05) -> "OccupancyGrid1D":
+    def empty(cls, lo: float, hi: float, resolution: float = 0.05) -> OccupancyGrid1D:
         """An all-zero grid covering ``[lo, hi]``."""
         if not resolution > 0 or not hi > lo:
-            raise ValueError(f"need resolution > 0 and hi > lo, got {resolution}, [{lo}, {hi}]")
+            raise ValueError(
+                f"need resolution > 0 and hi > lo, got {resolution}, [{lo}, {hi}]"
+            )
         n = int(np.ceil((hi - lo) / resolution))
-        return cls(origin=float(lo), resolution=float(resolution), counts=np.zeros(n, dtype=np.int64))
+        return cls(
+            origin=float(lo),
+            resolution=float(resolution),
+            counts=np.zeros(n, dtype=np.int64),
+        )
 
-    def copy(self) -> "OccupancyGrid1D":
+    def copy(self) -> OccupancyGrid1D:
         """An independent grid with the same extent and a copy of the counts."""
-        return OccupancyGrid1D(origin=self.origin, resolution=self.resolution, counts=self.counts.copy())
+        return OccupancyGrid1D(
+            origin=self.origin, resolution=self.resolution, counts=self.counts.copy()
+        )
 
     @property
     def centres(self) -> np.ndarray:
@@ -104,7 +116,9 @@ class OccupancyGrid1D:
 
     def cell_of(self, x) -> np.ndarray:
         """Cell index of world position(s) ``x`` (may be out of ``[0, C)``)."""
-        return np.floor((np.asarray(x, dtype=np.float64) - self.origin) / self.resolution).astype(np.int64)
+        return np.floor(
+            (np.asarray(x, dtype=np.float64) - self.origin) / self.resolution
+        ).astype(np.int64)
 
 
 def _gaussian_blur(counts: np.ndarray, sigma_cells: float) -> np.ndarray:
@@ -114,7 +128,9 @@ def _gaussian_blur(counts: np.ndarray, sigma_cells: float) -> np.ndarray:
     half = min(max(1, int(np.ceil(4.0 * sigma_cells))), counts.size - 1)
     k = np.arange(-half, half + 1, dtype=np.float64)
     kernel = np.exp(-0.5 * (k / sigma_cells) ** 2)
-    return np.convolve(counts.astype(np.float64), kernel)[half:half + counts.size]  # = mode "same" for 2 half < C
+    return np.convolve(counts.astype(np.float64), kernel)[
+        half : half + counts.size
+    ]  # = mode "same" for 2 half < C
 
 
 def _running_max(values: np.ndarray, half: int) -> np.ndarray:
@@ -122,14 +138,17 @@ def _running_max(values: np.ndarray, half: int) -> np.ndarray:
     padded = np.concatenate([np.full(half, -np.inf), values, np.full(half, -np.inf)])
     out = values.copy()
     for k in range(2 * half + 1):
-        np.maximum(out, padded[k:k + values.size], out=out)
+        np.maximum(out, padded[k : k + values.size], out=out)
     return out
 
 
-def likelihood_field(grid: OccupancyGrid1D, sigma: float, n_sat: float = 3.0) -> np.ndarray:
+def likelihood_field(
+    grid: OccupancyGrid1D, sigma: float, n_sat: float = 3.0
+) -> np.ndarray:
     """The Gaussian-smoothed, peak-normalised likelihood field ``F`` at the cell centres, ``(C,)`` in ``[0, 1]``.
 
-    .. math:: B = G_\\sigma * n, \\qquad F(x) = \\frac{B(x)}{\\max\\big(n_{sat},\\ \\max_{|y - x| \\le 3\\sigma} B(y)\\big)}
+    .. math:: B = G_\\sigma * n, \\qquad
+        F(x) = \\frac{B(x)}{\\max\\big(n_{sat},\\ \\max_{|y - x| \\le 3\\sigma} B(y)\\big)}
 
     ``G_sigma`` is an unnormalised Gaussian of standard deviation ``sigma`` metres (peak 1), so ``B`` is a sum of
     bumps, one per merged return. Dividing by the local maximum scales every landmark's bump to height
@@ -146,12 +165,16 @@ def likelihood_field(grid: OccupancyGrid1D, sigma: float, n_sat: float = 3.0) ->
         raise ValueError(f"n_sat must be positive, got {n_sat}")
     s_cells = sigma / grid.resolution
     blurred = _gaussian_blur(grid.counts, s_cells)
-    local_max = _running_max(blurred, min(max(1, int(np.ceil(3 * s_cells))), grid.counts.size))  # same: exact
+    local_max = _running_max(
+        blurred, min(max(1, int(np.ceil(3 * s_cells))), grid.counts.size)
+    )  # same: exact
     return blurred / np.maximum(local_max, n_sat)
 
 
 # ------------------------------------------------------------------------------------------- the twelve steps
-def initialise_particles(n_particles: int, pose0: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+def initialise_particles(
+    n_particles: int, pose0: float = 0.0
+) -> tuple[np.ndarray, np.ndarray]:
     """Step 1: ``P`` particles all at ``pose0`` (default 0: the start pose defines the world frame).
 
     Returns
@@ -160,7 +183,9 @@ def initialise_particles(n_particles: int, pose0: float = 0.0) -> tuple[np.ndarr
     """
     if n_particles < 1:
         raise ValueError(f"n_particles must be at least 1, got {n_particles}")
-    return np.full(int(n_particles), float(pose0), dtype=np.float64), uniform_log_weights(n_particles)
+    return np.full(int(n_particles), float(pose0), dtype=np.float64), uniform_log_weights(
+        n_particles
+    )
 
 
 def read_scan(frame: Frame) -> np.ndarray:
@@ -187,7 +212,9 @@ def offset_by_motion(particles: np.ndarray, imu: float, dt: float) -> np.ndarray
     return np.asarray(particles, dtype=np.float64) + float(imu) * float(dt)
 
 
-def perturb_with_noise(particles: np.ndarray, sigma: float, rng: np.random.Generator) -> np.ndarray:
+def perturb_with_noise(
+    particles: np.ndarray, sigma: float, rng: np.random.Generator
+) -> np.ndarray:
     """Step 6: ``x_i <- x_i + sigma n_i``, ``n_i ~ N(0, 1)`` i.i.d. from ``rng`` (a new ``(P,)`` array).
 
     The filter uses ``sigma = sigma_u dt``: a velocity error of ``sigma_u`` m/s held over the interval.
@@ -219,8 +246,14 @@ def transform_scan(particles, points: np.ndarray) -> np.ndarray:
     return x[..., None] + points
 
 
-def score_particles(particles, points: np.ndarray, world_map: OccupancyGrid1D, sigma: float | None = None,
-                    eps: float = 0.05, field: np.ndarray | None = None) -> np.ndarray:
+def score_particles(
+    particles,
+    points: np.ndarray,
+    world_map: OccupancyGrid1D,
+    sigma: float | None = None,
+    eps: float = 0.05,
+    field: np.ndarray | None = None,
+) -> np.ndarray:
     """Steps 7 + 8: log-likelihood of each particle's transformed scan against the map built so far.
 
     .. math:: s_i = \\sum_j \\log\\big(F(x_i + z_j) + \\varepsilon\\big)
@@ -252,12 +285,16 @@ def score_particles(particles, points: np.ndarray, world_map: OccupancyGrid1D, s
     if world_points.shape[1] == 0 or world_map.total == 0:
         return np.zeros(world_points.shape[0])
     if field is None:
-        field = likelihood_field(world_map, 2.0 * world_map.resolution if sigma is None else sigma)
+        field = likelihood_field(
+            world_map, 2.0 * world_map.resolution if sigma is None else sigma
+        )
     f = np.interp(world_points, world_map.centres, field, left=0.0, right=0.0)
     return np.log(f + eps).sum(axis=1)
 
 
-def pick_best_particle(particles: np.ndarray, log_weights: np.ndarray) -> tuple[float, int]:
+def pick_best_particle(
+    particles: np.ndarray, log_weights: np.ndarray
+) -> tuple[float, int]:
     """Step 9: the highest-weight particle, ``i* = argmax_i log w_i``, as ``(pose, index)``.
 
     ``pose = float(particles[i*])``. Ties go to the lowest index, so the choice is deterministic. Any
@@ -266,14 +303,20 @@ def pick_best_particle(particles: np.ndarray, log_weights: np.ndarray) -> tuple[
     lw = np.asarray(log_weights, dtype=np.float64)
     x = np.asarray(particles, dtype=np.float64)
     if lw.ndim != 1 or lw.size == 0:
-        raise ValueError(f"log_weights must be a non-empty (P,) array, got shape {lw.shape}")
+        raise ValueError(
+            f"log_weights must be a non-empty (P,) array, got shape {lw.shape}"
+        )
     if x.shape != lw.shape:
-        raise ValueError(f"particles shape {x.shape} does not match log_weights shape {lw.shape}")
+        raise ValueError(
+            f"particles shape {x.shape} does not match log_weights shape {lw.shape}"
+        )
     index = int(np.argmax(lw))
     return float(x[index]), index
 
 
-def merge_scan(world_map: OccupancyGrid1D, pose: float, points: np.ndarray) -> OccupancyGrid1D:
+def merge_scan(
+    world_map: OccupancyGrid1D, pose: float, points: np.ndarray
+) -> OccupancyGrid1D:
     """Step 10: add one count at the cell of each return placed by ``pose`` (``pose + z_j``), **in place**.
 
     ``world_map.counts`` is changed in place (as the 3D maps are, see :mod:`slamlib.contract`) and ``world_map``
@@ -286,8 +329,12 @@ def merge_scan(world_map: OccupancyGrid1D, pose: float, points: np.ndarray) -> O
     return world_map
 
 
-def resample_particles(particles: np.ndarray, log_weights: np.ndarray, rng: np.random.Generator,
-                       ess_fraction: float | None = 0.5):
+def resample_particles(
+    particles: np.ndarray,
+    log_weights: np.ndarray,
+    rng: np.random.Generator,
+    ess_fraction: float | None = 0.5,
+):
     """Step 11: systematic resampling when the effective sample size drops.
 
     :func:`slamlib.resampling.resample_indexes` decides and draws: when ``ess_fraction`` is ``None`` (always),
@@ -304,7 +351,9 @@ def resample_particles(particles: np.ndarray, log_weights: np.ndarray, rng: np.r
     particles = np.asarray(particles, dtype=np.float64)
     log_w = normalise_log_weights(log_weights)
     if log_w.shape != particles.shape:
-        raise ValueError(f"log_weights shape {log_w.shape} does not match particles shape {particles.shape}")
+        raise ValueError(
+            f"log_weights shape {log_w.shape} does not match particles shape {particles.shape}"
+        )
     idx = resample_indexes(log_w, rng, ess_fraction)
     if idx is None:
         return particles.copy(), log_w, False
@@ -312,7 +361,9 @@ def resample_particles(particles: np.ndarray, log_weights: np.ndarray, rng: np.r
 
 
 # ----------------------------------------------------------------------------------------- reading the map
-def extract_landmarks(grid: OccupancyGrid1D, sigma: float = 0.1, min_count: int = 5) -> np.ndarray:
+def extract_landmarks(
+    grid: OccupancyGrid1D, sigma: float = 0.1, min_count: int = 5
+) -> np.ndarray:
     """Landmark positions read off the map: peaks of the blurred counts, refined to a count-weighted centroid.
 
     A peak is a local maximum of ``G_sigma * n``; its landmark is the centroid of the raw counts within
@@ -329,7 +380,9 @@ def extract_landmarks(grid: OccupancyGrid1D, sigma: float = 0.1, min_count: int 
     s_cells = sigma / grid.resolution
     blurred = _gaussian_blur(grid.counts, s_cells)
     padded = np.concatenate([[-np.inf], blurred, [-np.inf]])
-    peaks = np.flatnonzero((padded[1:-1] > padded[:-2]) & (padded[1:-1] >= padded[2:]) & (blurred > 0))
+    peaks = np.flatnonzero(
+        (padded[1:-1] > padded[:-2]) & (padded[1:-1] >= padded[2:]) & (blurred > 0)
+    )
     half = max(1, int(np.ceil(3 * s_cells)))
     centres = grid.centres
     found = []

@@ -6,7 +6,8 @@ whose repetition makes scans at shifts of one spacing look alike (a 1D version o
 doors). The **vehicle** starts at ``x = 0`` at ``t = 0`` and follows a smooth velocity profile
 
 .. math:: v(t) = \\bar v + \\sum_m a_m \\sin(2 \\pi t / T_m + \\varphi_m), \\qquad
-          x(t) = \\bar v t + \\sum_m \\frac{a_m T_m}{2\\pi} \\left[\\cos\\varphi_m - \\cos(2\\pi t / T_m + \\varphi_m)\\right]
+          x(t) = \\bar v t
+          + \\sum_m \\frac{a_m T_m}{2\\pi} \\left[\\cos\\varphi_m - \\cos(2\\pi t / T_m + \\varphi_m)\\right]
 
 (the position is the exact integral, so no integration error enters the ground truth).
 
@@ -65,8 +66,13 @@ class World1D:
         return float(self.landmarks[0]), float(self.landmarks[-1])
 
 
-def make_world(seed: int = 0, start: float = -12.0, end: float = 75.0, gap: tuple[float, float] = (1.2, 4.0),
-               colonnade: tuple[float, float, float] = (20.0, 36.0, 2.0)) -> World1D:
+def make_world(
+    seed: int = 0,
+    start: float = -12.0,
+    end: float = 75.0,
+    gap: tuple[float, float] = (1.2, 4.0),
+    colonnade: tuple[float, float, float] = (20.0, 36.0, 2.0),
+) -> World1D:
     """A random world: irregular landmarks with gaps ``U(gap)`` on ``[start, end]``, and a colonnade.
 
     Parameters
@@ -96,7 +102,10 @@ def make_world(seed: int = 0, start: float = -12.0, end: float = 75.0, gap: tupl
         x += rng.uniform(lo, hi)
     if spacing > 0:
         positions.extend(np.arange(c0, c1 + 1e-9, spacing))
-    return World1D(landmarks=np.sort(np.asarray(positions, dtype=np.float64)), colonnade=(c0, c1, spacing))
+    return World1D(
+        landmarks=np.sort(np.asarray(positions, dtype=np.float64)),
+        colonnade=(c0, c1, spacing),
+    )
 
 
 @dataclass(frozen=True)
@@ -107,7 +116,10 @@ class VelocityProfile:
     """
 
     mean: float = 1.5
-    components: tuple[tuple[float, float, float], ...] = ((0.8, 12.0, 0.0), (0.3, 4.7, 1.0))
+    components: tuple[tuple[float, float, float], ...] = (
+        (0.8, 12.0, 0.0),
+        (0.3, 4.7, 1.0),
+    )
 
     def velocity(self, t) -> np.ndarray:
         """``v(t)`` in m/s, for scalar or array ``t`` (s)."""
@@ -162,14 +174,20 @@ class SensorModel1D:
             if not np.isfinite(v):
                 raise ValueError(f"{f.name} must be finite, got {v!r}")
         if self.clutter_rate > MAX_CLUTTER_RATE:
-            raise ValueError(f"clutter_rate must be at most {MAX_CLUTTER_RATE:g} returns per scan, got "
-                             f"{self.clutter_rate!r}")
+            raise ValueError(
+                f"clutter_rate must be at most {MAX_CLUTTER_RATE:g} returns per scan, got "
+                f"{self.clutter_rate!r}"
+            )
         if not self.period > 0 or not 0 <= self.jitter < 1:
-            raise ValueError(f"need period > 0 and 0 <= jitter < 1, got {self.period}, {self.jitter}")
+            raise ValueError(
+                f"need period > 0 and 0 <= jitter < 1, got {self.period}, {self.jitter}"
+            )
         if self.velocity_noise < 0 or self.range_noise < 0 or self.clutter_rate < 0:
             raise ValueError("noise levels and clutter_rate must be non-negative")
         if not 0 <= self.dropout < 1 or not self.max_range > 0:
-            raise ValueError(f"need 0 <= dropout < 1 and max_range > 0, got {self.dropout}, {self.max_range}")
+            raise ValueError(
+                f"need 0 <= dropout < 1 and max_range > 0, got {self.dropout}, {self.max_range}"
+            )
 
 
 @dataclass(frozen=True)
@@ -231,7 +249,9 @@ class Recording1D:
         return np.array([f.dt for f in self.frames])
 
 
-def scan_landmarks(world: World1D, x: float, sensors: SensorModel1D, rng: np.random.Generator):
+def scan_landmarks(
+    world: World1D, x: float, sensors: SensorModel1D, rng: np.random.Generator
+):
     """Simulate one range scan at vehicle position ``x``: returns ``(scan, true_offsets, returned)``.
 
     ``returned`` are the indexes (into ``world.landmarks``) of the landmarks that gave a return, ``true_offsets``
@@ -241,15 +261,24 @@ def scan_landmarks(world: World1D, x: float, sensors: SensorModel1D, rng: np.ran
     in_range = np.flatnonzero(np.abs(offsets) <= sensors.max_range)
     returned = in_range[rng.random(in_range.size) >= sensors.dropout]
     noisy = offsets[returned] + sensors.range_noise * rng.standard_normal(returned.size)
-    gate = np.abs(noisy) <= sensors.max_range  # the sensor reports nothing beyond its range
+    gate = (
+        np.abs(noisy) <= sensors.max_range
+    )  # the sensor reports nothing beyond its range
     returned, noisy = returned[gate], noisy[gate]
     kept = offsets[returned]
-    clutter = rng.uniform(-sensors.max_range, sensors.max_range, rng.poisson(sensors.clutter_rate))
+    clutter = rng.uniform(
+        -sensors.max_range, sensors.max_range, rng.poisson(sensors.clutter_rate)
+    )
     return np.sort(np.concatenate([noisy, clutter])), kept, returned
 
 
-def simulate(world: World1D, n_frames: int = 300, seed: int = 0, profile: VelocityProfile | None = None,
-             sensors: SensorModel1D | None = None) -> Recording1D:
+def simulate(
+    world: World1D,
+    n_frames: int = 300,
+    seed: int = 0,
+    profile: VelocityProfile | None = None,
+    sensors: SensorModel1D | None = None,
+) -> Recording1D:
     """Drive the vehicle through ``world`` for ``n_frames`` frames and record its sensors.
 
     Parameters
@@ -283,10 +312,30 @@ def simulate(world: World1D, n_frames: int = 300, seed: int = 0, profile: Veloci
         if k == 0:
             u = 0.0
         else:
-            u = (x[k] - x[k - 1]) / dts[k] + sensors.velocity_bias + sensors.velocity_noise * rng.standard_normal()
+            u = (
+                (x[k] - x[k - 1]) / dts[k]
+                + sensors.velocity_bias
+                + sensors.velocity_noise * rng.standard_normal()
+            )
         scan, kept, returned = scan_landmarks(world, x[k], sensors, rng)
         landmark_returns[returned] += 1
-        frames.append(Frame(index=k, time=float(times[k]), dt=float(dts[k]), velocity=float(u), scan=scan))
+        frames.append(
+            Frame(
+                index=k,
+                time=float(times[k]),
+                dt=float(dts[k]),
+                velocity=float(u),
+                scan=scan,
+            )
+        )
         true_offsets.append(kept)
-    return Recording1D(world=world, profile=profile, sensors=sensors, times=times, true_positions=x,
-                       frames=frames, true_offsets=true_offsets, landmark_returns=landmark_returns)
+    return Recording1D(
+        world=world,
+        profile=profile,
+        sensors=sensors,
+        times=times,
+        true_positions=x,
+        frames=frames,
+        true_offsets=true_offsets,
+        landmark_returns=landmark_returns,
+    )

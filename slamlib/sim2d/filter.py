@@ -17,7 +17,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from slamlib.resampling import effective_sample_size, normalise_log_weights, weights_from_log_weights
+from slamlib.resampling import (
+    effective_sample_size,
+    normalise_log_weights,
+    weights_from_log_weights,
+)
 from slamlib.sim2d.steps import (
     OccupancyGrid2D,
     initialise_particles,
@@ -33,8 +37,15 @@ from slamlib.sim2d.steps import (
 )
 from slamlib.sim2d.world import Frame2D, Recording2D, integrate_arc, wrap_angle
 
-__all__ = ["ParticleSLAM2D", "SLAM2DResult", "StepInfo2D", "dead_reckon_2d", "default_motion_noise", "position_rmse",
-           "run_slam_2d"]
+__all__ = [
+    "ParticleSLAM2D",
+    "SLAM2DResult",
+    "StepInfo2D",
+    "dead_reckon_2d",
+    "default_motion_noise",
+    "position_rmse",
+    "run_slam_2d",
+]
 
 
 @dataclass(frozen=True)
@@ -56,8 +67,13 @@ class StepInfo2D:
 def default_motion_noise(sensors) -> np.ndarray:
     """Step 6's spread per second from the odometry datasheet: ``(1.5 sigma_v + |b_v|, 0.1 m/s,
     1.5 sigma_w + |b_w|)``, the noise inflated to cover the unknown biases."""
-    return np.array([1.5 * sensors.speed_noise + abs(sensors.speed_bias), 0.1,
-                     1.5 * sensors.yaw_rate_noise + abs(sensors.yaw_rate_bias)])
+    return np.array(
+        [
+            1.5 * sensors.speed_noise + abs(sensors.speed_bias),
+            0.1,
+            1.5 * sensors.yaw_rate_noise + abs(sensors.yaw_rate_bias),
+        ]
+    )
 
 
 class ParticleSLAM2D:
@@ -73,11 +89,18 @@ class ParticleSLAM2D:
     max_points : optional down-sampling of the scan read at step 2 (scoring and merging use the same points).
     """
 
-    def __init__(self, n_particles: int, world_map: OccupancyGrid2D, motion_noise, rng: np.random.Generator,
-                 ess_fraction: float | None = 0.5, max_points: int | None = None):
+    def __init__(
+        self,
+        n_particles: int,
+        world_map: OccupancyGrid2D,
+        motion_noise,
+        rng: np.random.Generator,
+        ess_fraction: float | None = 0.5,
+        max_points: int | None = None,
+    ):
         if not isinstance(rng, np.random.Generator):
             raise TypeError("rng must be a numpy.random.Generator")
-        self.particles, self.log_weights = initialise_particles(n_particles)                   # 1
+        self.particles, self.log_weights = initialise_particles(n_particles)  # 1
         self.world_map = world_map
         self.motion_noise = np.asarray(motion_noise, dtype=np.float64).reshape(3)
         self.rng = rng
@@ -91,20 +114,29 @@ class ParticleSLAM2D:
 
     def step(self, frame: Frame2D) -> StepInfo2D:
         """Steps 2-11 for one frame (step 12 is calling this for every frame)."""
-        points = read_scan(frame, self.max_points)                                             # 2
-        imu = read_imu(frame)                                                                  # 3
-        dt = read_timing(frame)                                                                # 4
-        moved = offset_by_motion(self.particles, imu, dt)                                      # 5
-        moved = perturb_with_noise(moved, self.motion_noise * dt, self.rng)                    # 6
-        scores = score_particles(moved, points, self.world_map)                                # 7 + 8
+        points = read_scan(frame, self.max_points)  # 2
+        imu = read_imu(frame)  # 3
+        dt = read_timing(frame)  # 4
+        moved = offset_by_motion(self.particles, imu, dt)  # 5
+        moved = perturb_with_noise(moved, self.motion_noise * dt, self.rng)  # 6
+        scores = score_particles(moved, points, self.world_map)  # 7 + 8
         log_w = normalise_log_weights(self.log_weights + scores)
-        pose, best = pick_best_particle(moved, log_w)                                          # 9
-        merge_scan(self.world_map, pose, points)                                               # 10
-        self.particles, self.log_weights, resampled = resample_particles(                      # 11
-            moved, log_w, self.rng, self.ess_fraction)
+        pose, best = pick_best_particle(moved, log_w)  # 9
+        merge_scan(self.world_map, pose, points)  # 10
+        self.particles, self.log_weights, resampled = resample_particles(  # 11
+            moved, log_w, self.rng, self.ess_fraction
+        )
         weights = weights_from_log_weights(log_w)
-        return StepInfo2D(moved=moved, scores=scores, log_weights=log_w, weights=weights, best=best, estimate=pose,
-                          ess=effective_sample_size(weights), resampled=resampled)
+        return StepInfo2D(
+            moved=moved,
+            scores=scores,
+            log_weights=log_w,
+            weights=weights,
+            best=best,
+            estimate=pose,
+            ess=effective_sample_size(weights),
+            resampled=resampled,
+        )
 
 
 def dead_reckon_2d(recording: Recording2D, pose0=None) -> np.ndarray:
@@ -175,18 +207,33 @@ class SLAM2DResult:
             "frames": int(self.times.size),
             "slam_ate_m": self.ate,
             "slam_final_error_m": float(self.slam_error[-1]),
-            "slam_final_heading_error_deg": float(np.degrees(self.slam_heading_error[-1])),
+            "slam_final_heading_error_deg": float(
+                np.degrees(self.slam_heading_error[-1])
+            ),
             "dead_reckoning_ate_m": self.ate_dead_reckoning,
             "dead_reckoning_final_error_m": float(self.dead_reckoning_error[-1]),
-            "dead_reckoning_final_heading_error_deg": float(np.degrees(self.dead_reckoning_heading_error[-1])),
+            "dead_reckoning_final_heading_error_deg": float(
+                np.degrees(self.dead_reckoning_heading_error[-1])
+            ),
             "resamplings": int(self.resampled.sum()),
         }
 
 
-def run_slam_2d(recording: Recording2D, n_particles: int = 200, seed: int = 0, map_kind: str = "likelihood",
-                resolution: float = 0.05, motion_noise=None, likelihood_sigma: float | None = None,
-                eps: float = 0.05, n_sat: int = 3, ess_fraction: float | None = 0.5, max_points: int | None = None,
-                keep_history: bool = False, progress: bool = False) -> SLAM2DResult:
+def run_slam_2d(
+    recording: Recording2D,
+    n_particles: int = 200,
+    seed: int = 0,
+    map_kind: str = "likelihood",
+    resolution: float = 0.05,
+    motion_noise=None,
+    likelihood_sigma: float | None = None,
+    eps: float = 0.05,
+    n_sat: int = 3,
+    ess_fraction: float | None = 0.5,
+    max_points: int | None = None,
+    keep_history: bool = False,
+    progress: bool = False,
+) -> SLAM2DResult:
     """Run :class:`ParticleSLAM2D` over every frame of ``recording`` (step 12, the loop).
 
     Parameters
@@ -212,22 +259,43 @@ def run_slam_2d(recording: Recording2D, n_particles: int = 200, seed: int = 0, m
     margin = 4.0
     lo = np.minimum(lo, path.min(axis=0) - sensors.max_range) - margin
     hi = np.maximum(hi, path.max(axis=0) + sensors.max_range) + margin
-    world_map = OccupancyGrid2D.empty(lo, hi, resolution, kind=map_kind, sigma=likelihood_sigma, eps=eps,
-                                      n_sat=n_sat)
-    slam = ParticleSLAM2D(n_particles, world_map, motion_noise, np.random.default_rng(seed),
-                          ess_fraction=ess_fraction, max_points=max_points)
+    world_map = OccupancyGrid2D.empty(
+        lo, hi, resolution, kind=map_kind, sigma=likelihood_sigma, eps=eps, n_sat=n_sat
+    )
+    slam = ParticleSLAM2D(
+        n_particles,
+        world_map,
+        motion_noise,
+        np.random.default_rng(seed),
+        ess_fraction=ess_fraction,
+        max_points=max_points,
+    )
     k_frames = len(recording)
     estimated = np.zeros((k_frames, 3))
     ess = np.zeros(k_frames)
     resampled = np.zeros(k_frames, dtype=bool)
-    particle_history = np.zeros((k_frames, n_particles, 3), np.float32) if keep_history else None
-    weight_history = np.zeros((k_frames, n_particles), np.float32) if keep_history else None
-    for k, frame in enumerate(tqdm(recording.frames, desc="sim2d SLAM", unit="frame", disable=not progress)):
+    particle_history = (
+        np.zeros((k_frames, n_particles, 3), np.float32) if keep_history else None
+    )
+    weight_history = (
+        np.zeros((k_frames, n_particles), np.float32) if keep_history else None
+    )
+    for k, frame in enumerate(
+        tqdm(recording.frames, desc="sim2d SLAM", unit="frame", disable=not progress)
+    ):
         info = slam.step(frame)
         estimated[k], ess[k], resampled[k] = info.estimate, info.ess, info.resampled
         if keep_history:
             particle_history[k] = info.moved
             weight_history[k] = info.weights
-    return SLAM2DResult(times=recording.times.copy(), true_poses=recording.true_poses.copy(), estimated=estimated,
-                        dead_reckoned=dead_reckon_2d(recording), ess=ess, resampled=resampled,
-                        world_map=slam.world_map, particle_history=particle_history, weight_history=weight_history)
+    return SLAM2DResult(
+        times=recording.times.copy(),
+        true_poses=recording.true_poses.copy(),
+        estimated=estimated,
+        dead_reckoned=dead_reckon_2d(recording),
+        ess=ess,
+        resampled=resampled,
+        world_map=slam.world_map,
+        particle_history=particle_history,
+        weight_history=weight_history,
+    )

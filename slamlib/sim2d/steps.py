@@ -33,7 +33,8 @@ The map (:class:`OccupancyGrid2D`) counts scan returns per square cell; two ``ki
   ``F(p) = exp(-d(p)^2 / (2 sigma^2))`` with ``d`` the distance from ``p`` to the nearest merged return (each
   return's bump scaled to ``min(1, n_c / n_sat)``, the count of its cell when merged, so that a stray return
   merged once counts a third as much as a wall seen three times), read bilinearly between cell centres, and
-  ``l(p) = log(F(p) + eps)`` (``eps`` the "random return" term ``z_rand / z_max``). Near misses still score well, so nearby particle poses are told apart by how near, not only
+  ``l(p) = log(F(p) + eps)`` (``eps`` the "random return" term ``z_rand / z_max``). Near misses still score well,
+  so nearby particle poses are told apart by how near, not only
   by whether they hit.
 
 References: Thrun et al. (2005) table 4.3 (particle filter), 5.4 (velocity motion model, exact arcs), 6.4
@@ -46,7 +47,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from slamlib.resampling import normalise_log_weights, resample_indexes, uniform_log_weights
+from slamlib.resampling import (
+    normalise_log_weights,
+    resample_indexes,
+    uniform_log_weights,
+)
 from slamlib.sim2d.world import Frame2D, integrate_arc, wrap_angle
 
 __all__ = [
@@ -106,30 +111,55 @@ class OccupancyGrid2D:
     def __post_init__(self):
         if self.kind not in MAP_KINDS:
             raise ValueError(f"kind must be one of {MAP_KINDS}, got {self.kind!r}")
-        if not self.resolution > 0 or not self.sigma > 0 or not self.eps > 0 or self.n_sat < 1:
+        if (
+            not self.resolution > 0
+            or not self.sigma > 0
+            or not self.eps > 0
+            or self.n_sat < 1
+        ):
             raise ValueError("need resolution, sigma, eps > 0 and n_sat >= 1")
         self.origin = np.asarray(self.origin, dtype=np.float64).reshape(2)
         if self.field is None:
             self.field = np.zeros(self.counts.shape, dtype=np.float64)
             occupied = np.argwhere(self.counts > 0)
-            if len(occupied):  # a grid given counts only: the field of its occupied cells' centres
-                self._raise_field(self.origin + (occupied[:, ::-1] + 0.5) * self.resolution)
+            if len(
+                occupied
+            ):  # a grid given counts only: the field of its occupied cells' centres
+                self._raise_field(
+                    self.origin + (occupied[:, ::-1] + 0.5) * self.resolution
+                )
 
     @classmethod
-    def empty(cls, lo, hi, resolution: float = 0.1, kind: str = "likelihood", **kwargs) -> "OccupancyGrid2D":
+    def empty(
+        cls, lo, hi, resolution: float = 0.1, kind: str = "likelihood", **kwargs
+    ) -> OccupancyGrid2D:
         """An all-zero grid covering the box ``lo (2,)`` to ``hi (2,)`` (m)."""
         lo, hi = np.asarray(lo, dtype=np.float64), np.asarray(hi, dtype=np.float64)
         if not resolution > 0 or not np.all(hi > lo):
-            raise ValueError(f"need resolution > 0 and hi > lo, got {resolution}, {lo}, {hi}")
+            raise ValueError(
+                f"need resolution > 0 and hi > lo, got {resolution}, {lo}, {hi}"
+            )
         w, h = np.ceil((hi - lo) / resolution).astype(int)
-        return cls(origin=lo, resolution=float(resolution), counts=np.zeros((h, w), dtype=np.int64), kind=kind,
-                   **kwargs)
+        return cls(
+            origin=lo,
+            resolution=float(resolution),
+            counts=np.zeros((h, w), dtype=np.int64),
+            kind=kind,
+            **kwargs,
+        )
 
-    def copy(self, kind: str | None = None) -> "OccupancyGrid2D":
+    def copy(self, kind: str | None = None) -> OccupancyGrid2D:
         """An independent grid with copies of the counts and field (optionally scoring with another ``kind``)."""
-        return OccupancyGrid2D(origin=self.origin.copy(), resolution=self.resolution, counts=self.counts.copy(),
-                               kind=self.kind if kind is None else kind, sigma=self.sigma, n_sat=self.n_sat,
-                               eps=self.eps, field=self.field.copy())
+        return OccupancyGrid2D(
+            origin=self.origin.copy(),
+            resolution=self.resolution,
+            counts=self.counts.copy(),
+            kind=self.kind if kind is None else kind,
+            sigma=self.sigma,
+            n_sat=self.n_sat,
+            eps=self.eps,
+            field=self.field.copy(),
+        )
 
     @property
     def total(self) -> int:
@@ -159,19 +189,32 @@ class OccupancyGrid2D:
         half = max(1, int(np.ceil(3 * self.sigma / self.resolution)))
         k = np.arange(-half, half + 1)
         dr, dc = (a.ravel() for a in np.meshgrid(k, k, indexing="ij"))
-        r0 = np.floor((world_points[:, 1] - self.origin[1]) / self.resolution).astype(np.int64)
-        c0 = np.floor((world_points[:, 0] - self.origin[0]) / self.resolution).astype(np.int64)
+        r0 = np.floor((world_points[:, 1] - self.origin[1]) / self.resolution).astype(
+            np.int64
+        )
+        c0 = np.floor((world_points[:, 0] - self.origin[0]) / self.resolution).astype(
+            np.int64
+        )
         rows = r0[:, None] + dr[None, :]
         cols = c0[:, None] + dc[None, :]
         cx = self.origin[0] + (cols + 0.5) * self.resolution
         cy = self.origin[1] + (rows + 0.5) * self.resolution
-        vals = np.exp(-0.5 * ((cx - world_points[:, :1]) ** 2 + (cy - world_points[:, 1:]) ** 2) / self.sigma**2)
-        vals = vals * np.broadcast_to(np.asarray(heights, dtype=np.float64), (len(world_points),))[:, None]
+        vals = np.exp(
+            -0.5
+            * ((cx - world_points[:, :1]) ** 2 + (cy - world_points[:, 1:]) ** 2)
+            / self.sigma**2
+        )
+        vals = (
+            vals
+            * np.broadcast_to(
+                np.asarray(heights, dtype=np.float64), (len(world_points),)
+            )[:, None]
+        )
         h, w = self.counts.shape
         ok = (rows >= 0) & (rows < h) & (cols >= 0) & (cols < w)
         np.maximum.at(self.field, (rows[ok], cols[ok]), vals[ok])
 
-    def merge(self, world_points) -> "OccupancyGrid2D":
+    def merge(self, world_points) -> OccupancyGrid2D:
         """Add one count per world point ``(N, 2)`` to its cell and raise the field around it; in place.
 
         Points outside the grid are dropped.
@@ -181,7 +224,9 @@ class OccupancyGrid2D:
         r, c = r[inside], c[inside]
         np.add.at(self.counts, (r, c), 1)
         if len(r):
-            self._raise_field(p[inside], np.minimum(self.counts[r, c], self.n_sat) / self.n_sat)
+            self._raise_field(
+                p[inside], np.minimum(self.counts[r, c], self.n_sat) / self.n_sat
+            )
         return self
 
     def point_terms(self, world_points) -> np.ndarray:
@@ -192,7 +237,9 @@ class OccupancyGrid2D:
         """
         if self.kind == "density":
             r, c, inside = self.cells_of(world_points)
-            return np.where(inside, np.minimum(self.counts[r, c], self.n_sat) / self.n_sat, 0.0)
+            return np.where(
+                inside, np.minimum(self.counts[r, c], self.n_sat) / self.n_sat, 0.0
+            )
         return np.log(self.field_at(world_points) + self.eps)
 
     def field_at(self, world_points) -> np.ndarray:
@@ -208,11 +255,17 @@ class OccupancyGrid2D:
         fu, fv = u - c0, v - r0
         h, w = self.counts.shape
         out = np.zeros(p.shape[:-1])
-        for dr, dc, wt in ((0, 0, (1 - fv) * (1 - fu)), (0, 1, (1 - fv) * fu), (1, 0, fv * (1 - fu)),
-                           (1, 1, fv * fu)):
+        for dr, dc, wt in (
+            (0, 0, (1 - fv) * (1 - fu)),
+            (0, 1, (1 - fv) * fu),
+            (1, 0, fv * (1 - fu)),
+            (1, 1, fv * fu),
+        ):
             r, c = r0 + dr, c0 + dc
             ok = (r >= 0) & (r < h) & (c >= 0) & (c < w)
-            out += wt * np.where(ok, self.field[np.where(ok, r, 0), np.where(ok, c, 0)], 0.0)
+            out += wt * np.where(
+                ok, self.field[np.where(ok, r, 0), np.where(ok, c, 0)], 0.0
+            )
         return out
 
     def density(self) -> np.ndarray:
@@ -229,7 +282,9 @@ def initialise_particles(n_particles: int, pose0=None) -> tuple[np.ndarray, np.n
     if n_particles < 1:
         raise ValueError(f"n_particles must be at least 1, got {n_particles}")
     p0 = np.zeros(3) if pose0 is None else np.asarray(pose0, dtype=np.float64).reshape(3)
-    return np.repeat(p0[None, :], int(n_particles), axis=0), uniform_log_weights(n_particles)
+    return np.repeat(p0[None, :], int(n_particles), axis=0), uniform_log_weights(
+        n_particles
+    )
 
 
 def read_scan(frame: Frame2D, max_points: int | None = None) -> np.ndarray:
@@ -239,7 +294,7 @@ def read_scan(frame: Frame2D, max_points: int | None = None) -> np.ndarray:
     """
     pts = np.asarray(frame.scan, dtype=np.float64).reshape(-1, 2)
     if max_points is not None and len(pts) > max_points:
-        pts = pts[::int(np.ceil(len(pts) / max_points))]
+        pts = pts[:: int(np.ceil(len(pts) / max_points))]
     return pts
 
 
@@ -267,7 +322,9 @@ def offset_by_motion(particles: np.ndarray, imu, dt: float) -> np.ndarray:
     return integrate_arc(particles, v, w, dt)
 
 
-def perturb_with_noise(particles: np.ndarray, sigma, rng: np.random.Generator) -> np.ndarray:
+def perturb_with_noise(
+    particles: np.ndarray, sigma, rng: np.random.Generator
+) -> np.ndarray:
     """Step 6: ``T_i <- T_i [sigma * n_i]``: Gaussian noise in each particle's **body** frame (a new array).
 
     ``sigma = (sigma_forward (m), sigma_left (m), sigma_theta (rad))``, ``n_i ~ N(0, I_3)`` from ``rng``:
@@ -302,7 +359,9 @@ def transform_scan(particles, points: np.ndarray) -> np.ndarray:
     return np.stack([x, y], axis=-1)
 
 
-def score_particles(particles, points: np.ndarray, world_map: OccupancyGrid2D) -> np.ndarray:
+def score_particles(
+    particles, points: np.ndarray, world_map: OccupancyGrid2D
+) -> np.ndarray:
     """Steps 7 + 8: ``s_i = sum_j l(R(theta_i) q_j + t_i)``, ``(P,)`` float64 log-likelihoods.
 
     ``l`` is the map's per-point term (:meth:`OccupancyGrid2D.point_terms`: the saturated hit density for
@@ -324,11 +383,17 @@ def pick_best_particle(particles: np.ndarray, log_weights) -> tuple[np.ndarray, 
 
 def merge_scan(world_map: OccupancyGrid2D, pose, points: np.ndarray) -> OccupancyGrid2D:
     """Step 10: add the scan placed by ``pose (3,)`` (:func:`transform_scan`) to ``world_map``, **in place**."""
-    return world_map.merge(transform_scan(np.asarray(pose, dtype=np.float64).reshape(3), points))
+    return world_map.merge(
+        transform_scan(np.asarray(pose, dtype=np.float64).reshape(3), points)
+    )
 
 
-def resample_particles(particles: np.ndarray, log_weights, rng: np.random.Generator,
-                       ess_fraction: float | None = 0.5) -> tuple[np.ndarray, np.ndarray, bool]:
+def resample_particles(
+    particles: np.ndarray,
+    log_weights,
+    rng: np.random.Generator,
+    ess_fraction: float | None = 0.5,
+) -> tuple[np.ndarray, np.ndarray, bool]:
     """Step 11: systematic resampling when ``ESS < ess_fraction * P`` (``None``: always).
 
     :func:`slamlib.resampling.resample_indexes` draws one offset ``u0`` from ``rng`` and returns the indexes;
@@ -337,7 +402,9 @@ def resample_particles(particles: np.ndarray, log_weights, rng: np.random.Genera
     particles = np.asarray(particles, dtype=np.float64)
     log_w = normalise_log_weights(log_weights)
     if log_w.shape != particles.shape[:1]:
-        raise ValueError(f"log_weights shape {log_w.shape} does not match particles {particles.shape}")
+        raise ValueError(
+            f"log_weights shape {log_w.shape} does not match particles {particles.shape}"
+        )
     idx = resample_indexes(log_w, rng, ess_fraction)
     if idx is None:
         return particles.copy(), log_w, False

@@ -66,7 +66,9 @@ def integrate_arc(pose, speed, yaw_rate, dt):
     """
     pose = np.asarray(pose, dtype=np.float64)
     dth = float(yaw_rate) * float(dt)
-    chord = float(speed) * float(dt) * np.sinc(dth / (2 * np.pi))  # np.sinc(x) = sin(pi x) / (pi x)
+    chord = (
+        float(speed) * float(dt) * np.sinc(dth / (2 * np.pi))
+    )  # np.sinc(x) = sin(pi x) / (pi x)
     mid = pose[..., 2] + dth / 2
     out = np.empty(np.broadcast_shapes(pose.shape, (3,)))
     out[..., 0] = pose[..., 0] + chord * np.cos(mid)
@@ -133,7 +135,9 @@ class Route2D:
         return 2 * np.pi * laps + np.interp(rest, knots, th)
 
 
-def make_world(seed: int = 0, route: Route2D | None = None, n_pillars: int = 14, n_stubs: int = 4) -> World2D:
+def make_world(
+    seed: int = 0, route: Route2D | None = None, n_pillars: int = 14, n_stubs: int = 4
+) -> World2D:
     """A courtyard round ``route``: outer walls with alcoves, an inner block, seeded pillars and wall stubs.
 
     The inner block sits 3 m inside the route's straights, the outer walls 3.5 m outside; pillars (radius
@@ -149,15 +153,30 @@ def make_world(seed: int = 0, route: Route2D | None = None, n_pillars: int = 14,
     segs = []
 
     # outer walls with two alcoves (notches) on the long sides
-    segs += [((x0, y0), (6.0, y0)), ((6.0, y0), (6.0, y0 - 1.5)), ((6.0, y0 - 1.5), (9.0, y0 - 1.5)),
-             ((9.0, y0 - 1.5), (9.0, y0)), ((9.0, y0), (x1, y0)), ((x1, y0), (x1, y1)),
-             ((x1, y1), (13.0, y1)), ((13.0, y1), (13.0, y1 + 2.0)), ((13.0, y1 + 2.0), (11.0, y1 + 2.0)),
-             ((11.0, y1 + 2.0), (11.0, y1)), ((11.0, y1), (x0, y1)), ((x0, y1), (x0, y0))]
+    segs += [
+        ((x0, y0), (6.0, y0)),
+        ((6.0, y0), (6.0, y0 - 1.5)),
+        ((6.0, y0 - 1.5), (9.0, y0 - 1.5)),
+        ((9.0, y0 - 1.5), (9.0, y0)),
+        ((9.0, y0), (x1, y0)),
+        ((x1, y0), (x1, y1)),
+        ((x1, y1), (13.0, y1)),
+        ((13.0, y1), (13.0, y1 + 2.0)),
+        ((13.0, y1 + 2.0), (11.0, y1 + 2.0)),
+        ((11.0, y1 + 2.0), (11.0, y1)),
+        ((11.0, y1), (x0, y1)),
+        ((x0, y1), (x0, y0)),
+    ]
     # the inner block, with a jog on one side
     bx0, bx1, by0, by1 = 3.0 - R, L - 3.0 + R, 3.0, W + 2 * R - 3.0
-    segs += [((bx0, by0), (bx1, by0)), ((bx1, by0), (bx1, by1)), ((bx1, by1), (bx0 + 4.0, by1)),
-             ((bx0 + 4.0, by1), (bx0 + 4.0, by1 - 1.0)), ((bx0 + 4.0, by1 - 1.0), (bx0, by1 - 1.0)),
-             ((bx0, by1 - 1.0), (bx0, by0))]
+    segs += [
+        ((bx0, by0), (bx1, by0)),
+        ((bx1, by0), (bx1, by1)),
+        ((bx1, by1), (bx0 + 4.0, by1)),
+        ((bx0 + 4.0, by1), (bx0 + 4.0, by1 - 1.0)),
+        ((bx0 + 4.0, by1 - 1.0), (bx0, by1 - 1.0)),
+        ((bx0, by1 - 1.0), (bx0, by0)),
+    ]
     # seeded pillars and stubs, clear of the route (sampled along the route and pushed to either side)
     s_grid = np.linspace(0, route.perimeter, 2000, endpoint=False)
     path = _route_points(route, s_grid)
@@ -185,14 +204,18 @@ def make_world(seed: int = 0, route: Route2D | None = None, n_pillars: int = 14,
         ang = rng.choice([0.0, np.pi / 2]) + rng.uniform(-0.3, 0.3)
         q = p + rng.uniform(0.8, 1.6) * np.array([np.cos(ang), np.sin(ang)])
         mids = np.linspace(p, q, 6)
-        if any(bx0 - 0.5 < m[0] < bx1 + 0.5 and by0 - 0.5 < m[1] < by1 + 0.5 for m in mids):
+        if any(
+            bx0 - 0.5 < m[0] < bx1 + 0.5 and by0 - 0.5 < m[1] < by1 + 0.5 for m in mids
+        ):
             continue
         if not all(clear(m, 1.3) for m in mids):
             continue
         segs.append((tuple(p), tuple(q)))
         n_done += 1
-    return World2D(segments=np.asarray(segs, dtype=np.float64).reshape(-1, 2, 2),
-                   circles=np.asarray(circles, dtype=np.float64).reshape(-1, 3))
+    return World2D(
+        segments=np.asarray(segs, dtype=np.float64).reshape(-1, 2, 2),
+        circles=np.asarray(circles, dtype=np.float64).reshape(-1, 3),
+    )
 
 
 def _route_points(route: Route2D, s) -> np.ndarray:
@@ -202,7 +225,12 @@ def _route_points(route: Route2D, s) -> np.ndarray:
     th = route.heading(fine)
     ds = np.diff(fine)
     mid = 0.5 * (th[1:] + th[:-1])
-    xy = np.vstack([[0.0, 0.0], np.cumsum(np.column_stack([ds * np.cos(mid), ds * np.sin(mid)]), axis=0)])
+    xy = np.vstack(
+        [
+            [0.0, 0.0],
+            np.cumsum(np.column_stack([ds * np.cos(mid), ds * np.sin(mid)]), axis=0),
+        ]
+    )
     return np.column_stack([np.interp(s, fine, xy[:, 0]), np.interp(s, fine, xy[:, 1])])
 
 
@@ -217,13 +245,13 @@ def cast_rays(world: World2D, origin, angles, max_range: float) -> np.ndarray:
     """
     o = np.asarray(origin, dtype=np.float64)
     angles = np.asarray(angles, dtype=np.float64)
-    d = np.column_stack([np.cos(angles), np.sin(angles)])                       # (B, 2)
+    d = np.column_stack([np.cos(angles), np.sin(angles)])  # (B, 2)
     best = np.full(angles.shape, np.inf)
     if len(world.segments):
         a = world.segments[:, 0]
-        e = world.segments[:, 1] - a                                            # (S, 2)
+        e = world.segments[:, 1] - a  # (S, 2)
         ao = a - o
-        denom = d[:, None, 0] * e[None, :, 1] - d[:, None, 1] * e[None, :, 0]   # (B, S)
+        denom = d[:, None, 0] * e[None, :, 1] - d[:, None, 1] * e[None, :, 0]  # (B, S)
         t_num = ao[None, :, 0] * e[None, :, 1] - ao[None, :, 1] * e[None, :, 0]
         u_num = ao[None, :, 0] * d[:, None, 1] - ao[None, :, 1] * d[:, None, 0]
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -232,8 +260,8 @@ def cast_rays(world: World2D, origin, angles, max_range: float) -> np.ndarray:
         ok = (np.abs(denom) > 1e-12) & (t > 1e-9) & (u >= 0) & (u <= 1)
         best = np.minimum(best, np.where(ok, t, np.inf).min(axis=1))
     if len(world.circles):
-        f = o - world.circles[:, :2]                                            # (C, 2)
-        b = d @ f.T                                                             # (B, C)
+        f = o - world.circles[:, :2]  # (C, 2)
+        b = d @ f.T  # (B, C)
         disc = b**2 - (np.sum(f**2, axis=1) - world.circles[:, 2] ** 2)[None, :]
         with np.errstate(invalid="ignore"):
             t = -b - np.sqrt(disc)
@@ -268,7 +296,9 @@ class SensorModel2D:
 
     def __post_init__(self):
         if not self.period > 0 or not 0 <= self.jitter < 1:
-            raise ValueError(f"need period > 0 and 0 <= jitter < 1, got {self.period}, {self.jitter}")
+            raise ValueError(
+                f"need period > 0 and 0 <= jitter < 1, got {self.period}, {self.jitter}"
+            )
         if min(self.speed_noise, self.yaw_rate_noise, self.range_noise) < 0:
             raise ValueError("noise levels must be non-negative")
         if self.n_beams < 1 or not self.max_range > 0 or not 0 <= self.dropout < 1:
@@ -280,7 +310,9 @@ class SensorModel2D:
         return -np.pi + 2 * np.pi * np.arange(self.n_beams) / self.n_beams
 
 
-def scan_at(world: World2D, pose, sensors: SensorModel2D, rng: np.random.Generator | None = None) -> np.ndarray:
+def scan_at(
+    world: World2D, pose, sensors: SensorModel2D, rng: np.random.Generator | None = None
+) -> np.ndarray:
     """One LIDAR scan from ``pose (3,)``: ``(N, 2)`` body-frame points (noise and dropouts when ``rng`` is given)."""
     pose = np.asarray(pose, dtype=np.float64)
     beams = sensors.beam_angles
@@ -333,9 +365,16 @@ class Recording2D:
         return np.array([f.dt for f in self.frames])
 
 
-def simulate(world: World2D, route: Route2D | None = None, laps: float = 1.0, seed: int = 0,
-             sensors: SensorModel2D | None = None, v_mean: float = 2.0, v_amp: float = 0.5,
-             v_period: float = 9.0) -> Recording2D:
+def simulate(
+    world: World2D,
+    route: Route2D | None = None,
+    laps: float = 1.0,
+    seed: int = 0,
+    sensors: SensorModel2D | None = None,
+    v_mean: float = 2.0,
+    v_amp: float = 0.5,
+    v_period: float = 9.0,
+) -> Recording2D:
     """Drive ``laps`` laps of ``route`` through ``world`` and record odometry and LIDAR frames (seeded by ``seed``).
 
     The number of frames is that needed to cover ``laps * route.perimeter`` metres at ``v(t)``.
@@ -351,7 +390,14 @@ def simulate(world: World2D, route: Route2D | None = None, laps: float = 1.0, se
     def dist(t):
         return v_mean * t + v_amp / w * (1 - np.cos(w * t))
 
-    n_max = int(np.ceil(total / max(v_mean - v_amp, 0.1) / (sensors.period * (1 - sensors.jitter)))) + 2
+    n_max = (
+        int(
+            np.ceil(
+                total / max(v_mean - v_amp, 0.1) / (sensors.period * (1 - sensors.jitter))
+            )
+        )
+        + 2
+    )
     dts = sensors.period * (1.0 + rng.uniform(-sensors.jitter, sensors.jitter, n_max))
     dts[0] = 0.0
     times = np.cumsum(dts)
@@ -367,12 +413,35 @@ def simulate(world: World2D, route: Route2D | None = None, laps: float = 1.0, se
     for k in range(k_frames):
         if k > 0:
             poses[k] = integrate_arc(poses[k - 1], controls[k, 0], controls[k, 1], dts[k])
-            speed = controls[k, 0] + sensors.speed_bias + sensors.speed_noise * rng.standard_normal()
-            yaw_rate = controls[k, 1] + sensors.yaw_rate_bias + sensors.yaw_rate_noise * rng.standard_normal()
+            speed = (
+                controls[k, 0]
+                + sensors.speed_bias
+                + sensors.speed_noise * rng.standard_normal()
+            )
+            yaw_rate = (
+                controls[k, 1]
+                + sensors.yaw_rate_bias
+                + sensors.yaw_rate_noise * rng.standard_normal()
+            )
         else:
             speed = yaw_rate = 0.0
         scan = scan_at(world, poses[k], sensors, rng)
-        frames.append(Frame2D(index=k, time=float(times[k]), dt=float(dts[k]), speed=float(speed),
-                              yaw_rate=float(yaw_rate), scan=scan))
-    return Recording2D(world=world, route=route, sensors=sensors, times=times, true_poses=poses,
-                       true_controls=controls, frames=frames)
+        frames.append(
+            Frame2D(
+                index=k,
+                time=float(times[k]),
+                dt=float(dts[k]),
+                speed=float(speed),
+                yaw_rate=float(yaw_rate),
+                scan=scan,
+            )
+        )
+    return Recording2D(
+        world=world,
+        route=route,
+        sensors=sensors,
+        times=times,
+        true_poses=poses,
+        true_controls=controls,
+        frames=frames,
+    )

@@ -17,18 +17,62 @@ Modules: :mod:`~slamlib.slam3d.steps` (one pure function per step, shared names)
 the body pose at the first processed frame.
 """
 
-from slamlib.slam3d.config import (MAP_KINDS, FilterConfig, MapConfig, MotionConfig, ScanConfig,
-                                   SLAM3DConfig)
+from slamlib.slam3d.config import (
+    MAP_KINDS,
+    FilterConfig,
+    MapConfig,
+    MotionConfig,
+    ScanConfig,
+    SLAM3DConfig,
+)
 from slamlib.slam3d.pipeline import ParticleSLAM3D
 from slamlib.slam3d.preprocess import crop_range, sample_points, voxel_downsample
 from slamlib.slam3d.run import SLAMRun, evaluate, parse_frames, run_drive, save_run
-from slamlib.slam3d.steps import (Particles3D, initialise_particles, merge_scan, motion_increment,
-                                  motion_noise_sigma, offset_by_motion, perturb_with_noise, pick_best_particle,
-                                  read_imu, read_scan, read_timing, resample_particles, score_particles,
-                                  transform_scan)
+from slamlib.slam3d.steps import (
+    Particles3D,
+    initialise_particles,
+    merge_scan,
+    motion_increment,
+    motion_noise_sigma,
+    offset_by_motion,
+    perturb_with_noise,
+    pick_best_particle,
+    read_imu,
+    read_scan,
+    read_timing,
+    resample_particles,
+    score_particles,
+    transform_scan,
+)
 
-__all__ = ["ParticleSLAM3D", "SLAM3DConfig", "ScanConfig", "MotionConfig", "MapConfig", "FilterConfig", "MAP_KINDS",
-           "Particles3D", "SLAMRun", "run_drive", "evaluate", "save_run", "parse_frames", "crop_range",
-           "voxel_downsample", "sample_points", "initialise_particles", "read_scan", "read_imu", "read_timing",
-           "motion_increment", "motion_noise_sigma", "offset_by_motion", "perturb_with_noise", "transform_scan",
-           "score_particles", "pick_best_particle", "merge_scan", "resample_particles"]
+__all__ = [
+    "ParticleSLAM3D",
+    "SLAM3DConfig",
+    "ScanConfig",
+    "MotionConfig",
+    "MapConfig",
+    "FilterConfig",
+    "MAP_KINDS",
+    "Particles3D",
+    "SLAMRun",
+    "run_drive",
+    "evaluate",
+    "save_run",
+    "parse_frames",
+    "crop_range",
+    "voxel_downsample",
+    "sample_points",
+    "initialise_particles",
+    "read_scan",
+    "read_imu",
+    "read_timing",
+    "motion_increment",
+    "motion_noise_sigma",
+    "offset_by_motion",
+    "perturb_with_noise",
+    "transform_scan",
+    "score_particles",
+    "pick_best_particle",
+    "merge_scan",
+    "resample_particles",
+]

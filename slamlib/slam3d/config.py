@@ -16,8 +16,16 @@ import numpy as np
 
 from slamlib.kitti.velodyne import SWEEP_PERIOD_S
 
-__all__ = ["MOTION_MODELS", "ScanConfig", "MotionConfig", "MapConfig", "FilterConfig", "SLAM3DConfig", "MAP_KINDS",
-           "OLD_MAP_NAMES"]
+__all__ = [
+    "MOTION_MODELS",
+    "ScanConfig",
+    "MotionConfig",
+    "MapConfig",
+    "FilterConfig",
+    "SLAM3DConfig",
+    "MAP_KINDS",
+    "OLD_MAP_NAMES",
+]
 
 #: Map kinds (:func:`slamlib.maps.make_map`): hashed NDT voxels, exact points in a Morton-code BVH.
 MAP_KINDS = ("voxel_hash", "morton_bvh")
@@ -41,7 +49,16 @@ MAX_SCAN_MATCH_ITERATIONS = 100
 MAX_CV_WINDOW = 10
 #: Map constructor parameters that must be finite and > 0 (:class:`slamlib.maps.VoxelHashMap`,
 #: :class:`slamlib.maps.MortonBVHMap`).
-POSITIVE_MAP_PARAMS = ("voxel_size", "capacity", "min_sigma", "m_max", "radius", "sigma", "quantum", "max_points")
+POSITIVE_MAP_PARAMS = (
+    "voxel_size",
+    "capacity",
+    "min_sigma",
+    "m_max",
+    "radius",
+    "sigma",
+    "quantum",
+    "max_points",
+)
 
 
 def _finite(name: str, value) -> float:
@@ -57,8 +74,15 @@ def _finite(name: str, value) -> float:
 
 def _integer(name: str, value, low: int, high: int | None = None) -> int:
     """``int(value)`` within ``[low, high]``, or ValueError naming ``name`` and the allowed range."""
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) and not (
-            isinstance(value, (float, np.floating)) and np.isfinite(value) and float(value).is_integer()):
+    if (
+        isinstance(value, bool)
+        or not isinstance(value, (int, np.integer))
+        and not (
+            isinstance(value, (float, np.floating))
+            and np.isfinite(value)
+            and float(value).is_integer()
+        )
+    ):
         raise ValueError(f"{name} must be an integer, got {value!r}")
     v = int(value)
     if v < low or (high is not None and v > high):
@@ -97,14 +121,22 @@ class ScanConfig:
 
     def __post_init__(self):
         _finite("min_range", self.min_range)
-        if not 0 <= self.min_range < self.max_range:  # max_range may be inf (no far crop), not NaN
-            raise ValueError(f"need 0 <= min_range < max_range, got {self.min_range}, {self.max_range}")
+        if (
+            not 0 <= self.min_range < self.max_range
+        ):  # max_range may be inf (no far crop), not NaN
+            raise ValueError(
+                f"need 0 <= min_range < max_range, got {self.min_range}, {self.max_range}"
+            )
         if not _finite("downsample_voxel", self.downsample_voxel) >= 0:
-            raise ValueError(f"downsample_voxel must be >= 0 (0 = off), got {self.downsample_voxel}")
+            raise ValueError(
+                f"downsample_voxel must be >= 0 (0 = off), got {self.downsample_voxel}"
+            )
         if not _finite("sweep_period", self.sweep_period) > 0:
             raise ValueError(f"sweep_period must be > 0 s, got {self.sweep_period}")
         if self.deskew is not None and not isinstance(self.deskew, (bool, np.bool_)):
-            raise ValueError(f"deskew must be True, False or None (when the scans are swept), got {self.deskew!r}")
+            raise ValueError(
+                f"deskew must be True, False or None (when the scans are swept), got {self.deskew!r}"
+            )
 
 
 #: Step 3's motion sources: the IMU's velocities and rates, or the filter's own last estimated motion held
@@ -161,12 +193,16 @@ class MotionConfig:
 
     def __post_init__(self):
         if self.model not in MOTION_MODELS:
-            raise ValueError(f"model must be one of {', '.join(MOTION_MODELS)}, got {self.model!r}")
+            raise ValueError(
+                f"model must be one of {', '.join(MOTION_MODELS)}, got {self.model!r}"
+            )
         _integer("cv_start_rounds", self.cv_start_rounds, 0, MAX_REFINE)
         _integer("cv_window", self.cv_window, 1, MAX_CV_WINDOW)
         damping = np.asarray(self.cv_damping, dtype=np.float64)
         if damping.shape != (6,) or not np.all((damping >= 0) & (damping <= 1)):
-            raise ValueError(f"cv_damping must be 6 numbers in [0, 1], got {self.cv_damping!r}")
+            raise ValueError(
+                f"cv_damping must be 6 numbers in [0, 1], got {self.cv_damping!r}"
+            )
         object.__setattr__(self, "cv_damping", tuple(float(x) for x in damping))
         for f in fields(self):
             if f.name in _MOTION_SCALARS:
@@ -174,17 +210,25 @@ class MotionConfig:
             v = np.asarray(getattr(self, f.name), dtype=np.float64)
             size = 6 if f.name == "cv_start_speed" else 3
             if v.shape != (size,) or not np.all(np.isfinite(v)) or not np.all(v >= 0):
-                raise ValueError(f"{f.name} must be {size} finite non-negative numbers, got {getattr(self, f.name)!r}")
+                raise ValueError(
+                    f"{f.name} must be {size} finite non-negative numbers, got {getattr(self, f.name)!r}"
+                )
             object.__setattr__(self, f.name, tuple(float(x) for x in v))
 
-    def sigma(self, trans_delta, dt: float, constant_velocity: bool = False, start: bool = False) -> np.ndarray:
+    def sigma(
+        self, trans_delta, dt: float, constant_velocity: bool = False, start: bool = False
+    ) -> np.ndarray:
         """Standard deviations ``(6,)`` for a frame that moved ``trans_delta`` (3,) metres in ``dt`` seconds; with
         ``constant_velocity`` (LIDAR-only) widened by ``cv_accel dt^2`` and ``cv_angular_accel dt^2``; ``start``
         (LIDAR-only, no motion known yet) adds ``cv_start_speed dt``."""
         d, dt = float(np.linalg.norm(trans_delta)), float(dt)
         s = np.empty(6)
-        s[:3] = np.asarray(self.sigma_xyz_per_m) * d + np.asarray(self.sigma_xyz_per_s) * dt
-        s[3:] = np.asarray(self.sigma_rpy_per_m) * d + np.asarray(self.sigma_rpy_per_s) * dt
+        s[:3] = (
+            np.asarray(self.sigma_xyz_per_m) * d + np.asarray(self.sigma_xyz_per_s) * dt
+        )
+        s[3:] = (
+            np.asarray(self.sigma_rpy_per_m) * d + np.asarray(self.sigma_rpy_per_s) * dt
+        )
         if constant_velocity:
             s[:3] += np.asarray(self.cv_accel) * dt**2
             s[3:] += np.asarray(self.cv_angular_accel) * dt**2
@@ -192,10 +236,16 @@ class MotionConfig:
             s += np.asarray(self.cv_start_speed) * dt
         return s
 
-    def scaled(self, k: float) -> "MotionConfig":
+    def scaled(self, k: float) -> MotionConfig:
         """All spreads (and the LIDAR-only accelerations) multiplied by ``k`` (``slamlib run --noise``)."""
-        return replace(self, **{f.name: tuple(k * x for x in getattr(self, f.name)) for f in fields(self)
-                                if f.name not in _MOTION_SCALARS})
+        return replace(
+            self,
+            **{
+                f.name: tuple(k * x for x in getattr(self, f.name))
+                for f in fields(self)
+                if f.name not in _MOTION_SCALARS
+            },
+        )
 
 
 @dataclass(frozen=True)
@@ -231,18 +281,30 @@ class MapConfig:
 
     def __post_init__(self):
         if self.kind not in MAP_KINDS:
-            hint = f" (now called {OLD_MAP_NAMES[self.kind]!r})" if self.kind in OLD_MAP_NAMES else ""
-            raise ValueError(f"map kind must be one of {', '.join(map(repr, MAP_KINDS))}, got {self.kind!r}{hint}")
+            hint = (
+                f" (now called {OLD_MAP_NAMES[self.kind]!r})"
+                if self.kind in OLD_MAP_NAMES
+                else ""
+            )
+            raise ValueError(
+                f"map kind must be one of {', '.join(map(repr, MAP_KINDS))}, got {self.kind!r}{hint}"
+            )
         if int(self.prune_every) < 0 or not self.prune_radius > 0:
-            raise ValueError(f"need prune_every >= 0 and prune_radius > 0, got {self.prune_every}, "
-                             f"{self.prune_radius}")
+            raise ValueError(
+                f"need prune_every >= 0 and prune_radius > 0, got {self.prune_every}, "
+                f"{self.prune_radius}"
+            )
         _integer("transient_span", self.transient_span, 0)  # frames; 0 = off
         if self.transient_span and self.kind != "voxel_hash":
-            raise ValueError(f"transient_span needs the 'voxel_hash' map (its voxels remember when they were hit), "
-                             f"got kind {self.kind!r}")
+            raise ValueError(
+                f"transient_span needs the 'voxel_hash' map (its voxels remember when they were hit), "
+                f"got kind {self.kind!r}"
+            )
         for name, value in dict(self.params).items():
             if name in POSITIVE_MAP_PARAMS and not _finite(name, value) > 0:
-                raise ValueError(f"map parameter {name} must be finite and > 0, got {value!r}")
+                raise ValueError(
+                    f"map parameter {name} must be finite and > 0, got {value!r}"
+                )
 
     def make(self):
         """A fresh, empty map of this kind (:func:`slamlib.maps.make_map`)."""
@@ -329,36 +391,67 @@ class FilterConfig:
 
     def __post_init__(self):
         if int(self.particles) < 1 or int(self.scored_points) < 1:
-            raise ValueError(f"particles and scored_points must be >= 1, got {self.particles}, {self.scored_points}")
+            raise ValueError(
+                f"particles and scored_points must be >= 1, got {self.particles}, {self.scored_points}"
+            )
         p = _integer("particles", self.particles, 1, MAX_PARTICLES)
         n = _integer("scored_points", self.scored_points, 1, MAX_SCORED_POINTS)
         if p * n > MAX_POINT_SCORES:
-            raise ValueError(f"particles x scored_points = {p * n:,} point scores per frame is more than "
-                             f"{MAX_POINT_SCORES:,}; use fewer particles or points")
+            raise ValueError(
+                f"particles x scored_points = {p * n:,} point scores per frame is more than "
+                f"{MAX_POINT_SCORES:,}; use fewer particles or points"
+            )
         if not _finite("temperature", self.temperature) > 0:
-            raise ValueError(f"temperature must be finite and > 0, got {self.temperature}")
+            raise ValueError(
+                f"temperature must be finite and > 0, got {self.temperature}"
+            )
         if not 0 <= _finite("ess_fraction", self.ess_fraction) <= 1:
             raise ValueError(f"ess_fraction must be in [0, 1], got {self.ess_fraction}")
         if self.estimate not in ("best", "mean"):
             raise ValueError(f"estimate must be 'best' or 'mean', got {self.estimate!r}")
         if int(self.refine) < 0 or not 0 < self.refine_shrink <= 1:
-            raise ValueError(f"need refine >= 0 and 0 < refine_shrink <= 1, got {self.refine}, {self.refine_shrink}")
+            raise ValueError(
+                f"need refine >= 0 and 0 < refine_shrink <= 1, got {self.refine}, {self.refine_shrink}"
+            )
         _integer("refine", self.refine, 0, MAX_REFINE)
-        if not _finite("tilt_sigma", self.tilt_sigma) >= 0 or not _finite("tilt_window", self.tilt_window) > 0:
-            raise ValueError(f"need tilt_sigma >= 0 (0 = off) and tilt_window > 0, got {self.tilt_sigma}, "
-                             f"{self.tilt_window}")
+        if (
+            not _finite("tilt_sigma", self.tilt_sigma) >= 0
+            or not _finite("tilt_window", self.tilt_window) > 0
+        ):
+            raise ValueError(
+                f"need tilt_sigma >= 0 (0 = off) and tilt_window > 0, got {self.tilt_sigma}, "
+                f"{self.tilt_window}"
+            )
         _integer("tilt_heading_bins", self.tilt_heading_bins, 1)
-        if self.scan_match is not None and not isinstance(self.scan_match, (bool, np.bool_)):
-            raise ValueError(f"scan_match must be True, False or None (LIDAR-only), got {self.scan_match!r}")
-        _integer("scan_match_iterations", self.scan_match_iterations, 1, MAX_SCAN_MATCH_ITERATIONS)
+        if self.scan_match is not None and not isinstance(
+            self.scan_match, (bool, np.bool_)
+        ):
+            raise ValueError(
+                f"scan_match must be True, False or None (LIDAR-only), got {self.scan_match!r}"
+            )
+        _integer(
+            "scan_match_iterations",
+            self.scan_match_iterations,
+            1,
+            MAX_SCAN_MATCH_ITERATIONS,
+        )
         for name in ("tilt_bias_sigma", "tilt_world_sigma"):
             if not _finite(name, getattr(self, name)) >= 0:
-                raise ValueError(f"need {name} >= 0 (0 = held at 0), got {getattr(self, name)}")
+                raise ValueError(
+                    f"need {name} >= 0 (0 = held at 0), got {getattr(self, name)}"
+                )
         if not 0 <= _finite("lidar_only_ground_share", self.lidar_only_ground_share) <= 1:
-            raise ValueError(f"lidar_only_ground_share must be in [0, 1], got {self.lidar_only_ground_share}")
+            raise ValueError(
+                f"lidar_only_ground_share must be in [0, 1], got {self.lidar_only_ground_share}"
+            )
 
 
-_GROUPS = {"scan": ScanConfig, "motion": MotionConfig, "map": MapConfig, "filter": FilterConfig}
+_GROUPS = {
+    "scan": ScanConfig,
+    "motion": MotionConfig,
+    "map": MapConfig,
+    "filter": FilterConfig,
+}
 
 
 @dataclass(frozen=True)
@@ -386,11 +479,12 @@ class SLAM3DConfig:
         _integer("seed", self.seed, 0)
 
     @classmethod
-    def of(cls, **settings) -> "SLAM3DConfig":
-        """The default configuration with ``settings`` changed by name, e.g. ``of(particles=100, kind="morton_bvh")``."""
+    def of(cls, **settings) -> SLAM3DConfig:
+        """The default configuration with ``settings`` changed by name, e.g.
+        ``of(particles=100, kind="morton_bvh")``."""
         return cls().with_(**settings)
 
-    def with_(self, **settings) -> "SLAM3DConfig":
+    def with_(self, **settings) -> SLAM3DConfig:
         """A copy with ``settings`` changed by name (group fields, or ``backend`` / ``seed``)."""
         groups = {g: {} for g in _GROUPS}
         top = {}
@@ -401,15 +495,22 @@ class SLAM3DConfig:
             elif name in ("backend", "seed"):
                 top[name] = value
             else:
-                known = sorted({f.name for c in _GROUPS.values() for f in fields(c)} | {"backend", "seed"})
-                raise ValueError(f"unknown SLAM3D setting {name!r}; known: {', '.join(known)}")
+                known = sorted(
+                    {f.name for c in _GROUPS.values() for f in fields(c)}
+                    | {"backend", "seed"}
+                )
+                raise ValueError(
+                    f"unknown SLAM3D setting {name!r}; known: {', '.join(known)}"
+                )
         changed = {g: replace(getattr(self, g), **kw) for g, kw in groups.items() if kw}
         return replace(self, **changed, **top)
 
     def as_dict(self) -> dict:
         """JSON-friendly nested dict of the settings."""
+
         def plain(v):
             if isinstance(v, dict):
                 return {k: plain(x) for k, x in v.items()}
             return list(v) if isinstance(v, tuple) else v
+
         return plain(asdict(self))

@@ -49,7 +49,13 @@ from numba import njit
 from slamlib.kernels.device import make_point_functions
 from slamlib.maps.base import KIND_VOXEL_HASH
 
-__all__ = ["match_scan", "normal_equations", "so3_exp", "MATCH_DAMPING", "MATCH_TOLERANCE"]
+__all__ = [
+    "match_scan",
+    "normal_equations",
+    "so3_exp",
+    "MATCH_DAMPING",
+    "MATCH_TOLERANCE",
+]
 
 #: Levenberg damping of the Gauss-Newton solve, relative to ``trace(H)``: small enough not to slow a well
 #: constrained step, large enough to leave the unconstrained directions of a degenerate scene in place.
@@ -66,7 +72,9 @@ _corner_weight = _F["corner_weight"]
 
 
 @njit(cache=True)
-def _normal_equations_nb(R, t, pts, road, keys, mean, icov, inv_h, log2_capacity, max_probe, m_max):
+def _normal_equations_nb(
+    R, t, pts, road, keys, mean, icov, inv_h, log2_capacity, max_probe, m_max
+):
     H = np.zeros((6, 6))
     g = np.zeros(6)
     J = np.zeros((3, 6))
@@ -97,8 +105,16 @@ def _normal_equations_nb(R, t, pts, road, keys, mean, icov, inv_h, log2_capacity
             e0 = wx - np.float64(mean[s, 0])
             e1 = wy - np.float64(mean[s, 1])
             e2 = wz - np.float64(mean[s, 2])
-            a0, a1, a2 = np.float64(icov[s, 0]), np.float64(icov[s, 1]), np.float64(icov[s, 2])
-            a3, a4, a5 = np.float64(icov[s, 3]), np.float64(icov[s, 4]), np.float64(icov[s, 5])
+            a0, a1, a2 = (
+                np.float64(icov[s, 0]),
+                np.float64(icov[s, 1]),
+                np.float64(icov[s, 2]),
+            )
+            a3, a4, a5 = (
+                np.float64(icov[s, 3]),
+                np.float64(icov[s, 4]),
+                np.float64(icov[s, 5]),
+            )
             d0 = a0 * e0 + a1 * e1 + a2 * e2  # A d
             d1 = a1 * e0 + a3 * e1 + a4 * e2
             d2 = a2 * e0 + a4 * e1 + a5 * e2
@@ -114,7 +130,9 @@ def _normal_equations_nb(R, t, pts, road, keys, mean, icov, inv_h, log2_capacity
                 g[c] += w * (J[0, c] * d0 + J[1, c] * d1 + J[2, c] * d2)
             for c in range(6):
                 for k in range(c, 6):
-                    H[c, k] += w * (J[0, c] * AJ[0, k] + J[1, c] * AJ[1, k] + J[2, c] * AJ[2, k])
+                    H[c, k] += w * (
+                        J[0, c] * AJ[0, k] + J[1, c] * AJ[1, k] + J[2, c] * AJ[2, k]
+                    )
     for c in range(6):
         for k in range(c):
             H[c, k] = H[k, c]
@@ -127,23 +145,39 @@ def _road(road, n):
         return np.zeros(n, dtype=np.bool_)
     road = np.ascontiguousarray(road, dtype=np.bool_)
     if road.shape != (n,):
-        raise ValueError(f"road must be a (N,) mask of the {n} points, got shape {road.shape}")
+        raise ValueError(
+            f"road must be a (N,) mask of the {n} points, got shape {road.shape}"
+        )
     return road
 
 
 def _lookup_args(lookup):
-    return (lookup.keys, lookup.mean, lookup.icov, float(lookup.inv_voxel_size), int(lookup.log2_capacity),
-            int(lookup.max_probe), float(lookup.m_max))
+    return (
+        lookup.keys,
+        lookup.mean,
+        lookup.icov,
+        float(lookup.inv_voxel_size),
+        int(lookup.log2_capacity),
+        int(lookup.max_probe),
+        float(lookup.m_max),
+    )
 
 
-def normal_equations(pose, points, lookup, road=None) -> tuple[np.ndarray, np.ndarray, float]:
+def normal_equations(
+    pose, points, lookup, road=None
+) -> tuple[np.ndarray, np.ndarray, float]:
     """``(H (6, 6), g (6,), E)`` of the module docstring at ``pose`` (4, 4) ``T_world_body`` for body ``points``
     (N, 3) against a :class:`~slamlib.maps.base.VoxelHashLookup`; ``E = -score`` of that pose. ``road`` (N,) bool
     (default none) marks the points whose Jacobian keeps only the height, roll and pitch columns."""
     T = np.asarray(pose, dtype=np.float64)
     pts = np.ascontiguousarray(points, dtype=np.float32)
-    return _normal_equations_nb(np.ascontiguousarray(T[:3, :3]), np.ascontiguousarray(T[:3, 3]), pts,
-                                _road(road, len(pts)), *_lookup_args(lookup))
+    return _normal_equations_nb(
+        np.ascontiguousarray(T[:3, :3]),
+        np.ascontiguousarray(T[:3, 3]),
+        pts,
+        _road(road, len(pts)),
+        *_lookup_args(lookup),
+    )
 
 
 def so3_exp(omega) -> np.ndarray:

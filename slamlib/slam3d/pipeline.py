@@ -28,7 +28,8 @@ Likelihood tempering
 The map score of a particle is a sum over ``N`` scan points of per-point log-likelihoods (:mod:`slamlib.maps.base`)
 which treats the points as independent. They are not (neighbouring points see the same surface, the map is
 itself built from earlier noisy scans), so the raw sum is far too confident: weights would collapse onto one
-particle. The pipeline uses ``log L_i = score_i / (N * temperature)`` (``FilterConfig.temperature``): the scan counts as ``1 / temperature``
+particle. The pipeline uses ``log L_i = score_i / (N * temperature)`` (``FilterConfig.temperature``): the scan
+counts as ``1 / temperature``
 independent points whatever sample size ``N`` is chosen (Grisetti et al. 2007 and most LIDAR particle filters
 smooth the observation likelihood the same way).
 
@@ -83,8 +84,15 @@ from collections import deque
 import numpy as np
 
 from slamlib.kernels import get_backend
-from slamlib.odometry import (gravity_up, increment_matrix, tilt_calibration_add, tilt_calibration_bins,
-                              tilt_calibration_estimate, tilt_calibration_prior, twist_between)
+from slamlib.odometry import (
+    gravity_up,
+    increment_matrix,
+    tilt_calibration_add,
+    tilt_calibration_bins,
+    tilt_calibration_estimate,
+    tilt_calibration_prior,
+    twist_between,
+)
 from slamlib.resampling import normalise_log_weights
 from slamlib.slam3d import steps
 from slamlib.slam3d.config import SLAM3DConfig
@@ -143,10 +151,16 @@ class ParticleSLAM3D:
         self.config = cfg = config if config is not None else SLAM3DConfig()
         self.backend = get_backend(cfg.backend)
         self.rng = np.random.default_rng(cfg.seed)
-        self.T_body_velo = None if T_velo_imu is None else np.linalg.inv(np.asarray(T_velo_imu, dtype=np.float64))
+        self.T_body_velo = (
+            None
+            if T_velo_imu is None
+            else np.linalg.inv(np.asarray(T_velo_imu, dtype=np.float64))
+        )
         self.map = cfg.map.make()
         self.T0 = np.eye(4) if T0 is None else np.asarray(T0, dtype=np.float64)
-        self.particles, self.log_weights = steps.initialise_particles(cfg.filter.particles, self.T0)  # step 1
+        self.particles, self.log_weights = steps.initialise_particles(
+            cfg.filter.particles, self.T0
+        )  # step 1
         self.poses: list[np.ndarray] = []
         self.dr_poses: list[np.ndarray] = []
         self.n_resampled = 0
@@ -158,11 +172,17 @@ class ParticleSLAM3D:
         self.imu_prev = None
         self.dts: list[float] = []
         self.lidar_only = self.config.motion.model == "constant_velocity"
-        self.tilt_samples: deque = deque()  # the accelerometer window of the tilt prior (_gravity_up)
+        self.tilt_samples: deque = (
+            deque()
+        )  # the accelerometer window of the tilt prior (_gravity_up)
         self.up, self.up_span = None, 0.0
-        self.tilt_prior = tilt_calibration_prior(cfg.filter.tilt_world_sigma, cfg.filter.tilt_bias_sigma)
+        self.tilt_prior = tilt_calibration_prior(
+            cfg.filter.tilt_world_sigma, cfg.filter.tilt_bias_sigma
+        )
         self.tilt_bins = tilt_calibration_bins(cfg.filter.tilt_heading_bins)
-        self.world_up, self.up_bias = tilt_calibration_estimate(self.tilt_prior, self.tilt_bins)
+        self.world_up, self.up_bias = tilt_calibration_estimate(
+            self.tilt_prior, self.tilt_bins
+        )
 
     # ----------------------------------------------------------------------------------------- step 12
     def register_frame(self, frame) -> np.ndarray:
@@ -171,43 +191,83 @@ class ParticleSLAM3D:
         The first frame only builds the map at the start pose. A frame with fewer than :data:`MIN_SCAN_POINTS`
         points is skipped for scoring: steps 5 and 6 stand, the pose is the motion prediction, and
         ``n_skipped_frames`` grows (module docstring, "Degenerate frames"). Returns ``T_world_body`` (4, 4).
-        Raises ``ValueError`` for non-finite or physically impossible IMU values (:func:`~slamlib.slam3d.steps.read_imu`).
+        Raises ``ValueError`` for non-finite or physically impossible IMU values
+        (:func:`~slamlib.slam3d.steps.read_imu`).
         """
         cfg, be = self.config, self.backend
-        if self.imu_prev is None:  # first frame: LIDAR-only if asked to, or if the data has no IMU
-            self.lidar_only = cfg.motion.model == "constant_velocity" or getattr(frame, "velocity", None) is None
-        prev = None if self.lidar_only else self.imu_prev  # constant velocity: the twist is held over dt
-        points = steps.read_scan(frame, cfg.scan, self.T_body_velo)                                # 2
-        imu = steps.read_imu(frame, self.own_motion() if self.lidar_only else None)                # 3
-        tilt = cfg.filter.tilt_sigma and not self.lidar_only  # 3's accelerometer, for step 8's tilt prior
+        if (
+            self.imu_prev is None
+        ):  # first frame: LIDAR-only if asked to, or if the data has no IMU
+            self.lidar_only = (
+                cfg.motion.model == "constant_velocity"
+                or getattr(frame, "velocity", None) is None
+            )
+        prev = (
+            None if self.lidar_only else self.imu_prev
+        )  # constant velocity: the twist is held over dt
+        points = steps.read_scan(frame, cfg.scan, self.T_body_velo)  # 2
+        imu = steps.read_imu(frame, self.own_motion() if self.lidar_only else None)  # 3
+        tilt = (
+            cfg.filter.tilt_sigma and not self.lidar_only
+        )  # 3's accelerometer, for step 8's tilt prior
         force = steps.read_specific_force(frame) if tilt else None
-        dt = steps.read_timing(frame)                                                              # 4
-        if steps.should_deskew(frame, cfg.scan):  # step 2's motion compensation, with step 3's motion, to the pose time
-            points = steps.deskew_scan(points, imu, cfg.scan, self.T_body_velo,
-                                       steps.read_scan_time_offset(frame, cfg.scan))
+        dt = steps.read_timing(frame)  # 4
+        if steps.should_deskew(
+            frame, cfg.scan
+        ):  # step 2's motion compensation, with step 3's motion, to the pose time
+            points = steps.deskew_scan(
+                points,
+                imu,
+                cfg.scan,
+                self.T_body_velo,
+                steps.read_scan_time_offset(frame, cfg.scan),
+            )
             self.n_deskewed += 1
         if self.imu_prev is None:  # first frame: the map starts at the start pose
             return self._start(points, imu, dt)
-        increment = steps.motion_increment(imu, dt, prev)  # once: steps 5 and 6 and the dead-reckoning twin
-        self.up = self._gravity_up(imu, force, dt, increment)  # step 8's tilt prior (None when off)
-        moved = steps.offset_by_motion(self.particles, imu, dt, prev, be, increment)               # 5
-        start = self.lidar_only and len(self.poses) == 1  # no motion estimate yet: search widely
-        sigma = cfg.motion.sigma(increment[1], dt, self.lidar_only, start)  # = steps.motion_noise_sigma(...)
-        moved = steps.perturb_with_noise(moved, sigma, self.rng, backend=be)                       # 6
-        if len(points) < MIN_SCAN_POINTS or len(self.map) == 0:  # degenerate frame: no scoring, no merge
+        increment = steps.motion_increment(
+            imu, dt, prev
+        )  # once: steps 5 and 6 and the dead-reckoning twin
+        self.up = self._gravity_up(
+            imu, force, dt, increment
+        )  # step 8's tilt prior (None when off)
+        moved = steps.offset_by_motion(self.particles, imu, dt, prev, be, increment)  # 5
+        start = (
+            self.lidar_only and len(self.poses) == 1
+        )  # no motion estimate yet: search widely
+        sigma = cfg.motion.sigma(
+            increment[1], dt, self.lidar_only, start
+        )  # = steps.motion_noise_sigma(...)
+        moved = steps.perturb_with_noise(moved, sigma, self.rng, backend=be)  # 6
+        if (
+            len(points) < MIN_SCAN_POINTS or len(self.map) == 0
+        ):  # degenerate frame: no scoring, no merge
             return self._skip(moved, imu, increment, points, dt, sigma)
-        pool = thin_ground(points, cfg.filter.lidar_only_ground_share, self.rng) if self.lidar_only else points
+        pool = (
+            thin_ground(points, cfg.filter.lidar_only_ground_share, self.rng)
+            if self.lidar_only
+            else points
+        )
         sample = sample_points(pool, cfg.filter.scored_points, self.rng)
-        log_w = self._weigh(moved, self.log_weights, sample)                                       # 7 + 8
-        moved, log_w = self._anneal(moved, log_w, sample, sigma, start)  # cfg.filter.refine rounds (none by default)
-        pose, best = steps.pick_best_particle(moved, log_w, cfg.filter.estimate)                   # 9
-        if self._matching():  # 9, sharpened: the pose scan-matched to the map, the particles moved with it
+        log_w = self._weigh(moved, self.log_weights, sample)  # 7 + 8
+        moved, log_w = self._anneal(
+            moved, log_w, sample, sigma, start
+        )  # cfg.filter.refine rounds (none by default)
+        pose, best = steps.pick_best_particle(moved, log_w, cfg.filter.estimate)  # 9
+        if (
+            self._matching()
+        ):  # 9, sharpened: the pose scan-matched to the map, the particles moved with it
             pose, moved = self._match(pose, points, moved)
-        self._calibrate_tilt(pose, dt)  # the world's up and the accelerometer's bias, for the next frames
-        steps.merge_scan(self.map, pose, points, be)                                               # 10
-        self._record(pose, imu, increment, points, dt, sample=sample, sigma=sigma, best=best)
-        self.particles, self.log_weights, resampled = steps.resample_particles(                    # 11
-            moved, log_w, self.rng, cfg.filter.ess_fraction, be)
+        self._calibrate_tilt(
+            pose, dt
+        )  # the world's up and the accelerometer's bias, for the next frames
+        steps.merge_scan(self.map, pose, points, be)  # 10
+        self._record(
+            pose, imu, increment, points, dt, sample=sample, sigma=sigma, best=best
+        )
+        self.particles, self.log_weights, resampled = steps.resample_particles(  # 11
+            moved, log_w, self.rng, cfg.filter.ess_fraction, be
+        )
         self.n_resampled += int(resampled)
         return pose
 
@@ -219,8 +279,12 @@ class ParticleSLAM3D:
         self.last["scores"] = scores
         log_w = log_w + scores / (len(sample) * self.config.filter.temperature)
         if self.up is not None:
-            log_w = log_w + steps.tilt_log_prior(particles, self.up - self.up_bias, self.config.filter.tilt_sigma,
-                                                 self.world_up)
+            log_w = log_w + steps.tilt_log_prior(
+                particles,
+                self.up - self.up_bias,
+                self.config.filter.tilt_sigma,
+                self.world_up,
+            )
         return normalise_log_weights(log_w)
 
     def _calibrate_tilt(self, pose, dt) -> None:
@@ -231,8 +295,12 @@ class ParticleSLAM3D:
         f = self.config.filter
         if self.up is None or self.up_span < f.tilt_window:
             return  # a shorter window (the drive's first seconds) measures up with errors ~ 1 / its span
-        tilt_calibration_add(self.tilt_bins, pose[:3, :3], self.up, dt / f.tilt_window / f.tilt_sigma**2)
-        self.world_up, self.up_bias = tilt_calibration_estimate(self.tilt_prior, self.tilt_bins)
+        tilt_calibration_add(
+            self.tilt_bins, pose[:3, :3], self.up, dt / f.tilt_window / f.tilt_sigma**2
+        )
+        self.world_up, self.up_bias = tilt_calibration_estimate(
+            self.tilt_prior, self.tilt_bins
+        )
 
     def _gravity_up(self, imu, force, dt, increment):
         """The up direction in this frame's body, from the accelerometer over the last ``tilt_window`` seconds
@@ -240,14 +308,21 @@ class ParticleSLAM3D:
         turned by the filter's own estimated rotations and this frame's predicted one (the IMU increment on the
         last estimate). None when the prior is off, LIDAR-only, or the frame has no accelerometer."""
         samples = self.tilt_samples  # (force, velocity, dt) per frame, oldest first
-        if force is None:  # register_frame reads no accelerometer when the prior is off or LIDAR-only
+        if (
+            force is None
+        ):  # register_frame reads no accelerometer when the prior is off or LIDAR-only
             samples.clear()
             return None
         samples.append((force, imu[0], dt))
-        while len(samples) > 2 and sum(s[2] for s in list(samples)[2:]) >= self.config.filter.tilt_window:
+        while (
+            len(samples) > 2
+            and sum(s[2] for s in list(samples)[2:]) >= self.config.filter.tilt_window
+        ):
             samples.popleft()  # the rest still spans the window
-        past = [T[:3, :3] for T in self.poses[len(self.poses) - len(samples) + 1:]]
-        R = np.array(past + [self.poses[-1][:3, :3] @ increment_matrix(*increment)[:3, :3]])
+        past = [T[:3, :3] for T in self.poses[len(self.poses) - len(samples) + 1 :]]
+        R = np.array(
+            past + [self.poses[-1][:3, :3] @ increment_matrix(*increment)[:3, :3]]
+        )
         force, velocity, dts = (np.array(x) for x in zip(*samples))
         self.up_span = float(dts[1:].sum())
         return gravity_up(R, force, velocity, dts)
@@ -259,11 +334,17 @@ class ParticleSLAM3D:
         f = self.config.filter
         shrinks = [f.refine_shrink] * f.refine
         if start:
-            shrinks = [0.5**k for k in range(1, self.config.motion.cv_start_rounds + 1)] + shrinks
+            shrinks = [
+                0.5**k for k in range(1, self.config.motion.cv_start_rounds + 1)
+            ] + shrinks
         for shrink in shrinks:
-            particles, log_w, resampled = steps.resample_particles(particles, log_w, self.rng, 1.0, self.backend)
+            particles, log_w, resampled = steps.resample_particles(
+                particles, log_w, self.rng, 1.0, self.backend
+            )
             self.n_resampled += int(resampled)
-            particles = steps.perturb_with_noise(particles, sigma * shrink, self.rng, backend=self.backend)
+            particles = steps.perturb_with_noise(
+                particles, sigma * shrink, self.rng, backend=self.backend
+            )
             log_w = self._weigh(particles, log_w, sample)
         return particles, log_w
 
@@ -276,12 +357,18 @@ class ParticleSLAM3D:
         """The pose moved to the map score's nearest peak for the whole scan (:func:`slamlib.slam3d.match.match_scan`),
         and every particle by the same correction ``C = T_matched T^-1`` (applied in the world frame), so that step
         11 resamples around the matched pose: the improved proposal (module docstring, "Scan matching")."""
-        road = road_mask(points) if self.lidar_only else None  # LIDAR-only: the road holds height and tilt only
-        matched = match_scan(pose, points, self.map, self.config.filter.scan_match_iterations, road)
+        road = (
+            road_mask(points) if self.lidar_only else None
+        )  # LIDAR-only: the road holds height and tilt only
+        matched = match_scan(
+            pose, points, self.map, self.config.filter.scan_match_iterations, road
+        )
         C = matched @ np.linalg.inv(pose)
         self.n_matched += 1
-        moved = steps.Particles3D(np.einsum("ij,pjk->pik", C[:3, :3], particles.R),
-                                  particles.t @ C[:3, :3].T + C[:3, 3])
+        moved = steps.Particles3D(
+            np.einsum("ij,pjk->pik", C[:3, :3], particles.R),
+            particles.t @ C[:3, :3].T + C[:3, 3],
+        )
         return matched, moved
 
     def own_motion(self) -> tuple[np.ndarray, np.ndarray]:
@@ -311,11 +398,15 @@ class ParticleSLAM3D:
         With enough points but no map yet (the earlier frames were degenerate) the scan starts the map there."""
         self.particles = moved
         pose = self.poses[-1] @ increment_matrix(*increment)
-        if len(points) >= MIN_SCAN_POINTS:  # the map is empty: start it, like the first frame
+        if (
+            len(points) >= MIN_SCAN_POINTS
+        ):  # the map is empty: start it, like the first frame
             steps.merge_scan(self.map, pose, points, self.backend)
         else:
             self.n_skipped_frames += 1
-        self._record(pose, imu, increment, points, dt, sample=points[:0], sigma=sigma, best=None)
+        self._record(
+            pose, imu, increment, points, dt, sample=points[:0], sigma=sigma, best=None
+        )
         return pose
 
     def _record(self, pose, imu, increment, points, dt, **last) -> None:
@@ -324,14 +415,20 @@ class ParticleSLAM3D:
         self.poses.append(np.asarray(pose, dtype=np.float64))
         self.dts.append(float(dt))
         if not self.lidar_only:
-            T_dr = self.T0 if increment is None else self.dr_poses[-1] @ increment_matrix(*increment)
+            T_dr = (
+                self.T0
+                if increment is None
+                else self.dr_poses[-1] @ increment_matrix(*increment)
+            )
             self.dr_poses.append(np.asarray(T_dr, dtype=np.float64))
         self.imu_prev = imu
         self.last.update(points=points, **last)
         every, span = self.config.map.prune_every, self.config.map.transient_span
         if every and len(self.poses) % every == 0:
             self._prune(self.poses[-1][:3, 3])
-        if span and len(self.poses) % span == 0:  # the movers' trails (MapConfig.transient_span)
+        if (
+            span and len(self.poses) % span == 0
+        ):  # the movers' trails (MapConfig.transient_span)
             self.map.evict_transients(span)
 
     def _prune(self, center) -> None:
@@ -339,14 +436,20 @@ class ParticleSLAM3D:
         r = self.config.map.prune_radius
         if self.config.map.keep_pruned:
             pts = self.map.points()
-            far = np.sum((pts.astype(np.float64) - center) ** 2, axis=1) > r**2  # the maps' own eviction rule
+            far = (
+                np.sum((pts.astype(np.float64) - center) ** 2, axis=1) > r**2
+            )  # the maps' own eviction rule
             if far.any():
                 self.archive.append(pts[far])
         self.map.prune(center, r)
 
     def map_points(self) -> np.ndarray:
         """All map points (M, 3) float32, world frame: the live map's plus the pruned ones kept in ``archive``."""
-        return np.concatenate(self.archive + [self.map.points()]) if self.archive else self.map.points()
+        return (
+            np.concatenate(self.archive + [self.map.points()])
+            if self.archive
+            else self.map.points()
+        )
 
     # ----------------------------------------------------------------------------------------- results
     @property

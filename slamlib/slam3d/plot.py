@@ -10,17 +10,28 @@ import numpy as np
 
 from slamlib.plotstyle import BOOK_DPI, MAX_FIGURE_WIDTH_IN
 
-__all__ = ["plot_trajectories", "plot_map_topdown", "animate_map_building", "plot_error_over_distance",
-           "plot_maps_side_by_side", "show_map_render", "draw_snapshot"]
+__all__ = [
+    "plot_trajectories",
+    "plot_map_topdown",
+    "animate_map_building",
+    "plot_error_over_distance",
+    "plot_maps_side_by_side",
+    "show_map_render",
+    "draw_snapshot",
+]
 
 
 def _subsample(points: np.ndarray, max_points: int, seed: int = 0) -> np.ndarray:
     if len(points) <= max_points:
         return points
-    return points[np.random.default_rng(seed).choice(len(points), max_points, replace=False)]
+    return points[
+        np.random.default_rng(seed).choice(len(points), max_points, replace=False)
+    ]
 
 
-def plot_trajectories(poses, dead_reckoning=None, ground_truth=None, map_points=None, ax=None, title=None):
+def plot_trajectories(
+    poses, dead_reckoning=None, ground_truth=None, map_points=None, ax=None, title=None
+):
     """Top-down (x, y) plot of the SLAM trajectory, dead reckoning and ground truth, over a faint map.
 
     Parameters
@@ -37,13 +48,34 @@ def plot_trajectories(poses, dead_reckoning=None, ground_truth=None, map_points=
     if map_points is not None and len(map_points):
         m = _subsample(np.asarray(map_points), 60_000)
         ax.scatter(m[:, 0], m[:, 1], s=0.2, c="0.8", lw=0, rasterized=True)
-        ax.plot([], [], "o", color="0.8", ms=4, label="map")  # legend proxy (the dots are tiny)
+        ax.plot(
+            [], [], "o", color="0.8", ms=4, label="map"
+        )  # legend proxy (the dots are tiny)
     if ground_truth is not None:
-        ax.plot(ground_truth[:, 0, 3], ground_truth[:, 1, 3], "k-", lw=2.0, label="ground truth")
+        ax.plot(
+            ground_truth[:, 0, 3],
+            ground_truth[:, 1, 3],
+            "k-",
+            lw=2.0,
+            label="ground truth",
+        )
     if dead_reckoning is not None:
-        ax.plot(dead_reckoning[:, 0, 3], dead_reckoning[:, 1, 3], "-", color="tab:red", lw=1.3,
-                label="dead reckoning (IMU only)")
-    ax.plot(poses[:, 0, 3], poses[:, 1, 3], "-", color="tab:blue", lw=1.3, label="particle SLAM")
+        ax.plot(
+            dead_reckoning[:, 0, 3],
+            dead_reckoning[:, 1, 3],
+            "-",
+            color="tab:red",
+            lw=1.3,
+            label="dead reckoning (IMU only)",
+        )
+    ax.plot(
+        poses[:, 0, 3],
+        poses[:, 1, 3],
+        "-",
+        color="tab:blue",
+        lw=1.3,
+        label="particle SLAM",
+    )
     ax.plot(poses[0, 0, 3], poses[0, 1, 3], "go", ms=6, label="start")
     ax.set_aspect("equal", adjustable="datalim")
     ax.set_xlabel("x (m, world = first IMU pose)")
@@ -53,7 +85,9 @@ def plot_trajectories(poses, dead_reckoning=None, ground_truth=None, map_points=
     return fig
 
 
-def plot_map_topdown(map_points, poses=None, ax=None, max_points: int = 200_000, title=None, zlim=None):
+def plot_map_topdown(
+    map_points, poses=None, ax=None, max_points: int = 200_000, title=None, zlim=None
+):
     """Top-down view of the map coloured by height ``z`` (m), with the trajectory on top.
 
     ``zlim`` (lo, hi) clips the colour scale (default: 2nd and 98th percentiles of z).
@@ -65,10 +99,23 @@ def plot_map_topdown(map_points, poses=None, ax=None, max_points: int = 200_000,
     else:
         fig = ax.figure
     m = _subsample(np.asarray(map_points), max_points)
-    lo, hi = zlim if zlim is not None else (np.percentile(m[:, 2], [2, 98]) if len(m) else (0.0, 1.0))
+    lo, hi = (
+        zlim
+        if zlim is not None
+        else (np.percentile(m[:, 2], [2, 98]) if len(m) else (0.0, 1.0))
+    )
     order = np.argsort(m[:, 2])  # high points drawn last (walls, trees over the ground)
-    sc = ax.scatter(m[order, 0], m[order, 1], c=m[order, 2], s=0.3, lw=0, cmap="viridis", vmin=lo, vmax=hi,
-                    rasterized=True)
+    sc = ax.scatter(
+        m[order, 0],
+        m[order, 1],
+        c=m[order, 2],
+        s=0.3,
+        lw=0,
+        cmap="viridis",
+        vmin=lo,
+        vmax=hi,
+        rasterized=True,
+    )
     fig.colorbar(sc, ax=ax, label="height z (m)", shrink=0.8)
     if poses is not None:
         ax.plot(poses[:, 0, 3], poses[:, 1, 3], "r-", lw=1.2, label="SLAM trajectory")
@@ -76,11 +123,15 @@ def plot_map_topdown(map_points, poses=None, ax=None, max_points: int = 200_000,
     ax.set_aspect("equal", adjustable="datalim")
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
-    ax.set_title(title or f"Map, top-down, coloured by height ({len(map_points):,} elements)")
+    ax.set_title(
+        title or f"Map, top-down, coloured by height ({len(map_points):,} elements)"
+    )
     return fig
 
 
-def draw_snapshot(snapshots, j, poses, ground_truth, scatter, line, gt_line, max_points: int) -> int:
+def draw_snapshot(
+    snapshots, j, poses, ground_truth, scatter, line, gt_line, max_points: int
+) -> int:
     """Point the artists at snapshot ``j`` ``(position k, map points, pose)``: the map so far (``scatter``, at most
     ``max_points`` points, coloured by height), the SLAM trajectory (``line``) and the ground truth (``gt_line``)
     up to ``k``. Shared by :func:`animate_map_building` and :mod:`slamlib.slam3d.video`; returns ``k``."""
@@ -94,8 +145,15 @@ def draw_snapshot(snapshots, j, poses, ground_truth, scatter, line, gt_line, max
     return k
 
 
-def animate_map_building(snapshots, poses, ground_truth=None, max_points: int = 15_000, interval: int = 200,
-                         figsize=(6, 5), dpi: int = BOOK_DPI):
+def animate_map_building(
+    snapshots,
+    poses,
+    ground_truth=None,
+    max_points: int = 15_000,
+    interval: int = 200,
+    figsize=(6, 5),
+    dpi: int = BOOK_DPI,
+):
     """``FuncAnimation`` of the map growing: one frame per snapshot ``(position k, map points, pose)``.
 
     Each frame shows the map so far (top-down, coloured by height, at most ``max_points`` points), the SLAM
@@ -120,16 +178,22 @@ def animate_map_building(snapshots, poses, ground_truth=None, max_points: int = 
     ax.legend(loc="upper left", fontsize=10)
 
     def update(j):
-        k = draw_snapshot(snapshots, j, poses, ground_truth, sc, line, gt_line, max_points)
+        k = draw_snapshot(
+            snapshots, j, poses, ground_truth, sc, line, gt_line, max_points
+        )
         ax.set_title(f"map after frame {k}: {len(snapshots[j][1]):,} elements")
         return sc, line, gt_line
 
-    anim = FuncAnimation(fig, update, frames=len(snapshots), interval=interval, blit=False)
+    anim = FuncAnimation(
+        fig, update, frames=len(snapshots), interval=interval, blit=False
+    )
     plt.close(fig)
     return anim
 
 
-def plot_error_over_distance(poses, dead_reckoning=None, ground_truth=None, ax=None, log: bool = True, title=None):
+def plot_error_over_distance(
+    poses, dead_reckoning=None, ground_truth=None, ax=None, log: bool = True, title=None
+):
     """Position error |p_est - p_gt| (m) of SLAM (and dead reckoning) against the distance travelled along the
     ground truth (m, :func:`slamlib.metrics.trajectory_distances`)."""
     import matplotlib.pyplot as plt
@@ -144,10 +208,18 @@ def plot_error_over_distance(poses, dead_reckoning=None, ground_truth=None, ax=N
         fig = ax.figure
     dist = trajectory_distances(ground_truth)
     if dead_reckoning is not None:
-        ax.plot(dist, np.linalg.norm(dead_reckoning[:, :3, 3] - ground_truth[:, :3, 3], axis=1), color="tab:red",
-                label="dead reckoning (IMU only)")
-    ax.plot(dist, np.linalg.norm(poses[:, :3, 3] - ground_truth[:, :3, 3], axis=1), color="tab:blue",
-            label="particle SLAM")
+        ax.plot(
+            dist,
+            np.linalg.norm(dead_reckoning[:, :3, 3] - ground_truth[:, :3, 3], axis=1),
+            color="tab:red",
+            label="dead reckoning (IMU only)",
+        )
+    ax.plot(
+        dist,
+        np.linalg.norm(poses[:, :3, 3] - ground_truth[:, :3, 3], axis=1),
+        color="tab:blue",
+        label="particle SLAM",
+    )
     if log:
         ax.set_yscale("log")
     ax.set_xlabel("distance travelled (m)")
@@ -158,8 +230,14 @@ def plot_error_over_distance(poses, dead_reckoning=None, ground_truth=None, ax=N
     return fig
 
 
-def plot_maps_side_by_side(maps: dict, ground_truth=None, figsize=(MAX_FIGURE_WIDTH_IN, 3.3), max_points: int = 80_000,
-                           zlim=None, window=None):
+def plot_maps_side_by_side(
+    maps: dict,
+    ground_truth=None,
+    figsize=(MAX_FIGURE_WIDTH_IN, 3.3),
+    max_points: int = 80_000,
+    zlim=None,
+    window=None,
+):
     """Top-down maps of several runs on the same frames, one panel each, one shared height colour scale.
 
     ``maps``: ``{title: (map points (M, 3), SLAM poses (F, 4, 4))}``; ``ground_truth`` (F, 4, 4) is drawn in
@@ -167,8 +245,15 @@ def plot_maps_side_by_side(maps: dict, ground_truth=None, figsize=(MAX_FIGURE_WI
     """
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, len(maps), figsize=figsize, sharex=True, sharey=True, squeeze=False,
-                             layout="constrained")
+    fig, axes = plt.subplots(
+        1,
+        len(maps),
+        figsize=figsize,
+        sharex=True,
+        sharey=True,
+        squeeze=False,
+        layout="constrained",
+    )
     axes = axes[0]
     allz = np.concatenate([np.asarray(p)[:, 2] for p, _ in maps.values()])
     lo, hi = zlim if zlim is not None else np.percentile(allz, [2, 98])
@@ -176,17 +261,39 @@ def plot_maps_side_by_side(maps: dict, ground_truth=None, figsize=(MAX_FIGURE_WI
     for ax, (name, (pts, poses)) in zip(axes, maps.items()):
         m = _subsample(np.asarray(pts), max_points)
         order = np.argsort(m[:, 2])
-        sc = ax.scatter(m[order, 0], m[order, 1], c=m[order, 2], s=0.3, lw=0, cmap="viridis", vmin=lo, vmax=hi,
-                        rasterized=True)
+        sc = ax.scatter(
+            m[order, 0],
+            m[order, 1],
+            c=m[order, 2],
+            s=0.3,
+            lw=0,
+            cmap="viridis",
+            vmin=lo,
+            vmax=hi,
+            rasterized=True,
+        )
         if ground_truth is not None:
-            ax.plot(ground_truth[:, 0, 3], ground_truth[:, 1, 3], "k-", lw=1.5, label="ground truth")
-        ax.plot(poses[:, 0, 3], poses[:, 1, 3], "-", color="tab:red", lw=1.2, label="SLAM")
+            ax.plot(
+                ground_truth[:, 0, 3],
+                ground_truth[:, 1, 3],
+                "k-",
+                lw=1.5,
+                label="ground truth",
+            )
+        ax.plot(
+            poses[:, 0, 3], poses[:, 1, 3], "-", color="tab:red", lw=1.2, label="SLAM"
+        )
         ax.set_title(name, fontsize=10)
         ax.set_xlabel("x (m)")
         ax.set_aspect("equal", adjustable="box")
     xy = np.vstack([p[:, :2, 3] for _, p in maps.values()])
     if window is None:
-        window = (xy[:, 0].min() - 40, xy[:, 0].max() + 40, xy[:, 1].min() - 40, xy[:, 1].max() + 40)
+        window = (
+            xy[:, 0].min() - 40,
+            xy[:, 0].max() + 40,
+            xy[:, 1].min() - 40,
+            xy[:, 1].max() + 40,
+        )
     axes[0].set_xlim(window[0], window[1])
     axes[0].set_ylim(window[2], window[3])
     axes[0].set_ylabel("y (m)")
@@ -195,7 +302,9 @@ def plot_maps_side_by_side(maps: dict, ground_truth=None, figsize=(MAX_FIGURE_WI
     return fig
 
 
-def show_map_render(image, zlim, title=None, figsize=(MAX_FIGURE_WIDTH_IN, 4.4), cmap: str = "viridis"):
+def show_map_render(
+    image, zlim, title=None, figsize=(MAX_FIGURE_WIDTH_IN, 4.4), cmap: str = "viridis"
+):
     """Show a rendered map image (:func:`slamlib.slam3d.render.render_map_3d`) with its height colour bar (m)."""
     import matplotlib.pyplot as plt
     from matplotlib.cm import ScalarMappable
@@ -204,7 +313,9 @@ def show_map_render(image, zlim, title=None, figsize=(MAX_FIGURE_WIDTH_IN, 4.4),
     fig, ax = plt.subplots(figsize=figsize, layout="constrained")
     ax.imshow(image)
     ax.set_axis_off()
-    fig.colorbar(ScalarMappable(Normalize(*zlim), cmap), ax=ax, label="height z (m)", shrink=0.7)
+    fig.colorbar(
+        ScalarMappable(Normalize(*zlim), cmap), ax=ax, label="height z (m)", shrink=0.7
+    )
     if title:
         ax.set_title(title, fontsize=11)
     return fig

@@ -23,8 +23,18 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["crop_range", "voxel_downsample", "crop_and_downsample", "sample_points", "road_mask", "thin_ground",
-           "GROUND_BAND_M", "GROUND_PERCENTILE", "sweep_times", "deskew"]
+__all__ = [
+    "crop_range",
+    "voxel_downsample",
+    "crop_and_downsample",
+    "sample_points",
+    "road_mask",
+    "thin_ground",
+    "GROUND_BAND_M",
+    "GROUND_PERCENTILE",
+    "sweep_times",
+    "deskew",
+]
 
 #: Height above the scan's road surface (its :data:`GROUND_PERCENTILE` of z, body frame) below which a point counts
 #: as road for :func:`thin_ground`: 0.8 m also takes the curbs, the road's slope within the crop, and the lower
@@ -89,8 +99,9 @@ def voxel_downsample(points, voxel_size: float) -> np.ndarray:
     return pts[np.sort(first)]
 
 
-def crop_and_downsample(points, min_range: float = 0.0, max_range: float = np.inf,
-                        voxel_size: float = 0.0) -> np.ndarray:
+def crop_and_downsample(
+    points, min_range: float = 0.0, max_range: float = np.inf, voxel_size: float = 0.0
+) -> np.ndarray:
     """:func:`crop_range` then :func:`voxel_downsample`, in one pass: the same points in the same order.
 
     One Numba loop over the points (:func:`_crop_downsample_nb`): a point outside ``[min_range, max_range]`` is
@@ -108,7 +119,9 @@ def crop_and_downsample(points, min_range: float = 0.0, max_range: float = np.in
     h = float(voxel_size) if voxel_size > 0 else 0.0
     log2_capacity = max(4, int(np.ceil(np.log2(2 * len(pts)))))
     # the x, y, z columns as a strided view: Numba reads the scan in place (a contiguous copy cost a third more)
-    keep = _crop_downsample_nb(pts[:, :3], float(min_range) ** 2, float(max_range) ** 2, h, log2_capacity)
+    keep = _crop_downsample_nb(
+        pts[:, :3], float(min_range) ** 2, float(max_range) ** 2, h, log2_capacity
+    )
     if len(keep) == 1 and keep[0] == _OUT_OF_RANGE:
         return voxel_downsample(crop_range(pts, min_range, max_range), voxel_size)
     return pts[keep]
@@ -146,7 +159,14 @@ def _build_crop_downsample():
                 ux = np.int64(math.floor(x / h)) + offset
                 uy = np.int64(math.floor(y / h)) + offset
                 uz = np.int64(math.floor(z / h)) + offset
-                if ux < 0 or ux > AXIS_MASK or uy < 0 or uy > AXIS_MASK or uz < 0 or uz > AXIS_MASK:
+                if (
+                    ux < 0
+                    or ux > AXIS_MASK
+                    or uy < 0
+                    or uy > AXIS_MASK
+                    or uz < 0
+                    or uz > AXIS_MASK
+                ):
                     out = np.empty(1, np.int64)
                     out[0] = _OUT_OF_RANGE
                     return out
@@ -212,7 +232,11 @@ def thin_ground(points, share: float, rng: np.random.Generator) -> np.ndarray:
     if len(above) < 10:
         return pts
     k = min(len(road), int(share / (1.0 - share) * len(above)))
-    return np.concatenate([above, road[rng.choice(len(road), k, replace=False)]]) if k else above
+    return (
+        np.concatenate([above, road[rng.choice(len(road), k, replace=False)]])
+        if k
+        else above
+    )
 
 
 def sweep_times(points_velo, period: float) -> np.ndarray:
@@ -248,8 +272,11 @@ def deskew(points, velocity, angular_rate, times) -> np.ndarray:
     if rate > 0:
         k = (w / rate).reshape(1, 3)
         theta = rate * t
-        out = (p * np.cos(theta) + np.cross(k, p) * np.sin(theta)
-               + k * (p @ k.T) * (1.0 - np.cos(theta)))
+        out = (
+            p * np.cos(theta)
+            + np.cross(k, p) * np.sin(theta)
+            + k * (p @ k.T) * (1.0 - np.cos(theta))
+        )
     vt = v * t
     out += vt + 0.5 * np.cross(w.reshape(1, 3) * t, vt)
     return out.astype(np.float32)

@@ -21,7 +21,15 @@ from slamlib.geometry import invert_pose
 from slamlib.slam3d.config import SLAM3DConfig
 from slamlib.slam3d.pipeline import ParticleSLAM3D
 
-__all__ = ["SLAMRun", "run_drive", "evaluate", "parse_frames", "save_run", "check_output_dir", "RUN_FILES"]
+__all__ = [
+    "SLAMRun",
+    "run_drive",
+    "evaluate",
+    "parse_frames",
+    "save_run",
+    "check_output_dir",
+    "RUN_FILES",
+]
 
 
 @dataclass
@@ -73,7 +81,9 @@ def parse_frames(text: str | None, n: int | None = None) -> slice | None:
         else:
             sl = slice(0, int(s))
     except ValueError:
-        raise ValueError(f"--frames must look like A:B, A:, :B or B (integers), got {text!r}") from None
+        raise ValueError(
+            f"--frames must look like A:B, A:, :B or B (integers), got {text!r}"
+        ) from None
     if sl.start < 0 or (sl.stop is not None and sl.stop <= sl.start):
         raise ValueError(f"--frames {text!r} selects no frames")
     if n is not None and sl.start >= n:
@@ -81,8 +91,14 @@ def parse_frames(text: str | None, n: int | None = None) -> slice | None:
     return sl
 
 
-def run_drive(frames, config: SLAM3DConfig | None = None, T_velo_imu=None, progress: bool = True,
-              snapshot_every: int = 0, desc: str = "slam3d") -> SLAMRun:
+def run_drive(
+    frames,
+    config: SLAM3DConfig | None = None,
+    T_velo_imu=None,
+    progress: bool = True,
+    snapshot_every: int = 0,
+    desc: str = "slam3d",
+) -> SLAMRun:
     """Register every frame of ``frames`` with a fresh :class:`ParticleSLAM3D`.
 
     Parameters
@@ -103,13 +119,17 @@ def run_drive(frames, config: SLAM3DConfig | None = None, T_velo_imu=None, progr
     slam = ParticleSLAM3D(config, T_velo_imu=T_velo_imu)
     gt, times, idx, snaps, frame_seconds = [], [], [], [], []
     total = len(frames) if hasattr(frames, "__len__") else None
-    bar = tqdm(frames, total=total, desc=desc, unit="frame", disable=not progress, smoothing=0.1)
+    bar = tqdm(
+        frames, total=total, desc=desc, unit="frame", disable=not progress, smoothing=0.1
+    )
     t0 = time.perf_counter()
     for k, frame in enumerate(bar):
         tf = time.perf_counter()
         pose = slam.register_frame(frame)
         frame_seconds.append(time.perf_counter() - tf)
-        gt.append(getattr(frame, "T_w_body", getattr(frame, "T_w_imu", None)))  # odometry layout: T_w_body
+        gt.append(
+            getattr(frame, "T_w_body", getattr(frame, "T_w_imu", None))
+        )  # odometry layout: T_w_body
         times.append(float(getattr(frame, "time_s", k * 0.1)))
         idx.append(int(getattr(frame, "index", k)))
         if snapshot_every and k % snapshot_every == 0:
@@ -121,8 +141,17 @@ def run_drive(frames, config: SLAM3DConfig | None = None, T_velo_imu=None, progr
         G = np.asarray(gt, dtype=np.float64)
         ground_truth = invert_pose(G[0])[None] @ G
     times = np.asarray(times)
-    return SLAMRun(slam.trajectory, slam.dead_reckoning, ground_truth, times - (times[0] if len(times) else 0.0),
-                   np.asarray(idx, dtype=np.int64), seconds, slam, snaps, np.asarray(frame_seconds))
+    return SLAMRun(
+        slam.trajectory,
+        slam.dead_reckoning,
+        ground_truth,
+        times - (times[0] if len(times) else 0.0),
+        np.asarray(idx, dtype=np.int64),
+        seconds,
+        slam,
+        snaps,
+        np.asarray(frame_seconds),
+    )
 
 
 def evaluate(run: SLAMRun) -> dict:
@@ -151,13 +180,24 @@ def evaluate(run: SLAMRun) -> dict:
 #: The files :func:`save_run` may write into its folder (the ones :func:`check_output_dir` will not let it overwrite
 #: unless they come from an earlier run).
 #: A map file of no points (PLY and PCD headers), written when the map is empty.
-_EMPTY_MAP = {"ply": "ply\nformat ascii 1.0\nelement vertex 0\nproperty double x\nproperty double y\n"
-                     "property double z\nend_header\n",
-              "pcd": "# .PCD v0.7 - Point Cloud Data file format\nVERSION 0.7\nFIELDS x y z\nSIZE 8 8 8\nTYPE F F F\n"
-                     "COUNT 1 1 1\nWIDTH 0\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS 0\nDATA ascii\n"}
-RUN_FILES = tuple(f"{name}_{kind}.txt" for name in ("slam", "dead_reckoning", "ground_truth")
-                  for kind in ("poses", "tum")) + ("times.txt", "map.ply", "map.pcd", "metrics.json",
-                                                   "trajectory.png", "map_topdown.png")
+_EMPTY_MAP = {
+    "ply": "ply\nformat ascii 1.0\nelement vertex 0\nproperty double x\nproperty double y\n"
+    "property double z\nend_header\n",
+    "pcd": "# .PCD v0.7 - Point Cloud Data file format\nVERSION 0.7\nFIELDS x y z\nSIZE 8 8 8\nTYPE F F F\n"
+    "COUNT 1 1 1\nWIDTH 0\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS 0\nDATA ascii\n",
+}
+RUN_FILES = tuple(
+    f"{name}_{kind}.txt"
+    for name in ("slam", "dead_reckoning", "ground_truth")
+    for kind in ("poses", "tum")
+) + (
+    "times.txt",
+    "map.ply",
+    "map.pcd",
+    "metrics.json",
+    "trajectory.png",
+    "map_topdown.png",
+)
 
 
 def _is_earlier_run(out) -> bool:
@@ -193,13 +233,19 @@ def check_output_dir(out_dir, overwrite: bool = False) -> None:
         theirs = sorted(p.name for p in out.iterdir())
         clash = [name for name in RUN_FILES if name in theirs]
         if clash:
-            raise ValueError(f"{out} holds {', '.join(clash)}, not from an earlier slamlib run; they would be "
-                             f"overwritten: choose another folder or pass --overwrite")
+            raise ValueError(
+                f"{out} holds {', '.join(clash)}, not from an earlier slamlib run; they would be "
+                f"overwritten: choose another folder or pass --overwrite"
+            )
         if theirs:
-            shown = ", ".join(theirs[:3]) + (f" and {len(theirs) - 3} more" if len(theirs) > 3 else "")
-            raise ValueError(f"{out} is not empty ({shown}) and is not an earlier slamlib run's folder: choose a new "
-                             f"or empty folder, or pass --overwrite (files named like the results are replaced, "
-                             f"the others kept)")
+            shown = ", ".join(theirs[:3]) + (
+                f" and {len(theirs) - 3} more" if len(theirs) > 3 else ""
+            )
+            raise ValueError(
+                f"{out} is not empty ({shown}) and is not an earlier slamlib run's folder: choose a new "
+                f"or empty folder, or pass --overwrite (files named like the results are replaced, "
+                f"the others kept)"
+            )
         return
     parent = out.parent
     while not parent.exists():
@@ -210,7 +256,13 @@ def check_output_dir(out_dir, overwrite: bool = False) -> None:
         raise ValueError(f"cannot create {out}: {parent} is not writable")
 
 
-def save_run(run: SLAMRun, out_dir, map_format: str = "ply", plots: bool = True, extra: dict | None = None) -> dict:
+def save_run(
+    run: SLAMRun,
+    out_dir,
+    map_format: str = "ply",
+    plots: bool = True,
+    extra: dict | None = None,
+) -> dict:
     """Write a run's results into ``out_dir`` and return ``{name: path}`` of the files written.
 
     * ``slam_poses.txt`` / ``slam_tum.txt``: SLAM trajectory in KITTI (12 numbers per line) and TUM formats;
@@ -238,12 +290,18 @@ def save_run(run: SLAMRun, out_dir, map_format: str = "ply", plots: bool = True,
     from pathlib import Path
 
     final = Path(out_dir)
-    earlier = final.is_dir() and _is_earlier_run(final)  # then its result files not rewritten now are stale: removed
+    earlier = final.is_dir() and _is_earlier_run(
+        final
+    )  # then its result files not rewritten now are stale: removed
     final.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{final.name}.", suffix=".partial", dir=final.parent))
+    tmp = Path(
+        tempfile.mkdtemp(prefix=f".{final.name}.", suffix=".partial", dir=final.parent)
+    )
     umask = os.umask(0)
     os.umask(umask)
-    os.chmod(tmp, 0o777 & ~umask)  # mkdtemp makes it private (0700); the results folder gets the usual mode
+    os.chmod(
+        tmp, 0o777 & ~umask
+    )  # mkdtemp makes it private (0700); the results folder gets the usual mode
     try:
         files = _write_results(run, tmp, map_format, plots, extra)
     except BaseException:
@@ -264,7 +322,9 @@ def save_run(run: SLAMRun, out_dir, map_format: str = "ply", plots: bool = True,
     return files
 
 
-def _write_results(run: SLAMRun, out, map_format: str, plots: bool, extra: dict | None) -> dict:
+def _write_results(
+    run: SLAMRun, out, map_format: str, plots: bool, extra: dict | None
+) -> dict:
     """Every result file of :func:`save_run` written into the existing folder ``out``; returns ``{name: path}``."""
     import json
     from pathlib import Path
@@ -293,31 +353,51 @@ def _write_results(run: SLAMRun, out, map_format: str, plots: bool, extra: dict 
 
     pts = run.slam.map_points()
     files["map"] = out / f"map.{map_format}"
-    if len(pts) == 0:  # every scan degenerate: open3d writes no empty cloud, so an empty file in the same format
+    if (
+        len(pts) == 0
+    ):  # every scan degenerate: open3d writes no empty cloud, so an empty file in the same format
         files["map"].write_text(_EMPTY_MAP[map_format], encoding="ascii")
     else:
-        pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.asarray(pts, dtype=np.float64)))
+        pcd = o3d.geometry.PointCloud(
+            o3d.utility.Vector3dVector(np.asarray(pts, dtype=np.float64))
+        )
         if not o3d.io.write_point_cloud(str(files["map"]), pcd):
             raise OSError(f"open3d could not write {files['map']}")
 
-    info = {"frames": int(len(run.poses)), "seconds": float(run.seconds), "fps": float(run.fps),
-            "frame_indices": [int(run.frame_indices[0]), int(run.frame_indices[-1])] if len(run.poses) else [],
-            "map_elements": int(len(run.slam.map)), "map_points_written": int(len(pts)), "config": run.slam.config.as_dict()}
+    info = {
+        "frames": int(len(run.poses)),
+        "seconds": float(run.seconds),
+        "fps": float(run.fps),
+        "frame_indices": [int(run.frame_indices[0]), int(run.frame_indices[-1])]
+        if len(run.poses)
+        else [],
+        "map_elements": int(len(run.slam.map)),
+        "map_points_written": int(len(pts)),
+        "config": run.slam.config.as_dict(),
+    }
     skipped = int(getattr(run.slam, "n_skipped_frames", 0))
     info["n_skipped_frames"] = skipped
-    info["n_deskewed_frames"] = int(run.slam.n_deskewed)  # ScanConfig.deskew None: the frames whose scans were swept
-    info["n_matched_frames"] = int(run.slam.n_matched)  # FilterConfig.scan_match None: every LIDAR-only frame
+    info["n_deskewed_frames"] = int(
+        run.slam.n_deskewed
+    )  # ScanConfig.deskew None: the frames whose scans were swept
+    info["n_matched_frames"] = int(
+        run.slam.n_matched
+    )  # FilterConfig.scan_match None: every LIDAR-only frame
     if skipped:
         from slamlib.slam3d.pipeline import MIN_SCAN_POINTS
 
-        info["warnings"] = [f"{skipped} of {len(run.poses)} frames had fewer than {MIN_SCAN_POINTS} scan points "
-                            f"after cropping: scoring skipped, the motion prediction stands"]
+        info["warnings"] = [
+            f"{skipped} of {len(run.poses)} frames had fewer than {MIN_SCAN_POINTS} scan points "
+            f"after cropping: scoring skipped, the motion prediction stands"
+        ]
     if extra:
         info.update(extra)
     if run.ground_truth is not None:
         info["metrics"] = evaluate(run)
     files["metrics"] = out / "metrics.json"
-    files["metrics"].write_text(json.dumps(json_safe(info), indent=2, allow_nan=False) + "\n")
+    files["metrics"].write_text(
+        json.dumps(json_safe(info), indent=2, allow_nan=False) + "\n"
+    )
 
     if plots:
         import matplotlib

@@ -52,7 +52,6 @@ mapping with Rao-Blackwellized particle filters", IEEE T-RO 2007; Gothoskar & Ta
 page (the twelve steps, 2017).
 """
 
-
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -61,17 +60,42 @@ import numpy as np
 
 from slamlib.geometry import make_pose, rpy_to_matrix
 from slamlib.kernels import Backend, get_backend
-from slamlib.kitti.oxts import MAX_ACCELERATION_MPS2, MAX_ANGULAR_RATE_RADPS, MAX_SPEED_MPS
+from slamlib.kitti.oxts import (
+    MAX_ACCELERATION_MPS2,
+    MAX_ANGULAR_RATE_RADPS,
+    MAX_SPEED_MPS,
+)
 from slamlib.odometry import imu_increment
-from slamlib.resampling import normalise_log_weights, resample_indexes, uniform_log_weights
+from slamlib.resampling import (
+    normalise_log_weights,
+    resample_indexes,
+    uniform_log_weights,
+)
 from slamlib.slam3d.config import MotionConfig, ScanConfig
 from slamlib.slam3d.preprocess import crop_and_downsample, deskew, sweep_times
 
 __all__ = [
-    "Particles3D", "initialise_particles", "read_scan", "should_deskew", "deskew_scan", "read_imu", "read_timing",
-    "read_scan_time_offset", "read_specific_force", "motion_increment", "tilt_log_prior",
-    "motion_noise_sigma", "offset_by_motion", "perturb_with_noise", "transform_scan", "score_particles",
-    "pick_best_particle", "merge_scan", "resample_particles", "weighted_mean_pose", "project_to_rotation",
+    "Particles3D",
+    "initialise_particles",
+    "read_scan",
+    "should_deskew",
+    "deskew_scan",
+    "read_imu",
+    "read_timing",
+    "read_scan_time_offset",
+    "read_specific_force",
+    "motion_increment",
+    "tilt_log_prior",
+    "motion_noise_sigma",
+    "offset_by_motion",
+    "perturb_with_noise",
+    "transform_scan",
+    "score_particles",
+    "pick_best_particle",
+    "merge_scan",
+    "resample_particles",
+    "weighted_mean_pose",
+    "project_to_rotation",
 ]
 
 #: Default compute backend of the step functions (Numba CPU kernels).
@@ -96,7 +120,7 @@ class Particles3D:
     def __len__(self) -> int:
         return len(self.t)
 
-    def __getitem__(self, idx) -> "Particles3D":
+    def __getitem__(self, idx) -> Particles3D:
         return Particles3D(self.R[idx], self.t[idx])
 
     def poses(self) -> np.ndarray:
@@ -120,7 +144,9 @@ def initialise_particles(n_particles: int, pose0=None) -> tuple[Particles3D, np.
 
 
 # ------------------------------------------------------------------------------------------------ steps 2-4
-def read_scan(frame, scan_config: ScanConfig = ScanConfig(), T_body_velo=None) -> np.ndarray:
+def read_scan(
+    frame, scan_config: ScanConfig = ScanConfig(), T_body_velo=None
+) -> np.ndarray:
     """Step 2: the frame's scan, cropped, down-sampled and moved into the body (IMU) frame.
 
     Parameters
@@ -144,7 +170,9 @@ def read_scan(frame, scan_config: ScanConfig = ScanConfig(), T_body_velo=None) -
     if scan.ndim != 2 or scan.shape[1] not in (3, 4):
         raise ValueError(f"scan must have shape (N, 3) or (N, 4), got {scan.shape}")
     c = scan_config
-    pts = crop_and_downsample(scan[:, :3], c.min_range, c.max_range, c.downsample_voxel)  # one O(N) pass
+    pts = crop_and_downsample(
+        scan[:, :3], c.min_range, c.max_range, c.downsample_voxel
+    )  # one O(N) pass
     pts = np.asarray(pts, dtype=np.float32)
     if T_body_velo is not None:
         T = np.asarray(T_body_velo, dtype=np.float64)
@@ -163,8 +191,13 @@ def should_deskew(frame, scan_config: ScanConfig = ScanConfig()) -> bool:
     return bool(getattr(frame, "swept", False))
 
 
-def deskew_scan(points, imu, scan_config: ScanConfig = ScanConfig(), T_body_velo=None,
-                time_offset: float = 0.0) -> np.ndarray:
+def deskew_scan(
+    points,
+    imu,
+    scan_config: ScanConfig = ScanConfig(),
+    T_body_velo=None,
+    time_offset: float = 0.0,
+) -> np.ndarray:
     """Step 2's motion compensation, once step 3 has the motion: body-frame ``points (N, 3)`` of a scan taken over
     a sweep, each moved to where it was at the frame's pose time for the body twist ``imu = (velocity,
     angular_rate)`` (:func:`slamlib.slam3d.preprocess.deskew`). Each point's firing time comes from its azimuth
@@ -201,16 +234,25 @@ def read_imu(frame, estimate=None) -> tuple[np.ndarray, np.ndarray]:
     if estimate is not None:
         v, w = estimate
         where += " (constant-velocity estimate)"
-    elif getattr(frame, "velocity", None) is None or getattr(frame, "angular_rate", None) is None:
-        raise ValueError(f"frame{where} has no IMU values: LIDAR-only step 3 needs the filter's own motion estimate")
+    elif (
+        getattr(frame, "velocity", None) is None
+        or getattr(frame, "angular_rate", None) is None
+    ):
+        raise ValueError(
+            f"frame{where} has no IMU values: LIDAR-only step 3 needs the filter's own motion estimate"
+        )
     else:
         v, w = frame.velocity, frame.angular_rate
     v = np.asarray(v, dtype=np.float64).reshape(3)
     w = np.asarray(w, dtype=np.float64).reshape(3)
-    for name, x, limit, unit in (("velocity", v, MAX_SPEED_MPS, "m/s"), ("angular_rate", w, MAX_ANGULAR_RATE_RADPS,
-                                                                            "rad/s")):
+    for name, x, limit, unit in (
+        ("velocity", v, MAX_SPEED_MPS, "m/s"),
+        ("angular_rate", w, MAX_ANGULAR_RATE_RADPS, "rad/s"),
+    ):
         if not np.all(np.isfinite(x)) or np.any(np.abs(x) > limit):
-            raise ValueError(f"IMU {name}{where} must be finite and within +-{limit:g} {unit}, got {x.tolist()}")
+            raise ValueError(
+                f"IMU {name}{where} must be finite and within +-{limit:g} {unit}, got {x.tolist()}"
+            )
     return v, w
 
 
@@ -233,8 +275,10 @@ def read_scan_time_offset(frame, scan_config: ScanConfig = ScanConfig()) -> floa
     offset = float(getattr(frame, "scan_time_offset_s", 0.0))
     if not np.isfinite(offset) or abs(offset) > scan_config.sweep_period:
         where = f" (frame {frame.index})" if hasattr(frame, "index") else ""
-        raise ValueError(f"scan time offset{where} must be finite and within one sweep "
-                         f"(+-{scan_config.sweep_period:g} s) of the pose, got {offset}")
+        raise ValueError(
+            f"scan time offset{where} must be finite and within one sweep "
+            f"(+-{scan_config.sweep_period:g} s) of the pose, got {offset}"
+        )
     return offset
 
 
@@ -252,8 +296,10 @@ def read_specific_force(frame) -> np.ndarray | None:
     f = np.asarray(f, dtype=np.float64).reshape(3)
     if not np.all(np.isfinite(f)) or np.any(np.abs(f) > MAX_ACCELERATION_MPS2):
         where = f" (frame {frame.index})" if hasattr(frame, "index") else ""
-        raise ValueError(f"IMU specific_force{where} must be finite and within +-{MAX_ACCELERATION_MPS2:g} m/s^2, "
-                         f"got {f.tolist()}")
+        raise ValueError(
+            f"IMU specific_force{where} must be finite and within +-{MAX_ACCELERATION_MPS2:g} m/s^2, "
+            f"got {f.tolist()}"
+        )
     return f
 
 
@@ -269,11 +315,19 @@ def motion_increment(imu, dt: float, previous_imu=None) -> tuple[np.ndarray, np.
     v, w = imu
     v_prev, w_prev = imu if previous_imu is None else previous_imu
     rpy, trans = imu_increment(v_prev, w_prev, v, w, dt)
-    return np.asarray(rpy, dtype=np.float64).reshape(3), np.asarray(trans, dtype=np.float64).reshape(3)
+    return np.asarray(rpy, dtype=np.float64).reshape(3), np.asarray(
+        trans, dtype=np.float64
+    ).reshape(3)
 
 
-def offset_by_motion(particles: Particles3D, imu, dt: float, previous_imu=None,
-                     backend=DEFAULT_BACKEND, increment=None) -> Particles3D:
+def offset_by_motion(
+    particles: Particles3D,
+    imu,
+    dt: float,
+    previous_imu=None,
+    backend=DEFAULT_BACKEND,
+    increment=None,
+) -> Particles3D:
     """Step 5: move every particle by the body-frame increment: ``R_i <- R_i dR``, ``t_i <- t_i + R_i dp``.
 
     ``(dR, dp)`` from :func:`motion_increment` (``imu``, ``dt``, ``previous_imu``): the SE(3) product
@@ -284,25 +338,44 @@ def offset_by_motion(particles: Particles3D, imu, dt: float, previous_imu=None,
     """
     rpy, dp = motion_increment(imu, dt, previous_imu) if increment is None else increment
     P = len(particles)
-    R, t = _backend(backend).move_particles(particles.R, particles.t, rpy, rpy_to_matrix(rpy).T @ dp,
-                                            np.zeros((P, 6)), np.zeros(6))
+    R, t = _backend(backend).move_particles(
+        particles.R,
+        particles.t,
+        rpy,
+        rpy_to_matrix(rpy).T @ dp,
+        np.zeros((P, 6)),
+        np.zeros(6),
+    )
     return Particles3D(R, t)
 
 
-def motion_noise_sigma(imu, dt: float, previous_imu=None, motion_config: MotionConfig = MotionConfig(),
-                       constant_velocity: bool = False, start: bool = False) -> np.ndarray:
+def motion_noise_sigma(
+    imu,
+    dt: float,
+    previous_imu=None,
+    motion_config: MotionConfig = MotionConfig(),
+    constant_velocity: bool = False,
+    start: bool = False,
+) -> np.ndarray:
     """Standard deviations ``(6,)`` of step 6's noise for this frame: translation x, y, z (m), roll, pitch, yaw (rad).
 
     ``motion_config.sigma(dp, dt, constant_velocity, start)`` (:class:`~slamlib.slam3d.config.MotionConfig`) with
     ``dp`` the translation of :func:`motion_increment`: the spread grows with the distance travelled and with time,
     and LIDAR-only (``constant_velocity``; ``start``: no motion known yet) with what that model cannot know.
     """
-    return motion_config.sigma(motion_increment(imu, dt, previous_imu)[1], dt, constant_velocity, start)
+    return motion_config.sigma(
+        motion_increment(imu, dt, previous_imu)[1], dt, constant_velocity, start
+    )
 
 
 # ------------------------------------------------------------------------------------------------ step 6
-def perturb_with_noise(particles: Particles3D, sigma, rng: np.random.Generator, noise=None,
-                       backend=DEFAULT_BACKEND) -> Particles3D:
+def perturb_with_noise(
+    particles: Particles3D,
+    sigma,
+    rng: np.random.Generator,
+    noise=None,
+    backend=DEFAULT_BACKEND,
+) -> Particles3D:
     """Step 6: ``T_i <- T_i [N_i, sigma[:3] * n_i[:3]]``, ``N_i = rpy_to_matrix(sigma[3:] * n_i[3:])``.
 
     ``n_i ~ N(0, I_6)`` drawn from ``rng`` as a ``(P, 6)`` array (translation x, y, z then roll, pitch, yaw), or
@@ -312,8 +385,14 @@ def perturb_with_noise(particles: Particles3D, sigma, rng: np.random.Generator, 
     P = len(particles)
     if noise is None:
         noise = rng.standard_normal((P, 6))
-    R, t = _backend(backend).move_particles(particles.R, particles.t, np.zeros(3), np.zeros(3), noise,
-                                            np.asarray(sigma, dtype=np.float64))
+    R, t = _backend(backend).move_particles(
+        particles.R,
+        particles.t,
+        np.zeros(3),
+        np.zeros(3),
+        noise,
+        np.asarray(sigma, dtype=np.float64),
+    )
     return Particles3D(R, t)
 
 
@@ -329,14 +408,18 @@ def transform_scan(particles, points, backend=DEFAULT_BACKEND) -> np.ndarray:
     pts = np.ascontiguousarray(points, dtype=np.float32)
     if isinstance(particles, Particles3D):
         out = np.empty((len(particles), len(pts), 3), np.float32)
-        for i, T in enumerate(particles.poses()):  # each particle's scan straight into its slice: no stacking copy
+        for i, T in enumerate(
+            particles.poses()
+        ):  # each particle's scan straight into its slice: no stacking copy
             be.transform_points(T, pts, out=out[i])
         return out
     return be.transform_points(np.asarray(particles, dtype=np.float64), pts)
 
 
 # ------------------------------------------------------------------------------------------------ step 8
-def score_particles(particles: Particles3D, points, world_map, backend=DEFAULT_BACKEND) -> np.ndarray:
+def score_particles(
+    particles: Particles3D, points, world_map, backend=DEFAULT_BACKEND
+) -> np.ndarray:
     """Step 8 (fused with 7): log-likelihood score ``(P,)`` of each particle's pose for the body-frame scan.
 
     ``score_i = sum_j term(R_i p_j + t_i)`` with the map's robust per-point term (truncated NDT Mahalanobis
@@ -344,8 +427,12 @@ def score_particles(particles: Particles3D, points, world_map, backend=DEFAULT_B
     :mod:`slamlib.maps.base`). Higher is better; the maximum is 0. ``points`` is the scoring sample (N, 3)
     float32, ``world_map`` the :class:`slamlib.maps.Map3D` built so far.
     """
-    return _backend(backend).score_particles(particles.R, particles.t, np.ascontiguousarray(points, dtype=np.float32),
-                                             world_map.lookup())
+    return _backend(backend).score_particles(
+        particles.R,
+        particles.t,
+        np.ascontiguousarray(points, dtype=np.float32),
+        world_map.lookup(),
+    )
 
 
 def tilt_log_prior(particles: Particles3D, up, sigma: float, world_up=None) -> np.ndarray:
@@ -386,8 +473,9 @@ def weighted_mean_pose(R, t, weights) -> np.ndarray:
     return make_pose(project_to_rotation(np.einsum("p,pij->ij", w, R)), w @ t)
 
 
-def pick_best_particle(particles: Particles3D, log_weights, estimate: str = "best",
-                       radius: float = 0.5) -> tuple[np.ndarray, int]:
+def pick_best_particle(
+    particles: Particles3D, log_weights, estimate: str = "best", radius: float = 0.5
+) -> tuple[np.ndarray, int]:
     """Step 9: the pose estimate of this frame and the index of the highest-weight particle.
 
     ``estimate="best"``: the maximum-weight particle's pose (ties to the lowest index). ``estimate="mean"``: the
@@ -419,8 +507,13 @@ def merge_scan(world_map, pose, points, backend=DEFAULT_BACKEND):
 
 
 # ------------------------------------------------------------------------------------------------ step 11
-def resample_particles(particles: Particles3D, log_weights, rng: np.random.Generator, ess_fraction: float | None = 0.5,
-                       backend=DEFAULT_BACKEND) -> tuple[Particles3D, np.ndarray, bool]:
+def resample_particles(
+    particles: Particles3D,
+    log_weights,
+    rng: np.random.Generator,
+    ess_fraction: float | None = 0.5,
+    backend=DEFAULT_BACKEND,
+) -> tuple[Particles3D, np.ndarray, bool]:
     """Step 11: systematic resampling by weight when ``ESS < ess_fraction * P`` (``None``: always).
 
     :func:`slamlib.resampling.resample_indexes` with the backend's ``systematic_resample`` (Kitagawa 1996): one
@@ -429,7 +522,9 @@ def resample_particles(particles: Particles3D, log_weights, rng: np.random.Gener
 
     Returns ``(particles, log_weights, resampled: bool)``; ``P`` is unchanged.
     """
-    idx = resample_indexes(log_weights, rng, ess_fraction, _backend(backend).systematic_resample)
+    idx = resample_indexes(
+        log_weights, rng, ess_fraction, _backend(backend).systematic_resample
+    )
     if idx is None:
         return particles, normalise_log_weights(log_weights), False
     return particles[idx], uniform_log_weights(len(particles)), True

@@ -36,16 +36,42 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["DriveOptions", "SweepTask", "sweep_tasks", "drive_task", "run_task", "run_sweep", "write_table",
-           "read_table", "plot_sweep", "COLUMNS", "METHODS", "LAYOUTS"]
+__all__ = [
+    "DriveOptions",
+    "SweepTask",
+    "sweep_tasks",
+    "drive_task",
+    "run_task",
+    "run_sweep",
+    "write_table",
+    "read_table",
+    "plot_sweep",
+    "COLUMNS",
+    "METHODS",
+    "LAYOUTS",
+]
 
 METHODS = ("slamlib", "kiss_icp")
 LAYOUTS = ("raw", "odometry")
 #: The columns of a sweep's table, in order (``drive`` is :meth:`DriveOptions.label`, empty for a still town seen by
 #: unswept scans; ``settings`` is the slamlib settings as JSON, empty for KISS-ICP).
-COLUMNS = ("route", "frames", "seed", "layout", "drive", "method", "settings", "path_length_m", "kitti_t_err_percent",
-           "kitti_r_err_deg_per_m", "ate_rmse_m", "dead_reckoning_kitti_t_err_percent",
-           "dead_reckoning_ate_rmse_m", "fps", "seconds")
+COLUMNS = (
+    "route",
+    "frames",
+    "seed",
+    "layout",
+    "drive",
+    "method",
+    "settings",
+    "path_length_m",
+    "kitti_t_err_percent",
+    "kitti_r_err_deg_per_m",
+    "ate_rmse_m",
+    "dead_reckoning_kitti_t_err_percent",
+    "dead_reckoning_ate_rmse_m",
+    "fps",
+    "seconds",
+)
 
 
 @dataclass(frozen=True)
@@ -68,8 +94,11 @@ class DriveOptions:
 
     def label(self) -> str:
         """``"distortion, traffic x2, bias walk"`` (the options that are on), ``""`` for none."""
-        on = (["distortion"] if self.distortion else []) + ([f"traffic x{self.traffic:g}"] if self.traffic else []) \
+        on = (
+            (["distortion"] if self.distortion else [])
+            + ([f"traffic x{self.traffic:g}"] if self.traffic else [])
             + (["bias walk"] if self.bias_walk else [])
+        )
         return ", ".join(on)
 
     def write_kwargs(self, layout: str) -> dict:
@@ -77,8 +106,10 @@ class DriveOptions:
         from slamlib.synth import WANDERING_BIASES
         from slamlib.synth.traffic import KITTI_CITY
 
-        kw = {"distortion": bool(self.distortion),
-              "traffic": KITTI_CITY.scaled(self.traffic) if self.traffic else None}
+        kw = {
+            "distortion": bool(self.distortion),
+            "traffic": KITTI_CITY.scaled(self.traffic) if self.traffic else None,
+        }
         if layout == "raw" and self.bias_walk:
             kw["noise"] = WANDERING_BIASES
         return kw
@@ -102,14 +133,23 @@ class SweepTask:
         from slamlib.synth import GENERATOR_VERSION
 
         key = [GENERATOR_VERSION, self.route, list(self.frames), self.seed, self.layout]
-        if self.drive != DriveOptions():  # drives without options keep the names they always had
+        if (
+            self.drive != DriveOptions()
+        ):  # drives without options keep the names they always had
             key.append([self.drive.distortion, self.drive.traffic, self.drive.bias_walk])
         text = json.dumps(key)
         return f"{self.layout}-{self.route}-s{self.seed}-{hashlib.sha1(text.encode()).hexdigest()[:10]}"
 
 
-def sweep_tasks(routes, seeds, layouts=("raw",), methods=METHODS, settings=({},), frames=(0, None),
-                drive: DriveOptions = DriveOptions()) -> list:
+def sweep_tasks(
+    routes,
+    seeds,
+    layouts=("raw",),
+    methods=METHODS,
+    settings=({},),
+    frames=(0, None),
+    drive: DriveOptions = DriveOptions(),
+) -> list:
     """The cross product, as :class:`SweepTask` s (KISS-ICP once per drive: it has no slamlib settings), every
     drive written with the options ``drive``."""
     tasks = []
@@ -117,12 +157,26 @@ def sweep_tasks(routes, seeds, layouts=("raw",), methods=METHODS, settings=({},)
         for seed in seeds:
             for layout in layouts:
                 if layout not in LAYOUTS:
-                    raise ValueError(f"layout must be one of {', '.join(LAYOUTS)}, got {layout!r}")
+                    raise ValueError(
+                        f"layout must be one of {', '.join(LAYOUTS)}, got {layout!r}"
+                    )
                 for method in methods:
                     if method not in METHODS:
-                        raise ValueError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
-                    for s in (settings if method == "slamlib" else ({},)):
-                        tasks.append(SweepTask(str(route), tuple(frames), int(seed), layout, method, dict(s), drive))
+                        raise ValueError(
+                            f"method must be one of {', '.join(METHODS)}, got {method!r}"
+                        )
+                    for s in settings if method == "slamlib" else ({},):
+                        tasks.append(
+                            SweepTask(
+                                str(route),
+                                tuple(frames),
+                                int(seed),
+                                layout,
+                                method,
+                                dict(s),
+                                drive,
+                            )
+                        )
     return tasks
 
 
@@ -139,13 +193,26 @@ def drive_task(task: SweepTask, data_dir) -> str:
     if task.layout == "raw":
         marker = read_marker(drive_dir(base, "2011_09_26", 1))
         if marker is None or marker.get("version") != GENERATOR_VERSION:
-            write_drive(base, task.route, frames=task.frames, seed=task.seed, progress=False,
-                        **task.drive.write_kwargs("raw"))
+            write_drive(
+                base,
+                task.route,
+                frames=task.frames,
+                seed=task.seed,
+                progress=False,
+                **task.drive.write_kwargs("raw"),
+            )
     else:
         marker = read_marker(base / "sequences" / "00")
         if marker is None or marker.get("version") != GENERATOR_VERSION:
-            write_sequence(base, task.route, 0, frames=task.frames, seed=task.seed, progress=False,
-                           **task.drive.write_kwargs("odometry"))
+            write_sequence(
+                base,
+                task.route,
+                0,
+                frames=task.frames,
+                seed=task.seed,
+                progress=False,
+                **task.drive.write_kwargs("odometry"),
+            )
     return str(base)
 
 
@@ -162,38 +229,62 @@ def run_task(task: SweepTask, base: str) -> dict:
     from slamlib.metrics import trajectory_distances, trajectory_metrics
 
     frames = _frames_of(task, base)
-    row = {"route": task.route, "frames": len(frames), "seed": task.seed, "layout": task.layout,
-           "drive": task.drive.label(),
-           "method": task.method, "settings": json.dumps(task.settings, sort_keys=True) if task.settings else ""}
+    row = {
+        "route": task.route,
+        "frames": len(frames),
+        "seed": task.seed,
+        "layout": task.layout,
+        "drive": task.drive.label(),
+        "method": task.method,
+        "settings": json.dumps(task.settings, sort_keys=True) if task.settings else "",
+    }
     t0 = time.perf_counter()
     if task.method == "slamlib":
         from slamlib.slam3d import SLAM3DConfig, run_drive
 
-        run = run_drive(frames, SLAM3DConfig.of(seed=task.seed, **task.settings), progress=False)
+        run = run_drive(
+            frames, SLAM3DConfig.of(seed=task.seed, **task.settings), progress=False
+        )
         poses, gt, dr = run.poses, run.ground_truth, run.dead_reckoning
     else:
         from slamlib.peers import kiss_icp_poses
 
-        swept = task.drive.distortion  # KISS-ICP de-skews swept scans, its poses then moved to the frames' pose times
+        swept = (
+            task.drive.distortion
+        )  # KISS-ICP de-skews swept scans, its poses then moved to the frames' pose times
         poses, _ = kiss_icp_poses(frames, deskew=swept, pose_times=swept)
-        gt = (frames.ground_truth_poses() if task.layout == "odometry" else frames.ground_truth_poses("imu"))
+        gt = (
+            frames.ground_truth_poses()
+            if task.layout == "odometry"
+            else frames.ground_truth_poses("imu")
+        )
         gt = np.linalg.inv(gt[0])[None] @ gt
         dr = None
     seconds = time.perf_counter() - t0
     m = trajectory_metrics(poses, gt)
-    m_dr = trajectory_metrics(dr, gt) if dr is not None else {}  # slamlib's runs only: the IMU-only twin
-    row.update(path_length_m=float(trajectory_distances(gt)[-1]),
-               kitti_t_err_percent=m.get("kitti_t_err_percent", float("nan")),
-               kitti_r_err_deg_per_m=m.get("kitti_r_err_deg_per_m", float("nan")),
-               ate_rmse_m=m["ate_rmse_m"],
-               dead_reckoning_kitti_t_err_percent=m_dr.get("kitti_t_err_percent", float("nan")),
-               dead_reckoning_ate_rmse_m=m_dr.get("ate_rmse_m", float("nan")),
-               fps=len(poses) / seconds, seconds=seconds)
+    m_dr = (
+        trajectory_metrics(dr, gt) if dr is not None else {}
+    )  # slamlib's runs only: the IMU-only twin
+    row.update(
+        path_length_m=float(trajectory_distances(gt)[-1]),
+        kitti_t_err_percent=m.get("kitti_t_err_percent", float("nan")),
+        kitti_r_err_deg_per_m=m.get("kitti_r_err_deg_per_m", float("nan")),
+        ate_rmse_m=m["ate_rmse_m"],
+        dead_reckoning_kitti_t_err_percent=m_dr.get("kitti_t_err_percent", float("nan")),
+        dead_reckoning_ate_rmse_m=m_dr.get("ate_rmse_m", float("nan")),
+        fps=len(poses) / seconds,
+        seconds=seconds,
+    )
     return {k: row[k] for k in COLUMNS}
 
 
-def run_sweep(tasks, data_dir, scheduler: str | None = None, workers: int | None = None,
-              progress: bool = True) -> list[dict]:
+def run_sweep(
+    tasks,
+    data_dir,
+    scheduler: str | None = None,
+    workers: int | None = None,
+    progress: bool = True,
+) -> list[dict]:
     """Run ``tasks`` on Dask: one :func:`drive_task` per distinct drive, then every :func:`run_task` after its drive.
 
     ``scheduler``: the address of an existing Dask scheduler; default a ``distributed.LocalCluster`` of
@@ -208,16 +299,25 @@ def run_sweep(tasks, data_dir, scheduler: str | None = None, workers: int | None
     if scheduler is None:
         import os
 
-        cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1, processes=True,
-                               dashboard_address=None)
+        cluster = LocalCluster(
+            n_workers=workers or os.cpu_count() or 1,
+            threads_per_worker=1,
+            processes=True,
+            dashboard_address=None,
+        )
     client = Client(scheduler if scheduler is not None else cluster)
     try:
         drives = {}
         for t in tasks:
             key = t.drive_key()
             if key not in drives:
-                drives[key] = client.submit(drive_task, t, data_dir, key=f"drive-{key}", pure=False)
-        runs = {client.submit(run_task, t, drives[t.drive_key()], pure=False): i for i, t in enumerate(tasks)}
+                drives[key] = client.submit(
+                    drive_task, t, data_dir, key=f"drive-{key}", pure=False
+                )
+        runs = {
+            client.submit(run_task, t, drives[t.drive_key()], pure=False): i
+            for i, t in enumerate(tasks)
+        }
         rows: list = [None] * len(tasks)
         bar = tqdm(total=len(tasks), desc="sweep", unit="run", disable=not progress)
         for fut in as_completed(list(runs)):
@@ -242,7 +342,12 @@ def write_table(rows, path) -> Path:
         w = csv.DictWriter(f, fieldnames=COLUMNS)
         w.writeheader()
         for r in rows:
-            w.writerow({k: ("" if isinstance(r[k], float) and not np.isfinite(r[k]) else r[k]) for k in COLUMNS})
+            w.writerow(
+                {
+                    k: ("" if isinstance(r[k], float) and not np.isfinite(r[k]) else r[k])
+                    for k in COLUMNS
+                }
+            )
     return path
 
 
@@ -266,7 +371,9 @@ def read_table(path) -> list[dict]:
 def _label(row) -> str:
     """A run's legend entry: method, layout, settings and drive options (those not empty)."""
     drive = f"({row['drive']})" if row.get("drive") else ""
-    return " ".join(x for x in (row["method"], row["layout"], row["settings"], drive) if x)
+    return " ".join(
+        x for x in (row["method"], row["layout"], row["settings"], drive) if x
+    )
 
 
 def plot_sweep(rows, ax=None):
@@ -284,15 +391,27 @@ def plot_sweep(rows, ax=None):
     width = 0.8 / max(1, len(labels))
     for j, label in enumerate(labels):
         for i, route in enumerate(routes):
-            vals = [r["kitti_t_err_percent"] for r in rows if r["route"] == route
-                    and _label(r) == label]
+            vals = [
+                r["kitti_t_err_percent"]
+                for r in rows
+                if r["route"] == route and _label(r) == label
+            ]
             vals = [v for v in vals if np.isfinite(v)]
             x = i - 0.4 + width * (j + 0.5)
             if vals:
-                ax.bar(x, np.mean(vals), width * 0.9, color=f"C{j}", alpha=0.5, label=label if i == 0 else None)
+                ax.bar(
+                    x,
+                    np.mean(vals),
+                    width * 0.9,
+                    color=f"C{j}",
+                    alpha=0.5,
+                    label=label if i == 0 else None,
+                )
                 ax.plot([x] * len(vals), vals, "o", color=f"C{j}", ms=4)
     ax.set_xticks(range(len(routes)), [f"route {r}" for r in routes])
     ax.set_ylabel("KITTI translational error (%)")
-    if ax.get_legend_handles_labels()[0]:  # drives shorter than 100 m have no KITTI error to draw
+    if ax.get_legend_handles_labels()[
+        0
+    ]:  # drives shorter than 100 m have no KITTI error to draw
         ax.legend(fontsize=10)
     return fig

@@ -13,7 +13,13 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["VIDEO_FORMATS", "check_video_path", "map_video_frames", "write_map_video", "snapshot_every_for"]
+__all__ = [
+    "VIDEO_FORMATS",
+    "check_video_path",
+    "map_video_frames",
+    "write_map_video",
+    "snapshot_every_for",
+]
 
 #: File extensions :func:`write_map_video` can write, and the package each needs.
 VIDEO_FORMATS = {".mp4": "imageio-ffmpeg", ".gif": "pillow"}
@@ -27,17 +33,25 @@ def check_video_path(path, overwrite: bool = True) -> str:
     """
     ext = Path(path).suffix.lower()
     if ext not in VIDEO_FORMATS:
-        raise ValueError(f"cannot write a video to {str(path)!r}: the name must end in "
-                         f"{' or '.join(VIDEO_FORMATS)}, not {ext or '(no extension)'!r}")
+        raise ValueError(
+            f"cannot write a video to {str(path)!r}: the name must end in "
+            f"{' or '.join(VIDEO_FORMATS)}, not {ext or '(no extension)'!r}"
+        )
     if Path(path).is_dir():
         raise ValueError(f"cannot write a video to {str(path)!r}: it is a folder")
     if not overwrite and Path(path).exists():
-        raise ValueError(f"{str(path)!r} exists; give --overwrite to replace it, or another name")
+        raise ValueError(
+            f"{str(path)!r} exists; give --overwrite to replace it, or another name"
+        )
     parent = Path(path).parent
-    while not parent.exists():  # the folders the writer will make: the nearest existing one must be a folder
+    while (
+        not parent.exists()
+    ):  # the folders the writer will make: the nearest existing one must be a folder
         parent = parent.parent
     if not parent.is_dir():
-        raise ValueError(f"cannot write a video to {str(path)!r}: {str(parent)!r} is a file, not a folder")
+        raise ValueError(
+            f"cannot write a video to {str(path)!r}: {str(parent)!r} is a file, not a folder"
+        )
     try:
         if ext == ".mp4":
             import imageio_ffmpeg
@@ -47,10 +61,14 @@ def check_video_path(path, overwrite: bool = True) -> str:
             import PIL  # noqa: F401
     except ImportError:
         pkg = VIDEO_FORMATS[ext]
-        raise ImportError(f"writing {ext} videos needs the package {pkg!r}: pip install {pkg}") from None
+        raise ImportError(
+            f"writing {ext} videos needs the package {pkg!r}: pip install {pkg}"
+        ) from None
     except RuntimeError as exc:  # imageio-ffmpeg installed without its ffmpeg binary
-        raise ImportError(f"writing {ext} videos needs an ffmpeg binary ({exc}); pip install --force-reinstall "
-                          f"imageio-ffmpeg") from None
+        raise ImportError(
+            f"writing {ext} videos needs an ffmpeg binary ({exc}); pip install --force-reinstall "
+            f"imageio-ffmpeg"
+        ) from None
     return ext
 
 
@@ -68,8 +86,15 @@ def _even(x: int, m: int = 16) -> int:
     return max(m, int(round(x / m)) * m)
 
 
-def map_video_frames(snapshots, poses, ground_truth=None, size=(640, 480), max_points: int = 12_000,
-                     zlim=None, pad: float = 15.0):
+def map_video_frames(
+    snapshots,
+    poses,
+    ground_truth=None,
+    size=(640, 480),
+    max_points: int = 12_000,
+    zlim=None,
+    pad: float = 15.0,
+):
     """Yield one RGB frame ``(H, W, 3)`` uint8 per snapshot, ``size = (W, H)`` pixels (matplotlib, Agg).
 
     The axes (x, y in metres, world frame) and the height colour scale stay fixed over the video: they come from
@@ -81,7 +106,9 @@ def map_video_frames(snapshots, poses, ground_truth=None, size=(640, 480), max_p
     from slamlib.slam3d.plot import draw_snapshot
 
     if not snapshots:
-        raise ValueError("the run has no snapshots: run_drive(..., snapshot_every=n) keeps them")
+        raise ValueError(
+            "the run has no snapshots: run_drive(..., snapshot_every=n) keeps them"
+        )
     poses = np.asarray(poses)
     w, h = int(size[0]), int(size[1])
     dpi = 100
@@ -90,16 +117,35 @@ def map_video_frames(snapshots, poses, ground_truth=None, size=(640, 480), max_p
     ax = fig.add_axes([0.1, 0.1, 0.72, 0.8])
     cax = fig.add_axes([0.85, 0.15, 0.025, 0.7])
     last = np.asarray(snapshots[-1][1])
-    lo, hi = zlim if zlim is not None else (np.percentile(last[:, 2], [2, 98]) if len(last) else (0.0, 1.0))
-    xy = poses[:, :2, 3] if ground_truth is None else np.vstack([poses[:, :2, 3], ground_truth[:, :2, 3]])
+    lo, hi = (
+        zlim
+        if zlim is not None
+        else (np.percentile(last[:, 2], [2, 98]) if len(last) else (0.0, 1.0))
+    )
+    xy = (
+        poses[:, :2, 3]
+        if ground_truth is None
+        else np.vstack([poses[:, :2, 3], ground_truth[:, :2, 3]])
+    )
     ext = max(np.ptp(xy[:, 0]), np.ptp(xy[:, 1]) * w / h * 0.72 / 0.8) / 2 + pad
     cx, cy = (xy.min(axis=0) + xy.max(axis=0)) / 2
-    sc = ax.scatter(np.zeros(0), np.zeros(0), c=np.zeros(0), s=1.5, lw=0, cmap="viridis", vmin=lo, vmax=hi)
+    sc = ax.scatter(
+        np.zeros(0),
+        np.zeros(0),
+        c=np.zeros(0),
+        s=1.5,
+        lw=0,
+        cmap="viridis",
+        vmin=lo,
+        vmax=hi,
+    )
     fig.colorbar(sc, cax=cax).set_label("height z (m)", fontsize=10)
     cax.tick_params(labelsize=10)
     (gt_line,) = ax.plot([], [], "k-", lw=1.0, label="ground truth")
     (line,) = ax.plot([], [], "-", color="tab:red", lw=1.6, label="SLAM")
-    (car,) = ax.plot([], [], marker=_CAR, color="tab:red", ms=14, ls="none", mec="k", mew=0.6)
+    (car,) = ax.plot(
+        [], [], marker=_CAR, color="tab:red", ms=14, ls="none", mec="k", mew=0.6
+    )
     ax.set_xlim(cx - ext, cx + ext)
     ax.set_ylim(cy - ext * h / w * 0.8 / 0.72, cy + ext * h / w * 0.8 / 0.72)
     ax.set_aspect("equal", adjustable="datalim")
@@ -110,11 +156,15 @@ def map_video_frames(snapshots, poses, ground_truth=None, size=(640, 480), max_p
     title = ax.set_title("", fontsize=10)
     try:
         for j, (_, _, pose) in enumerate(snapshots):
-            k = draw_snapshot(snapshots, j, poses, ground_truth, sc, line, gt_line, max_points)
+            k = draw_snapshot(
+                snapshots, j, poses, ground_truth, sc, line, gt_line, max_points
+            )
             yaw = np.arctan2(pose[1, 0], pose[0, 0])
             c, s_ = np.cos(yaw), np.sin(yaw)
             car.set_data([pose[0, 3]], [pose[1, 3]])
-            car.set_marker(_CAR @ np.array([[c, s_], [-s_, c]]))  # a dart pointing along the body x axis
+            car.set_marker(
+                _CAR @ np.array([[c, s_], [-s_, c]])
+            )  # a dart pointing along the body x axis
             title.set_text(f"frame {k}: map of {len(snapshots[j][1]):,} elements")
             fig.canvas.draw()
             yield np.asarray(fig.canvas.buffer_rgba())[:, :, :3].copy()
@@ -122,8 +172,15 @@ def map_video_frames(snapshots, poses, ground_truth=None, size=(640, 480), max_p
         fig.clear()
 
 
-def write_map_video(run, path, fps: float = 10.0, size=(640, 480), max_points: int = 12_000, progress: bool = True,
-                    quality: int = 4) -> dict:
+def write_map_video(
+    run,
+    path,
+    fps: float = 10.0,
+    size=(640, 480),
+    max_points: int = 12_000,
+    progress: bool = True,
+    quality: int = 4,
+) -> dict:
     """Write the video of ``run``'s map being built to ``path`` (``.mp4`` or ``.gif``); one frame per snapshot.
 
     Parameters
@@ -144,7 +201,9 @@ def write_map_video(run, path, fps: float = 10.0, size=(640, 480), max_points: i
     ext = check_video_path(path)
     snaps = run.snapshots
     if not snaps:
-        raise ValueError("the run has no snapshots: run_drive(..., snapshot_every=n) keeps them")
+        raise ValueError(
+            "the run has no snapshots: run_drive(..., snapshot_every=n) keeps them"
+        )
     w, h = _even(size[0]), _even(size[1])
     path.parent.mkdir(parents=True, exist_ok=True)
     frames = map_video_frames(snaps, run.poses, run.ground_truth, (w, h), max_points)
@@ -153,9 +212,17 @@ def write_map_video(run, path, fps: float = 10.0, size=(640, 480), max_points: i
     if ext == ".mp4":
         import imageio_ffmpeg
 
-        writer = imageio_ffmpeg.write_frames(str(path), (w, h), fps=float(fps), codec="libx264",
-                                             quality=quality, macro_block_size=16, pix_fmt_out="yuv420p",
-                                             output_params=["-movflags", "+faststart"], ffmpeg_log_level="error")
+        writer = imageio_ffmpeg.write_frames(
+            str(path),
+            (w, h),
+            fps=float(fps),
+            codec="libx264",
+            quality=quality,
+            macro_block_size=16,
+            pix_fmt_out="yuv420p",
+            output_params=["-movflags", "+faststart"],
+            ffmpeg_log_level="error",
+        )
         writer.send(None)
         try:
             for img in bar:
@@ -166,9 +233,24 @@ def write_map_video(run, path, fps: float = 10.0, size=(640, 480), max_points: i
     else:
         from PIL import Image
 
-        images = [Image.fromarray(img).quantize(colors=128, method=Image.Quantize.MEDIANCUT) for img in bar]
+        images = [
+            Image.fromarray(img).quantize(colors=128, method=Image.Quantize.MEDIANCUT)
+            for img in bar
+        ]
         n = len(images)
-        images[0].save(path, save_all=True, append_images=images[1:], duration=int(round(1000 / fps)), loop=0,
-                       optimize=False)
+        images[0].save(
+            path,
+            save_all=True,
+            append_images=images[1:],
+            duration=int(round(1000 / fps)),
+            loop=0,
+            optimize=False,
+        )
     bar.close()
-    return {"path": path, "frames": n, "seconds": n / float(fps), "size": (w, h), "bytes": path.stat().st_size}
+    return {
+        "path": path,
+        "frames": n,
+        "seconds": n / float(fps),
+        "size": (w, h),
+        "bytes": path.stat().st_size,
+    }

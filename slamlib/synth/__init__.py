@@ -14,16 +14,54 @@ noise), :mod:`~slamlib.synth.scene` (town mesh), :mod:`~slamlib.synth.lidar` (ra
 wandering IMU biases; ``default_drive(realism=False)`` is the still one.
 """
 
-from slamlib.synth.drive import (DEFAULT_FRAMES, GENERATOR_VERSION, default_drive, drive_traffic, resolve_route,
-                                 write_drive, write_sequence)
+from slamlib.synth.drive import (
+    DEFAULT_FRAMES,
+    GENERATOR_VERSION,
+    default_drive,
+    drive_traffic,
+    resolve_route,
+    write_drive,
+    write_sequence,
+)
 from slamlib.synth.lidar import Hdl64, hdl64_elevations, ray_directions, simulate_scan
 from slamlib.synth.oxts import WANDERING_BIASES, ZERO_NOISE, ImuNoise, oxts_packets
-from slamlib.synth.routes import ROUTE_NAMES, Route, get_route, kitti_route, loop_route, straight_route
+from slamlib.synth.routes import (
+    ROUTE_NAMES,
+    Route,
+    get_route,
+    kitti_route,
+    loop_route,
+    straight_route,
+)
 from slamlib.synth.scene import Scene, build_scene
 from slamlib.synth.traffic import KITTI_CITY, Traffic, TrafficConfig, build_traffic
 
-__all__ = ["default_drive", "drive_traffic", "write_drive", "write_sequence", "resolve_route", "DEFAULT_FRAMES", "GENERATOR_VERSION", "Hdl64",
-           "hdl64_elevations", "ray_directions", "simulate_scan", "ImuNoise", "ZERO_NOISE", "WANDERING_BIASES",
-           "oxts_packets",
-           "Route", "get_route", "kitti_route", "loop_route", "straight_route", "ROUTE_NAMES", "Scene",
-           "build_scene", "TrafficConfig", "Traffic", "build_traffic", "KITTI_CITY"]
+__all__ = [
+    "default_drive",
+    "drive_traffic",
+    "write_drive",
+    "write_sequence",
+    "resolve_route",
+    "DEFAULT_FRAMES",
+    "GENERATOR_VERSION",
+    "Hdl64",
+    "hdl64_elevations",
+    "ray_directions",
+    "simulate_scan",
+    "ImuNoise",
+    "ZERO_NOISE",
+    "WANDERING_BIASES",
+    "oxts_packets",
+    "Route",
+    "get_route",
+    "kitti_route",
+    "loop_route",
+    "straight_route",
+    "ROUTE_NAMES",
+    "Scene",
+    "build_scene",
+    "TrafficConfig",
+    "Traffic",
+    "build_traffic",
+    "KITTI_CITY",
+]

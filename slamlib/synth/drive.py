@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -23,13 +22,36 @@ from slamlib.synth.oxts import WANDERING_BIASES, ImuNoise, oxts_packets
 from slamlib.synth.routes import Route, get_route
 from slamlib.synth.scene import build_scene
 from slamlib.synth.traffic import KITTI_CITY, TrafficConfig, build_traffic
-from slamlib.synth.writer import (_SAMPLE, MARKER, PARTIAL_MARKER, SCAN_PERIOD, check_calib, drive_dir,
-                                  frame_timestamps_ns, is_own_drive, own_files, own_sequence_files, read_marker,
-                                  write_calib, write_marker, write_odometry_calib, write_odometry_scan, write_oxts,
-                                  write_scan, write_velodyne_timestamps)
+from slamlib.synth.writer import (
+    _SAMPLE,
+    MARKER,
+    PARTIAL_MARKER,
+    SCAN_PERIOD,
+    check_calib,
+    drive_dir,
+    frame_timestamps_ns,
+    is_own_drive,
+    own_files,
+    own_sequence_files,
+    read_marker,
+    write_calib,
+    write_marker,
+    write_odometry_calib,
+    write_odometry_scan,
+    write_oxts,
+    write_scan,
+    write_velodyne_timestamps,
+)
 
-__all__ = ["GENERATOR_VERSION", "write_drive", "write_sequence", "default_drive", "resolve_route", "DEFAULT_FRAMES",
-           "drive_traffic"]
+__all__ = [
+    "GENERATOR_VERSION",
+    "write_drive",
+    "write_sequence",
+    "default_drive",
+    "resolve_route",
+    "DEFAULT_FRAMES",
+    "drive_traffic",
+]
 
 #: Bump when the generator's output changes: cached drives of another version are regenerated.
 GENERATOR_VERSION = "synth-4"
@@ -69,10 +91,20 @@ def resolve_route(route, frames=None) -> tuple[Route, int]:
     return r, n
 
 
-def write_drive(basedir, route="07", date: str = "2011_09_26", drive: int = 1, frames=DEFAULT_FRAMES,
-                seed: int = 0, noise: ImuNoise = ImuNoise(), lidar: Hdl64 = Hdl64(), scans: bool = True,
-                progress: bool = True, distortion: bool = False,
-                traffic: TrafficConfig | None = None) -> tuple[Path, str, int]:
+def write_drive(
+    basedir,
+    route="07",
+    date: str = "2011_09_26",
+    drive: int = 1,
+    frames=DEFAULT_FRAMES,
+    seed: int = 0,
+    noise: ImuNoise = ImuNoise(),
+    lidar: Hdl64 = Hdl64(),
+    scans: bool = True,
+    progress: bool = True,
+    distortion: bool = False,
+    traffic: TrafficConfig | None = None,
+) -> tuple[Path, str, int]:
     """Write a synthetic drive under ``basedir`` in the KITTI raw layout (see :mod:`slamlib.synth.writer`).
 
     Parameters
@@ -109,8 +141,16 @@ def write_drive(basedir, route="07", date: str = "2011_09_26", drive: int = 1, f
     ddir = drive_dir(basedir, date, drive)
     _check_own_folder(ddir, "basedir, date or drive")
     check_calib(basedir, date)
-    params = {"version": GENERATOR_VERSION, "route": r.name, "frames": n, "seed": seed,
-              "noise": noise.as_dict(), "lidar": lidar.as_dict(), "scans": scans, **_realism(distortion, traffic)}
+    params = {
+        "version": GENERATOR_VERSION,
+        "route": r.name,
+        "frames": n,
+        "seed": seed,
+        "noise": noise.as_dict(),
+        "lidar": lidar.as_dict(),
+        "scans": scans,
+        **_realism(distortion, traffic),
+    }
     _begin(ddir, params, own_files(ddir))
     date_dir = write_calib(basedir, date)
     ts, t_route = _frame_times(r, n, date, rng_time)
@@ -121,8 +161,20 @@ def write_drive(basedir, route="07", date: str = "2011_09_26", drive: int = 1, f
         T_imu_velo = invert_pose(load_T_velo_imu(date_dir))
         T_w_velo = r.pose(t_route) @ T_imu_velo
         t_sweep = _route_time(r, ts, "velo") if distortion else None
-        for k, scan in _cast_scans(r, t_route, T_w_velo, rng_scene, rng_lidar, lidar, progress,
-                                   f"synth drive {drive:04d}", t_sweep, T_imu_velo, traffic, rng_traffic):
+        for k, scan in _cast_scans(
+            r,
+            t_route,
+            T_w_velo,
+            rng_scene,
+            rng_lidar,
+            lidar,
+            progress,
+            f"synth drive {drive:04d}",
+            t_sweep,
+            T_imu_velo,
+            traffic,
+            rng_traffic,
+        ):
             write_scan(ddir, k, scan)
     write_marker(ddir, params)
     (ddir / PARTIAL_MARKER).unlink()
@@ -134,8 +186,13 @@ def write_drive(basedir, route="07", date: str = "2011_09_26", drive: int = 1, f
 N_STREAMS = 5
 
 
-def drive_traffic(route="07", frames=DEFAULT_FRAMES, seed: int = 0, traffic: TrafficConfig = TrafficConfig(),
-                  date: str = "2011_09_26"):
+def drive_traffic(
+    route="07",
+    frames=DEFAULT_FRAMES,
+    seed: int = 0,
+    traffic: TrafficConfig = TrafficConfig(),
+    date: str = "2011_09_26",
+):
     """The movers that :func:`write_drive` (raw layout) puts in the scans of a drive with these arguments, from
     the same random streams: ``(route, t_route (F,), traffic)``, with ``t_route[k]`` frame k's OXTS instant on the
     route (s) and :class:`~slamlib.synth.traffic.Traffic` ``traffic`` (``.boxes(t)``, ``.inside(points, t)``). The
@@ -163,13 +220,17 @@ def _realism(distortion: bool, traffic: TrafficConfig | None) -> dict:
     """The marker's (and the default drive's cache key's) record of a drive's realism: ``distortion`` and ``traffic``
     only when on, so that a still drive's parameters, and the cache keys made from them, are those it had before
     drives could be realistic."""
-    return {**({"distortion": True} if distortion else {}),
-            **({"traffic": traffic.as_dict()} if traffic is not None else {})}
+    return {
+        **({"distortion": True} if distortion else {}),
+        **({"traffic": traffic.as_dict()} if traffic is not None else {}),
+    }
 
 
 def _streams(seed: int):
     """The generator's independent random streams (timestamps, IMU noise, scene, LIDAR noise, traffic) from ``seed``."""
-    return tuple(np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(N_STREAMS))
+    return tuple(
+        np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(N_STREAMS)
+    )
 
 
 def _check_own_folder(folder: Path, what: str) -> None:
@@ -177,26 +238,46 @@ def _check_own_folder(folder: Path, what: str) -> None:
     (and every existing folder above it is a folder)."""
     for above in folder.parents:
         if above.exists() and not above.is_dir():
-            raise FileExistsError(f"{above} exists and is not a folder; choose another {what}")
+            raise FileExistsError(
+                f"{above} exists and is not a folder; choose another {what}"
+            )
     if folder.is_symlink() or (folder.exists() and not folder.is_dir()):
-        raise FileExistsError(f"{folder} exists and is not a folder; choose another {what}")
+        raise FileExistsError(
+            f"{folder} exists and is not a folder; choose another {what}"
+        )
     if folder.is_dir() and not is_own_drive(folder) and any(folder.iterdir()):
-        raise FileExistsError(f"{folder} exists and is not a slamlib synthetic drive (no {MARKER}); choose another "
-                              f"{what}")
+        raise FileExistsError(
+            f"{folder} exists and is not a slamlib synthetic drive (no {MARKER}); choose another "
+            f"{what}"
+        )
 
 
 def _begin(folder: Path, params: dict, previous: list) -> None:
     """Mark ``folder`` as being written (:data:`PARTIAL_MARKER`) and remove the previous run's ``previous`` files
     (the generator's own, complete or interrupted; the user's files stay)."""
     folder.mkdir(parents=True, exist_ok=True)
-    (folder / PARTIAL_MARKER).write_text(json.dumps(params, indent=1, sort_keys=True), encoding="ascii")
+    (folder / PARTIAL_MARKER).write_text(
+        json.dumps(params, indent=1, sort_keys=True), encoding="ascii"
+    )
     for path in previous:
         if path.name != PARTIAL_MARKER:
             path.unlink()
 
 
-def _cast_scans(r: Route, t_route, T_w_velo, rng_scene, rng_lidar, lidar: Hdl64, progress: bool, desc: str,
-                t_sweep=None, T_imu_velo=None, traffic: TrafficConfig | None = None, rng_traffic=None):
+def _cast_scans(
+    r: Route,
+    t_route,
+    T_w_velo,
+    rng_scene,
+    rng_lidar,
+    lidar: Hdl64,
+    progress: bool,
+    desc: str,
+    t_sweep=None,
+    T_imu_velo=None,
+    traffic: TrafficConfig | None = None,
+    rng_traffic=None,
+):
     """Yield ``(k, scan (N, 4) float32)`` for every frame: the town along the route, cast from ``T_w_velo[k]``, or,
     with ``t_sweep`` (each frame's mid-sweep time on the route, s), column by column from the Velodyne pose
     ``r.pose(t) @ T_imu_velo`` at each column's firing time (:func:`slamlib.synth.lidar.column_time_offsets`).
@@ -206,22 +287,46 @@ def _cast_scans(r: Route, t_route, T_w_velo, rng_scene, rng_lidar, lidar: Hdl64,
 
     from slamlib.synth.lidar import column_time_offsets, ray_columns
 
-    dense_t = np.linspace(t_route[0], t_route[-1], max(2, int((t_route[-1] - t_route[0]) * 20) + 2))
+    dense_t = np.linspace(
+        t_route[0], t_route[-1], max(2, int((t_route[-1] - t_route[0]) * 20) + 2)
+    )
     if traffic is None:
         scene = build_scene(r.position(dense_t), seed=int(rng_scene.integers(2**63)))
     else:
         sides = (-1,) if traffic.clear_left_parking else (-1, 1)
-        scene = build_scene(r.position(dense_t), seed=int(rng_scene.integers(2**63)), parking_sides=sides)
+        scene = build_scene(
+            r.position(dense_t), seed=int(rng_scene.integers(2**63)), parking_sides=sides
+        )
         movers = build_traffic(r, t_route[0], t_route[-1], traffic, rng_traffic)
     rc = scene.raycasting_scene()
     dirs = ray_directions(lidar)
     offsets = column_time_offsets(lidar)
     cols = ray_columns(lidar) if t_sweep is not None else None
     for k in tqdm(range(len(t_route)), desc=desc, disable=not progress, unit="scan"):
-        poses = None if t_sweep is None else r.pose_extended(t_sweep[k] + offsets) @ T_imu_velo
-        at = None if traffic is None else _movers_at(movers, t_route[k] if t_sweep is None else t_sweep[k])
-        yield k, simulate_scan(rc, scene.albedo, T_w_velo[k], rng_lidar, lidar, dirs, column_poses=poses,
-                               columns=cols, movers=at)
+        poses = (
+            None
+            if t_sweep is None
+            else r.pose_extended(t_sweep[k] + offsets) @ T_imu_velo
+        )
+        at = (
+            None
+            if traffic is None
+            else _movers_at(movers, t_route[k] if t_sweep is None else t_sweep[k])
+        )
+        yield (
+            k,
+            simulate_scan(
+                rc,
+                scene.albedo,
+                T_w_velo[k],
+                rng_lidar,
+                lidar,
+                dirs,
+                column_poses=poses,
+                columns=cols,
+                movers=at,
+            ),
+        )
 
 
 def _movers_at(movers, t_frame: float):
@@ -230,9 +335,17 @@ def _movers_at(movers, t_frame: float):
     return lambda dts: movers.meshes(t_frame + np.asarray(dts))
 
 
-def write_sequence(basedir, route="07", sequence: int | str = 7, frames=DEFAULT_FRAMES, seed: int = 0,
-                   lidar: Hdl64 = Hdl64(), progress: bool = True, distortion: bool = False,
-                   traffic: TrafficConfig | None = None) -> tuple[Path, str]:
+def write_sequence(
+    basedir,
+    route="07",
+    sequence: int | str = 7,
+    frames=DEFAULT_FRAMES,
+    seed: int = 0,
+    lidar: Hdl64 = Hdl64(),
+    progress: bool = True,
+    distortion: bool = False,
+    traffic: TrafficConfig | None = None,
+) -> tuple[Path, str]:
     """Write a synthetic drive in the KITTI **odometry** layout (:mod:`slamlib.kitti.sequence`): scans, ``calib.txt``,
     ``times.txt`` and the ground truth ``poses/NN.txt`` -- no IMU, as the benchmark has none.
 
@@ -257,11 +370,24 @@ def write_sequence(basedir, route="07", sequence: int | str = 7, frames=DEFAULT_
     poses_path = Path(basedir) / "poses" / f"{name}.txt"
     _check_own_folder(sdir, "basedir or sequence")
     if poses_path.exists() and not is_own_drive(sdir):
-        raise FileExistsError(f"{poses_path} exists and was not written by slamlib synth; choose another basedir "
-                              "or sequence")
-    params = {"version": GENERATOR_VERSION, "layout": "odometry", "route": r.name, "frames": n, "seed": seed,
-              "lidar": lidar.as_dict(), **_realism(distortion, traffic)}
-    _begin(sdir, params, own_sequence_files(sdir) + ([poses_path] if poses_path.is_file() else []))
+        raise FileExistsError(
+            f"{poses_path} exists and was not written by slamlib synth; choose another basedir "
+            "or sequence"
+        )
+    params = {
+        "version": GENERATOR_VERSION,
+        "layout": "odometry",
+        "route": r.name,
+        "frames": n,
+        "seed": seed,
+        "lidar": lidar.as_dict(),
+        **_realism(distortion, traffic),
+    }
+    _begin(
+        sdir,
+        params,
+        own_sequence_files(sdir) + ([poses_path] if poses_path.is_file() else []),
+    )
     ts, t_route = _frame_times(r, n, "2011_09_26", rng_time)
     T_imu_velo = invert_pose(load_T_velo_imu(_SAMPLE))
     T_w_velo = r.pose(t_route) @ T_imu_velo
@@ -271,19 +397,41 @@ def write_sequence(basedir, route="07", sequence: int | str = 7, frames=DEFAULT_
     Tr = write_odometry_calib(sdir)
     write_times(sdir / "times.txt", (ts["velo"] - ts["velo"][0]) * 1e-9)
     poses_path.parent.mkdir(parents=True, exist_ok=True)
-    write_kitti_poses(poses_path, Tr @ (invert_pose(T_w_velo[0])[None] @ T_w_velo) @ invert_pose(Tr))
+    write_kitti_poses(
+        poses_path, Tr @ (invert_pose(T_w_velo[0])[None] @ T_w_velo) @ invert_pose(Tr)
+    )
     (sdir / "velodyne").mkdir(exist_ok=True)
-    for k, scan in _cast_scans(r, t_route, T_w_velo, rng_scene, rng_lidar, lidar, progress,
-                               f"synth sequence {name}", t_sweep, T_imu_velo, traffic, rng_traffic):
+    for k, scan in _cast_scans(
+        r,
+        t_route,
+        T_w_velo,
+        rng_scene,
+        rng_lidar,
+        lidar,
+        progress,
+        f"synth sequence {name}",
+        t_sweep,
+        T_imu_velo,
+        traffic,
+        rng_traffic,
+    ):
         write_odometry_scan(sdir, k, scan)
     write_marker(sdir, params)
     (sdir / PARTIAL_MARKER).unlink()
     return Path(basedir), name
 
 
-def default_drive(frames=DEFAULT_FRAMES, seed: int = 0, full: bool = False, route: str = "07",
-                  noise: ImuNoise | None = None, lidar: Hdl64 = Hdl64(), scans: bool = True,
-                  progress: bool = True, realism: bool = True) -> tuple[Path, str, int]:
+def default_drive(
+    frames=DEFAULT_FRAMES,
+    seed: int = 0,
+    full: bool = False,
+    route: str = "07",
+    noise: ImuNoise | None = None,
+    lidar: Hdl64 = Hdl64(),
+    scans: bool = True,
+    progress: bool = True,
+    realism: bool = True,
+) -> tuple[Path, str, int]:
     """The default synthetic drive (KITTI 07 route, key frames ``frames``), generated once into the cache.
 
     ``realism`` (on by default) makes it a drive as a real one is: scans swept column by column as KITTI's HDL-64E
@@ -301,15 +449,38 @@ def default_drive(frames=DEFAULT_FRAMES, seed: int = 0, full: bool = False, rout
     if noise is None:
         noise = WANDERING_BIASES if realism else ImuNoise()
     traffic = KITTI_CITY if realism else None
-    params = {"version": GENERATOR_VERSION, "route": route, "frames": list(frames) if frames else None,
-              "seed": seed, "noise": noise.as_dict(), "lidar": lidar.as_dict(), "scans": scans,
-              **_realism(realism, traffic)}
+    params = {
+        "version": GENERATOR_VERSION,
+        "route": route,
+        "frames": list(frames) if frames else None,
+        "seed": seed,
+        "noise": noise.as_dict(),
+        "lidar": lidar.as_dict(),
+        "scans": scans,
+        **_realism(realism, traffic),
+    }
     key = hashlib.sha1(json.dumps(params, sort_keys=True).encode()).hexdigest()[:12]
     basedir = cache_dir() / "synth" / key
     date, drive = "2011_09_26", 1
     marker = read_marker(drive_dir(basedir, date, drive))
     _, n = resolve_route(route, frames)
-    if marker is None or marker.get("version") != GENERATOR_VERSION or marker.get("frames") != n:
-        write_drive(basedir, route, date, drive, frames=frames, seed=seed, noise=noise, lidar=lidar,
-                    scans=scans, progress=progress, distortion=realism, traffic=traffic)
+    if (
+        marker is None
+        or marker.get("version") != GENERATOR_VERSION
+        or marker.get("frames") != n
+    ):
+        write_drive(
+            basedir,
+            route,
+            date,
+            drive,
+            frames=frames,
+            seed=seed,
+            noise=noise,
+            lidar=lidar,
+            scans=scans,
+            progress=progress,
+            distortion=realism,
+            traffic=traffic,
+        )
     return basedir, date, drive

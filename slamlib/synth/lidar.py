@@ -51,14 +51,23 @@ Reference: Velodyne HDL-64E S2 user's manual (2008); Geiger et al., IJRR 2013, s
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass, asdict
+from dataclasses import asdict, dataclass
 
 import numpy as np
 
 from slamlib.kitti.velodyne import SWEEP_PERIOD_S
 
-__all__ = ["Hdl64", "hdl64_elevations", "ray_directions", "ray_columns", "column_time_offsets", "simulate_scan",
-           "EGO_BOX", "SCAN_PERIOD_S", "MOVER_BLOCKS"]
+__all__ = [
+    "Hdl64",
+    "hdl64_elevations",
+    "ray_directions",
+    "ray_columns",
+    "column_time_offsets",
+    "simulate_scan",
+    "EGO_BOX",
+    "SCAN_PERIOD_S",
+    "MOVER_BLOCKS",
+]
 
 #: The HDL-64E's sweep period on KITTI (s): :data:`slamlib.kitti.velodyne.SWEEP_PERIOD_S`.
 SCAN_PERIOD_S = SWEEP_PERIOD_S
@@ -83,7 +92,7 @@ def _hits_box(d: np.ndarray, box) -> np.ndarray:
         t1, t2 = lo * inv, hi * inv
     tmin = np.nanmax(np.minimum(t1, t2), axis=1)
     tmax = np.nanmin(np.maximum(t1, t2), axis=1)
-    return (tmax >= np.maximum(tmin, 0.0))
+    return tmax >= np.maximum(tmin, 0.0)
 
 
 def hdl64_elevations() -> np.ndarray:
@@ -118,7 +127,14 @@ def _ray_grid(model: Hdl64) -> tuple[np.ndarray, np.ndarray]:
     e = hdl64_elevations()[:: model.beam_stride]
     a = 2 * np.pi * np.arange(model.columns) / model.columns
     ce, se = np.cos(e)[:, None], np.sin(e)[:, None]
-    d = np.stack([ce * np.cos(a)[None], ce * np.sin(a)[None], np.broadcast_to(se, (len(e), len(a)))], axis=-1)
+    d = np.stack(
+        [
+            ce * np.cos(a)[None],
+            ce * np.sin(a)[None],
+            np.broadcast_to(se, (len(e), len(a))),
+        ],
+        axis=-1,
+    )
     d = d.reshape(-1, 3)
     cols = np.broadcast_to(np.arange(model.columns), (len(e), model.columns)).reshape(-1)
     if model.ego_occlusion:
@@ -138,7 +154,9 @@ def ray_columns(model: Hdl64 = Hdl64()) -> np.ndarray:
     return _ray_grid(model)[1]
 
 
-def column_time_offsets(model: Hdl64 = Hdl64(), period: float = SCAN_PERIOD_S) -> np.ndarray:
+def column_time_offsets(
+    model: Hdl64 = Hdl64(), period: float = SCAN_PERIOD_S
+) -> np.ndarray:
     """Firing time of each azimuth column relative to the frame's (mid-sweep) timestamp, ``(columns,)`` seconds:
     ``-a / (2 pi) * period`` with ``a`` the column's azimuth in ``(-pi, pi]`` (module docstring: the sweep runs
     from ``+pi`` at ``-period / 2`` through forward at 0 to ``-pi`` at ``+period / 2``)."""
@@ -147,10 +165,17 @@ def column_time_offsets(model: Hdl64 = Hdl64(), period: float = SCAN_PERIOD_S) -
     return -a / (2 * np.pi) * period
 
 
-def simulate_scan(raycasting_scene, albedo: np.ndarray, T_w_velo: np.ndarray, rng: np.random.Generator,
-                  model: Hdl64 = Hdl64(), directions: np.ndarray | None = None,
-                  column_poses: np.ndarray | None = None, columns: np.ndarray | None = None,
-                  movers=None) -> np.ndarray:
+def simulate_scan(
+    raycasting_scene,
+    albedo: np.ndarray,
+    T_w_velo: np.ndarray,
+    rng: np.random.Generator,
+    model: Hdl64 = Hdl64(),
+    directions: np.ndarray | None = None,
+    column_poses: np.ndarray | None = None,
+    columns: np.ndarray | None = None,
+    movers=None,
+) -> np.ndarray:
     """One scan ``(N, 4)`` float32 ``x, y, z, reflectance`` in the Velodyne frame.
 
     Parameters
@@ -171,6 +196,7 @@ def simulate_scan(raycasting_scene, albedo: np.ndarray, T_w_velo: np.ndarray, rn
         docstring. ``None``: a static world, exactly as without the argument.
     """
     import open3d as o3d
+
     d = ray_directions(model) if directions is None else directions
     rays = np.empty((len(d), 6), dtype=np.float32)
     if column_poses is None:
@@ -180,7 +206,9 @@ def simulate_scan(raycasting_scene, albedo: np.ndarray, T_w_velo: np.ndarray, rn
     else:
         cols = ray_columns(model) if columns is None else columns
         if len(cols) != len(d) or len(column_poses) != model.columns:
-            raise ValueError(f"column_poses must be ({model.columns}, 4, 4) for the model's own ray directions")
+            raise ValueError(
+                f"column_poses must be ({model.columns}, 4, 4) for the model's own ray directions"
+            )
         P = np.asarray(column_poses, dtype=np.float64)[cols]
         rays[:, :3] = P[:, :3, 3]
         rays[:, 3:] = np.einsum("nij,nj->ni", P[:, :3, :3], d.astype(np.float64))
@@ -209,7 +237,9 @@ def simulate_scan(raycasting_scene, albedo: np.ndarray, T_w_velo: np.ndarray, rn
         m = on_mover[idx]
         alb = np.where(m, m_alb[idx], albedo[np.where(m, 0, prim)])
     cos_inc = np.abs(np.einsum("ij,ij->i", n_w, rays[idx, 3:]))
-    p_drop = 1.0 - (1.0 - model.dropout) * (-np.expm1(-(cos_inc / model.grazing_cos) ** 2) if model.grazing_cos > 0 else 1.0)
+    p_drop = 1.0 - (1.0 - model.dropout) * (
+        -np.expm1(-((cos_inc / model.grazing_cos) ** 2)) if model.grazing_cos > 0 else 1.0
+    )
     keep = rng.random(len(idx)) >= p_drop
     idx, r, alb, cos_inc = idx[keep], r[keep], alb[keep], cos_inc[keep]
     r_meas = r + model.sigma_range * rng.standard_normal(len(r))
@@ -221,8 +251,9 @@ def simulate_scan(raycasting_scene, albedo: np.ndarray, T_w_velo: np.ndarray, rn
     return out
 
 
-def _sweep_blocks(cols: np.ndarray, model: Hdl64, positions: np.ndarray,
-                  blocks: int = MOVER_BLOCKS) -> list[tuple[float, np.ndarray, float]]:
+def _sweep_blocks(
+    cols: np.ndarray, model: Hdl64, positions: np.ndarray, blocks: int = MOVER_BLOCKS
+) -> list[tuple[float, np.ndarray, float]]:
     """Cut the sweep into ``blocks`` equal spans of firing time: ``[(dt, rays, spread)]``, the span's middle instant
     (s after the mid-sweep timestamp), the indices of its rays (``cols (M,)`` each ray's column) and the size (m) of
     the box holding its columns' sensor positions ``positions (columns, 3)`` (an upper bound of how far its rays'
@@ -236,13 +267,17 @@ def _sweep_blocks(cols: np.ndarray, model: Hdl64, positions: np.ndarray,
 
 
 @functools.lru_cache(maxsize=8)
-def _block_partition(model: Hdl64, blocks: int, cols_bytes: bytes) -> tuple[np.ndarray, list]:
+def _block_partition(
+    model: Hdl64, blocks: int, cols_bytes: bytes
+) -> tuple[np.ndarray, list]:
     """The sweep's blocks of :func:`_sweep_blocks` for one sensor and ray order (cached: the same every scan):
     ``(block of each column (columns,), [(block, dt, ray indices)])``, empty blocks left out."""
     cols = np.frombuffer(cols_bytes, dtype=np.int64)
     offsets = column_time_offsets(model)
     span = SCAN_PERIOD_S / blocks
-    block_of_col = np.clip(np.floor((offsets + SCAN_PERIOD_S / 2) / span), 0, blocks - 1).astype(np.int64)
+    block_of_col = np.clip(
+        np.floor((offsets + SCAN_PERIOD_S / 2) / span), 0, blocks - 1
+    ).astype(np.int64)
     ray_block = block_of_col[cols]
     parts = []
     for b in range(blocks):
@@ -252,7 +287,9 @@ def _block_partition(model: Hdl64, blocks: int, cols_bytes: bytes) -> tuple[np.n
     return block_of_col, parts
 
 
-def _cast_movers(rays: np.ndarray, movers, blocks) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _cast_movers(
+    rays: np.ndarray, movers, blocks
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Cast ``rays (M, 6)`` against the movers of each block: ``(t_hit (M,) float32, inf for a miss; normals (M, 3)
     float32; albedo (M,) float32)``. ``blocks`` ``[(dt, ray indices, spread of their origins)]``, the movers taken
     from ``movers(all the blocks' dt)``.
@@ -260,26 +297,41 @@ def _cast_movers(rays: np.ndarray, movers, blocks) -> tuple[np.ndarray, np.ndarr
     Only the rays whose world azimuth falls within a mover triangle's azimuth span (:func:`_azimuth_mask`) are
     cast: a few per cent of them in a city street, and the same hits as casting them all."""
     import open3d as o3d
+
     t_hit = np.full(len(rays), np.inf, dtype=np.float32)
     normals = np.zeros((len(rays), 3), dtype=np.float32)
     alb = np.zeros(len(rays), dtype=np.float32)
     azimuth = np.arctan2(rays[:, 4], rays[:, 3])
     meshes = movers(np.array([dt for dt, _, _ in blocks]))
-    for (dt, sel, spread), (v, f, a) in zip(blocks, meshes):
+    for (_dt, sel, spread), (v, f, a) in zip(blocks, meshes):
         if len(f) == 0:
             continue
-        sel = sel[_azimuth_mask(rays[sel[0], :3], spread, azimuth[sel], np.asarray(v, np.float64), np.asarray(f))]
+        sel = sel[
+            _azimuth_mask(
+                rays[sel[0], :3],
+                spread,
+                azimuth[sel],
+                np.asarray(v, np.float64),
+                np.asarray(f),
+            )
+        ]
         if len(sel) == 0:
             continue
         rc = o3d.t.geometry.RaycastingScene()
-        rc.add_triangles(o3d.core.Tensor(np.ascontiguousarray(v, np.float32)),
-                         o3d.core.Tensor(np.ascontiguousarray(f, np.uint32)))
+        rc.add_triangles(
+            o3d.core.Tensor(np.ascontiguousarray(v, np.float32)),
+            o3d.core.Tensor(np.ascontiguousarray(f, np.uint32)),
+        )
         ans = rc.cast_rays(o3d.core.Tensor(np.ascontiguousarray(rays[sel])))
         th = ans["t_hit"].numpy()
         ok = np.isfinite(th)
         t_hit[sel] = th
         normals[sel] = ans["primitive_normals"].numpy()
-        alb[sel] = np.where(ok, np.asarray(a, np.float32)[np.where(ok, ans["primitive_ids"].numpy(), 0)], 0.0)
+        alb[sel] = np.where(
+            ok,
+            np.asarray(a, np.float32)[np.where(ok, ans["primitive_ids"].numpy(), 0)],
+            0.0,
+        )
     return t_hit, normals, alb
 
 
@@ -287,7 +339,9 @@ def _cast_movers(rays: np.ndarray, movers, blocks) -> tuple[np.ndarray, np.ndarr
 AZIMUTH_BINS = 4096
 
 
-def _azimuth_mask(o: np.ndarray, spread: float, azimuth: np.ndarray, v: np.ndarray, f: np.ndarray) -> np.ndarray:
+def _azimuth_mask(
+    o: np.ndarray, spread: float, azimuth: np.ndarray, v: np.ndarray, f: np.ndarray
+) -> np.ndarray:
     """Which rays (world azimuths ``azimuth (K,)`` rad, origins within ``spread`` m of ``o (3,)``) may hit the
     triangles ``v (V, 3)``, ``f (F, 3)``: bool (K,).
 
@@ -300,7 +354,9 @@ def _azimuth_mask(o: np.ndarray, spread: float, azimuth: np.ndarray, v: np.ndarr
     if dist.min() <= spread + 0.5:
         return np.ones(len(azimuth), dtype=bool)
     theta = np.arctan2(rel[:, 1], rel[:, 0])[f]  # (F, 3)
-    d = np.angle(np.exp(1j * (theta - theta[:, :1])))  # unwrapped about the first vertex, in (-pi, pi]
+    d = np.angle(
+        np.exp(1j * (theta - theta[:, :1]))
+    )  # unwrapped about the first vertex, in (-pi, pi]
     width = 2 * np.pi / AZIMUTH_BINS
     margin = np.arcsin(min(1.0, spread / dist.min())) + 2 * width
     lo = theta[:, 0] + d.min(1) - margin
@@ -308,7 +364,9 @@ def _azimuth_mask(o: np.ndarray, spread: float, azimuth: np.ndarray, v: np.ndarr
     first = np.floor(lo / width).astype(np.int64)
     count = np.floor(hi / width).astype(np.int64) - first + 1
     start = first % AZIMUTH_BINS
-    marks = np.zeros(2 * AZIMUTH_BINS + 1, dtype=np.int64)  # two turns: spans crossing +-pi do not wrap
+    marks = np.zeros(
+        2 * AZIMUTH_BINS + 1, dtype=np.int64
+    )  # two turns: spans crossing +-pi do not wrap
     np.add.at(marks, start, 1)
     np.add.at(marks, np.minimum(start + count, 2 * AZIMUTH_BINS), -1)
     covered = np.cumsum(marks)[:-1] > 0

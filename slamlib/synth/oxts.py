@@ -38,15 +38,23 @@ pykitti 0.3.1 ``utils.pose_from_oxts_packet``.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, asdict, fields
+from dataclasses import asdict, dataclass, fields
 
 import numpy as np
 
 from slamlib.geometry import matrix_to_rpy, rot_z
 from slamlib.synth.routes import Route
 
-__all__ = ["ImuNoise", "ZERO_NOISE", "WANDERING_BIASES", "bias_walk", "EARTH_RADIUS", "KARLSRUHE", "oxts_packets",
-           "latlon_from_mercator"]
+__all__ = [
+    "ImuNoise",
+    "ZERO_NOISE",
+    "WANDERING_BIASES",
+    "bias_walk",
+    "EARTH_RADIUS",
+    "KARLSRUHE",
+    "oxts_packets",
+    "latlon_from_mercator",
+]
 
 EARTH_RADIUS = 6378137.0
 #: (lat, lon, alt) of the first packet of 2011_09_26_drive_0001 (Karlsruhe).
@@ -81,9 +89,11 @@ class ImuNoise:
     gyro_bias_walk: float = 0.0
 
     def as_dict(self) -> dict:
-        return {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(self).items()}
+        return {
+            k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(self).items()
+        }
 
-    def scaled(self, k: float) -> "ImuNoise":
+    def scaled(self, k: float) -> ImuNoise:
         """Every term (``*_sigma``, ``*_bias``, ``*_scale``) multiplied by ``k >= 0``: ``k = 0`` gives exact
         fields (equal to :data:`ZERO_NOISE`), ``k = 2`` twice the errors. Dead-reckoning drift grows about
         linearly in ``k`` (it is dominated by the biases and the scale error)."""
@@ -91,7 +101,9 @@ class ImuNoise:
         if not (k >= 0 and np.isfinite(k)):
             raise ValueError(f"noise scale must be a finite number >= 0, got {k}")
 
-        def scale(x):  # "+ 0.0" turns the -0.0 of 0 * (negative bias) into 0.0, so as_dict() matches ZERO_NOISE's
+        def scale(
+            x,
+        ):  # "+ 0.0" turns the -0.0 of 0 * (negative bias) into 0.0, so as_dict() matches ZERO_NOISE's
             return k * float(x) + 0.0
 
         out = {}
@@ -101,7 +113,9 @@ class ImuNoise:
         return ImuNoise(**out)
 
 
-ZERO_NOISE = ImuNoise(0.0, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), 0.0, (0.0, 0.0, 0.0), 0.0, (0.0, 0.0, 0.0))
+ZERO_NOISE = ImuNoise(
+    0.0, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), 0.0, (0.0, 0.0, 0.0), 0.0, (0.0, 0.0, 0.0)
+)
 
 #: The default noise with wandering biases: a gyro bias random walk of 2e-4 rad/s/sqrt(s) (after 100 s the yaw-rate
 #: bias is off by 2 mrad/s, 0.11 deg/s, one sigma: a consumer MEMS gyro, cf. the 3 mrad/s constant bias) and a
@@ -114,13 +128,22 @@ WANDERING_BIASES = ImuNoise(vel_bias_walk=0.005, gyro_bias_walk=2e-4)
 def latlon_from_mercator(mx, my, scale: float) -> tuple[np.ndarray, np.ndarray]:
     """Inverse of pykitti's Mercator projection: ``(mx, my)`` m -> ``(lat, lon)`` degrees (see module doc)."""
     lon = np.asarray(mx, dtype=np.float64) * 180.0 / (np.pi * scale * EARTH_RADIUS)
-    lat = 360.0 / np.pi * np.arctan(np.exp(np.asarray(my, dtype=np.float64) / (scale * EARTH_RADIUS))) - 90.0
+    lat = (
+        360.0
+        / np.pi
+        * np.arctan(np.exp(np.asarray(my, dtype=np.float64) / (scale * EARTH_RADIUS)))
+        - 90.0
+    )
     return lat, lon
 
 
 def _corrupt(x, sigma, bias, scale, rng):
     x = np.asarray(x, dtype=np.float64)
-    return (1.0 + np.asarray(scale)) * x + np.asarray(bias) + sigma * rng.standard_normal(x.shape)
+    return (
+        (1.0 + np.asarray(scale)) * x
+        + np.asarray(bias)
+        + sigma * rng.standard_normal(x.shape)
+    )
 
 
 def bias_walk(times, q: float, rng: np.random.Generator) -> np.ndarray:
@@ -134,8 +157,14 @@ def bias_walk(times, q: float, rng: np.random.Generator) -> np.ndarray:
     return np.concatenate([np.zeros((1, 3)), np.cumsum(steps, axis=0)])
 
 
-def oxts_packets(route: Route, times, noise: ImuNoise = ImuNoise(), seed: int = 0,
-                 origin: tuple = KARLSRUHE, enu_yaw0: float = 0.0) -> np.ndarray:
+def oxts_packets(
+    route: Route,
+    times,
+    noise: ImuNoise = ImuNoise(),
+    seed: int = 0,
+    origin: tuple = KARLSRUHE,
+    enu_yaw0: float = 0.0,
+) -> np.ndarray:
     """OXTS packets ``(N, 30)`` float64 (KITTI field order) of ``route`` at ``times (N,)`` seconds.
 
     Parameters
@@ -165,11 +194,15 @@ def oxts_packets(route: Route, times, noise: ImuNoise = ImuNoise(), seed: int = 
     out[:, 3:6] = matrix_to_rpy(R_enu)
     v_enu = route.velocity_world(t) @ Rz0.T
     out[:, 6], out[:, 7] = v_enu[:, 1], v_enu[:, 0]
-    v_b, w_b, f_b = route.velocity_body(t), route.angular_rate_body(t), route.specific_force_body(t)
+    v_b, w_b, f_b = (
+        route.velocity_body(t),
+        route.angular_rate_body(t),
+        route.specific_force_body(t),
+    )
     vel = _corrupt(v_b, noise.vel_sigma, noise.vel_bias, noise.vel_scale, rng)
     out[:, 8:11] = vel
-    out[:, 11:14] = _corrupt(f_b, noise.acc_sigma, noise.acc_bias, 0.0, rng)   # ax ay az
-    out[:, 14:17] = _corrupt(f_b, noise.acc_sigma, noise.acc_bias, 0.0, rng)   # af al au
+    out[:, 11:14] = _corrupt(f_b, noise.acc_sigma, noise.acc_bias, 0.0, rng)  # ax ay az
+    out[:, 14:17] = _corrupt(f_b, noise.acc_sigma, noise.acc_bias, 0.0, rng)  # af al au
     out[:, 17:20] = _corrupt(w_b, noise.gyro_sigma, noise.gyro_bias, 0.0, rng)  # wx wy wz
     out[:, 20:23] = _corrupt(w_b, noise.gyro_sigma, noise.gyro_bias, 0.0, rng)  # wf wl wu
     out[:, 23] = 0.05

@@ -39,8 +39,16 @@ from slamlib.geometry import invert_pose, make_pose
 from slamlib.odometry import GRAVITY
 from slamlib.paths import kitti_sample_dir
 
-__all__ = ["Route", "GRAVITY", "straight_route", "loop_route", "kitti_route", "get_route", "ROUTE_NAMES",
-           "kitti_T_cam_imu"]
+__all__ = [
+    "Route",
+    "GRAVITY",
+    "straight_route",
+    "loop_route",
+    "kitti_route",
+    "get_route",
+    "ROUTE_NAMES",
+    "kitti_T_cam_imu",
+]
 
 ROUTE_NAMES = ("straight", "loop", "00", "05", "07")
 
@@ -60,12 +68,20 @@ class Route:
     def __post_init__(self):
         self.times = np.asarray(self.times, dtype=np.float64)
         self.poses = np.asarray(self.poses, dtype=np.float64)
-        if self.times.ndim != 1 or len(self.times) < 4 or np.any(np.diff(self.times) <= 0):
+        if (
+            self.times.ndim != 1
+            or len(self.times) < 4
+            or np.any(np.diff(self.times) <= 0)
+        ):
             raise ValueError("a route needs >= 4 strictly increasing key times")
         if self.poses.shape != (len(self.times), 4, 4):
-            raise ValueError(f"poses must be ({len(self.times)}, 4, 4), got {self.poses.shape}")
+            raise ValueError(
+                f"poses must be ({len(self.times)}, 4, 4), got {self.poses.shape}"
+            )
         self._pos = CubicSpline(self.times, self.poses[:, :3, 3], axis=0)
-        self._rot = RotationSpline(self.times, Rotation.from_matrix(self.poses[:, :3, :3]))
+        self._rot = RotationSpline(
+            self.times, Rotation.from_matrix(self.poses[:, :3, :3])
+        )
 
     @property
     def t0(self) -> float:
@@ -101,7 +117,9 @@ class Route:
         for end, beyond in ((self.t0, t < self.t0), (self.t1, t > self.t1)):
             if np.any(beyond):
                 v, w = self.velocity_body(end)[0], self.angular_rate_body(end)[0]
-                out[beyond] = self.pose(end)[0] @ increment_matrix(*imu_increments(v, w, v, w, t[beyond] - end))
+                out[beyond] = self.pose(end)[0] @ increment_matrix(
+                    *imu_increments(v, w, v, w, t[beyond] - end)
+                )
         return out
 
     def velocity_world(self, t) -> np.ndarray:
@@ -131,7 +149,9 @@ class Route:
         return float(np.linalg.norm(np.diff(p, axis=0), axis=1).sum())
 
 
-def straight_route(duration: float = 60.0, speed: float = 10.0, name: str = "straight") -> Route:
+def straight_route(
+    duration: float = 60.0, speed: float = 10.0, name: str = "straight"
+) -> Route:
     """Constant ``speed`` (m/s) along +x for ``duration`` s, level."""
     t = np.linspace(0.0, duration, max(int(duration) + 1, 4))
     poses = np.tile(np.eye(4), (len(t), 1, 1))
@@ -139,7 +159,9 @@ def straight_route(duration: float = 60.0, speed: float = 10.0, name: str = "str
     return Route(t, poses, name)
 
 
-def loop_route(radius: float = 60.0, speed: float = 8.0, laps: float = 1.0, name: str = "loop") -> Route:
+def loop_route(
+    radius: float = 60.0, speed: float = 8.0, laps: float = 1.0, name: str = "loop"
+) -> Route:
     """A counter-clockwise circle of ``radius`` m at ``speed`` m/s, starting at the origin heading +x."""
     duration = laps * 2 * np.pi * radius / speed
     t = np.linspace(0.0, duration, max(int(duration * 2) + 1, 8))
@@ -153,13 +175,19 @@ def loop_route(radius: float = 60.0, speed: float = 8.0, laps: float = 1.0, name
 
 def _read_calib(path: Path) -> dict[str, np.ndarray]:
     from slamlib.kitti.calib import read_calib_file
+
     return read_calib_file(path)
 
 
 def kitti_T_cam_imu(date_dir: Path | None = None) -> np.ndarray:
     """``T_cam_imu = R_rect_00 @ T_cam0_velo @ T_velo_imu`` (4x4) from a KITTI raw date folder's calib files."""
     from slamlib.kitti.calib import read_rigid
-    date_dir = Path(date_dir) if date_dir is not None else kitti_sample_dir() / "raw" / "2011_09_26"
+
+    date_dir = (
+        Path(date_dir)
+        if date_dir is not None
+        else kitti_sample_dir() / "raw" / "2011_09_26"
+    )
     T_velo_imu = read_rigid(date_dir / "calib_imu_to_velo.txt")
     T_cam_velo = read_rigid(date_dir / "calib_velo_to_cam.txt")
     cc = _read_calib(date_dir / "calib_cam_to_cam.txt")
@@ -175,6 +203,7 @@ def kitti_route(sequence: str = "07", frames: slice | tuple | None = None) -> Ro
     the route starts at ``t = 0`` and poses so the first selected IMU pose is the identity.
     """
     from slamlib.kitti.trajectory_io import read_kitti_poses
+
     root = kitti_sample_dir() / "odometry"
     P = read_kitti_poses(root / "poses" / f"{sequence}.txt")
     times = np.loadtxt(root / "times" / f"{sequence}.txt", dtype=np.float64).reshape(-1)
@@ -184,8 +213,10 @@ def kitti_route(sequence: str = "07", frames: slice | tuple | None = None) -> Ro
         sl = frames if isinstance(frames, slice) else slice(*frames)
         P, times = P[sl], times[sl]
         if len(P) < 4:
-            raise ValueError(f"KITTI sequence {sequence} has key frames 0..{n - 1}: the selection {frames!r} "
-                             f"keeps {len(P)} of them, a route needs at least 4")
+            raise ValueError(
+                f"KITTI sequence {sequence} has key frames 0..{n - 1}: the selection {frames!r} "
+                f"keeps {len(P)} of them, a route needs at least 4"
+            )
     T_ci = kitti_T_cam_imu()
     T = invert_pose(T_ci) @ P @ T_ci
     T = invert_pose(T[0]) @ T

@@ -48,20 +48,30 @@ class Scene:
     KINDS = ("ground", "building", "wall", "car", "pole", "trunk", "crown")
 
     @classmethod
-    def from_boxes(cls, boxes, albedo: float = 0.5) -> "Scene":
+    def from_boxes(cls, boxes, albedo: float = 0.5) -> Scene:
         """A scene of axis-aligned boxes ``[(lo (3,), hi (3,)), ...]`` (opposite corners, world frame, m), each of
         kind ``"wall"`` and reflectivity ``albedo``: a yard to try the sensor model in (the book's swept wall)."""
         b = _Builder()
         for lo, hi in boxes:
             lo, hi = np.asarray(lo, dtype=np.float64), np.asarray(hi, dtype=np.float64)
             if lo.shape != (3,) or hi.shape != (3,) or not np.all(hi > lo):
-                raise ValueError(f"a box is two corners (lo, hi) with hi > lo on every axis, got {lo}, {hi}")
-            b.add(_BOX, np.r_[(lo[:2] + hi[:2]) / 2, lo[2]], hi - lo, 0.0, albedo, cls.KINDS.index("wall"))
+                raise ValueError(
+                    f"a box is two corners (lo, hi) with hi > lo on every axis, got {lo}, {hi}"
+                )
+            b.add(
+                _BOX,
+                np.r_[(lo[:2] + hi[:2]) / 2, lo[2]],
+                hi - lo,
+                0.0,
+                albedo,
+                cls.KINDS.index("wall"),
+            )
         return b.build()
 
     def raycasting_scene(self):
         """An ``open3d.t.geometry.RaycastingScene`` holding the mesh (geometry id 0)."""
         import open3d as o3d
+
         rc = o3d.t.geometry.RaycastingScene()
         rc.add_triangles(o3d.core.Tensor(self.vertices), o3d.core.Tensor(self.triangles))
         return rc
@@ -69,8 +79,11 @@ class Scene:
     def to_open3d(self):
         """The mesh as a legacy ``open3d.geometry.TriangleMesh`` (for viewing)."""
         import open3d as o3d
-        m = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(self.vertices.astype(np.float64)),
-                                      o3d.utility.Vector3iVector(self.triangles.astype(np.int32)))
+
+        m = o3d.geometry.TriangleMesh(
+            o3d.utility.Vector3dVector(self.vertices.astype(np.float64)),
+            o3d.utility.Vector3iVector(self.triangles.astype(np.int32)),
+        )
         m.compute_vertex_normals()
         return m
 
@@ -81,11 +94,27 @@ class Scene:
 
 # --- templates: unit shapes centred at the origin of their footprint, base at z = 0 -------------------------
 def _box_template():
-    v = np.array([[x, y, z] for z in (0, 1) for y in (-0.5, 0.5) for x in (-0.5, 0.5)], dtype=np.float64)
+    v = np.array(
+        [[x, y, z] for z in (0, 1) for y in (-0.5, 0.5) for x in (-0.5, 0.5)],
+        dtype=np.float64,
+    )
     # vertex index = 4*z + 2*y + x
-    f = np.array([[0, 2, 1], [1, 2, 3], [4, 5, 6], [5, 7, 6],   # bottom, top
-                  [0, 1, 4], [1, 5, 4], [2, 6, 3], [3, 6, 7],   # -y, +y
-                  [0, 4, 2], [2, 4, 6], [1, 3, 5], [3, 7, 5]])  # -x, +x
+    f = np.array(
+        [
+            [0, 2, 1],
+            [1, 2, 3],
+            [4, 5, 6],
+            [5, 7, 6],  # bottom, top
+            [0, 1, 4],
+            [1, 5, 4],
+            [2, 6, 3],
+            [3, 6, 7],  # -y, +y
+            [0, 4, 2],
+            [2, 4, 6],
+            [1, 3, 5],
+            [3, 7, 5],
+        ]
+    )  # -x, +x
     return v, f
 
 
@@ -140,8 +169,12 @@ class _Builder:
         self.kind.append(np.full(len(f), kind, np.uint8))
 
     def build(self) -> Scene:
-        return Scene(np.vstack(self.v).astype(np.float32), np.vstack(self.f).astype(np.uint32),
-                     np.concatenate(self.alb), np.concatenate(self.kind))
+        return Scene(
+            np.vstack(self.v).astype(np.float32),
+            np.vstack(self.f).astype(np.uint32),
+            np.concatenate(self.alb),
+            np.concatenate(self.kind),
+        )
 
 
 def _resample_by_arclength(p: np.ndarray, step: float) -> np.ndarray:
@@ -150,8 +183,14 @@ def _resample_by_arclength(p: np.ndarray, step: float) -> np.ndarray:
     return np.c_[[np.interp(s, d, p[:, i]) for i in range(3)]].T
 
 
-def build_scene(route_positions, seed: int = 0, extent: float = 90.0, ground_cell: float = 2.0,
-                road_clearance: float = 3.2, parking_sides: tuple = (-1, 1)) -> Scene:
+def build_scene(
+    route_positions,
+    seed: int = 0,
+    extent: float = 90.0,
+    ground_cell: float = 2.0,
+    road_clearance: float = 3.2,
+    parking_sides: tuple = (-1, 1),
+) -> Scene:
     """Procedural town around a route (see the module docstring).
 
     Parameters
@@ -192,7 +231,11 @@ def build_scene(route_positions, seed: int = 0, extent: float = 90.0, ground_cel
     hi = road[:, :2].max(0) + extent
     nx = int(np.ceil((hi[0] - lo[0]) / ground_cell)) + 1
     ny = int(np.ceil((hi[1] - lo[1]) / ground_cell)) + 1
-    gx, gy = np.meshgrid(lo[0] + ground_cell * np.arange(nx), lo[1] + ground_cell * np.arange(ny), indexing="ij")
+    gx, gy = np.meshgrid(
+        lo[0] + ground_cell * np.arange(nx),
+        lo[1] + ground_cell * np.arange(ny),
+        indexing="ij",
+    )
     gxy = np.c_[gx.ravel(), gy.ravel()]
     k = min(8, len(road))
     dist, idx = tree.query(gxy, k=k)
@@ -202,12 +245,17 @@ def build_scene(route_positions, seed: int = 0, extent: float = 90.0, ground_cel
     dmin = dist[:, 0]
     phase = rng.uniform(0, 2 * np.pi, 2)
     away = np.clip(dmin - 6.0, 0.0, None)
-    gz += 0.015 * away * np.sin(gxy[:, 0] / 37.0 + phase[0]) * np.cos(gxy[:, 1] / 29.0 + phase[1])
+    gz += (
+        0.015
+        * away
+        * np.sin(gxy[:, 0] / 37.0 + phase[0])
+        * np.cos(gxy[:, 1] / 29.0 + phase[1])
+    )
     gv = np.c_[gxy, gz]
     ii, jj = np.meshgrid(np.arange(nx - 1), np.arange(ny - 1), indexing="ij")
     a = (ii * ny + jj).ravel()
     quads = np.c_[a, a + ny, a + ny + 1, a + 1]
-    keep = (dmin.reshape(nx, ny)[:-1, :-1].ravel() < extent)
+    keep = dmin.reshape(nx, ny)[:-1, :-1].ravel() < extent
     quads = quads[keep]
     tris = np.vstack([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]])
     used, inv = np.unique(tris, return_inverse=True)
@@ -221,8 +269,15 @@ def build_scene(route_positions, seed: int = 0, extent: float = 90.0, ground_cel
     def clear(centre_xy, size, yaw, clearance) -> bool:
         c, s = np.cos(yaw), np.sin(yaw)
         hx, hy = size[0] / 2, size[1] / 2
-        pts = [(0, 0)] + [(sx * hx * f, sy * hy * f) for sx in (-1, 1) for sy in (-1, 1) for f in (0.5, 1.0)]
-        pts = np.array([[centre_xy[0] + c * x - s * y, centre_xy[1] + s * x + c * y] for x, y in pts])
+        pts = [(0, 0)] + [
+            (sx * hx * f, sy * hy * f)
+            for sx in (-1, 1)
+            for sy in (-1, 1)
+            for f in (0.5, 1.0)
+        ]
+        pts = np.array(
+            [[centre_xy[0] + c * x - s * y, centre_xy[1] + s * x + c * y] for x, y in pts]
+        )
         return bool(tree.query(pts)[0].min() >= clearance)
 
     def place(template, s_idx, side, offset, along, size, albedo, kind, z_lift=0.0):
@@ -235,10 +290,21 @@ def build_scene(route_positions, seed: int = 0, extent: float = 90.0, ground_cel
         xy = p[i0, :2] + side * offset * normal + along * tangent
         if kind == 3 and side not in parking_sides:
             return
-        if not clear(xy, size, yaw, 0.75 * road_clearance if kind == 3 else road_clearance):
+        if not clear(
+            xy, size, yaw, 0.75 * road_clearance if kind == 3 else road_clearance
+        ):
             return
-        z = ground_z(xy)[0] - 0.3 + z_lift  # sink 0.3 m so sloped ground never shows a gap underneath
-        b.add(template, np.r_[xy, z], np.asarray(size, dtype=np.float64) + [0.0, 0.0, 0.3], yaw, albedo, kind)
+        z = (
+            ground_z(xy)[0] - 0.3 + z_lift
+        )  # sink 0.3 m so sloped ground never shows a gap underneath
+        b.add(
+            template,
+            np.r_[xy, z],
+            np.asarray(size, dtype=np.float64) + [0.0, 0.0, 0.3],
+            yaw,
+            albedo,
+            kind,
+        )
 
     n = len(p)
     for side in (-1, 1):
@@ -250,13 +316,29 @@ def build_scene(route_positions, seed: int = 0, extent: float = 90.0, ground_cel
                 length = rng.uniform(8, 30)
                 depth = rng.uniform(8, 15)
                 setback = rng.uniform(7, 14)
-                place(_BOX, int(s + length / 2), side, setback + depth / 2, 0.0,
-                      (length, depth, rng.uniform(6, 22)), rng.uniform(0.2, 0.6), 1)
+                place(
+                    _BOX,
+                    int(s + length / 2),
+                    side,
+                    setback + depth / 2,
+                    0.0,
+                    (length, depth, rng.uniform(6, 22)),
+                    rng.uniform(0.2, 0.6),
+                    1,
+                )
                 s += length + rng.uniform(0.5, 3)
             elif r < 0.85:
                 length = rng.uniform(10, 30)
-                place(_BOX, int(s + length / 2), side, rng.uniform(6.5, 9), 0.0,
-                      (length, 0.3, rng.uniform(1.0, 2.5)), rng.uniform(0.3, 0.5), 2)
+                place(
+                    _BOX,
+                    int(s + length / 2),
+                    side,
+                    rng.uniform(6.5, 9),
+                    0.0,
+                    (length, 0.3, rng.uniform(1.0, 2.5)),
+                    rng.uniform(0.3, 0.5),
+                    2,
+                )
                 s += length
             else:
                 s += rng.uniform(4, 15)
@@ -270,25 +352,68 @@ def build_scene(route_positions, seed: int = 0, extent: float = 90.0, ground_cel
                 if repetitive:
                     place(_PRISM, int(x), side, 5.5, 0.0, (0.15, 0.15, 6.0), 0.5, 4)
                     place(_PRISM, int(x + 5), side, 6.5, 0.0, (0.35, 0.35, 2.5), 0.3, 5)
-                    place(_CROWN, int(x + 5), side, 6.5, 0.0, (3.5, 3.5, 3.5), 0.25, 6, z_lift=2.3)
+                    place(
+                        _CROWN,
+                        int(x + 5),
+                        side,
+                        6.5,
+                        0.0,
+                        (3.5, 3.5, 3.5),
+                        0.25,
+                        6,
+                        z_lift=2.3,
+                    )
                     x += 10.0
                 else:
                     u = rng.random()
                     if u < 0.5:
-                        van = rng.random() < 0.3  # vans and SUVs: the only vehicles taller than the sensor
-                        size = (rng.uniform(4.8, 5.6), 2.0, rng.uniform(2.0, 2.6)) if van else (4.2, 1.8, 1.5)
-                        place(_BOX, int(x), side, rng.uniform(3.6, 4.6), 0.0, size, rng.uniform(0.1, 0.8), 3,
-                              z_lift=0.3)
+                        van = (
+                            rng.random() < 0.3
+                        )  # vans and SUVs: the only vehicles taller than the sensor
+                        size = (
+                            (rng.uniform(4.8, 5.6), 2.0, rng.uniform(2.0, 2.6))
+                            if van
+                            else (4.2, 1.8, 1.5)
+                        )
+                        place(
+                            _BOX,
+                            int(x),
+                            side,
+                            rng.uniform(3.6, 4.6),
+                            0.0,
+                            size,
+                            rng.uniform(0.1, 0.8),
+                            3,
+                            z_lift=0.3,
+                        )
                         x += rng.uniform(4.8, 8)
                     elif u < 0.65:
-                        place(_PRISM, int(x), side, rng.uniform(5, 6), 0.0, (0.15, 0.15, rng.uniform(4, 8)), 0.5, 4)
+                        place(
+                            _PRISM,
+                            int(x),
+                            side,
+                            rng.uniform(5, 6),
+                            0.0,
+                            (0.15, 0.15, rng.uniform(4, 8)),
+                            0.5,
+                            4,
+                        )
                         x += rng.uniform(10, 30)
                     elif u < 0.88:
                         h = rng.uniform(2, 4)
                         off = rng.uniform(6, 8)
                         place(_PRISM, int(x), side, off, 0.0, (0.35, 0.35, h), 0.3, 5)
-                        place(_CROWN, int(x), side, off, 0.0, (rng.uniform(2.5, 5),) * 2 + (rng.uniform(2.5, 5),),
-                              0.25, 6, z_lift=h - 0.2)
+                        place(
+                            _CROWN,
+                            int(x),
+                            side,
+                            off,
+                            0.0,
+                            (rng.uniform(2.5, 5),) * 2 + (rng.uniform(2.5, 5),),
+                            0.25,
+                            6,
+                            z_lift=h - 0.2,
+                        )
                         x += rng.uniform(6, 15)
                     else:
                         x += rng.uniform(5, 15)

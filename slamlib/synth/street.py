@@ -28,24 +28,48 @@ def street_primitives(length: float = 80.0, half_width: float = 8.0):
         for k, x0 in enumerate(xs):
             y = side * (W + (0.6 if k % 2 else 0.0))
             rects.append(_rect([x0, y, 0.0], [4.0, 0, 0], [0, 0, 7.0]))  # facade segment
-            rects.append(_rect([x0, side * W, 0.0], [0, side * 0.6, 0], [0, 0, 7.0]))  # step face
-    cylinders = [(x, s * (W - 1.5), 0.12, 4.5) for x in np.arange(-L / 2 + 3, L / 2, 6.0) for s in (-1, 1)]
-    for cx, cy in [(-27.0, 5.2), (-20.0, -5.2), (-9.5, 5.3), (-3.0, -5.2), (4.0, -5.1), (8.5, 5.2), (13.0, 5.2),
-                   (19.0, -5.1), (26.0, -5.3), (31.0, 5.2)]:
+            rects.append(
+                _rect([x0, side * W, 0.0], [0, side * 0.6, 0], [0, 0, 7.0])
+            )  # step face
+    cylinders = [
+        (x, s * (W - 1.5), 0.12, 4.5)
+        for x in np.arange(-L / 2 + 3, L / 2, 6.0)
+        for s in (-1, 1)
+    ]
+    for cx, cy in [
+        (-27.0, 5.2),
+        (-20.0, -5.2),
+        (-9.5, 5.3),
+        (-3.0, -5.2),
+        (4.0, -5.1),
+        (8.5, 5.2),
+        (13.0, 5.2),
+        (19.0, -5.1),
+        (26.0, -5.3),
+        (31.0, 5.2),
+    ]:
         x0, y0, x1, y1, h = cx - 2.1, cy - 0.9, cx + 2.1, cy + 0.9, 1.5
-        rects += [_rect([x0, y0, 0], [4.2, 0, 0], [0, 0, h]), _rect([x0, y1, 0], [4.2, 0, 0], [0, 0, h]),
-                  _rect([x0, y0, 0], [0, 1.8, 0], [0, 0, h]), _rect([x1, y0, 0], [0, 1.8, 0], [0, 0, h]),
-                  _rect([x0, y0, h], [4.2, 0, 0], [0, 1.8, 0])]
+        rects += [
+            _rect([x0, y0, 0], [4.2, 0, 0], [0, 0, h]),
+            _rect([x0, y1, 0], [4.2, 0, 0], [0, 0, h]),
+            _rect([x0, y0, 0], [0, 1.8, 0], [0, 0, h]),
+            _rect([x1, y0, 0], [0, 1.8, 0], [0, 0, h]),
+            _rect([x0, y0, h], [4.2, 0, 0], [0, 1.8, 0]),
+        ]
     return rects, cylinders
 
 
-def street_scene(rng: np.random.Generator, n_points: int, noise: float = 0.02, **kwargs) -> np.ndarray:
+def street_scene(
+    rng: np.random.Generator, n_points: int, noise: float = 0.02, **kwargs
+) -> np.ndarray:
     """``n_points`` (N, 3) float32 world points sampled uniformly by area on :func:`street_primitives`.
 
     Gaussian noise of ``noise`` metres is added on each axis (a LIDAR's range noise is about 2 cm).
     """
     rects, cyls = street_primitives(**kwargs)
-    areas = [np.linalg.norm(np.cross(u, v)) for _, u, v in rects] + [2 * np.pi * r * h for _, _, r, h in cyls]
+    areas = [np.linalg.norm(np.cross(u, v)) for _, u, v in rects] + [
+        2 * np.pi * r * h for _, _, r, h in cyls
+    ]
     areas = np.asarray(areas)
     which = rng.choice(len(areas), size=n_points, p=areas / areas.sum())
     out = np.empty((n_points, 3))
@@ -63,8 +87,14 @@ def street_scene(rng: np.random.Generator, n_points: int, noise: float = 0.02, *
     return out.astype(np.float32)
 
 
-def street_scan(rng: np.random.Generator, R, t, n_points: int, max_range: float = 30.0,
-                noise: float = 0.02) -> np.ndarray:
+def street_scan(
+    rng: np.random.Generator,
+    R,
+    t,
+    n_points: int,
+    max_range: float = 30.0,
+    noise: float = 0.02,
+) -> np.ndarray:
     """A body-frame scan (n_points, 3) float32 of the street seen from pose ``T_world_body = [R, t]``.
 
     Fresh surface samples (independent of the map's) within ``max_range`` metres of ``t`` are mapped to the body

@@ -44,10 +44,24 @@ from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 
-from slamlib.synth.scene import IMU_HEIGHT, _BOX
+from slamlib.synth.scene import _BOX, IMU_HEIGHT
 
-__all__ = ["TrafficConfig", "Traffic", "CentreLine", "build_traffic", "points_in_boxes", "KINDS", "KITTI_CITY",
-           "LEFT_LANE", "CYCLE_LANE", "SIDEWALK", "FOLLOW_MIN_DIST", "CAR_SIZE", "CYCLIST_SIZE", "PEDESTRIAN_SIZE"]
+__all__ = [
+    "TrafficConfig",
+    "Traffic",
+    "CentreLine",
+    "build_traffic",
+    "points_in_boxes",
+    "KINDS",
+    "KITTI_CITY",
+    "LEFT_LANE",
+    "CYCLE_LANE",
+    "SIDEWALK",
+    "FOLLOW_MIN_DIST",
+    "CAR_SIZE",
+    "CYCLIST_SIZE",
+    "PEDESTRIAN_SIZE",
+]
 
 #: Mover kinds; ``Traffic.kind`` holds indices into this tuple.
 KINDS = ("ahead", "behind", "oncoming", "overtaking", "cyclist", "pedestrian")
@@ -140,19 +154,36 @@ class TrafficConfig:
     clear_left_parking: bool = True
 
     def __post_init__(self):
-        rates = (self.ahead, self.behind, self.oncoming, self.overtaking, self.cyclists, self.pedestrians,
-                 self.density)
+        rates = (
+            self.ahead,
+            self.behind,
+            self.oncoming,
+            self.overtaking,
+            self.cyclists,
+            self.pedestrians,
+            self.density,
+        )
         if not all(np.isfinite(x) and x >= 0 for x in rates):
-            raise ValueError(f"traffic rates and density must be finite and >= 0, got {rates}")
+            raise ValueError(
+                f"traffic rates and density must be finite and >= 0, got {rates}"
+            )
 
-    def scaled(self, k: float) -> "TrafficConfig":
+    def scaled(self, k: float) -> TrafficConfig:
         """The same traffic ``k`` times as dense (``k = 2``: twice the default density)."""
         return replace(self, density=self.density * float(k))
 
     def per_km(self) -> np.ndarray:
         """Movers per km of each kind of :data:`KINDS`, ``density`` applied, shape (6,)."""
-        return self.density * np.array([self.ahead, self.behind, self.oncoming, self.overtaking, self.cyclists,
-                                        self.pedestrians])
+        return self.density * np.array(
+            [
+                self.ahead,
+                self.behind,
+                self.oncoming,
+                self.overtaking,
+                self.cyclists,
+                self.pedestrians,
+            ]
+        )
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -178,15 +209,26 @@ class CentreLine:
         self._v0 = (s[1] - s[0]) / (times[1] - times[0])
         self._v1 = (s[-1] - s[-2]) / (times[-1] - times[-2])
         moving = np.r_[True, np.diff(s) > 1e-9]
-        grid = np.arange(-EXTEND, self.length + EXTEND + CENTRE_LINE_STEP, CENTRE_LINE_STEP)
+        grid = np.arange(
+            -EXTEND, self.length + EXTEND + CENTRE_LINE_STEP, CENTRE_LINE_STEP
+        )
         inside = np.clip(grid, 0.0, self.length)
-        pts = np.stack([np.interp(inside, s[moving], p[moving, i]) for i in range(3)], axis=1)
+        pts = np.stack(
+            [np.interp(inside, s[moving], p[moving, i]) for i in range(3)], axis=1
+        )
         # the extensions go on along the chords of the first and last TANGENT_BASE m (not the last samples: the car
         # may stand still there, its ground truth jittering by millimetres in any direction)
-        at = np.clip([0.0, TANGENT_BASE, self.length - TANGENT_BASE, self.length], 0.0, self.length)
-        ends = np.stack([np.interp(at, s[moving], p[moving, i]) for i in range(2)], axis=1)
+        at = np.clip(
+            [0.0, TANGENT_BASE, self.length - TANGENT_BASE, self.length], 0.0, self.length
+        )
+        ends = np.stack(
+            [np.interp(at, s[moving], p[moving, i]) for i in range(2)], axis=1
+        )
         u0, u1 = self._unit_xy(ends[1] - ends[0]), self._unit_xy(ends[3] - ends[2])
-        pts[:, :2] += np.minimum(grid, 0.0)[:, None] * u0 + np.maximum(grid - self.length, 0.0)[:, None] * u1
+        pts[:, :2] += (
+            np.minimum(grid, 0.0)[:, None] * u0
+            + np.maximum(grid - self.length, 0.0)[:, None] * u1
+        )
         # tangent = chord over TANGENT_BASE m: the ground truth wiggles by centimetres while the car stands still,
         # which turns a 0.5 m difference by up to ~150 deg and would throw the movers 6 m out sideways
         k = max(1, int(round(TANGENT_BASE / 2 / CENTRE_LINE_STEP)))
@@ -216,9 +258,13 @@ class CentreLine:
         """Road point under the centre line ``(..., 3)`` (IMU height removed) and the unit tangent ``(..., 2)``
         at arc lengths ``s`` (clamped to :attr:`s_range`)."""
         s = np.asarray(s, dtype=np.float64)
-        pts = np.stack([np.interp(s, self._grid, self._pts[:, i]) for i in range(3)], axis=-1)
+        pts = np.stack(
+            [np.interp(s, self._grid, self._pts[:, i]) for i in range(3)], axis=-1
+        )
         pts[..., 2] -= IMU_HEIGHT
-        tan = np.stack([np.interp(s, self._grid, self._tan[:, i]) for i in range(2)], axis=-1)
+        tan = np.stack(
+            [np.interp(s, self._grid, self._tan[:, i]) for i in range(2)], axis=-1
+        )
         return pts, tan / (np.linalg.norm(tan, axis=-1, keepdims=True) + 1e-12)
 
 
@@ -257,7 +303,9 @@ class Traffic:
         ahead = np.abs(self.line.ego_s(t + self.sign * self.gap) - se)
         z = (ahead - FOLLOW_MIN_DIST) / SMOOTH_MAX_WIDTH
         follow = FOLLOW_MIN_DIST + SMOOTH_MAX_WIDTH * np.logaddexp(0.0, z)
-        return self.a * se + self.b + self.c * (t - self.t_ref) + self.f * self.sign * follow
+        return (
+            self.a * se + self.b + self.c * (t - self.t_ref) + self.f * self.sign * follow
+        )
 
     def present(self, t: float, s: np.ndarray | None = None) -> np.ndarray:
         """Which movers are in the town at time ``t``, bool (N,) (or (T, N) for ``t (T, 1)``)."""
@@ -269,18 +317,29 @@ class Traffic:
         """The boxes of the movers present at route time ``t``: ``index (M,)`` into the movers, ``kind (M,)``,
         ``centre (M, 3)`` centre of the box's base on the road (world, m), ``yaw (M,)`` rad about z (the box's
         length along it), ``size (M, 3)``, ``albedo (M,)``, ``speed (M,)`` m/s along the heading."""
-        s, present, centre, yaw = (x[0] for x in self._state(np.array([t], dtype=np.float64)))
+        s, present, centre, yaw = (
+            x[0] for x in self._state(np.array([t], dtype=np.float64))
+        )
         idx = np.flatnonzero(present)
         speed = np.abs(self.arc_length(t + SPEED_DT)[idx] - s[idx]) / SPEED_DT
-        return {"index": idx, "kind": self.kind[idx], "centre": centre[idx], "yaw": yaw[idx], "size": self.size[idx],
-                "albedo": self.albedo[idx], "speed": speed}
+        return {
+            "index": idx,
+            "kind": self.kind[idx],
+            "centre": centre[idx],
+            "yaw": yaw[idx],
+            "size": self.size[idx],
+            "albedo": self.albedo[idx],
+            "speed": speed,
+        }
 
     def inside(self, points, t: float, margin: float = 0.1) -> np.ndarray:
         """``(N,)`` bool: which of the world ``points (N, 3)`` lie in a mover's box at route time ``t``, grown by
         ``margin`` m on every side (a scan's range noise, and a swept scan's block timing)."""
         return points_in_boxes(points, self.boxes(t), margin).any(axis=0)
 
-    def _state(self, times: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    def _state(
+        self, times: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Every mover at each of ``times (T,)``: arc length ``(T, N)``, present ``(T, N)`` bool, base centre
         ``(T, N, 3)`` and yaw ``(T, N)`` (module docstring)."""
         t = times[:, None]
@@ -288,7 +347,9 @@ class Traffic:
         present = self.present(t, s)
         road, tan = self.line.frame(s)
         centre = road
-        centre[..., 0] -= self.lateral * tan[..., 1]  # + lateral x the left normal (-tan_y, tan_x)
+        centre[..., 0] -= (
+            self.lateral * tan[..., 1]
+        )  # + lateral x the left normal (-tan_y, tan_x)
         centre[..., 1] += self.lateral * tan[..., 0]
         yaw = np.arctan2(self.heading * tan[..., 1], self.heading * tan[..., 0])
         return s, present, centre, yaw
@@ -302,21 +363,36 @@ class Traffic:
         """:meth:`mesh` at each of ``times (T,)`` (route times, s), computed together."""
         _, present, centre, yaw = self._state(np.asarray(times, dtype=np.float64))
         tv, tf = _BOX
-        v = tv[None] * (self.size + [0.0, 0.0, SINK])[:, None, :]  # (N, 8, 3) box in its own frame
+        v = (
+            tv[None] * (self.size + [0.0, 0.0, SINK])[:, None, :]
+        )  # (N, 8, 3) box in its own frame
         c, s = np.cos(yaw)[..., None], np.sin(yaw)[..., None]  # (T, N, 1)
-        world = np.stack([c * v[..., 0] - s * v[..., 1], s * v[..., 0] + c * v[..., 1],
-                          np.broadcast_to(v[..., 2], c.shape[:2] + (len(tv),))], axis=-1)
+        world = np.stack(
+            [
+                c * v[..., 0] - s * v[..., 1],
+                s * v[..., 0] + c * v[..., 1],
+                np.broadcast_to(v[..., 2], c.shape[:2] + (len(tv),)),
+            ],
+            axis=-1,
+        )
         world += (centre - [0.0, 0.0, SINK])[:, :, None, :]
         out = []
         for k in range(len(present)):
             idx = np.flatnonzero(present[k])
             f = tf[None] + (len(tv) * np.arange(len(idx)))[:, None, None]
-            out.append((world[k, idx].reshape(-1, 3).astype(np.float32), f.reshape(-1, 3).astype(np.uint32),
-                        np.repeat(self.albedo[idx], len(tf)).astype(np.float32)))
+            out.append(
+                (
+                    world[k, idx].reshape(-1, 3).astype(np.float32),
+                    f.reshape(-1, 3).astype(np.uint32),
+                    np.repeat(self.albedo[idx], len(tf)).astype(np.float32),
+                )
+            )
         return out
 
 
-def points_in_boxes(points, boxes: dict, margin: float = 0.1, lift: float | None = None) -> np.ndarray:
+def points_in_boxes(
+    points, boxes: dict, margin: float = 0.1, lift: float | None = None
+) -> np.ndarray:
     """``(M, N)`` bool: which of the world ``points (N, 3)`` lie in each of the ``M`` boxes of :meth:`Traffic.boxes`,
     grown by ``margin`` m on every side; ``lift`` (m above the box's base, default ``-margin``) raises the floor, to
     leave out the road under a box sunk into it (:data:`SINK`)."""
@@ -327,8 +403,12 @@ def points_in_boxes(points, boxes: dict, margin: float = 0.1, lift: float | None
         d = p - c
         along = np.cos(yaw) * d[:, 0] + np.sin(yaw) * d[:, 1]
         across = -np.sin(yaw) * d[:, 0] + np.cos(yaw) * d[:, 1]
-        out[i] = ((np.abs(along) <= size[0] / 2 + margin) & (np.abs(across) <= size[1] / 2 + margin)
-                  & (d[:, 2] >= floor) & (d[:, 2] <= size[2] + margin))
+        out[i] = (
+            (np.abs(along) <= size[0] / 2 + margin)
+            & (np.abs(across) <= size[1] / 2 + margin)
+            & (d[:, 2] >= floor)
+            & (d[:, 2] <= size[2] + margin)
+        )
     return out
 
 
@@ -338,15 +418,20 @@ def _count(rate_per_km: float, length_m: float) -> int:
 
 
 #: Mean speed (m/s) of the kinds that keep their own speed: their street stretch is longer by speed x duration.
-_MEAN_SPEED = {ONCOMING: np.mean(ONCOMING_SPEED), CYCLIST: np.mean(CYCLIST_SPEED),
-               PEDESTRIAN: np.mean(PEDESTRIAN_SPEED)}
+_MEAN_SPEED = {
+    ONCOMING: np.mean(ONCOMING_SPEED),
+    CYCLIST: np.mean(CYCLIST_SPEED),
+    PEDESTRIAN: np.mean(PEDESTRIAN_SPEED),
+}
 
 
 def _counts(config: TrafficConfig, line: CentreLine, duration: float) -> list[int]:
     """Movers of each kind of :data:`KINDS` for a drive of ``duration`` s: the rate per km times the street they are
     laid on, the extended centre line (plus speed x duration for the kinds that keep their own speed)."""
     lo, hi = line.s_range
-    stretch = [hi - lo + _MEAN_SPEED.get(kind, 0.0) * duration for kind in range(len(KINDS))]
+    stretch = [
+        hi - lo + _MEAN_SPEED.get(kind, 0.0) * duration for kind in range(len(KINDS))
+    ]
     return [_count(r, length) for r, length in zip(config.per_km(), stretch)]
 
 
@@ -361,8 +446,15 @@ def _person(rng: np.random.Generator, size) -> tuple[np.ndarray, float]:
     return np.array(size, dtype=np.float64), rng.uniform(*PERSON_ALBEDO)
 
 
-def _draw(kind: int, rng: np.random.Generator, line: CentreLine, t0: float, t1: float, slot=None,
-          oncoming_speed: float = ONCOMING_SPEED[0]) -> dict:
+def _draw(
+    kind: int,
+    rng: np.random.Generator,
+    line: CentreLine,
+    t0: float,
+    t1: float,
+    slot=None,
+    oncoming_speed: float = ONCOMING_SPEED[0],
+) -> dict:
     """One mover of ``kind`` (a dict of the :class:`Traffic` fields) for a drive over route times ``[t0, t1]``;
     ``slot (t_a, t_b)`` for following cars; ``oncoming_speed`` (m/s) the oncoming lane's.
 
@@ -370,20 +462,44 @@ def _draw(kind: int, rng: np.random.Generator, line: CentreLine, t0: float, t1: 
     T]`` (``lo, hi`` the extended centre line, ``T = t1 - t0``): the street holds the same density all along the
     drive. An overtaking car passes the ego car at a time uniform over the times its span overlaps the drive.
     """
-    m = dict(kind=kind, heading=1.0, a=0.0, b=0.0, c=0.0, t_ref=t0, f=0.0, sign=1.0, gap=0.0,
-             t_on=-np.inf, t_off=np.inf)
+    m = dict(
+        kind=kind,
+        heading=1.0,
+        a=0.0,
+        b=0.0,
+        c=0.0,
+        t_ref=t0,
+        f=0.0,
+        sign=1.0,
+        gap=0.0,
+        t_on=-np.inf,
+        t_off=np.inf,
+    )
     if kind in (AHEAD, BEHIND):
         size, alb = _car_size(rng)
         frac = rng.uniform(*FOLLOW_PRESENCE)
         start = rng.uniform(slot[0], slot[1] - frac * (slot[1] - slot[0]))
-        m.update(lateral=0.0, a=1.0, f=1.0, sign=1.0 if kind == AHEAD else -1.0, gap=rng.uniform(*FOLLOW_GAP_S),
-                 t_on=start, t_off=start + frac * (slot[1] - slot[0]))
+        m.update(
+            lateral=0.0,
+            a=1.0,
+            f=1.0,
+            sign=1.0 if kind == AHEAD else -1.0,
+            gap=rng.uniform(*FOLLOW_GAP_S),
+            t_on=start,
+            t_off=start + frac * (slot[1] - slot[0]),
+        )
     elif kind == OVERTAKING:
         size, alb = _car_size(rng)
         dv = rng.uniform(*OVERTAKE_EXCESS)
         t_pass = rng.uniform(t0 - OVERTAKE_SPAN[1] / dv, t1 - OVERTAKE_SPAN[0] / dv)
-        m.update(lateral=LEFT_LANE, a=1.0, c=dv, t_ref=t_pass, t_on=t_pass + OVERTAKE_SPAN[0] / dv,
-                 t_off=t_pass + OVERTAKE_SPAN[1] / dv)
+        m.update(
+            lateral=LEFT_LANE,
+            a=1.0,
+            c=dv,
+            t_ref=t_pass,
+            t_on=t_pass + OVERTAKE_SPAN[0] / dv,
+            t_off=t_pass + OVERTAKE_SPAN[1] / dv,
+        )
     else:
         if kind == ONCOMING:
             size, alb = _car_size(rng)
@@ -395,7 +511,11 @@ def _draw(kind: int, rng: np.random.Generator, line: CentreLine, t0: float, t1: 
             size, alb = _person(rng, PEDESTRIAN_SIZE)
             side, heading = rng.choice([-1.0, 1.0]), rng.choice([-1.0, 1.0])
             # the right of a walker heading along the route is -y (the normal's opposite), against it +y
-            lateral = side * SIDEWALK - heading * KEEP_RIGHT + rng.uniform(-SIDEWALK_JITTER, SIDEWALK_JITTER)
+            lateral = (
+                side * SIDEWALK
+                - heading * KEEP_RIGHT
+                + rng.uniform(-SIDEWALK_JITTER, SIDEWALK_JITTER)
+            )
             v = rng.uniform(*PEDESTRIAN_SPEED)
         c = heading * v
         lo, hi = line.s_range
@@ -405,8 +525,22 @@ def _draw(kind: int, rng: np.random.Generator, line: CentreLine, t0: float, t1: 
     return m
 
 
-_FIELDS = ("kind", "lateral", "heading", "size", "albedo", "a", "b", "c", "t_ref", "f", "sign", "gap", "t_on",
-           "t_off")
+_FIELDS = (
+    "kind",
+    "lateral",
+    "heading",
+    "size",
+    "albedo",
+    "a",
+    "b",
+    "c",
+    "t_ref",
+    "f",
+    "sign",
+    "gap",
+    "t_on",
+    "t_off",
+)
 
 
 def _stack(line: CentreLine, movers: list[dict]) -> Traffic:
@@ -415,7 +549,10 @@ def _stack(line: CentreLine, movers: list[dict]) -> Traffic:
         empty = {k: np.zeros((0, 3) if k == "size" else 0) for k in fields}
         empty["kind"] = empty["kind"].astype(np.int64)
         return Traffic(line, **empty)
-    arrays = {k: np.array([m[k] for m in movers], dtype=np.int64 if k == "kind" else np.float64) for k in fields}
+    arrays = {
+        k: np.array([m[k] for m in movers], dtype=np.int64 if k == "kind" else np.float64)
+        for k in fields
+    }
     return Traffic(line, **arrays)
 
 
@@ -428,32 +565,48 @@ def _conflicts(candidate: Traffic, accepted: Traffic, times: np.ndarray) -> bool
     always present); the others on the grid, within the presence windows."""
     if len(accepted) == 0:
         return False
-    lane = np.abs(accepted.lateral - candidate.lateral[0]) < (accepted.size[:, 1] + candidate.size[0, 1]) / 2
+    lane = (
+        np.abs(accepted.lateral - candidate.lateral[0])
+        < (accepted.size[:, 1] + candidate.size[0, 1]) / 2
+    )
     if not lane.any():
         return False
     others = _subset(accepted, lane)
     reach = (others.size[:, 0] + candidate.size[0, 0]) / 2 + CONFLICT_MARGIN
     steady = _steady(others)
     if _steady(candidate)[0]:
-        if np.any(_linear_gap(candidate, _subset(others, steady), times[0], times[-1]) < reach[steady]):
+        if np.any(
+            _linear_gap(candidate, _subset(others, steady), times[0], times[-1])
+            < reach[steady]
+        ):
             return True
         others, reach = _subset(others, ~steady), reach[~steady]
         if len(others) == 0:
             return False
     if np.isfinite(candidate.t_on[0]) or len(others) == 1:
-        t_on, t_off = max(candidate.t_on[0], others.t_on.min()), min(candidate.t_off[0], others.t_off.max())
+        t_on, t_off = (
+            max(candidate.t_on[0], others.t_on.min()),
+            min(candidate.t_off[0], others.t_off.max()),
+        )
         t = times[(times >= t_on) & (times <= t_off)][:, None]
         s_c = candidate.arc_length(t)
         s_o = others.arc_length(t)
         both = candidate.present(t, s_c) & others.present(t, s_o)
         return bool(np.any(both & (np.abs(s_o - s_c) < reach)))
     # an always present candidate against movers present for a while: each over its own window
-    return any(_conflicts(candidate, _subset(others, [i]), times) for i in range(len(others)))
+    return any(
+        _conflicts(candidate, _subset(others, [i]), times) for i in range(len(others))
+    )
 
 
 def _steady(traffic: Traffic) -> np.ndarray:
     """Which movers keep their own constant speed (``s(t) = b + c (t - t_ref)``, always present), bool (N,)."""
-    return (traffic.a == 0) & (traffic.f == 0) & np.isinf(traffic.t_on) & np.isinf(traffic.t_off)
+    return (
+        (traffic.a == 0)
+        & (traffic.f == 0)
+        & np.isinf(traffic.t_on)
+        & np.isinf(traffic.t_off)
+    )
 
 
 def _linear_gap(one: Traffic, others: Traffic, t0: float, t1: float) -> np.ndarray:
@@ -471,7 +624,9 @@ def _subset(traffic: Traffic, keep: np.ndarray) -> Traffic:
     return Traffic(traffic.line, **fields)
 
 
-def build_traffic(route, t_start: float, t_end: float, config: TrafficConfig, rng: np.random.Generator) -> Traffic:
+def build_traffic(
+    route, t_start: float, t_end: float, config: TrafficConfig, rng: np.random.Generator
+) -> Traffic:
     """The movers of a drive along ``route`` over route times ``[t_start, t_end]`` (s), deterministic from ``rng``.
 
     Counts: ``round(per_km * S / 1000)`` of each kind (:meth:`TrafficConfig.per_km`, ``S`` the street they are laid

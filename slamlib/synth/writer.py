@@ -44,25 +44,53 @@ from slamlib.kitti.timestamps import write_timestamps_ns
 from slamlib.kitti.velodyne import SWEEP_PERIOD_S, SYNTH_MARKER, read_synth_marker
 from slamlib.paths import kitti_sample_dir
 
-__all__ = ["CALIB_FILES", "MARKER", "PARTIAL_MARKER", "drive_dir", "is_own_drive", "own_files", "check_calib",
-           "write_calib", "frame_timestamps_ns", "write_oxts", "write_velodyne_timestamps", "write_scan", "SCAN_PERIOD",
-           "odometry_calib", "write_odometry_calib", "write_odometry_scan", "own_sequence_files"]
+__all__ = [
+    "CALIB_FILES",
+    "MARKER",
+    "PARTIAL_MARKER",
+    "drive_dir",
+    "is_own_drive",
+    "own_files",
+    "check_calib",
+    "write_calib",
+    "frame_timestamps_ns",
+    "write_oxts",
+    "write_velodyne_timestamps",
+    "write_scan",
+    "SCAN_PERIOD",
+    "odometry_calib",
+    "write_odometry_calib",
+    "write_odometry_scan",
+    "own_sequence_files",
+]
 
 CALIB_FILES = ("calib_imu_to_velo.txt", "calib_velo_to_cam.txt", "calib_cam_to_cam.txt")
 MARKER = SYNTH_MARKER
 #: Written before anything else of a drive and removed after :data:`MARKER`: an interrupted drive keeps it.
 PARTIAL_MARKER = ".slamlib_synth.partial.json"
 #: The files the generator writes in a drive folder (besides the frame files matched by :data:`_FRAME_FILES`).
-_FIXED_FILES = ("oxts/dataformat.txt", "oxts/timestamps.txt", "velodyne_points/timestamps.txt",
-                "velodyne_points/timestamps_start.txt", "velodyne_points/timestamps_end.txt")
-_FRAME_FILES = (("oxts/data", re.compile(r"\d{10}\.txt")), ("velodyne_points/data", re.compile(r"\d{10}\.bin")))
+_FIXED_FILES = (
+    "oxts/dataformat.txt",
+    "oxts/timestamps.txt",
+    "velodyne_points/timestamps.txt",
+    "velodyne_points/timestamps_start.txt",
+    "velodyne_points/timestamps_end.txt",
+)
+_FRAME_FILES = (
+    ("oxts/data", re.compile(r"\d{10}\.txt")),
+    ("velodyne_points/data", re.compile(r"\d{10}\.bin")),
+)
 #: Seconds between scan stamps: the sweep period (:data:`slamlib.kitti.velodyne.SWEEP_PERIOD_S`).
 SCAN_PERIOD = SWEEP_PERIOD_S
 #: The OXTS clock (100 Hz) and how its packets are matched to scans (module docstring; all in ns), from drive 0001:
 OXTS_TICK_NS = 10_000_000
-OXTS_MIN_DELAY_NS = 11_550_000     # the shortest delay of a frame's packet tick after the scan stamp
-OXTS_LATE_MEAN_NS = 300_000        # mean extra threshold (exponential): ~3 % of packets a tick later
-OXTS_GRID_JITTER_NS = 500_000      # packets stamped up to 0.5 ms after their tick (real: 5-95 % of 0.03-0.48 ms)
+OXTS_MIN_DELAY_NS = (
+    11_550_000  # the shortest delay of a frame's packet tick after the scan stamp
+)
+OXTS_LATE_MEAN_NS = (
+    300_000  # mean extra threshold (exponential): ~3 % of packets a tick later
+)
+OXTS_GRID_JITTER_NS = 500_000  # packets stamped up to 0.5 ms after their tick (real: 5-95 % of 0.03-0.48 ms)
 _SAMPLE = kitti_sample_dir() / "raw" / "2011_09_26"
 
 
@@ -94,8 +122,10 @@ def check_calib(basedir, date: str) -> None:
     for name in CALIB_FILES:
         theirs = Path(basedir) / date / name
         if theirs.is_file() and theirs.read_bytes() != (_SAMPLE / name).read_bytes():
-            raise FileExistsError(f"{theirs} exists and differs from the 2011_09_26 calibration the generator "
-                                  "writes; choose another basedir or date")
+            raise FileExistsError(
+                f"{theirs} exists and differs from the 2011_09_26 calibration the generator "
+                "writes; choose another basedir or date"
+            )
 
 
 def write_calib(basedir, date: str) -> Path:
@@ -110,20 +140,30 @@ def write_calib(basedir, date: str) -> Path:
     return d
 
 
-def frame_timestamps_ns(n: int, date: str, rng: np.random.Generator, start_time: str = "13:02:25.9") -> dict:
+def frame_timestamps_ns(
+    n: int, date: str, rng: np.random.Generator, start_time: str = "13:02:25.9"
+) -> dict:
     """Integer-nanosecond timestamps of ``n`` frames (see the module docstring for the model).
 
     Returns ``{"velo", "start", "end", "oxts"}`` each ``(n,)`` int64 ns since 1970 (wall clock as UTC).
     """
-    day = _dt.datetime.strptime(date + " " + start_time, "%Y_%m_%d %H:%M:%S.%f").replace(tzinfo=_dt.timezone.utc)
+    day = _dt.datetime.strptime(date + " " + start_time, "%Y_%m_%d %H:%M:%S.%f").replace(
+        tzinfo=_dt.timezone.utc
+    )
     t0 = int(round(day.timestamp() * 1e9))
     k = np.arange(n)
-    velo = t0 + np.round((k * SCAN_PERIOD + 3.2e-5 * rng.standard_normal(n)) * 1e9).astype(np.int64)
+    velo = t0 + np.round(
+        (k * SCAN_PERIOD + 3.2e-5 * rng.standard_normal(n)) * 1e9
+    ).astype(np.int64)
     end = velo + 51_600_000 + rng.integers(-20_000, 20_000, n)
     start = np.r_[velo[:1] - 51_600_000, end[:-1]]
     g0 = velo[0] + int(rng.integers(0, OXTS_TICK_NS))
-    theta = OXTS_MIN_DELAY_NS + np.round(rng.exponential(OXTS_LATE_MEAN_NS, n)).astype(np.int64)
-    ticks = -((g0 - velo - theta) // OXTS_TICK_NS)  # ceil((velo + theta - g0) / tick) in exact integers
+    theta = OXTS_MIN_DELAY_NS + np.round(rng.exponential(OXTS_LATE_MEAN_NS, n)).astype(
+        np.int64
+    )
+    ticks = -(
+        (g0 - velo - theta) // OXTS_TICK_NS
+    )  # ceil((velo + theta - g0) / tick) in exact integers
     oxts = g0 + ticks * OXTS_TICK_NS + rng.integers(0, OXTS_GRID_JITTER_NS, n)
     return {"velo": velo, "start": start, "end": end, "oxts": oxts}
 
@@ -132,10 +172,15 @@ def write_oxts(ddir: Path, packets: np.ndarray, oxts_ns: np.ndarray) -> None:
     """``oxts/dataformat.txt`` (copied from the real drive), ``timestamps.txt`` and one packet per frame."""
     o = Path(ddir) / "oxts"
     (o / "data").mkdir(parents=True, exist_ok=True)
-    shutil.copyfile(_SAMPLE / "2011_09_26_drive_0001_sync" / "oxts" / "dataformat.txt", o / "dataformat.txt")
+    shutil.copyfile(
+        _SAMPLE / "2011_09_26_drive_0001_sync" / "oxts" / "dataformat.txt",
+        o / "dataformat.txt",
+    )
     write_timestamps_ns(o / "timestamps.txt", oxts_ns)
     for i, p in enumerate(packets):
-        (o / "data" / f"{i:010d}.txt").write_text(format_oxts_packet(p) + "\n", encoding="ascii")
+        (o / "data" / f"{i:010d}.txt").write_text(
+            format_oxts_packet(p) + "\n", encoding="ascii"
+        )
 
 
 def write_velodyne_timestamps(ddir: Path, ts: dict) -> None:
@@ -148,11 +193,15 @@ def write_velodyne_timestamps(ddir: Path, ts: dict) -> None:
 
 def write_scan(ddir: Path, index: int, scan: np.ndarray) -> None:
     """``velodyne_points/data/NNNNNNNNNN.bin``: ``scan (N, 4)`` as little-endian float32."""
-    np.ascontiguousarray(scan, dtype="<f4").tofile(Path(ddir) / "velodyne_points" / "data" / f"{index:010d}.bin")
+    np.ascontiguousarray(scan, dtype="<f4").tofile(
+        Path(ddir) / "velodyne_points" / "data" / f"{index:010d}.bin"
+    )
 
 
 def write_marker(ddir: Path, params: dict) -> None:
-    (Path(ddir) / MARKER).write_text(json.dumps(params, indent=1, sort_keys=True), encoding="ascii")
+    (Path(ddir) / MARKER).write_text(
+        json.dumps(params, indent=1, sort_keys=True), encoding="ascii"
+    )
 
 
 #: The marker of a drive or sequence folder, parsed (None when missing or not JSON); the readers use it too.
@@ -171,7 +220,9 @@ def own_sequence_files(sdir) -> list[Path]:
     sdir = Path(sdir)
     out = [sdir / name for name in (MARKER, PARTIAL_MARKER) + _SEQUENCE_FILES]
     if (sdir / "velodyne").is_dir():
-        out += sorted(p for p in (sdir / "velodyne").iterdir() if _SEQUENCE_SCAN.fullmatch(p.name))
+        out += sorted(
+            p for p in (sdir / "velodyne").iterdir() if _SEQUENCE_SCAN.fullmatch(p.name)
+        )
     return [p for p in out if p.is_file() and not p.is_symlink()]
 
 
@@ -179,7 +230,13 @@ def odometry_calib() -> dict[str, np.ndarray]:
     """An odometry ``calib.txt`` from the real 2011_09_26 raw calibration, as KITTI derived theirs:
     ``P0..P3 = P_rect_00..P_rect_03`` (3x4) and ``Tr = R_rect_00 T_cam0unrect_velo`` (3x4: Velodyne -> rectified
     left camera). Returns ``{key: (3, 4) float64}``."""
-    from slamlib.kitti.calib import CAM_TO_CAM, REQUIRED_KEYS, VELO_TO_CAM, read_calib_file, read_rigid
+    from slamlib.kitti.calib import (
+        CAM_TO_CAM,
+        REQUIRED_KEYS,
+        VELO_TO_CAM,
+        read_calib_file,
+        read_rigid,
+    )
 
     cam = read_calib_file(_SAMPLE / CAM_TO_CAM, REQUIRED_KEYS[CAM_TO_CAM])
     R_rect = np.eye(4)
@@ -192,7 +249,9 @@ def odometry_calib() -> dict[str, np.ndarray]:
 def write_odometry_calib(sdir) -> np.ndarray:
     """Write ``sdir/calib.txt`` (:func:`odometry_calib`, KITTI's ``%e`` format); returns ``Tr`` as 4x4."""
     calib = odometry_calib()
-    lines = [f"{key}: " + " ".join(f"{v:.12e}" for v in M.ravel()) for key, M in calib.items()]
+    lines = [
+        f"{key}: " + " ".join(f"{v:.12e}" for v in M.ravel()) for key, M in calib.items()
+    ]
     (Path(sdir) / "calib.txt").write_text("\n".join(lines) + "\n", encoding="ascii")
     Tr = np.eye(4)
     Tr[:3] = calib["Tr"]
@@ -201,4 +260,6 @@ def write_odometry_calib(sdir) -> np.ndarray:
 
 def write_odometry_scan(sdir, index: int, scan: np.ndarray) -> None:
     """``sdir/velodyne/NNNNNN.bin``: ``scan (N, 4)`` as little-endian float32."""
-    np.ascontiguousarray(scan, dtype="<f4").tofile(Path(sdir) / "velodyne" / f"{index:06d}.bin")
+    np.ascontiguousarray(scan, dtype="<f4").tofile(
+        Path(sdir) / "velodyne" / f"{index:06d}.bin"
+    )

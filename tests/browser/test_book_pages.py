@@ -51,7 +51,11 @@ MIN_FIGURE_SCALE = 10 / 11
 def _pages() -> list[str]:
     if not (BUILD / "index.html").is_file():
         return []
-    found = [BUILD / "index.html", *sorted(BUILD.glob("notebooks/*.html")), *sorted(BUILD.glob("book/*.html"))]
+    found = [
+        BUILD / "index.html",
+        *sorted(BUILD.glob("notebooks/*.html")),
+        *sorted(BUILD.glob("book/*.html")),
+    ]
     return [p.relative_to(BUILD).as_posix() for p in found]
 
 
@@ -59,7 +63,9 @@ PAGES = _pages()
 
 
 if not REQUIRED:
-    pytestmark = pytest.mark.skip(reason="the browser check runs under `make browser-check` (BOOK_BROWSER_CHECK=1)")
+    pytestmark = pytest.mark.skip(
+        reason="the browser check runs under `make browser-check` (BOOK_BROWSER_CHECK=1)"
+    )
 
 
 def _missing(why: str):
@@ -92,18 +98,24 @@ def browser():
     except ImportError:
         _missing("playwright is not installed (make browser-check installs it)")
     if not Path(CHROMIUM).exists() and not shutil.which(CHROMIUM):
-        _missing(f"no Chromium at {CHROMIUM} (make browser-check installs Debian's chromium)")
+        _missing(
+            f"no Chromium at {CHROMIUM} (make browser-check installs Debian's chromium)"
+        )
     with sync_playwright() as pw:
-        b = pw.chromium.launch(executable_path=CHROMIUM, headless=True, args=["--no-sandbox"])
+        b = pw.chromium.launch(
+            executable_path=CHROMIUM, headless=True, args=["--no-sandbox"]
+        )
         yield b
         b.close()
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _ids(path: Path) -> frozenset[str]:
     """The element ids (and old-style `<a name=...>` targets) in one built HTML file."""
     text = path.read_text(encoding="utf-8", errors="replace")
-    return frozenset(unquote(m) for m in re.findall(r'\b(?:id|name)\s*=\s*["\']([^"\']+)["\']', text))
+    return frozenset(
+        unquote(m) for m in re.findall(r'\b(?:id|name)\s*=\s*["\']([^"\']+)["\']', text)
+    )
 
 
 def _check_links(base: str, hrefs: list[str]) -> list[str]:
@@ -112,15 +124,23 @@ def _check_links(base: str, hrefs: list[str]) -> list[str]:
         if not href.startswith(base):
             continue  # another host, mailto:, javascript: ... not ours to check
         parts = urlsplit(href)
-        rel = unquote(parts.path)[len(urlsplit(base).path):]
+        rel = unquote(parts.path)[len(urlsplit(base).path) :]
         target = BUILD / rel
         if rel == "" or rel.endswith("/"):
             target = target / "index.html"
         if not target.exists():
-            problems.append(f"broken internal link {href[len(base) - 1:]}: {target.relative_to(BUILD)} is not in the build")
+            problems.append(
+                f"broken internal link {href[len(base) - 1 :]}: {target.relative_to(BUILD)} is not in the build"
+            )
             continue
-        if parts.fragment and target.suffix == ".html" and unquote(parts.fragment) not in _ids(target):
-            problems.append(f"broken internal link {href[len(base) - 1:]}: no id {parts.fragment!r} in {rel}")
+        if (
+            parts.fragment
+            and target.suffix == ".html"
+            and unquote(parts.fragment) not in _ids(target)
+        ):
+            problems.append(
+                f"broken internal link {href[len(base) - 1 :]}: no id {parts.fragment!r} in {rel}"
+            )
     return problems
 
 
@@ -132,9 +152,13 @@ def _raw_tables(paragraphs: list[str]) -> list[str]:
     problems = []
     for text in paragraphs:
         lines = text.splitlines()
-        if any(_PIPE_ROW.match(line) for line in lines) and any(_RULE_ROW.match(line) for line in lines):
+        if any(_PIPE_ROW.match(line) for line in lines) and any(
+            _RULE_ROW.match(line) for line in lines
+        ):
             first = next(line for line in lines if _PIPE_ROW.match(line)).strip()
-            problems.append(f"table left as raw pipes (a <p>, not a <table>): {first[:100]!r}")
+            problems.append(
+                f"table left as raw pipes (a <p>, not a <table>): {first[:100]!r}"
+            )
     return problems
 
 
@@ -195,7 +219,9 @@ def test_book_page(page_path, server, browser):
     page = context.new_page()
     page.set_default_timeout(PAGE_TIMEOUT_MS)
 
-    def route(r):  # the book must not need the network: every request off this machine is refused
+    def route(
+        r,
+    ):  # the book must not need the network: every request off this machine is refused
         host = urlsplit(r.request.url).hostname
         if r.request.url.startswith(("data:", "blob:", "about:")) or host == "127.0.0.1":
             r.continue_()
@@ -204,18 +230,46 @@ def test_book_page(page_path, server, browser):
 
     page.route("**/*", route)
     page.on("pageerror", lambda exc: problems.append(f"JavaScript error: {exc}"))
-    page.on("console", lambda msg: problems.append(f"console error: {msg.text[:300]}") if msg.type == "error" else None)
-    page.on("requestfailed", lambda req: problems.append(
-        f"request failed: {req.url[:200]} ({req.failure or 'failed'})"
-        + ("" if urlsplit(req.url).hostname == "127.0.0.1" else " - an external host: the book must work offline")))
-    page.on("response", lambda resp: problems.append(f"HTTP {resp.status} for {resp.url[:200]}")
-            if resp.status >= 400 and not resp.url.endswith("/favicon.ico") else None)
+    page.on(
+        "console",
+        lambda msg: (
+            problems.append(f"console error: {msg.text[:300]}")
+            if msg.type == "error"
+            else None
+        ),
+    )
+    page.on(
+        "requestfailed",
+        lambda req: problems.append(
+            f"request failed: {req.url[:200]} ({req.failure or 'failed'})"
+            + (
+                ""
+                if urlsplit(req.url).hostname == "127.0.0.1"
+                else " - an external host: the book must work offline"
+            )
+        ),
+    )
+    page.on(
+        "response",
+        lambda resp: (
+            problems.append(f"HTTP {resp.status} for {resp.url[:200]}")
+            if resp.status >= 400 and not resp.url.endswith("/favicon.ico")
+            else None
+        ),
+    )
     try:
-        refresh = re.search(r'http-equiv="Refresh"\s+content="\d+;\s*url=([^"]+)"',
-                            (BUILD / page_path).read_text(encoding="utf-8", errors="replace"), re.I)
+        refresh = re.search(
+            r'http-equiv="Refresh"\s+content="\d+;\s*url=([^"]+)"',
+            (BUILD / page_path).read_text(encoding="utf-8", errors="replace"),
+            re.I,
+        )
         if refresh:  # index.html: a redirect to the first page, which must exist and load (checked from there)
-            target = urlsplit(server + posixpath.join(posixpath.dirname(page_path), refresh.group(1)))
-            with page.expect_navigation(url=lambda url: urlsplit(url).path == target.path, wait_until="load"):
+            target = urlsplit(
+                server + posixpath.join(posixpath.dirname(page_path), refresh.group(1))
+            )
+            with page.expect_navigation(
+                url=lambda url: urlsplit(url).path == target.path, wait_until="load"
+            ):
                 page.goto(server + page_path)
         else:
             page.goto(server + page_path, wait_until="load")
@@ -225,14 +279,20 @@ def test_book_page(page_path, server, browser):
         problems += _check_links(server, info["hrefs"])
         problems += _raw_tables(info["paragraphs"])
         if info["mathNodes"] and not info["mathRendered"]:
-            problems.append(f"{info['mathNodes']} math element(s) not rendered (MathJax loaded: {info['mathJaxLoaded']})")
+            problems.append(
+                f"{info['mathNodes']} math element(s) not rendered (MathJax loaded: {info['mathJaxLoaded']})"
+            )
         for im in info["outputImages"]:
             if im["shown"] < MIN_FIGURE_SCALE * im["natural"]:
-                problems.append(f"image {im['src']} is {im['natural']} px wide but shown at {im['shown']:.0f} px: "
-                                f"its fonts fall below 10 pt (draw it at most "
-                                f"{im['shown'] / MIN_FIGURE_SCALE / 100:.1f} in wide at 100 dpi)")
+                problems.append(
+                    f"image {im['src']} is {im['natural']} px wide but shown at {im['shown']:.0f} px: "
+                    f"its fonts fall below 10 pt (draw it at most "
+                    f"{im['shown'] / MIN_FIGURE_SCALE / 100:.1f} in wide at 100 dpi)"
+                )
             if not im["animation"] and not im["captioned"]:
-                problems.append(f"image {im['src']} has no numbered caption (give its cell mystnb.figure metadata)")
+                problems.append(
+                    f"image {im['src']} has no numbered caption (give its cell mystnb.figure metadata)"
+                )
         for img_id in info["animations"]:
             why = page.evaluate(_ANIMATE_JS, img_id)
             if why:
@@ -240,4 +300,7 @@ def test_book_page(page_path, server, browser):
     finally:
         context.close()
     if problems:
-        pytest.fail(f"{page_path}: {len(problems)} problem(s):\n  - " + "\n  - ".join(problems), pytrace=False)
+        pytest.fail(
+            f"{page_path}: {len(problems)} problem(s):\n  - " + "\n  - ".join(problems),
+            pytrace=False,
+        )

@@ -1,7 +1,8 @@
 """Mutation score per module from ``mutmut results --all true`` output (``make mutate`` runs it).
 
 Usage: ``python tests/mutation/score.py results.txt [more.txt ...]`` (``make mutate`` passes its two groups'
-files: a mutant is counted in the file where it was checked). A line ``    slamlib.metrics.x_f__mutmut_3: killed`` counts
+files: a mutant is counted in the file where it was checked). A line
+``    slamlib.metrics.x_f__mutmut_3: killed`` counts
 for module ``slamlib.metrics``. Score = killed (+ timeout) / (all - skipped), as mutmut's own badge; mutants with
 no covering test count as not killed. Prints a Markdown table and then every mutant not killed.
 """
@@ -39,7 +40,9 @@ def main(paths: list[str]) -> None:
         killed = sum(c[s] for s in KILLED)
         other = tested - killed - c["survived"] - c["no tests"]
         score = 100.0 * killed / tested if tested else float("nan")
-        print(f"| {mod} | {tested} | {killed} | {c['survived']} | {c['no tests']} | {other} | {score:.1f} % |")
+        print(
+            f"| {mod} | {tested} | {killed} | {c['survived']} | {c['no tests']} | {other} | {score:.1f} % |"
+        )
     print()
     for a in alive:
         print(a)

@@ -15,8 +15,18 @@ def main(root: str, tests: list[str]) -> None:
         return
     path = f"{root}/pyproject.toml"
     text = open(path, encoding="utf-8").read()
-    new = "pytest_add_cli_args_test_selection = [" + ", ".join(f'"{t}"' for t in tests) + "]\n"
-    text, n = re.subn(r"^pytest_add_cli_args_test_selection = \[.*?\]\n", new, text, count=1, flags=re.S | re.M)
+    new = (
+        "pytest_add_cli_args_test_selection = ["
+        + ", ".join(f'"{t}"' for t in tests)
+        + "]\n"
+    )
+    text, n = re.subn(
+        r"^pytest_add_cli_args_test_selection = \[.*?\]\n",
+        new,
+        text,
+        count=1,
+        flags=re.S | re.M,
+    )
     if n != 1:
         sys.exit(f"select_tests: no pytest_add_cli_args_test_selection in {path}")
     open(path, "w", encoding="utf-8").write(text)

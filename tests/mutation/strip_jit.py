@@ -20,9 +20,18 @@ import ast
 import glob
 import os
 import sys
+
 import tomllib
 
-JIT_NAMES = {"njit", "jit", "vectorize", "guvectorize", "stencil", "cfunc", "generated_jit"}
+JIT_NAMES = {
+    "njit",
+    "jit",
+    "vectorize",
+    "guvectorize",
+    "stencil",
+    "cfunc",
+    "generated_jit",
+}
 JIT_OWNERS = {"numba", "nb", "cuda"}
 
 
@@ -34,8 +43,11 @@ def is_jit_decorator(node: ast.expr) -> bool:
         return node.id in JIT_NAMES
     if isinstance(node, ast.Attribute) and node.attr in JIT_NAMES:
         owner = node.value
-        return isinstance(owner, ast.Name) and owner.id in JIT_OWNERS or (
-            isinstance(owner, ast.Attribute) and owner.attr in JIT_OWNERS)
+        return (
+            isinstance(owner, ast.Name)
+            and owner.id in JIT_OWNERS
+            or (isinstance(owner, ast.Attribute) and owner.attr in JIT_OWNERS)
+        )
     return False
 
 
@@ -50,9 +62,14 @@ def strip_source(source: str) -> tuple[str, int]:
         for dec in node.decorator_list:
             if not is_jit_decorator(dec):
                 continue
-            first, last = dec.lineno - 1, dec.end_lineno - 1  # the "@" sits on the expression's first line
+            first, last = (
+                dec.lineno - 1,
+                dec.end_lineno - 1,
+            )  # the "@" sits on the expression's first line
             if not lines[first].lstrip().startswith("@"):
-                raise ValueError(f"line {dec.lineno}: decorator does not start its line: {lines[first]!r}")
+                raise ValueError(
+                    f"line {dec.lineno}: decorator does not start its line: {lines[first]!r}"
+                )
             for i in range(first, last + 1):
                 lines[i] = "\n"
             removed += 1
@@ -66,7 +83,11 @@ def listed_files(root: str) -> list[str]:
         cfg = tomllib.load(f)["tool"]["mutmut"]
     files: set[str] = set()
     for pattern in cfg.get("only_mutate", []):
-        files.update(p for p in glob.glob(os.path.join(root, pattern), recursive=True) if p.endswith(".py"))
+        files.update(
+            p
+            for p in glob.glob(os.path.join(root, pattern), recursive=True)
+            if p.endswith(".py")
+        )
     return sorted(files)
 
 
@@ -82,7 +103,9 @@ def main(root: str) -> int:
         if removed:
             with open(path, "w", encoding="utf-8") as f:
                 f.write(out)
-            print(f"strip_jit: {os.path.relpath(path, root)}: {removed} Numba decorator(s) removed")
+            print(
+                f"strip_jit: {os.path.relpath(path, root)}: {removed} Numba decorator(s) removed"
+            )
     return 0
 
 

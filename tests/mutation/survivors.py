@@ -26,9 +26,25 @@ def _clip(line: str) -> str:
 
 def changed_lines(run_dir: Path, name: str) -> tuple[str, str]:
     """The first removed and added lines of ``mutmut show NAME`` (``("", "")`` if it shows none)."""
-    diff = subprocess.run([str(MUTMUT), "show", name], cwd=run_dir, capture_output=True, text=True).stdout
-    old = next((ln[1:] for ln in diff.splitlines() if ln.startswith("-") and not ln.startswith("---")), "")
-    new = next((ln[1:] for ln in diff.splitlines() if ln.startswith("+") and not ln.startswith("+++")), "")
+    diff = subprocess.run(
+        [str(MUTMUT), "show", name], cwd=run_dir, capture_output=True, text=True
+    ).stdout
+    old = next(
+        (
+            ln[1:]
+            for ln in diff.splitlines()
+            if ln.startswith("-") and not ln.startswith("---")
+        ),
+        "",
+    )
+    new = next(
+        (
+            ln[1:]
+            for ln in diff.splitlines()
+            if ln.startswith("+") and not ln.startswith("+++")
+        ),
+        "",
+    )
     return _clip(old), _clip(new)
 
 
@@ -50,7 +66,9 @@ def main(run_dirs: list[str]) -> None:
                 continue
             old, new = changed_lines(run, name)
             func, number = function_and_number(name)
-            alive[module_of(name)].append(f"- `{func}` {number}: `{old}` -> `{new}` ({status})")
+            alive[module_of(name)].append(
+                f"- `{func}` {number}: `{old}` -> `{new}` ({status})"
+            )
     for module in sorted(alive):
         print(f"\n### `{module}` ({len(alive[module])})\n")
         print("\n".join(alive[module]))

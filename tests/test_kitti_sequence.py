@@ -181,14 +181,21 @@ def test_twist_between_inverts_the_motion_model():
         ] * 2
 
 
-def test_read_imu_without_imu_needs_the_estimate(odo):
+def test_without_an_imu_step_3_holds_the_filters_own_twist_checked(odo):
+    from slamlib.slam3d.config import MotionConfig
+    from slamlib.slam3d.stages import ConstantVelocity
+
     frame = KittiOdometrySequence(odo, 7)[1]
     with pytest.raises(ValueError, match="no IMU values"):
         steps.read_imu(frame)
-    v, w = steps.read_imu(frame, (np.array([1.0, 0, 0]), np.zeros(3)))
-    np.testing.assert_array_equal(v, [1.0, 0.0, 0.0])
-    with pytest.raises(ValueError, match="constant-velocity estimate"):
-        steps.read_imu(frame, (np.array([np.nan, 0, 0]), np.zeros(3)))
+    motion = ConstantVelocity(MotionConfig(), 100, 1.0)
+    poses = [np.eye(4), make_pose(np.eye(3), np.array([1.0, 0.0, 0.0]))]
+    v, w = motion.read(frame, poses, [0.0, 0.1])
+    np.testing.assert_allclose(v, [10.0, 0.0, 0.0])
+    np.testing.assert_array_equal(w, np.zeros(3))
+    poses[1] = make_pose(np.eye(3), np.array([np.nan, 0.0, 0.0]))
+    with pytest.raises(ValueError, match=r"\(frame 1\) \(constant-velocity estimate\)"):
+        motion.read(frame, poses, [0.0, 0.1])
 
 
 def test_constant_velocity_noise_is_wider_by_the_acceleration_terms():
@@ -405,14 +412,15 @@ def test_synth_command_writes_the_odometry_layout(tmp_path):
 
 def test_own_motion_window_and_damping():
     """LIDAR-only step 3 holds the twist over the last cv_window frames, times cv_damping per component."""
-    from slamlib.slam3d.pipeline import ParticleSLAM3D
+    from slamlib.slam3d.stages import held_twist
 
-    slam = ParticleSLAM3D(
-        SLAM3DConfig.of(
-            model="constant_velocity", cv_window=2, cv_damping=(1, 1, 0.5, 0, 0, 1)
-        )
-    )
-    assert all(np.all(x == 0) for x in slam.own_motion())  # nothing known yet: at rest
+    damping = (1, 1, 0.5, 0, 0, 1)
+
+    def own_motion(poses, dts):
+        return held_twist(poses, dts, 2, damping)
+
+    assert all(np.all(x == 0) for x in own_motion([], []))  # nothing known yet: at rest
+    assert all(np.all(x == 0) for x in own_motion([np.eye(4)], [0.0]))
     steps_ = [
         make_pose(
             rpy_to_matrix(np.array([0.0, 0.0, 0.1 * k])),
@@ -420,13 +428,13 @@ def test_own_motion_window_and_damping():
         )
         for k in range(3)
     ]
-    slam.poses, slam.dts = steps_[:2], [0.0, 0.1]
-    v1, w1 = slam.own_motion()  # one frame known: the window shrinks to it
+    v1, w1 = own_motion(
+        steps_[:2], [0.0, 0.1]
+    )  # one frame known: the window shrinks to it
     v_ref, w_ref = twist_between(steps_[0], steps_[1], 0.1)
     np.testing.assert_allclose(v1, v_ref * [1, 1, 0.5])
     np.testing.assert_allclose(w1, w_ref * [0, 0, 1])
-    slam.poses, slam.dts = steps_, [0.0, 0.1, 0.1]
-    v2, w2 = slam.own_motion()
+    v2, w2 = own_motion(steps_, [0.0, 0.1, 0.1])
     v_ref, w_ref = twist_between(steps_[0], steps_[2], 0.2)
     np.testing.assert_allclose(v2, v_ref * [1, 1, 0.5])
     np.testing.assert_allclose(w2, w_ref * [0, 0, 1])

@@ -930,13 +930,13 @@ def test_tilt_calibration_is_the_least_squares_of_the_filters_own_frames():
     for f in frames:
         slam.register_frame(f)
         if (
-            slam.up is not None
-            and sum(s[2] for s in list(slam.tilt_samples)[1:]) >= window
+            slam.prior.up is not None
+            and sum(s[2] for s in list(slam.prior.samples)[1:]) >= window
         ):
             R = slam.poses[-1][:3, :3]
             b = heading_bin(R, bins)
             infos[b], etas[b] = tilt_calibration_update(
-                infos[b], etas[b], R, slam.up, f.dt / window / sigma**2
+                infos[b], etas[b], R, slam.prior.up, f.dt / window / sigma**2
             )
             weights[b] += f.dt / window / sigma**2
             used += 1
@@ -946,8 +946,8 @@ def test_tilt_calibration_is_the_least_squares_of_the_filters_own_frames():
         used == len(frames) - 12
     )  # frames 0..11: no window yet, or one shorter than 1.05 s
     assert np.count_nonzero(weights) >= 3  # the drive turns through several sectors
-    np.testing.assert_allclose(slam.up_bias, bias, atol=1e-12)
-    np.testing.assert_allclose(slam.world_up, world_up, atol=1e-12)
+    np.testing.assert_allclose(slam.prior.up_bias, bias, atol=1e-12)
+    np.testing.assert_allclose(slam.prior.world_up, world_up, atol=1e-12)
     assert np.abs(bias).max() > 1e-3 and np.abs(world_up[:2]).max() > 1e-4
 
 
@@ -1016,8 +1016,8 @@ def test_tilt_prior_pulls_a_tilted_start_back_to_gravity(drive):
     with_prior, slam = run(
         tilt_sigma=0.002, tilt_world_sigma=0.0, tilt_bias_sigma=0.0
     )  # level world, no bias
-    assert without > 0.03 and plain.up is None  # the map holds the start's tilt
+    assert without > 0.03 and plain.prior.up is None  # the map holds the start's tilt
     assert with_prior < without / 2, (with_prior, without)
     np.testing.assert_allclose(
-        slam.up, gt[-1][2, :3], atol=0.01
+        slam.prior.up, gt[-1][2, :3], atol=0.01
     )  # the measured up is the true one

@@ -253,7 +253,7 @@ def test_a_skipped_frame_keeps_its_imu_sample_and_sigma():
         slam.last["sigma"], config.motion.sigma(inc[1], 0.1, False, False)
     )
     slam.register_frame(_frame(scan))
-    assert len(slam.poses) == 3 and len(slam.dr_poses) == 3
+    assert len(slam.poses) == 3 and len(slam.dead_reckoning) == 3
 
 
 def test_imu_mode_scores_every_point_without_ground_thinning():
@@ -344,7 +344,7 @@ def test_given_T0_and_calibration_are_stored_and_place_the_particles():
 
 
 def test_weigh_adds_tempered_scores_and_stores_them():
-    """``_weigh``: ``normalise(log_w + score / (N * temperature))`` with ``score = steps.score_particles`` (computed
+    """``weigh``: ``normalise(log_w + score / (N * temperature))`` with ``score = steps.score_particles`` (computed
     here independently), and the raw scores land in ``last["scores"]``."""
     scan = _scan()
     config = _config()
@@ -355,7 +355,7 @@ def test_weigh_adds_tempered_scores_and_stores_them():
     )
     sample = scan[:40, :3].astype(np.float64)  # N * temperature = 0.8, not 1
     log_w = np.log(np.linspace(1.0, 2.0, 20) / np.linspace(1.0, 2.0, 20).sum())
-    got = slam._weigh(parts, log_w, sample)
+    got = slam.weigh(parts, log_w, sample)
     scores = steps.score_particles(parts, sample, slam.map)
     raw = log_w + scores / (40 * config.filter.temperature)
     expected = raw - np.log(np.exp(raw - raw.max()).sum()) - raw.max()
@@ -365,8 +365,9 @@ def test_weigh_adds_tempered_scores_and_stores_them():
 
 
 def test_refine_rounds_each_resample_once():
-    """``FilterConfig(refine=3)`` with step 11 off (``ess_fraction=0``): the 3 annealing rounds resample with
-    ``ess_fraction=1`` each, so ``n_resampled`` is 3 after the second frame and 6 after the third."""
+    """``FilterConfig(refine=3)`` with step 11 off (``ess_fraction=0``): 3 annealing rounds a frame, each
+    resampling (``ess_fraction=1``), so ``n_annealed`` is 3 after the second frame and 6 after the third, and
+    ``n_resampled`` (frames whose step 11 resampled) stays 0."""
     scan = _scan()
     slam = ParticleSLAM3D(
         SLAM3DConfig(
@@ -377,14 +378,14 @@ def test_refine_rounds_each_resample_once():
     )
     slam.register_frame(_frame(scan, v=(0.0, 0.0, 0.0), w=(0.0, 0.0, 0.0)))
     slam.register_frame(_frame(scan, v=(0.0, 0.0, 0.0), w=(0.0, 0.0, 0.0)))
-    assert slam.n_resampled == 3
+    assert slam.n_annealed == 3 and slam.n_resampled == 0
     slam.register_frame(_frame(scan, v=(0.0, 0.0, 0.0), w=(0.0, 0.0, 0.0)))
-    assert slam.n_resampled == 6
+    assert slam.n_annealed == 6 and slam.n_resampled == 0
 
 
 def test_lidar_only_start_frame_runs_cv_start_rounds_rounds():
     """LIDAR-only, the second frame adds ``cv_start_rounds`` halving rounds (here 2, refine 0, step 11 off):
-    ``n_resampled`` is 2; the third frame (not a start) adds none."""
+    ``n_annealed`` is 2; the third frame (not a start) adds none."""
     scan = _scan()
     slam = ParticleSLAM3D(
         SLAM3DConfig(
@@ -394,9 +395,9 @@ def test_lidar_only_start_frame_runs_cv_start_rounds_rounds():
     )
     slam.register_frame(_frame(scan, v=(0.0, 0.0, 0.0), w=(0.0, 0.0, 0.0)))
     slam.register_frame(_frame(scan, v=(0.0, 0.0, 0.0), w=(0.0, 0.0, 0.0)))
-    assert slam.n_resampled == 2
+    assert slam.n_annealed == 2
     slam.register_frame(_frame(scan, v=(0.0, 0.0, 0.0), w=(0.0, 0.0, 0.0)))
-    assert slam.n_resampled == 2
+    assert slam.n_annealed == 2 and slam.n_resampled == 0
 
 
 def test_first_frame_of_exactly_min_scan_points_starts_the_map_and_records_its_points():
@@ -525,7 +526,7 @@ def test_the_configured_backend_runs_every_step(monkeypatch):
     still = dict(v=(0.0, 0.0, 0.0), w=(0.0, 0.0, 0.0))
     started.register_frame(_frame(scan, **still))  # _start merges
     started.register_frame(_frame(scan, **still))  # 5-11 with two annealing rounds
-    assert started.n_resampled >= 2 and len(started.poses) == 2
+    assert started.n_annealed == 2 and len(started.poses) == 2
     late = ParticleSLAM3D(config)
     late.register_frame(_frame(np.zeros((0, 4), np.float32)))  # nothing to merge
     late.register_frame(_frame(scan))  # _skip starts the map
@@ -552,7 +553,7 @@ def test_lidar_only_holds_the_twist_and_imu_mode_averages_two_samples(monkeypatc
     monkeypatch.setattr(
         steps,
         "motion_increment",
-        lambda imu, dt, prev: seen.append(prev) or real(imu, dt, prev),
+        lambda imu, dt, prev=None: seen.append(prev) or real(imu, dt, prev),
     )
     scan = _scan()
     cv = ParticleSLAM3D(

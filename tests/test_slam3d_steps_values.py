@@ -151,7 +151,11 @@ def test_read_imu_error_messages_name_the_quantity_limit_unit_and_where():
         )
         + "$",
     ):
-        steps.read_imu(frame, estimate=([200.0, 0.0, 0.0], [0.0, 0.0, 0.0]))
+        steps.check_twist(
+            [200.0, 0.0, 0.0],
+            [0.0, 0.0, 0.0],
+            steps.frame_label(frame) + " (constant-velocity estimate)",
+        )
 
 
 def test_read_imu_without_either_imu_value_is_the_lidar_only_error():

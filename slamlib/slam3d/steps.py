@@ -81,6 +81,8 @@ __all__ = [
     "should_deskew",
     "deskew_scan",
     "read_imu",
+    "check_twist",
+    "frame_label",
     "read_timing",
     "read_scan_time_offset",
     "read_specific_force",
@@ -217,34 +219,36 @@ def deskew_scan(
     return np.ascontiguousarray(deskew(pts, imu[0], imu[1], times))
 
 
-def read_imu(frame, estimate=None) -> tuple[np.ndarray, np.ndarray]:
+def frame_label(frame) -> str:
+    """`` (frame N)`` for a frame with an ``index``, empty otherwise: where an error message says it happened."""
+    return f" (frame {frame.index})" if hasattr(frame, "index") else ""
+
+
+def read_imu(frame) -> tuple[np.ndarray, np.ndarray]:
     """Step 3: ``imu = (velocity, angular_rate)``: body velocity ``(vf, vl, vu)`` m/s and rates ``(wf, wl, wu)``
-    rad/s, each (3,).
+    rad/s, each (3,), checked by :func:`check_twist`.
 
-    LIDAR-only (a frame without IMU values -- ``frame.velocity is None``, as in the KITTI odometry layout -- or a
-    filter set to ``MotionConfig.model = "constant_velocity"``): the filter passes ``estimate``, its own last
-    estimated twist (:func:`slamlib.odometry.twist_between` of its last two poses; zero before it has two), and
-    that is returned instead of the frame's values: the constant-velocity model.
-
-    Raises ``ValueError`` on a non-finite value or one beyond the OXTS physical limits
-    (:data:`slamlib.kitti.oxts.MAX_SPEED_MPS`, :data:`~slamlib.kitti.oxts.MAX_ANGULAR_RATE_RADPS`), which would
-    otherwise give NaN poses, and on a frame without IMU values when no ``estimate`` is given.
+    Raises ``ValueError`` on a frame without IMU values (``frame.velocity is None``, as in the KITTI odometry
+    layout: LIDAR-only, the motion stage holds the filter's own motion instead,
+    :class:`slamlib.slam3d.stages.ConstantVelocity`), and as :func:`check_twist` does.
     """
-    where = f" (frame {frame.index})" if hasattr(frame, "index") else ""
-    if estimate is not None:
-        v, w = estimate
-        where += " (constant-velocity estimate)"
-    elif (
+    where = frame_label(frame)
+    if (
         getattr(frame, "velocity", None) is None
         or getattr(frame, "angular_rate", None) is None
     ):
         raise ValueError(
             f"frame{where} has no IMU values: LIDAR-only step 3 needs the filter's own motion estimate"
         )
-    else:
-        v, w = frame.velocity, frame.angular_rate
-    v = np.asarray(v, dtype=np.float64).reshape(3)
-    w = np.asarray(w, dtype=np.float64).reshape(3)
+    return check_twist(frame.velocity, frame.angular_rate, where)
+
+
+def check_twist(velocity, angular_rate, where: str = "") -> tuple[np.ndarray, np.ndarray]:
+    """``(velocity (3,), angular_rate (3,))`` as float64, or ``ValueError`` (naming ``where``) on a non-finite value
+    or one beyond the OXTS physical limits (:data:`slamlib.kitti.oxts.MAX_SPEED_MPS`,
+    :data:`~slamlib.kitti.oxts.MAX_ANGULAR_RATE_RADPS`), which would otherwise give NaN poses."""
+    v = np.asarray(velocity, dtype=np.float64).reshape(3)
+    w = np.asarray(angular_rate, dtype=np.float64).reshape(3)
     for name, x, limit, unit in (
         ("velocity", v, MAX_SPEED_MPS, "m/s"),
         ("angular_rate", w, MAX_ANGULAR_RATE_RADPS, "rad/s"),
@@ -274,7 +278,7 @@ def read_scan_time_offset(frame, scan_config: ScanConfig = ScanConfig()) -> floa
     """
     offset = float(getattr(frame, "scan_time_offset_s", 0.0))
     if not np.isfinite(offset) or abs(offset) > scan_config.sweep_period:
-        where = f" (frame {frame.index})" if hasattr(frame, "index") else ""
+        where = frame_label(frame)
         raise ValueError(
             f"scan time offset{where} must be finite and within one sweep "
             f"(+-{scan_config.sweep_period:g} s) of the pose, got {offset}"
@@ -295,7 +299,7 @@ def read_specific_force(frame) -> np.ndarray | None:
         return None
     f = np.asarray(f, dtype=np.float64).reshape(3)
     if not np.all(np.isfinite(f)) or np.any(np.abs(f) > MAX_ACCELERATION_MPS2):
-        where = f" (frame {frame.index})" if hasattr(frame, "index") else ""
+        where = frame_label(frame)
         raise ValueError(
             f"IMU specific_force{where} must be finite and within +-{MAX_ACCELERATION_MPS2:g} m/s^2, "
             f"got {f.tolist()}"

@@ -1,0 +1,66 @@
+"""The stages of the 3D filter: each one job around the twelve steps, chosen once from the settings and the data.
+
+:class:`~slamlib.slam3d.pipeline.ParticleSLAM3D` builds one object per stage when it sees the first frame
+(:func:`choose_stages`), and its per-frame method calls them in the order of the steps, with no mode flag read
+per frame. Each stage has a *null* form that does nothing, so a feature that is off costs no branch:
+
+============== ============================================== ===============================================
+stage          serves                                         forms
+============== ============================================== ===============================================
+motion         step 3's source, step 5's increment, step 6's  :class:`ImuMotion` (IMU velocities and rates,
+               spread, the scoring sample, the start search   dead-reckoning twin), :class:`ConstantVelocity`
+                                                              (LIDAR-only: the filter's own motion held)
+scan           step 2: crop, down-sample, de-skew             :class:`ScanPreparation`
+prior          step 8's second term                           :class:`TiltPrior` (roll and pitch held to
+                                                              gravity), :class:`NoPrior`
+search         steps 6-8 again inside the frame               :class:`Annealing` (no rounds: nothing)
+polish         step 9's pose sharpened                        :class:`ScanMatch`, :class:`NoPolish`
+upkeep         after step 10: what the map forgets            :class:`MapUpkeep`
+============== ============================================== ===============================================
+"""
+
+from __future__ import annotations
+
+from slamlib.slam3d.stages.motion import ConstantVelocity, ImuMotion, has_imu, held_twist
+from slamlib.slam3d.stages.polish import NoPolish, ScanMatch
+from slamlib.slam3d.stages.prior import NoPrior, TiltPrior
+from slamlib.slam3d.stages.scan import ScanPreparation
+from slamlib.slam3d.stages.search import Annealing
+from slamlib.slam3d.stages.upkeep import MapUpkeep
+
+__all__ = [
+    "Annealing",
+    "ConstantVelocity",
+    "ImuMotion",
+    "MapUpkeep",
+    "NoPolish",
+    "NoPrior",
+    "ScanMatch",
+    "ScanPreparation",
+    "TiltPrior",
+    "choose_stages",
+    "has_imu",
+    "held_twist",
+]
+
+
+def choose_stages(config, frame, T0):
+    """The data-dependent stages for a drive whose first frame is ``frame``: ``(motion, prior, polish)``.
+
+    LIDAR-only (:class:`ConstantVelocity`) when ``config.motion.model == "constant_velocity"`` or the frame has no
+    IMU values (the KITTI odometry layout); then there is no tilt prior (no accelerometer) and scan matching is
+    on unless ``config.filter.scan_match`` is False. With an IMU: :class:`ImuMotion`, the tilt prior when
+    ``config.filter.tilt_sigma > 0``, scan matching only when ``config.filter.scan_match`` is True.
+    """
+    f = config.filter
+    lidar_only = config.motion.model == "constant_velocity" or not has_imu(frame)
+    if lidar_only:
+        motion = ConstantVelocity(
+            config.motion, f.scored_points, f.lidar_only_ground_share
+        )
+    else:
+        motion = ImuMotion(config.motion, f.scored_points, T0)
+    prior = TiltPrior(f) if f.tilt_sigma and not lidar_only else NoPrior()
+    match = lidar_only if f.scan_match is None else bool(f.scan_match)
+    polish = ScanMatch(f.scan_match_iterations, road=lidar_only) if match else NoPolish()
+    return motion, prior, polish

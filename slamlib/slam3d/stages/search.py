@@ -1,0 +1,51 @@
+"""The search stage: annealing rounds inside a frame, coarse to fine.
+
+With few particles in 6 dimensions the best of the cloud is still a few centimetres / tenths of a degree from the
+likelihood's peak. Each annealing round (Deutscher, Blake & Reid, "Articulated body motion capture by annealed
+particle filtering", CVPR 2000) resamples by the current weights, perturbs with step 6's spread shrunk by a factor,
+and weighs again (steps 7 + 8). The result is still a particle filter (a sequence of importance-sampling /
+resampling stages on the same posterior), just with a sharper proposal. ``FilterConfig.refine`` rounds shrink the
+spread by ``refine_shrink`` each; the motion stage may ask for more at the start of a LIDAR-only drive, where no
+motion is known yet: ``start_rounds`` rounds first, the ``k``-th shrinking the (wide) spread by ``START_SHRINK**k``.
+No rounds: the particles and weights pass through unchanged.
+"""
+
+from __future__ import annotations
+
+from slamlib.slam3d import steps
+
+__all__ = ["START_SHRINK", "Annealing"]
+
+#: Spread factor per round of the start search: each round halves the spread of the one before.
+START_SHRINK = 0.5
+#: Step 11 inside a round resamples whatever the effective sample size (``ess_fraction`` 1: always).
+ROUND_ESS_FRACTION = 1.0
+
+
+class Annealing:
+    """``rounds`` annealing rounds per frame, each shrinking step 6's spread by ``shrink`` (module docstring).
+
+    ``weigh(particles, log_weights, sample) -> log_weights`` is the filter's steps 7 + 8 (with the prior's term);
+    ``rng`` and ``backend`` are the filter's. ``n_rounds`` counts the rounds run.
+    """
+
+    def __init__(self, rounds: int, shrink: float, weigh, rng, backend):
+        self.rounds, self.shrink = int(rounds), float(shrink)
+        self.weigh, self.rng, self.backend = weigh, rng, backend
+        self.n_rounds = 0
+
+    def __call__(self, particles, log_weights, sample, sigma, start_rounds: int = 0):
+        """The particles and log-weights after ``start_rounds`` start rounds and then ``rounds`` rounds."""
+        shrinks = [START_SHRINK**k for k in range(1, start_rounds + 1)] + [
+            self.shrink
+        ] * self.rounds
+        for shrink in shrinks:
+            particles, log_weights, _ = steps.resample_particles(
+                particles, log_weights, self.rng, ROUND_ESS_FRACTION, self.backend
+            )
+            particles = steps.perturb_with_noise(
+                particles, sigma * shrink, self.rng, backend=self.backend
+            )
+            log_weights = self.weigh(particles, log_weights, sample)
+            self.n_rounds += 1
+        return particles, log_weights

@@ -258,10 +258,15 @@ class ParticleSLAM3D:
         return np.array(self.poses).reshape(-1, 4, 4)
 
     @property
-    def dead_reckoning(self) -> np.ndarray | None:
-        """Dead-reckoning poses (F, 4, 4) from the same IMU samples; None LIDAR-only (no IMU to reckon with)."""
+    def dr_poses(self) -> list[np.ndarray] | None:
+        """The dead-reckoning poses (4, 4) so far, one per registered frame (the IMU motion stage's twin); None
+        LIDAR-only."""
         if self.lidar_only:
             return None
-        return np.array([] if self.motion is None else self.motion.dr_poses).reshape(
-            -1, 4, 4
-        )
+        return [] if self.motion is None else self.motion.dr_poses
+
+    @property
+    def dead_reckoning(self) -> np.ndarray | None:
+        """Dead-reckoning poses (F, 4, 4) from the same IMU samples; None LIDAR-only (no IMU to reckon with)."""
+        dr = self.dr_poses
+        return None if dr is None else np.array(dr).reshape(-1, 4, 4)

@@ -11,6 +11,7 @@ ROOT = Path(slamlib.__file__).parent
 LAYERS = {
     "cli": 5,
     "commands": 5,
+    "experiments": 4,
     "slam3d": 3,
     "synth": 3,
     "noise_quality": 3,

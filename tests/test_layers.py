@@ -1,7 +1,12 @@
 """The layering CONTRIBUTING.md states: what may import what inside slamlib (no upward imports, no benchmarks)."""
 
 import ast
+import importlib
+import re
+import sys
 from pathlib import Path
+
+import pytest
 
 import slamlib
 
@@ -51,6 +56,11 @@ FORBIDDEN = {
     ("sim1d", "sim2d"),
 }
 
+#: The modules that moved from slam3d to experiments: slam3d keeps a deprecated shim of each (re-export and
+#: warn), the one import of ``experiments`` slam3d may hold; nothing else may import the old paths.
+MOVED = ("sweep", "video", "render")
+SHIMS = {f"slam3d/{name}.py" for name in MOVED}
+
 
 def imports_of(path: Path) -> set[str]:
     """Top-level parts of slamlib (and 'benchmarks') that the file imports, at any depth of the code."""
@@ -79,7 +89,10 @@ def test_no_module_imports_upwards_or_the_benchmarks():
     problems = []
     for path in sorted(ROOT.rglob("*.py")):
         me = part_of(path)
-        for other in imports_of(path) - {me}:
+        found = imports_of(path) - {me}
+        if path.relative_to(ROOT).as_posix() in SHIMS and found == {"experiments"}:
+            continue  # a deprecated shim that only re-exports its module's new place
+        for other in found:
             if other == "benchmarks":
                 if me != "commands":
                     problems.append(f"{path.relative_to(ROOT)} imports benchmarks")
@@ -97,3 +110,52 @@ def test_the_check_sees_an_upward_import(tmp_path):
         "def f():\n    from slamlib.slam3d import steps\n    import benchmarks.maps\n"
     )
     assert imports_of(bad) == {"slam3d", "benchmarks"}
+
+
+#: An import of a moved module by its old path: ``from slamlib.slam3d.sweep import``, ``import
+#: slamlib.slam3d.video``, ``from slamlib.slam3d import render``.
+_NAMES = "|".join(MOVED)
+OLD_PATH = re.compile(
+    rf"(from|import)\s+slamlib\.slam3d\.({_NAMES})\b"
+    rf"|from\s+slamlib\.slam3d\s+import\s+(\([\w\s,]*|[\w ,]*)\b({_NAMES})\b"
+)
+
+
+def test_nothing_in_the_repository_imports_the_old_paths():
+    """pyproject.toml turns a DeprecationWarning from slamlib into an error only in the code the tests run; this
+    finds every import of an old path in the library, tests, benchmarks and notebooks (the shims and this file,
+    whose examples below are imports of old paths, aside)."""
+    repo = ROOT.parent
+    mine = {Path(__file__).resolve()} | {(ROOT / s).resolve() for s in SHIMS}
+    users = [
+        str(p.relative_to(repo))
+        for d in ("slamlib", "tests", "benchmarks", "notebooks")
+        for p in sorted((repo / d).rglob("*"))
+        if p.suffix in (".py", ".ipynb")
+        and ".ipynb_checkpoints" not in p.parts
+        and p.resolve() not in mine
+        and OLD_PATH.search(p.read_text())
+    ]
+    assert users == []
+    assert OLD_PATH.search("    from slamlib.slam3d.sweep import read_table")
+    assert OLD_PATH.search("import slamlib.slam3d.render as r")
+    assert OLD_PATH.search("from slamlib.slam3d import (\n    run_drive,\n    video,\n)")
+    assert not OLD_PATH.search("from slamlib.slam3d.preprocess import sweep_times")
+    assert not OLD_PATH.search("from slamlib.experiments.sweep import read_table")
+    assert not OLD_PATH.search("from slamlib.slam3d import steps\nimport video")
+
+
+@pytest.mark.parametrize("name", MOVED)
+def test_an_old_path_warns_and_gives_the_same_objects(name):
+    new = importlib.import_module(f"slamlib.experiments.{name}")
+    old_name = f"slamlib.slam3d.{name}"
+    sys.modules.pop(old_name, None)
+    try:
+        with pytest.warns(DeprecationWarning, match=rf"slamlib\.experiments\.{name}\b"):
+            old = importlib.import_module(old_name)
+        assert old.__all__ == new.__all__
+        assert all(getattr(old, n) is getattr(new, n) for n in new.__all__)
+    finally:
+        sys.modules.pop(old_name, None)
+        if hasattr(sys.modules["slamlib.slam3d"], name):
+            delattr(sys.modules["slamlib.slam3d"], name)

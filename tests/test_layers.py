@@ -41,8 +41,9 @@ LAYERS = {
     "__main__": 6,
 }
 #: Pairs inside one layer that must not know each other (CONTRIBUTING.md: kernels and maps know no pipeline,
-#: kitti and synth know no filter).
+#: kitti and synth know no filter, the filter knows no synthetic data).
 FORBIDDEN = {
+    ("slam3d", "synth"),
     ("kernels", "slam3d"),
     ("maps", "slam3d"),
     ("maps", "kernels"),
@@ -62,15 +63,22 @@ MOVED = ("sweep", "video", "render")
 SHIMS = {f"slam3d/{name}.py" for name in MOVED}
 
 
-def imports_of(path: Path) -> set[str]:
-    """Top-level parts of slamlib (and 'benchmarks') that the file imports, at any depth of the code."""
+def imports_of(path: Path, package: str | None = None) -> set[str]:
+    """Top-level parts of slamlib (and 'benchmarks') that the file imports, at any depth of the code. Relative
+    imports are resolved against ``package`` (by default the file's own package under slamlib)."""
+    if package is None:
+        package = ".".join(("slamlib", *path.relative_to(ROOT).parts[:-1]))
     found = set()
     for node in ast.walk(ast.parse(path.read_text())):
         names = []
         if isinstance(node, ast.Import):
             names = [a.name for a in node.names]
-        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
-            names = [node.module] + [f"{node.module}.{a.name}" for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:  # from . import x, from ..experiments import sweep
+                up = package.split(".")[: len(package.split(".")) - (node.level - 1)]
+                base = ".".join(up + ([node.module] if node.module else []))
+            names = [base] + [f"{base}.{a.name}" for a in node.names]
         for name in names:
             parts = name.split(".")
             if parts[0] == "benchmarks":
@@ -85,7 +93,8 @@ def part_of(path: Path) -> str:
     return rel.parts[0] if len(rel.parts) > 1 else rel.stem
 
 
-def test_no_module_imports_upwards_or_the_benchmarks():
+def layering_problems() -> list[str]:
+    """Every import in slamlib that breaks the layering, one line each (file, its part, the part it imports)."""
     problems = []
     for path in sorted(ROOT.rglob("*.py")):
         me = part_of(path)
@@ -101,7 +110,11 @@ def test_no_module_imports_upwards_or_the_benchmarks():
                 continue  # e.g. slamlib.__version__
             if LAYERS[other] > LAYERS[me] or (me, other) in FORBIDDEN:
                 problems.append(f"{path.relative_to(ROOT)} ({me}) imports {other}")
-    assert problems == []
+    return sorted(problems)
+
+
+def test_no_module_imports_upwards_or_the_benchmarks():
+    assert layering_problems() == []
 
 
 def test_the_check_sees_an_upward_import(tmp_path):
@@ -109,7 +122,27 @@ def test_the_check_sees_an_upward_import(tmp_path):
     bad.write_text(
         "def f():\n    from slamlib.slam3d import steps\n    import benchmarks.maps\n"
     )
-    assert imports_of(bad) == {"slam3d", "benchmarks"}
+    assert imports_of(bad, package="slamlib.kernels") == {"slam3d", "benchmarks"}
+
+
+def test_the_check_sees_slam3d_importing_synth_or_experiments(tmp_path):
+    """The filter package never imports the synthetic-data generator or the experiment tooling."""
+    bad = tmp_path / "bad.py"
+    bad.write_text(
+        "from slamlib.synth import write_drive\nimport slamlib.experiments.sweep\n"
+    )
+    found = imports_of(bad, package="slamlib.slam3d")
+    assert found == {"synth", "experiments"}
+    assert all(LAYERS[o] > LAYERS["slam3d"] or ("slam3d", o) in FORBIDDEN for o in found)
+    relative = tmp_path / "relative.py"
+    relative.write_text(
+        "from ..experiments import sweep\nfrom .. import synth\nfrom . import steps\n"
+    )
+    assert imports_of(relative, package="slamlib.slam3d") == {
+        "experiments",
+        "synth",
+        "slam3d",
+    }
 
 
 #: An import of a moved module by its old path: ``from slamlib.slam3d.sweep import``, ``import
@@ -159,3 +192,8 @@ def test_an_old_path_warns_and_gives_the_same_objects(name):
         sys.modules.pop(old_name, None)
         if hasattr(sys.modules["slamlib.slam3d"], name):
             delattr(sys.modules["slamlib.slam3d"], name)
+
+
+def test_every_part_of_slamlib_has_a_layer():
+    """A new package unknown to LAYERS would be skipped as an import, so every part must be listed."""
+    assert {part_of(p) for p in ROOT.rglob("*.py")} - LAYERS.keys() == set()

@@ -713,7 +713,7 @@ def test_slamlib_run_refuses_to_overwrite_user_files_but_replaces_its_own(
 
 # ------------------------------------------------------------------------------ found by the re-run of the issue
 # Re-running the issue's reproducers found these four still failing; fixed in synth/drive.py and commands/synth.py,
-# slam3d/video.py (check_video_path), slam3d/run.py (save_run) and resampling.py (_check_weights).
+# experiments/video.py (check_video_path), slam3d/run.py (save_run) and resampling.py (_check_weights).
 def test_synth_out_whose_date_folder_is_a_file_is_one_line(tmp_path):
     from slamlib.cli import main
 

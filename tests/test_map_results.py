@@ -1,15 +1,19 @@
-"""Tests of the map-results helpers: the map-building video (slamlib.slam3d.video, ``slamlib run --video``) and
-the 3D map render (slamlib.slam3d.render), on a tiny synthetic drive."""
+"""Tests of the map-results helpers: the map-building video (slamlib.experiments.video, ``slamlib run --video``) and
+the 3D map render (slamlib.experiments.render), on a tiny synthetic drive."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
+from slamlib.experiments.render import offscreen_available, render_map_3d
+from slamlib.experiments.video import (
+    check_video_path,
+    snapshot_every_for,
+    write_map_video,
+)
 from slamlib.kitti import KittiRawDrive
 from slamlib.slam3d import SLAM3DConfig, run_drive
-from slamlib.slam3d.render import offscreen_available, render_map_3d
-from slamlib.slam3d.video import check_video_path, snapshot_every_for, write_map_video
 
 
 @pytest.fixture(scope="module")
@@ -63,7 +67,7 @@ def test_write_map_video_has_one_frame_per_snapshot(tiny_run, tmp_path, name):
 
 
 def test_video_frames_show_the_map_growing(tiny_run):
-    from slamlib.slam3d.video import map_video_frames
+    from slamlib.experiments.video import map_video_frames
 
     frames = list(
         map_video_frames(

@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from slamlib.slam3d.sweep import (
+from slamlib.experiments.sweep import (
     COLUMNS,
     SweepTask,
     read_table,
@@ -139,7 +139,7 @@ def test_drive_options_name_their_drives_and_reach_the_generator(monkeypatch, tm
     sweep distortion, traffic at the asked density and wandering biases (no IMU noise in the odometry layout); the
     label lists what is on."""
     from slamlib import synth
-    from slamlib.slam3d.sweep import DriveOptions, drive_task
+    from slamlib.experiments.sweep import DriveOptions, drive_task
     from slamlib.synth.traffic import KITTI_CITY
 
     plain = sweep_tasks(["07"], [0], ["raw"], ["slamlib"], [{}], (0, 5))[0]
@@ -204,7 +204,7 @@ def test_a_sweep_with_every_drive_option_runs_end_to_end(cluster, tmp_path):
     finite result, the table names the drive options, the drive's marker records them."""
     import json
 
-    from slamlib.slam3d.sweep import DriveOptions
+    from slamlib.experiments.sweep import DriveOptions
     from slamlib.synth.writer import MARKER, drive_dir
 
     tasks = sweep_tasks(

@@ -292,7 +292,7 @@ def main(args) -> int:
     except ValueError as exc:
         raise SystemExit(f"slamlib run: --out: {exc}") from None
     if args.video is not None:
-        from slamlib.slam3d.video import check_video_path
+        from slamlib.experiments.video import check_video_path
 
         try:
             check_video_path(args.video, overwrite=args.overwrite)
@@ -388,7 +388,7 @@ def main(args) -> int:
     )
     try:
         if args.video is not None:
-            from slamlib.slam3d.video import snapshot_every_for
+            from slamlib.experiments.video import snapshot_every_for
 
             run = run_drive(
                 drive,
@@ -447,7 +447,7 @@ def main(args) -> int:
     if info.get("n_skipped_frames"):
         print(f"warning: {info['warnings'][0]}")
     if args.video is not None:
-        from slamlib.slam3d.video import write_map_video
+        from slamlib.experiments.video import write_map_video
 
         v = write_map_video(run, args.video, progress=not args.no_progress)
         print(

@@ -12,7 +12,7 @@ Examples::
 Writes ``OUT/sweep.csv`` (one row per run: route, frames, seed, layout, method, settings, path length, KITTI
 translational and rotational error, ATE RMSE, dead reckoning's KITTI error, frames/s, seconds) and
 ``OUT/sweep.png`` (KITTI error per route and method). Drives are generated once into ``--data`` and reused.
-See :mod:`slamlib.slam3d.sweep`.
+See :mod:`slamlib.experiments.sweep`.
 """
 
 from __future__ import annotations
@@ -257,14 +257,14 @@ def main(args) -> int:
             "slamlib sweep needs Dask: pip install 'dask[distributed]' (or pip install -e '.[sweep]')"
         )
 
-    from slamlib.paths import cache_dir
-    from slamlib.slam3d.sweep import (
+    from slamlib.experiments.sweep import (
         DriveOptions,
         plot_sweep,
         run_sweep,
         sweep_tasks,
         write_table,
     )
+    from slamlib.paths import cache_dir
     from slamlib.synth import GENERATOR_VERSION
 
     drive = DriveOptions(args.distortion, args.traffic or 0.0, args.bias_walk)

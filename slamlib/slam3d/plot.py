@@ -134,7 +134,7 @@ def draw_snapshot(
 ) -> int:
     """Point the artists at snapshot ``j`` ``(position k, map points, pose)``: the map so far (``scatter``, at most
     ``max_points`` points, coloured by height), the SLAM trajectory (``line``) and the ground truth (``gt_line``)
-    up to ``k``. Shared by :func:`animate_map_building` and :mod:`slamlib.slam3d.video`; returns ``k``."""
+    up to ``k``. Shared by :func:`animate_map_building` and :mod:`slamlib.experiments.video`; returns ``k``."""
     k, pts, _ = snapshots[j]
     pts = _subsample(np.asarray(pts), max_points, seed=j)
     scatter.set_offsets(pts[:, :2])
@@ -305,7 +305,7 @@ def plot_maps_side_by_side(
 def show_map_render(
     image, zlim, title=None, figsize=(MAX_FIGURE_WIDTH_IN, 4.4), cmap: str = "viridis"
 ):
-    """Show a rendered map image (:func:`slamlib.slam3d.render.render_map_3d`) with its height colour bar (m)."""
+    """Show a rendered map image (:func:`slamlib.experiments.render.render_map_3d`) with its height colour bar (m)."""
     import matplotlib.pyplot as plt
     from matplotlib.cm import ScalarMappable
     from matplotlib.colors import Normalize

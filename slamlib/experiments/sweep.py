@@ -1,0 +1,417 @@
+"""Sweeps: SLAM (and KISS-ICP) over routes x seeds x settings, as tasks on a Dask cluster, into one tidy table.
+
+A sweep is the cross product of
+
+* **routes** of the synthetic generator (``"07"``, ``"05"``, ``"00"``: the real KITTI odometry routes;
+  ``"straight"``, ``"loop"``) with a frame selection (:func:`slamlib.synth.resolve_route`),
+* **seeds**: each seed is one synthetic drive (town, sensor and IMU noise) *and* the filter's seed,
+* **layouts**: ``"raw"`` (KITTI raw drive: LIDAR + IMU) or ``"odometry"`` (KITTI odometry sequence: LIDAR only),
+* **methods**: ``"slamlib"`` for every entry of ``settings`` (dicts of :meth:`SLAM3DConfig.of` settings, e.g.
+  ``{"particles": 100}`` or ``{"deskew": True}``), and ``"kiss_icp"`` (:func:`slamlib.peers.kiss_icp_poses`, its
+  de-skewing on exactly when the drive's scans are swept, and then its poses moved from the sweep's end to the
+  frames' pose times, where the ground truth is),
+* one set of **drive options** (:class:`DriveOptions`) for every drive: sweep distortion, moving traffic, wandering
+  IMU biases (all off by default: the town holds still and every scan is cast from one pose).
+
+Each (route, seed, layout) drive is generated once, by one task, into ``data_dir`` (:func:`drive_task`); every run
+on it is a task that depends on it (:func:`run_task`), so Dask schedules the generation first and spreads the
+runs over the workers. Every run returns one row (:data:`COLUMNS`); :func:`run_sweep` collects the rows as they
+complete (a progress bar) and :func:`write_table` writes them as CSV, one row per run ("tidy": one observation per
+row, one variable per column; Wickham, J. Stat. Softw. 2014). :func:`plot_sweep` draws the KITTI error per route
+and method.
+
+The scheduler is Dask's (``distributed``): a ``LocalCluster`` of one single-threaded worker process per core by
+default (each run uses Numba's threads inside its worker), or an existing cluster at ``scheduler`` (an address
+such as ``tcp://10.0.0.5:8786``), whose workers must see ``data_dir``.
+"""
+
+from __future__ import annotations
+
+import csv
+import hashlib
+import json
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+__all__ = [
+    "DriveOptions",
+    "SweepTask",
+    "sweep_tasks",
+    "drive_task",
+    "run_task",
+    "run_sweep",
+    "write_table",
+    "read_table",
+    "plot_sweep",
+    "COLUMNS",
+    "METHODS",
+    "LAYOUTS",
+]
+
+METHODS = ("slamlib", "kiss_icp")
+LAYOUTS = ("raw", "odometry")
+#: The columns of a sweep's table, in order (``drive`` is :meth:`DriveOptions.label`, empty for a still town seen by
+#: unswept scans; ``settings`` is the slamlib settings as JSON, empty for KISS-ICP).
+COLUMNS = (
+    "route",
+    "frames",
+    "seed",
+    "layout",
+    "drive",
+    "method",
+    "settings",
+    "path_length_m",
+    "kitti_t_err_percent",
+    "kitti_r_err_deg_per_m",
+    "ate_rmse_m",
+    "dead_reckoning_kitti_t_err_percent",
+    "dead_reckoning_ate_rmse_m",
+    "fps",
+    "seconds",
+)
+
+
+@dataclass(frozen=True)
+class DriveOptions:
+    """How real the synthetic drives of a sweep are (:func:`slamlib.synth.write_drive` / ``write_sequence``).
+
+    ``distortion``: each scan swept column by column as a real HDL-64E (:mod:`slamlib.synth.lidar`); ``traffic``:
+    moving cars, cyclists and pedestrians at that multiple of a KITTI city drive's density
+    (:data:`slamlib.synth.traffic.KITTI_CITY`; 0 = none); ``bias_walk``: the IMU biases wander
+    (:data:`slamlib.synth.WANDERING_BIASES`; raw layout only, the odometry layout has no IMU).
+    """
+
+    distortion: bool = False
+    traffic: float = 0.0
+    bias_walk: bool = False
+
+    def __post_init__(self):
+        if not (np.isfinite(self.traffic) and self.traffic >= 0):
+            raise ValueError(f"traffic must be a finite number >= 0, got {self.traffic}")
+
+    def label(self) -> str:
+        """``"distortion, traffic x2, bias walk"`` (the options that are on), ``""`` for none."""
+        on = (
+            (["distortion"] if self.distortion else [])
+            + ([f"traffic x{self.traffic:g}"] if self.traffic else [])
+            + (["bias walk"] if self.bias_walk else [])
+        )
+        return ", ".join(on)
+
+    def write_kwargs(self, layout: str) -> dict:
+        """The keyword arguments of the generator that give these options."""
+        from slamlib.synth import WANDERING_BIASES
+        from slamlib.synth.traffic import KITTI_CITY
+
+        kw = {
+            "distortion": bool(self.distortion),
+            "traffic": KITTI_CITY.scaled(self.traffic) if self.traffic else None,
+        }
+        if layout == "raw" and self.bias_walk:
+            kw["noise"] = WANDERING_BIASES
+        return kw
+
+
+@dataclass(frozen=True)
+class SweepTask:
+    """One run of a sweep: a method with its settings on one synthetic drive."""
+
+    route: str
+    frames: tuple
+    seed: int
+    layout: str
+    method: str
+    settings: dict = field(default_factory=dict, hash=False, compare=False)
+    drive: DriveOptions = DriveOptions()
+
+    def drive_key(self) -> str:
+        """Name of this task's drive in ``data_dir``: route, frames, seed, layout, drive options (when any is on)
+        and the generator's version."""
+        from slamlib.synth import GENERATOR_VERSION
+
+        key = [GENERATOR_VERSION, self.route, list(self.frames), self.seed, self.layout]
+        if (
+            self.drive != DriveOptions()
+        ):  # drives without options keep the names they always had
+            key.append([self.drive.distortion, self.drive.traffic, self.drive.bias_walk])
+        text = json.dumps(key)
+        return f"{self.layout}-{self.route}-s{self.seed}-{hashlib.sha1(text.encode()).hexdigest()[:10]}"
+
+
+def sweep_tasks(
+    routes,
+    seeds,
+    layouts=("raw",),
+    methods=METHODS,
+    settings=({},),
+    frames=(0, None),
+    drive: DriveOptions = DriveOptions(),
+) -> list:
+    """The cross product, as :class:`SweepTask` s (KISS-ICP once per drive: it has no slamlib settings), every
+    drive written with the options ``drive``."""
+    tasks = []
+    for route in routes:
+        for seed in seeds:
+            for layout in layouts:
+                if layout not in LAYOUTS:
+                    raise ValueError(
+                        f"layout must be one of {', '.join(LAYOUTS)}, got {layout!r}"
+                    )
+                for method in methods:
+                    if method not in METHODS:
+                        raise ValueError(
+                            f"method must be one of {', '.join(METHODS)}, got {method!r}"
+                        )
+                    for s in settings if method == "slamlib" else ({},):
+                        tasks.append(
+                            SweepTask(
+                                str(route),
+                                tuple(frames),
+                                int(seed),
+                                layout,
+                                method,
+                                dict(s),
+                                drive,
+                            )
+                        )
+    return tasks
+
+
+def drive_task(task: SweepTask, data_dir) -> str:
+    """Generate ``task``'s synthetic drive into ``data_dir`` unless a complete one is there; returns its folder.
+
+    Raw layout: :func:`slamlib.synth.write_drive`; odometry layout: :func:`slamlib.synth.write_sequence`; both with
+    the task's :class:`DriveOptions`.
+    """
+    from slamlib.synth import GENERATOR_VERSION, write_drive, write_sequence
+    from slamlib.synth.writer import drive_dir, read_marker
+
+    base = Path(data_dir) / task.drive_key()
+    if task.layout == "raw":
+        marker = read_marker(drive_dir(base, "2011_09_26", 1))
+        if marker is None or marker.get("version") != GENERATOR_VERSION:
+            write_drive(
+                base,
+                task.route,
+                frames=task.frames,
+                seed=task.seed,
+                progress=False,
+                **task.drive.write_kwargs("raw"),
+            )
+    else:
+        marker = read_marker(base / "sequences" / "00")
+        if marker is None or marker.get("version") != GENERATOR_VERSION:
+            write_sequence(
+                base,
+                task.route,
+                0,
+                frames=task.frames,
+                seed=task.seed,
+                progress=False,
+                **task.drive.write_kwargs("odometry"),
+            )
+    return str(base)
+
+
+def _frames_of(task: SweepTask, base: str):
+    from slamlib.kitti import KittiOdometrySequence, KittiRawDrive
+
+    if task.layout == "raw":
+        return KittiRawDrive(base, "2011_09_26", 1)
+    return KittiOdometrySequence(base, 0)
+
+
+def run_task(task: SweepTask, base: str) -> dict:
+    """Run ``task`` on its drive folder ``base`` (from :func:`drive_task`); returns one row of :data:`COLUMNS`."""
+    from slamlib.metrics import trajectory_distances, trajectory_metrics
+
+    frames = _frames_of(task, base)
+    row = {
+        "route": task.route,
+        "frames": len(frames),
+        "seed": task.seed,
+        "layout": task.layout,
+        "drive": task.drive.label(),
+        "method": task.method,
+        "settings": json.dumps(task.settings, sort_keys=True) if task.settings else "",
+    }
+    t0 = time.perf_counter()
+    if task.method == "slamlib":
+        from slamlib.slam3d import SLAM3DConfig, run_drive
+
+        run = run_drive(
+            frames, SLAM3DConfig.of(seed=task.seed, **task.settings), progress=False
+        )
+        poses, gt, dr = run.poses, run.ground_truth, run.dead_reckoning
+    else:
+        from slamlib.peers import kiss_icp_poses
+
+        swept = (
+            task.drive.distortion
+        )  # KISS-ICP de-skews swept scans, its poses then moved to the frames' pose times
+        poses, _ = kiss_icp_poses(frames, deskew=swept, pose_times=swept)
+        gt = (
+            frames.ground_truth_poses()
+            if task.layout == "odometry"
+            else frames.ground_truth_poses("imu")
+        )
+        gt = np.linalg.inv(gt[0])[None] @ gt
+        dr = None
+    seconds = time.perf_counter() - t0
+    m = trajectory_metrics(poses, gt)
+    m_dr = (
+        trajectory_metrics(dr, gt) if dr is not None else {}
+    )  # slamlib's runs only: the IMU-only twin
+    row.update(
+        path_length_m=float(trajectory_distances(gt)[-1]),
+        kitti_t_err_percent=m.get("kitti_t_err_percent", float("nan")),
+        kitti_r_err_deg_per_m=m.get("kitti_r_err_deg_per_m", float("nan")),
+        ate_rmse_m=m["ate_rmse_m"],
+        dead_reckoning_kitti_t_err_percent=m_dr.get("kitti_t_err_percent", float("nan")),
+        dead_reckoning_ate_rmse_m=m_dr.get("ate_rmse_m", float("nan")),
+        fps=len(poses) / seconds,
+        seconds=seconds,
+    )
+    return {k: row[k] for k in COLUMNS}
+
+
+def run_sweep(
+    tasks,
+    data_dir,
+    scheduler: str | None = None,
+    workers: int | None = None,
+    progress: bool = True,
+) -> list[dict]:
+    """Run ``tasks`` on Dask: one :func:`drive_task` per distinct drive, then every :func:`run_task` after its drive.
+
+    ``scheduler``: the address of an existing Dask scheduler; default a ``distributed.LocalCluster`` of
+    ``workers`` single-threaded worker processes (default: the machine's cores), closed at the end. Returns the
+    rows in the order of ``tasks``. A failing task raises its exception here, naming the task.
+    """
+    from distributed import Client, LocalCluster, as_completed
+    from tqdm.auto import tqdm
+
+    data_dir = str(Path(data_dir).resolve())
+    cluster = None
+    if scheduler is None:
+        import os
+
+        cluster = LocalCluster(
+            n_workers=workers or os.cpu_count() or 1,
+            threads_per_worker=1,
+            processes=True,
+            dashboard_address=None,
+        )
+    client = Client(scheduler if scheduler is not None else cluster)
+    try:
+        drives = {}
+        for t in tasks:
+            key = t.drive_key()
+            if key not in drives:
+                drives[key] = client.submit(
+                    drive_task, t, data_dir, key=f"drive-{key}", pure=False
+                )
+        runs = {
+            client.submit(run_task, t, drives[t.drive_key()], pure=False): i
+            for i, t in enumerate(tasks)
+        }
+        rows: list = [None] * len(tasks)
+        bar = tqdm(total=len(tasks), desc="sweep", unit="run", disable=not progress)
+        for fut in as_completed(list(runs)):
+            i = runs[fut]
+            try:
+                rows[i] = fut.result()
+            except Exception as exc:
+                raise RuntimeError(f"sweep task {tasks[i]} failed: {exc}") from exc
+            bar.update(1)
+        bar.close()
+        return rows
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+
+
+def write_table(rows, path) -> Path:
+    """Write the rows as CSV with the header :data:`COLUMNS` (numbers with ``repr`` precision; NaN as empty)."""
+    path = Path(path)
+    with open(path, "w", newline="", encoding="utf-8") as f:
+        w = csv.DictWriter(f, fieldnames=COLUMNS)
+        w.writeheader()
+        for r in rows:
+            w.writerow(
+                {
+                    k: ("" if isinstance(r[k], float) and not np.isfinite(r[k]) else r[k])
+                    for k in COLUMNS
+                }
+            )
+    return path
+
+
+def read_table(path) -> list[dict]:
+    """The rows of a sweep CSV, numbers as float/int (empty cells as NaN)."""
+    out = []
+    with open(path, newline="", encoding="utf-8") as f:
+        for r in csv.DictReader(f):
+            row = {}
+            for k, v in r.items():
+                if k in ("route", "layout", "drive", "method", "settings"):
+                    row[k] = v
+                elif k in ("frames", "seed"):
+                    row[k] = int(v)
+                else:
+                    row[k] = float(v) if v != "" else float("nan")
+            out.append(row)
+    return out
+
+
+def _label(row) -> str:
+    """A run's legend entry: method, layout, settings and drive options (those not empty)."""
+    drive = f"({row['drive']})" if row.get("drive") else ""
+    return " ".join(
+        x for x in (row["method"], row["layout"], row["settings"], drive) if x
+    )
+
+
+def plot_sweep(rows, ax=None):
+    """KITTI translational error (%) per route (x) and method (colour): each run a dot, the mean a bar."""
+    import matplotlib.pyplot as plt
+
+    from slamlib.plotstyle import MAX_FIGURE_WIDTH_IN
+
+    if ax is None:
+        fig, ax = plt.subplots(figsize=(MAX_FIGURE_WIDTH_IN, 3.6))
+    else:
+        fig = ax.figure
+    routes = list(dict.fromkeys(r["route"] for r in rows))
+    labels = list(dict.fromkeys(_label(r) for r in rows))
+    width = 0.8 / max(1, len(labels))
+    for j, label in enumerate(labels):
+        for i, route in enumerate(routes):
+            vals = [
+                r["kitti_t_err_percent"]
+                for r in rows
+                if r["route"] == route and _label(r) == label
+            ]
+            vals = [v for v in vals if np.isfinite(v)]
+            x = i - 0.4 + width * (j + 0.5)
+            if vals:
+                ax.bar(
+                    x,
+                    np.mean(vals),
+                    width * 0.9,
+                    color=f"C{j}",
+                    alpha=0.5,
+                    label=label if i == 0 else None,
+                )
+                ax.plot([x] * len(vals), vals, "o", color=f"C{j}", ms=4)
+    ax.set_xticks(range(len(routes)), [f"route {r}" for r in routes])
+    ax.set_ylabel("KITTI translational error (%)")
+    if ax.get_legend_handles_labels()[
+        0
+    ]:  # drives shorter than 100 m have no KITTI error to draw
+        ax.legend(fontsize=10)
+    return fig

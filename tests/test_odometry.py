@@ -11,13 +11,15 @@ from scipy.spatial.transform import Rotation
 from slamlib.geometry import make_pose, rpy_to_matrix
 from slamlib.odometry import (
     GRAVITY,
-    balance_heading_bins,
     dead_reckon,
-    gravity_up,
-    heading_bin,
     imu_increment,
     imu_increments,
     increment_matrix,
+)
+from slamlib.slam3d.stages.prior import (
+    balance_heading_bins,
+    gravity_up,
+    heading_bin,
     tilt_calibration,
     tilt_calibration_add,
     tilt_calibration_bins,

@@ -23,12 +23,7 @@ from slamlib.maps import VoxelHashMap
 from slamlib.metrics import absolute_trajectory_error
 from slamlib.odometry import (
     GRAVITY,
-    balance_heading_bins,
     dead_reckon,
-    heading_bin,
-    tilt_calibration,
-    tilt_calibration_prior,
-    tilt_calibration_update,
 )
 from slamlib.slam3d import (
     MotionConfig,
@@ -54,6 +49,13 @@ from slamlib.slam3d import (
     score_particles,
     transform_scan,
     voxel_downsample,
+)
+from slamlib.slam3d.stages.prior import (
+    balance_heading_bins,
+    heading_bin,
+    tilt_calibration,
+    tilt_calibration_prior,
+    tilt_calibration_update,
 )
 
 CPU = get_backend("cpu")
@@ -901,7 +903,7 @@ def test_crop_and_downsample_equals_crop_then_downsample():
 
 # ------------------------------------------------------------------------------------------ tilt prior
 def test_tilt_log_prior_penalises_roll_and_pitch_not_yaw():
-    from slamlib.slam3d.steps import tilt_log_prior
+    from slamlib.slam3d.stages.prior import tilt_log_prior
 
     R = rpy_to_matrix(np.array([[0, 0, 0], [0, 0, 2.0], [0.01, 0, 0], [0, -0.02, 0.5]]))
     lp = tilt_log_prior(Particles3D(R, np.zeros((4, 3))), [0.0, 0.0, 1.0], 0.005)
@@ -912,8 +914,9 @@ def test_tilt_log_prior_penalises_roll_and_pitch_not_yaw():
 
 
 def test_tilt_calibration_is_the_least_squares_of_the_filters_own_frames():
-    """The filter's bias and world's up are :func:`slamlib.odometry.tilt_calibration` of its own rotations (step 9)
-    and measured ups, over the frames whose window spans ``tilt_window``, each weighing ``dt / tilt_window`` of a
+    """The filter's bias and world's up are :func:`slamlib.slam3d.stages.prior.tilt_calibration` of its own
+    rotations (step 9) and measured ups, over the frames whose window spans ``tilt_window``, each weighing
+    ``dt / tilt_window`` of a
     ``tilt_sigma`` measurement, in heading sectors that weigh alike (the identification itself:
     tests/test_odometry.py). A biased accelerometer on a turning drive moves both away from the prior's zero."""
     frames, _ = simulate(40, yaw_rate=0.6)
@@ -953,7 +956,7 @@ def test_tilt_calibration_is_the_least_squares_of_the_filters_own_frames():
 
 def test_tilt_log_prior_measures_the_tilt_from_the_worlds_up():
     """With the world's up ``g_w`` off ``e_z``, a particle tilted like the world and a measured up ``e_z`` agree."""
-    from slamlib.slam3d.steps import tilt_log_prior
+    from slamlib.slam3d.stages.prior import tilt_log_prior
 
     world = rpy_to_matrix([0.01, -0.02, 0.0])
     R = np.stack([world, np.eye(3)])

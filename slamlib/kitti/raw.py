@@ -83,7 +83,7 @@ class Frame:
         level heading frame (forward, left, up: gravity always on ``au``); the synthetic drives write body axes.
     specific_force : (3,) float64
         ``(ax, ay, az)`` m/s^2, body frame, gravity included: what the accelerometer measures, which tells the
-        body's roll and pitch (:func:`slamlib.odometry.gravity_up`).
+        body's roll and pitch (:func:`slamlib.slam3d.stages.prior.gravity_up`).
     T_w_imu, T_w_velo : (4, 4) float64
         Ground-truth poses of the IMU and Velodyne in the world (= IMU at frame 0);
         ``T_w_velo = T_w_imu @ inv(T_velo_imu)``.

@@ -340,9 +340,9 @@ class FilterConfig:
         LIDAR-only: the share of road points in step 8's sample (the rest stands above the road;
         :func:`slamlib.slam3d.preprocess.thin_ground`). 1 keeps the scan's own mix.
     tilt_sigma : float
-        Radians; > 0 holds roll and pitch to gravity: step 8 adds :func:`slamlib.slam3d.steps.tilt_log_prior`
+        Radians; > 0 holds roll and pitch to gravity: step 8 adds :func:`slamlib.slam3d.stages.prior.tilt_log_prior`
         with the up direction the accelerometer measured over the last ``tilt_window`` seconds
-        (:func:`slamlib.odometry.gravity_up`). 0 (default) = off; needs an IMU with ``specific_force``.
+        (:func:`slamlib.slam3d.stages.prior.gravity_up`). 0 (default) = off; needs an IMU with ``specific_force``.
         ``sigma`` is the prior's weight as much as an error bar: the window's up errs by a few mrad, but that
         error comes and goes with the window, while every tilt error the map takes in stays, so a sigma below the
         window's own error holds better. 0.003 (3 mrad) beat 0.005 over four seeds of the whole KITTI 00, 05, 07
@@ -352,15 +352,15 @@ class FilterConfig:
         Seconds of accelerometer samples behind each up measurement (longer: less noise from the velocities).
     tilt_bias_sigma, tilt_world_sigma : float
         Radians; with the prior on, the filter also estimates, by least squares over the frames whose window spans
-        ``tilt_window`` (:func:`slamlib.odometry.tilt_calibration_update`), the accelerometer's bias as an angle
-        ``b / g``, with prior standard deviation ``tilt_bias_sigma`` (default 0.01: 0.1 m/s^2), and how far the
+        ``tilt_window`` (:func:`slamlib.slam3d.stages.prior.tilt_calibration_update`), the accelerometer's bias as
+        an angle ``b / g``, with prior standard deviation ``tilt_bias_sigma`` (default 0.01: 0.1 m/s^2), and how far the
         world's z (the first body pose's) is from gravity's up, with ``tilt_world_sigma``. 0 holds either at 0.
         The default 0 for the world takes the first pose as level (the synthetic drives start level): a slow tilt
         drift of the map looks exactly like a tilted world, so estimating the world's up also gives in to that
         drift. A bias turns with the body and a map's tilt does not, so turns tell those two apart.
     tilt_heading_bins : int
-        Sectors of heading that weigh alike in that fit (:func:`slamlib.odometry.balance_heading_bins`), so that a
-        long straight does not pass its share of the map's tilt to the bias; 1 = every frame alike.
+        Sectors of heading that weigh alike in that fit (:func:`slamlib.slam3d.stages.prior.balance_heading_bins`),
+        so that a long straight does not pass its share of the map's tilt to the bias; 1 = every frame alike.
     scan_match : bool or None
         After step 9, move the best particle's pose to the nearest peak of the map score with Gauss-Newton on the
         whole down-sampled scan (:func:`slamlib.slam3d.match.match_scan`), and the particles with it (the

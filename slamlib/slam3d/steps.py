@@ -16,9 +16,10 @@ The steps
 1. :func:`initialise_particles` -- ``P`` copies of the start pose (the map defines the world, so there is no
    uncertainty at frame 0), as :class:`Particles3D`, and uniform log-weights.
 2. :func:`read_scan` -- range crop, voxel down-sampling, Velodyne -> body frame.
-3. :func:`read_imu` -- body velocities ``(vf, vl, vu)`` m/s and angular rates ``(wf, wl, wu)`` rad/s; LIDAR-only
-   (no IMU), the filter's own last estimated twist held (constant velocity). With a tilt prior, also
-   :func:`read_specific_force`: the accelerometer, which tells up from down (:func:`slamlib.odometry.gravity_up`).
+3. :func:`read_imu` -- body velocities ``(vf, vl, vu)`` m/s and angular rates ``(wf, wl, wu)`` rad/s (LIDAR-only,
+   no IMU: the motion stage holds the filter's own last estimated twist, :mod:`slamlib.slam3d.stages.motion`). With
+   a tilt prior, also :func:`read_specific_force`: the accelerometer, which tells up from down
+   (:func:`slamlib.slam3d.stages.prior.gravity_up`).
 4. :func:`read_timing` -- ``dt`` seconds since the previous frame (and, for de-skewing, :func:`read_scan_time_offset`:
    the scan's timestamp relative to the pose).
 5. :func:`offset_by_motion` -- ``T_i <- T_i [dR, dp]`` with the IMU increment ``(dR, dp)`` over ``dt``
@@ -28,7 +29,8 @@ The steps
 7. :func:`transform_scan` -- body points into the world with each particle's pose (or one pose): ``R p_b + t``.
 8. :func:`score_particles` -- fused 7 + 8 for every particle against the map built so far (the backend's
    ``score_particles``; never builds ``P x N`` points). Returns log-likelihood scores. With a tilt prior,
-   :func:`tilt_log_prior` adds how well each particle's roll and pitch agree with the accelerometer's up.
+   :func:`slamlib.slam3d.stages.prior.tilt_log_prior` adds how well each particle's roll and pitch agree with the
+   accelerometer's up.
 9. :func:`pick_best_particle` -- the maximum-weight particle, or the weighted mean around it.
 10. :func:`merge_scan` -- the whole down-sampled scan, moved with the chosen pose, into the map (in place).
 11. :func:`resample_particles` -- systematic resampling (Kitagawa 1996) when the effective sample size falls
@@ -87,7 +89,6 @@ __all__ = [
     "read_scan_time_offset",
     "read_specific_force",
     "motion_increment",
-    "tilt_log_prior",
     "motion_noise_sigma",
     "offset_by_motion",
     "perturb_with_noise",
@@ -437,25 +438,6 @@ def score_particles(
         np.ascontiguousarray(points, dtype=np.float32),
         world_map.lookup(),
     )
-
-
-def tilt_log_prior(particles: Particles3D, up, sigma: float, world_up=None) -> np.ndarray:
-    """Step 8's second term: log-prior ``(P,)`` of each particle's roll and pitch given the measured up direction.
-
-    ``log p_i = -|R_i^T g_w - u|^2 / (2 sigma^2)``, with ``u`` the unit up vector in the body frame measured by
-    the accelerometer (:func:`slamlib.odometry.gravity_up`, less its bias when estimated) and ``R_i^T g_w`` the
-    particle's own, ``g_w`` the world's up (default ``e_z``: then it is ``R_i``'s third row). For small angles
-    ``|R_i^T g_w - u|`` is the tilt between the two in radians; yaw does not enter. ``sigma`` (rad) is the
-    measured up's uncertainty. The map alone fixes the tilt only relative to the map, which is itself built from
-    earlier estimates, so its error random-walks over a long drive; this term holds it to gravity (Thrun et al.
-    2005, ch. 7: a direct measurement of part of the state).
-    """
-    if world_up is None:
-        own = particles.R[:, 2, :]
-    else:
-        own = np.einsum("pji,j->pi", particles.R, np.asarray(world_up, dtype=np.float64))
-    diff = own - np.asarray(up, dtype=np.float64)[None, :]
-    return -0.5 * np.sum(diff * diff, axis=1) / float(sigma) ** 2
 
 
 # ------------------------------------------------------------------------------------------------ step 9

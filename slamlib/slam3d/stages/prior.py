@@ -6,12 +6,12 @@ The map fixes a particle's roll and pitch only *relative to the map*, and the ma
 earlier estimates: each frame's small tilt error goes into the map, and over thousands of frames it random-walks
 (on a whole KITTI route tens of milliradians, which the motion turns into metres of height). Gravity is the one
 absolute reference on board. Each frame the stage reads the accelerometer
-(:func:`~slamlib.slam3d.steps.read_specific_force`), :func:`slamlib.odometry.gravity_up` separates gravity from the
+(:func:`~slamlib.slam3d.steps.read_specific_force`), :func:`gravity_up` separates gravity from the
 vehicle's own acceleration over the last ``tilt_window`` seconds, and step 8 adds
-:func:`~slamlib.slam3d.steps.tilt_log_prior` to every weight: a measurement of two of the six pose coordinates, as
+:func:`tilt_log_prior` to every weight: a measurement of two of the six pose coordinates, as
 an attitude filter uses its accelerometer. An accelerometer bias ``b`` tilts the measured up by ``b / g`` for good,
 so after step 9 each frame's estimated rotation and measured up also go into a least-squares estimate of the bias
-(:func:`slamlib.odometry.tilt_calibration_update`; a bias turns with the body, a tilted map does not), and step 8
+(:func:`tilt_calibration_update`; a bias turns with the body, a tilted map does not), and step 8
 compares each particle's ``R_i^T g_w`` with the measured up less the bias. ``g_w``, the world's up, is ``e_z``
 (the first body pose taken as level) unless ``FilterConfig.tilt_world_sigma > 0`` lets the fit move it.
 
@@ -24,18 +24,198 @@ from collections import deque
 
 import numpy as np
 
-from slamlib.odometry import (
-    gravity_up,
-    increment_matrix,
-    tilt_calibration_add,
-    tilt_calibration_bins,
-    tilt_calibration_estimate,
-    tilt_calibration_prior,
-)
+from slamlib.odometry import increment_matrix
 from slamlib.slam3d import steps
 from slamlib.slam3d.config import FilterConfig
 
-__all__ = ["NoPrior", "TiltPrior"]
+__all__ = [
+    "NoPrior",
+    "TiltPrior",
+    "TILT_CALIBRATION_UNKNOWNS",
+    "gravity_up",
+    "tilt_log_prior",
+    "tilt_calibration_prior",
+    "tilt_calibration_update",
+    "tilt_calibration",
+    "heading_bin",
+    "balance_heading_bins",
+    "tilt_calibration_bins",
+    "tilt_calibration_add",
+    "tilt_calibration_estimate",
+]
+
+
+# ------------------------------------------------------------------------------------------------ the math
+def gravity_up(rotations, specific_force, velocity, dts) -> np.ndarray | None:
+    """Which way is up, in the body frame of the last of ``K + 1`` frames, from the accelerometer over them.
+
+    An accelerometer measures the specific force ``f_b = R^T (a - g_w)`` with ``g_w = -g e_z``: the vehicle's own
+    acceleration ``a`` plus gravity, in the body frame. One sample cannot tell the two apart (braking looks like
+    pitching forward), but over a window they separate: integrating ``a = R f_b - g e_z`` from ``t_0`` to ``t_K``,
+
+        v_w(t_K) - v_w(t_0) = int R f_b dt - g e_z (t_K - t_0)
+        =>  g (t_K - t_0) e_z = int R f_b dt - (R_K v_K - R_0 v_0),
+
+    with the body velocities ``v`` turned into the world by the same rotations. The integral is the trapezoid rule
+    over the samples. Only the rotations *relative* to the last one enter (the result is ``R_K^T e_z``, normalised),
+    so a filter may pass its own estimates, whose absolute tilt drifts but whose rotation over a second or two is
+    accurate: the answer is the absolute up direction it can hold its roll and pitch to. Errors: a velocity error
+    ``dv`` at either end tilts it by about ``dv / (g T)`` (0.05 m/s over 2 s: 2.5 mrad), an accelerometer bias ``b``
+    by ``b / g`` (0.03 m/s^2: 3 mrad), for ever: a constant bias is indistinguishable from a tilt.
+
+    Parameters
+    ----------
+    rotations : (K + 1, 3, 3) body-to-world rotations ``R_k`` (any common world frame).
+    specific_force : (K + 1, 3) accelerometer samples ``f_b`` (m/s^2, body frame, gravity included: KITTI OXTS
+        ``ax, ay, az``; ``+g`` on z when level and still).
+    velocity : (K + 1, 3) body velocities ``v`` (m/s; OXTS ``vf, vl, vu``).
+    dts : (K + 1,) ``dts[k] = t_k - t_{k-1}`` (s); ``dts[0]`` is ignored.
+
+    Returns the unit vector ``R_K^T e_z`` (3,) as measured, or None when the window spans no time (``K = 0``).
+    """
+    R = np.asarray(rotations, dtype=np.float64)
+    f_w = np.einsum("kij,kj->ki", R, np.asarray(specific_force, dtype=np.float64))
+    v_w = np.einsum("kij,kj->ki", R, np.asarray(velocity, dtype=np.float64))
+    dts = np.asarray(dts, dtype=np.float64)[1:]
+    if len(dts) == 0 or not dts.sum() > 0:
+        return None
+    up_w = np.sum(0.5 * (f_w[:-1] + f_w[1:]) * dts[:, None], axis=0) - (v_w[-1] - v_w[0])
+    up_b = R[-1].T @ up_w
+    return up_b / np.linalg.norm(up_b)
+
+
+#: Unknowns of the tilt calibration, in order: the world's up ``g_w = normalise(e_z + (a, b, 0))`` (world x, y
+#: components, rad) and the accelerometer's bias as an angle ``beta = (c, d, 0)`` (body x, y components: ``b / g``).
+TILT_CALIBRATION_UNKNOWNS = ("world_up_x", "world_up_y", "bias_x", "bias_y")
+
+
+def tilt_calibration_prior(
+    sigma_world: float, sigma_bias: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The tilt calibration's prior in information form ``(Lambda (4, 4), eta (4,), free (4,) bool)``: zero mean,
+    standard deviations ``sigma_world`` for the world's up (rad: how far from level the first body pose, which
+    defines the world, may stand) and ``sigma_bias`` for the accelerometer's bias (rad, ``b / g``). A sigma of 0
+    holds that pair at 0 (``free`` False: :func:`tilt_calibration` leaves it out); unknowns in
+    :data:`TILT_CALIBRATION_UNKNOWNS`."""
+    sig = np.repeat(np.array([sigma_world, sigma_bias], dtype=np.float64), 2)
+    if not np.all(np.isfinite(sig)) or np.any(sig < 0):
+        raise ValueError(
+            f"need finite sigma_world, sigma_bias >= 0, got {sigma_world}, {sigma_bias}"
+        )
+    free = sig > 0
+    info = np.zeros(4)
+    info[free] = 1.0 / sig[free] ** 2
+    return np.diag(info), np.zeros(4), free
+
+
+def tilt_calibration_update(
+    info, eta, R, up, weight: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Add one frame to the tilt calibration (recursive least squares, information form; returns new arrays).
+
+    A measured up ``u`` (body frame, :func:`gravity_up`) of a body with rotation ``R`` (body to world) is, to
+    first order in the small unknowns,
+
+        u - R^T e_z = a R^T e_x + b R^T e_y + c e_x + d e_y + noise,    i.e.  y = H x + noise,
+
+    the world's up off the world's z by ``(a, b)`` and the accelerometer's bias ``(c, d) = b_perp / g`` (a bias
+    ``b`` adds ``b / g`` to the measured up). The world part turns with the body, the bias does not: one heading
+    cannot tell them apart, a turn can (as in an IMU's in-motion alignment; Groves, "Principles of GNSS,
+    Inertial, and Multisensor Integrated Navigation Systems", 2nd ed. 2013, ch. 14). ``Lambda += w H^T H``,
+    ``eta += w H^T y`` with ``weight w = 1 / sigma_u^2`` times the frame's share of an independent sample.
+    """
+    R = np.asarray(R, dtype=np.float64)
+    H = np.column_stack(
+        [R[0], R[1], np.eye(3)[:, 0], np.eye(3)[:, 1]]
+    )  # rows of R: R^T e_x, R^T e_y
+    y = np.asarray(up, dtype=np.float64) - R[2]
+    return info + weight * H.T @ H, eta + weight * H.T @ y
+
+
+def tilt_calibration(info, eta, free) -> tuple[np.ndarray, np.ndarray]:
+    """The current estimate from ``(Lambda, eta)``: the world's up ``g_w`` (3,) unit vector, world frame, and the
+    accelerometer's bias ``beta`` (3,) as an angle in the body frame (z component 0), so that a body ``R``
+    measures ``u = R^T g_w + beta``. Unknowns not ``free`` (prior sigma 0) stay 0."""
+    free = np.asarray(free, dtype=bool)
+    x = np.zeros(4)
+    if free.any():
+        x[free] = np.linalg.solve(info[np.ix_(free, free)], eta[free])
+    world_up = np.array([x[0], x[1], 1.0])
+    return world_up / np.linalg.norm(world_up), np.array([x[2], x[3], 0.0])
+
+
+def heading_bin(R, bins: int) -> int:
+    """Which of ``bins`` equal sectors of heading (yaw ``atan2(R[1, 0], R[0, 0])``, from ``-pi``) the body of
+    rotation ``R`` faces."""
+    yaw = np.arctan2(R[1][0], R[0][0])
+    return int(np.floor((yaw + np.pi) / (2 * np.pi) * bins)) % bins
+
+
+def balance_heading_bins(infos, etas, weights) -> tuple[np.ndarray, np.ndarray]:
+    """The data part ``(Lambda (4, 4), eta (4,))`` of the tilt calibration with every heading sector weighing alike.
+
+    ``infos (B, 4, 4)``, ``etas (B,  4)`` hold each sector's own sums of :func:`tilt_calibration_update` (from zero)
+    and ``weights (B,)`` its total weight. Each sector that has frames is scaled to ``W / n`` (``W`` the total
+    weight, ``n`` the sectors with frames), so the data weigh as much as before in all, but a long straight counts
+    no more than a short stretch the other way. Why: the fit's residual holds the filter's own tilt error, and a tilt
+    of the *map* is fixed in the world, so in the body frame it turns with the heading. Over headings spread evenly
+    it cancels, a bias does not; weighed by time, the headings of the longest straights win and their share of the
+    map's tilt is taken for a bias. Add the prior (:func:`tilt_calibration_prior`) and pass the sums to
+    :func:`tilt_calibration`.
+    """
+    weights = np.asarray(weights, dtype=np.float64)
+    used = weights > 0
+    if not used.any():
+        return np.zeros((4, 4)), np.zeros(4)
+    scale = np.zeros_like(weights)
+    scale[used] = weights.sum() / (used.sum() * weights[used])
+    return np.einsum("b,bij->ij", scale, infos), scale @ np.asarray(
+        etas, dtype=np.float64
+    )
+
+
+def tilt_calibration_bins(bins: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Empty per-sector sums ``(Lambdas (B, 4, 4), etas (B, 4), weights (B,))`` for :func:`tilt_calibration_add`."""
+    return np.zeros((bins, 4, 4)), np.zeros((bins, 4)), np.zeros(bins)
+
+
+def tilt_calibration_add(sums, R, up, weight: float) -> None:
+    """Add one frame (rotation ``R``, measured ``up``, ``weight``) to its heading sector of ``sums``
+    (:func:`tilt_calibration_bins`), in place: :func:`tilt_calibration_update` on that sector's sums."""
+    infos, etas, weights = sums
+    b = heading_bin(R, len(weights))
+    infos[b], etas[b] = tilt_calibration_update(infos[b], etas[b], R, up, weight)
+    weights[b] += weight
+
+
+def tilt_calibration_estimate(prior, sums) -> tuple[np.ndarray, np.ndarray]:
+    """The world's up and the bias (:func:`tilt_calibration`) from the ``prior`` ``(Lambda, eta, free)``
+    (:func:`tilt_calibration_prior`) and the sectors' ``sums``, weighed alike (:func:`balance_heading_bins`)."""
+    info0, eta0, free = prior
+    info, eta = balance_heading_bins(*sums)
+    return tilt_calibration(info0 + info, eta0 + eta, free)
+
+
+def tilt_log_prior(particles, up, sigma: float, world_up=None) -> np.ndarray:
+    """Step 8's second term: log-prior ``(P,)`` of each particle's roll and pitch given the measured up direction.
+
+    ``log p_i = -|R_i^T g_w - u|^2 / (2 sigma^2)``, with ``u`` the unit up vector in the body frame measured by
+    the accelerometer (:func:`gravity_up`, less its bias when estimated) and ``R_i^T g_w`` the
+    particle's own, ``g_w`` the world's up (default ``e_z``: then it is ``R_i``'s third row). For small angles
+    ``|R_i^T g_w - u|`` is the tilt between the two in radians; yaw does not enter. ``sigma`` (rad) is the
+    measured up's uncertainty. The map alone fixes the tilt only relative to the map, which is itself built from
+    earlier estimates, so its error random-walks over a long drive; this term holds it to gravity (Thrun et al.
+    2005, ch. 7: a direct measurement of part of the state).
+    """
+    if world_up is None:
+        own = particles.R[:, 2, :]
+    else:
+        own = np.einsum("pji,j->pi", particles.R, np.asarray(world_up, dtype=np.float64))
+    diff = own - np.asarray(up, dtype=np.float64)[None, :]
+    return -0.5 * np.sum(diff * diff, axis=1) / float(sigma) ** 2
+
+
+# ------------------------------------------------------------------------------------------------ the stage
 
 
 class NoPrior:
@@ -59,7 +239,7 @@ class TiltPrior:
 
     Attributes
     ----------
-    up : (3,) the accelerometer's up direction in this frame's body (:func:`slamlib.odometry.gravity_up`); None
+    up : (3,) the accelerometer's up direction in this frame's body (:func:`gravity_up`); None
         until a frame with an accelerometer has been measured.
     samples : deque of ``(specific_force, velocity, dt)`` of the frames in the window; ``up_span`` the seconds
         it spans.
@@ -82,7 +262,7 @@ class TiltPrior:
 
     def measure(self, frame, imu, dt: float, increment, poses) -> None:
         """This frame's up, from the accelerometer over the last ``tilt_window`` seconds
-        (:func:`slamlib.odometry.gravity_up`): the samples of this frame and the registered frames before it,
+        (:func:`gravity_up`): the samples of this frame and the registered frames before it,
         turned by the filter's own estimated rotations (``poses``) and this frame's predicted one (``increment``
         on the last estimate). A frame without an accelerometer empties the window (``up`` None)."""
         force = steps.read_specific_force(frame)
@@ -101,20 +281,18 @@ class TiltPrior:
         self.up = gravity_up(R, force, velocity, dts)
 
     def weigh(self, particles, log_weights):
-        """``log_weights`` plus :func:`~slamlib.slam3d.steps.tilt_log_prior` of the measured up less the bias."""
+        """``log_weights`` plus :func:`tilt_log_prior` of the measured up less the bias."""
         if self.up is None:
             return log_weights
         up = self.up - self.up_bias
-        return log_weights + steps.tilt_log_prior(
-            particles, up, self.sigma, self.world_up
-        )
+        return log_weights + tilt_log_prior(particles, up, self.sigma, self.world_up)
 
     def calibrate(self, pose, dt: float) -> None:
         """Add this frame's estimated rotation and measured up to the calibration (none while the window does
         not yet span ``tilt_window``: a shorter one measures up with errors ~ 1 / its span), in its heading's
         sector: each frame weighs ``dt / tilt_window`` of an independent up measurement of standard deviation
         ``tilt_sigma`` (consecutive windows overlap), and the sectors weigh alike
-        (:func:`slamlib.odometry.balance_heading_bins`)."""
+        (:func:`balance_heading_bins`)."""
         if self.up is None or self.up_span < self.window:
             return
         weight = dt / self.window / self.sigma**2

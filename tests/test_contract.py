@@ -1,5 +1,7 @@
-"""The twelve-step contract (slamlib.contract): every dimension's steps module keeps it, and the checker can fail."""
+"""The twelve-step contract (slamlib.contract): every dimension's steps module keeps it, the checker can fail, and
+the 1D and 2D filters share one loop (StepsFilter.step) and one StepInfo."""
 
+import inspect
 import types
 
 import numpy as np
@@ -8,7 +10,26 @@ import pytest
 import slamlib.sim1d.steps as steps1d
 import slamlib.sim2d.steps as steps2d
 import slamlib.slam3d.steps as steps3d
-from slamlib.contract import STEPS, check_steps_module
+from slamlib.contract import LOOP_ORDER, STEPS, StepInfo, StepsFilter, check_steps_module
+from slamlib.resampling import normalise_log_weights
+from slamlib.sim1d import OccupancyGrid1D, ParticleSLAM1D
+from slamlib.sim1d import make_world as make_world_1d
+from slamlib.sim1d import simulate as simulate_1d
+from slamlib.sim2d import OccupancyGrid2D, ParticleSLAM2D
+from slamlib.sim2d import make_world as make_world_2d
+from slamlib.sim2d import simulate as simulate_2d
+
+IDS = ["1D", "2D", "3D"]
+
+
+@pytest.fixture(scope="module")
+def recording_1d():
+    return simulate_1d(make_world_1d(seed=0), n_frames=12, seed=0)
+
+
+@pytest.fixture(scope="module")
+def recording_2d():
+    return simulate_2d(make_world_2d(seed=0), laps=0.1, seed=0)
 
 
 @pytest.mark.parametrize("module", [steps1d, steps2d, steps3d], ids=["1D", "2D", "3D"])
@@ -49,3 +70,109 @@ def test_shared_parameters_alone_run_a_step_at_every_dimension(module):
         moved, peaked, np.random.default_rng(0)
     )
     assert resampled and len(out) == 8 and np.allclose(out_log_w, -np.log(8))
+
+
+# ------------------------------------------------------------------------------------------ the filters
+def _filter_1d(recording_1d, recording_2d, ess_fraction):
+    slam = ParticleSLAM1D(
+        12,
+        OccupancyGrid1D.empty(-30.0, 90.0, 0.05),
+        0.4,
+        np.random.default_rng(1),
+        ess_fraction,
+        likelihood_sigma=0.07,
+    )
+    return slam, recording_1d.frames[:8], steps1d, True
+
+
+def _filter_2d(recording_1d, recording_2d, ess_fraction):
+    lo, hi = recording_2d.world.bounds
+    world_map = OccupancyGrid2D.empty(np.subtract(lo, 14), np.add(hi, 14), 0.1)
+    slam = ParticleSLAM2D(
+        12, world_map, [0.1, 0.05, 0.02], np.random.default_rng(1), ess_fraction, 60
+    )
+    return slam, recording_2d.frames[:8], steps2d, True
+
+
+# ------------------------------------------------------------------------------- the loop 1D and 2D share
+def test_1d_and_2d_filters_share_the_loop_the_state_and_the_constructor():
+    for cls in (ParticleSLAM1D, ParticleSLAM2D):
+        assert issubclass(cls, StepsFilter) and cls.step is StepsFilter.step
+        params = list(inspect.signature(cls).parameters)
+        assert params[:5] == [
+            "n_particles",
+            "world_map",
+            "motion_noise",
+            "rng",
+            "ess_fraction",
+        ]
+    from slamlib.sim1d import StepInfo as StepInfo1D
+    from slamlib.sim2d import StepInfo2D
+
+    assert StepInfo1D is StepInfo2D is StepInfo
+
+
+class _Recorder:
+    """A steps module that records the number of every step it is asked for, then runs the real one."""
+
+    def __init__(self, module):
+        self.module, self.calls = module, []
+
+    def __getattr__(self, name):
+        number = {s.name: s.number for s in STEPS}[name]
+        fn = getattr(self.module, name)
+
+        def run(*args, **kwargs):
+            self.calls.append(number)
+            return fn(*args, **kwargs)
+
+        return run
+
+
+@pytest.mark.parametrize("make", [_filter_1d, _filter_2d], ids=IDS[:2])
+def test_the_loop_calls_the_steps_in_order_once_each(make, recording_1d, recording_2d):
+    slam, frames, module, _ = make(recording_1d, recording_2d, 0.5)
+    slam.steps = recorder = _Recorder(
+        module
+    )  # on the instance: the class keeps its module
+    slam.step(frames[0])
+    slam.step(frames[1])
+    assert recorder.calls == list(LOOP_ORDER) * 2
+
+
+@pytest.mark.parametrize("make", [_filter_1d, _filter_2d], ids=IDS[:2])
+def test_the_loop_weighs_prior_times_likelihood(make, recording_1d, recording_2d):
+    """With no resampling, each frame's log-weights are the last ones plus its scores, normalised: the prior
+    weight times the new likelihood."""
+    slam, frames, module, _ = make(recording_1d, recording_2d, 0.0)
+    before = slam.log_weights
+    for frame in frames:
+        info = slam.step(frame)
+        assert not info.resampled
+        np.testing.assert_allclose(
+            info.log_weights, normalise_log_weights(before + info.scores), atol=1e-12
+        )
+        before = slam.log_weights
+    assert np.ptp(info.log_weights) > 1e-3  # the scores told the particles apart
+
+
+@pytest.mark.parametrize("make", [_filter_1d, _filter_2d], ids=IDS[:2])
+def test_the_loop_merges_the_scan_at_the_estimate(make, recording_1d, recording_2d):
+    """Step 10 adds the frame's scan (step 2, with the filter's options) placed by step 9's pose, and nothing else."""
+    slam, frames, module, _ = make(recording_1d, recording_2d, 0.5)
+    for frame in frames[:4]:
+        want = slam.world_map.copy()
+        info = slam.step(frame)
+        module.merge_scan(
+            want, info.estimate, module.read_scan(frame, **slam.scan_options())
+        )
+        np.testing.assert_array_equal(slam.world_map.counts, want.counts)
+    assert slam.world_map.total > 0
+
+
+def test_the_1d_filter_still_takes_its_map_as_grid(recording_1d):
+    grid = OccupancyGrid1D.empty(-30.0, 90.0, 0.05)
+    slam = ParticleSLAM1D(5, grid=grid, motion_noise=0.4, rng=np.random.default_rng(0))
+    assert slam.world_map is grid and slam.grid is grid
+    with pytest.raises(TypeError, match="got the map twice"):
+        ParticleSLAM1D(5, grid, grid=grid, motion_noise=0.4, rng=np.random.default_rng(0))

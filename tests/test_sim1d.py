@@ -350,7 +350,7 @@ def test_resample_particles_returns_normalised_log_weights():
 # ---------------------------------------------------------------------------------------------- the filter
 def test_first_step_maps_the_scan_at_the_origin(clean_recording):
     grid = OccupancyGrid1D.empty(-30, 90, 0.05)
-    slam = ParticleSLAM1D(20, grid, 0.3, 0.07, np.random.default_rng(0))
+    slam = ParticleSLAM1D(20, grid, 0.3, np.random.default_rng(0), likelihood_sigma=0.07)
     info = slam.step(clean_recording.frames[0])
     assert info.estimate == 0.0 and np.all(info.moved == 0.0)
     assert slam.grid.total == clean_recording.frames[0].scan.size
@@ -367,7 +367,7 @@ def test_filter_state_is_log_weights_and_map_history_is_copied(world):
     rec = simulate(world, n_frames=40, seed=6)
     grid = OccupancyGrid1D.empty(-30, 90, 0.05)
     slam = ParticleSLAM1D(
-        30, grid, 0.4, 0.07, np.random.default_rng(1), ess_fraction=None
+        30, grid, 0.4, np.random.default_rng(1), ess_fraction=None, likelihood_sigma=0.07
     )
     for frame in rec.frames[:10]:
         info = slam.step(frame)
@@ -507,9 +507,9 @@ def test_filter_weights_are_prior_times_likelihood_between_resamplings(world):
         40,
         OccupancyGrid1D.empty(-30, 90, 0.05),
         0.4,
-        0.07,
         np.random.default_rng(3),
         ess_fraction=0.0,
+        likelihood_sigma=0.07,
     )
     slam.step(
         rec.frames[0]
@@ -542,10 +542,10 @@ def test_step_scores_with_the_filter_settings_and_reports_mean_and_ess(world):
         30,
         OccupancyGrid1D.empty(-30, 90, 0.05),
         0.4,
-        0.13,
         np.random.default_rng(3),
-        eps=0.2,
         ess_fraction=0.0,
+        likelihood_sigma=0.13,
+        eps=0.2,
     )
     slam.step(rec.frames[0])
     before = slam.grid.copy()
@@ -557,11 +557,31 @@ def test_step_scores_with_the_filter_settings_and_reports_mean_and_ess(world):
     )
     assert info.mean == pytest.approx(float(np.dot(info.weights, info.moved)), rel=1e-12)
     assert info.ess == pytest.approx(1.0 / np.sum(info.weights**2), rel=1e-12)
-    assert (
-        ParticleSLAM1D(5, before, 0.4, 0.13, np.random.default_rng(0)).ess_fraction == 0.5
-    )
+    assert ParticleSLAM1D(5, before, 0.4, np.random.default_rng(0)).ess_fraction == 0.5
     with pytest.raises(TypeError, match=r"^rng must be a numpy.random.Generator$"):
-        ParticleSLAM1D(5, before, 0.4, 0.13, 0)
+        ParticleSLAM1D(5, before, 0.4, 0)
+
+
+def test_step_scores_with_step_8s_default_width_when_none_is_given(world):
+    """``likelihood_sigma`` left out (None): step 8 scores with its own default, two grid cells."""
+    rec = simulate(world, n_frames=3, seed=6)
+    slam = ParticleSLAM1D(
+        30, OccupancyGrid1D.empty(-30, 90, 0.05), 0.4, np.random.default_rng(3)
+    )
+    assert slam.likelihood_sigma is None and slam.eps == 0.05
+    slam.step(rec.frames[0])
+    before = slam.world_map.copy()
+    info = slam.step(rec.frames[1])
+    points = read_scan(rec.frames[1])
+    np.testing.assert_array_equal(
+        info.scores, score_particles(info.moved, points, before)
+    )
+    np.testing.assert_array_equal(
+        info.scores, score_particles(info.moved, points, before, 2 * 0.05, 0.05)
+    )
+    assert not np.allclose(
+        info.scores, score_particles(info.moved, points, before, 0.13, 0.05)
+    )
 
 
 def test_run_slam_1d_is_the_filter_loop_with_the_documented_defaults(world):
@@ -575,7 +595,13 @@ def test_run_slam_1d_is_the_filter_loop_with_the_documented_defaults(world):
     reach = np.abs(rec.measured_velocities).max() * rec.times[-1] + 1.0
     grid = OccupancyGrid1D.empty(-reach - s.max_range, reach + s.max_range, 0.05)
     slam = ParticleSLAM1D(
-        200, grid, motion, sigma, np.random.default_rng(0), eps=0.05, ess_fraction=0.5
+        200,
+        grid,
+        motion,
+        np.random.default_rng(0),
+        ess_fraction=0.5,
+        likelihood_sigma=sigma,
+        eps=0.05,
     )
     infos = [slam.step(f) for f in rec.frames]
     assert r.grid.origin == grid.origin and r.grid.counts.size == grid.counts.size
@@ -649,7 +675,7 @@ def test_run_slam_1d_passes_its_settings_and_shows_no_progress_by_default(world,
 def _filter_args(**kw):
     args = dict(
         n_particles=5,
-        grid=OccupancyGrid1D.empty(0, 1),
+        world_map=OccupancyGrid1D.empty(0, 1),
         motion_noise=0.1,
         likelihood_sigma=0.1,
         rng=np.random.default_rng(0),

@@ -8,6 +8,10 @@ sequential importance sampling update (Doucet, Godsill & Andrieu 2000); resampli
 effective sample size falls below ``ess_fraction * P``. The estimate is the best particle (step 9, as in the seed
 project), and the weighted mean is recorded beside it.
 
+The per-frame loop is not written here: :class:`ParticleSLAM1D` is a :class:`slamlib.contract.StepsFilter` over
+:mod:`slamlib.sim1d.steps`, whose ``step(frame)`` is the one loop that 1D and 2D share; this class adds step 8's
+likelihood width and ``eps`` and the weighted mean ``sum_i w_i x_i``.
+
 This is the "map from the best particle" simplification of particle SLAM: one shared map, built from the best
 pose of each frame (the seed project's scheme), rather than a map per particle as in FastSLAM / Rao-Blackwellised
 grid SLAM (Montemerlo et al. 2002; Grisetti, Stachniss & Burgard 2007).
@@ -15,152 +19,106 @@ grid SLAM (Montemerlo et al. 2002; Grisetti, Stachniss & Burgard 2007).
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
 
-from slamlib.resampling import (
-    effective_sample_size,
-    normalise_log_weights,
-    weights_from_log_weights,
-)
-from slamlib.sim1d.steps import (
-    OccupancyGrid1D,
-    extract_landmarks,
-    initialise_particles,
-    merge_scan,
-    offset_by_motion,
-    perturb_with_noise,
-    pick_best_particle,
-    read_imu,
-    read_scan,
-    read_timing,
-    resample_particles,
-    score_particles,
-)
-from slamlib.sim1d.world import Frame, Recording1D
+import slamlib.sim1d.steps as steps_1d
+from slamlib.contract import StepInfo, StepsFilter
+from slamlib.sim1d.steps import OccupancyGrid1D, extract_landmarks
+from slamlib.sim1d.world import Recording1D
 
 __all__ = ["ParticleSLAM1D", "SLAM1DResult", "StepInfo", "dead_reckon", "run_slam_1d"]
 
 
-@dataclass(frozen=True)
-class StepInfo:
-    """What one call of :meth:`ParticleSLAM1D.step` did (for plots and tests).
+def _grid_is_world_map(init):
+    """Let ``__init__`` take the map as ``grid=`` too, its name before the constructors were made alike."""
 
-    ``moved`` are the particles after steps 5-6 (before resampling), ``scores`` their step-8 log-likelihoods,
-    ``log_weights`` the normalised log-weights after scoring and ``weights`` their ``exp`` (linear, summing to 1,
-    for plots), ``best`` the step-9 index, ``estimate = moved[best]``, ``ess`` the effective sample size of
-    ``weights`` and ``resampled`` whether step 11 resampled.
-    """
+    @functools.wraps(init)
+    def wrapper(self, *args, **kwargs):
+        if "grid" in kwargs:
+            if "world_map" in kwargs or len(args) >= 2:
+                raise TypeError("ParticleSLAM1D got the map twice (world_map and grid)")
+            kwargs["world_map"] = kwargs.pop("grid")
+        init(self, *args, **kwargs)
 
-    moved: np.ndarray
-    scores: np.ndarray
-    log_weights: np.ndarray
-    weights: np.ndarray
-    best: int
-    estimate: float
-    mean: float
-    ess: float
-    resampled: bool
+    return wrapper
 
 
-class ParticleSLAM1D:
-    """Particle SLAM on a line, one :meth:`step` per frame.
+def _scoring_settings(likelihood_sigma, eps) -> tuple[float | None, float]:
+    """Step 8's settings checked (finite and >= 0; ``likelihood_sigma`` may be None: step 8's default) and as
+    floats. Kept out of the decorated ``__init__``, which mutation testing skips."""
+    settings = {"likelihood_sigma": likelihood_sigma, "eps": eps}
+    if likelihood_sigma is None:
+        del settings["likelihood_sigma"]
+    for name, value in settings.items():
+        if not (np.isfinite(value) and value >= 0):
+            raise ValueError(f"{name} must be finite and >= 0, got {value!r}")
+    return (None if likelihood_sigma is None else float(likelihood_sigma)), float(eps)
+
+
+class ParticleSLAM1D(StepsFilter):
+    """Particle SLAM on a line, one :meth:`step` per frame (:class:`slamlib.contract.StepsFilter`).
+
+    The first four parameters and ``ess_fraction`` are the same, in the same order, as
+    :class:`slamlib.sim2d.ParticleSLAM2D`'s; what 1D adds (step 8's settings) comes after them with defaults.
 
     Parameters
     ----------
     n_particles : int
         P.
-    grid : OccupancyGrid1D
+    world_map : OccupancyGrid1D
         The (usually empty) map to start from; its extent bounds the map (not the landmarks' positions).
-        :meth:`step` adds to it in place (step 10): pass ``grid.copy()`` to keep the original.
+        :meth:`step` adds to it in place (step 10): pass ``world_map.copy()`` to keep the original. Also accepted
+        as ``grid=``, its earlier name.
     motion_noise : float
         ``sigma_u`` (m/s): step 6 spreads the particles by ``sigma_u dt``. Use at least the velocity sensor's
         noise; larger values let the filter absorb an unknown bias.
-    likelihood_sigma : float
-        Width of the likelihood field (m), e.g. ``sqrt(sigma_r^2 + resolution^2)``.
-    eps : float
-        Random-return term of the per-return likelihood ``F + eps``.
-    ess_fraction : float or None
-        Resample when ``ESS < ess_fraction * P``; ``None`` resamples every frame.
     rng : numpy.random.Generator
         Source of the motion noise and the resampling offsets.
+    ess_fraction : float or None
+        Resample when ``ESS < ess_fraction * P``; ``None`` resamples every frame.
+    likelihood_sigma : float, optional
+        Width of the likelihood field (m), e.g. ``sqrt(sigma_r^2 + resolution^2)`` (what
+        :func:`run_slam_1d` passes); ``None``: step 8's default, two grid cells.
+    eps : float
+        Random-return term of the per-return likelihood ``F + eps``.
 
     Attributes
     ----------
     particles : (P,) float64 positions; log_weights : (P,) float64 log-weights (logsumexp 0);
-    grid : the map, changed in place by every :meth:`step`.
+    world_map (also ``grid``) : the map, changed in place by every :meth:`step`.
     """
 
+    steps = steps_1d
+
+    @_grid_is_world_map
     def __init__(
         self,
         n_particles: int,
-        grid: OccupancyGrid1D,
+        world_map: OccupancyGrid1D,
         motion_noise: float,
-        likelihood_sigma: float,
         rng: np.random.Generator,
-        eps: float = 0.05,
         ess_fraction: float | None = 0.5,
+        likelihood_sigma: float | None = None,
+        eps: float = 0.05,
     ):
-        if not isinstance(rng, np.random.Generator):
-            raise TypeError("rng must be a numpy.random.Generator")
-        for name, value in (
-            ("motion_noise", motion_noise),
-            ("likelihood_sigma", likelihood_sigma),
-            ("eps", eps),
-        ):
-            if not (np.isfinite(value) and value >= 0):
-                raise ValueError(f"{name} must be finite and >= 0, got {value!r}")
-        if ess_fraction is not None and not 0 <= ess_fraction <= 1:
-            raise ValueError(
-                f"ess_fraction must be in [0, 1] or None, got {ess_fraction!r}"
-            )
-        self.particles, self.log_weights = initialise_particles(n_particles)  # 1
-        self.grid = grid
-        self.motion_noise = float(motion_noise)
-        self.likelihood_sigma = float(likelihood_sigma)
-        self.eps = float(eps)
-        self.ess_fraction = ess_fraction
-        self.rng = rng
+        super().__init__(n_particles, world_map, float(motion_noise), rng, ess_fraction)
+        self.likelihood_sigma, self.eps = _scoring_settings(likelihood_sigma, eps)
 
     @property
-    def weights(self) -> np.ndarray:
-        """The particles' linear weights ``exp(log_weights)`` (summing to 1), for plots."""
-        return weights_from_log_weights(self.log_weights)
+    def grid(self) -> OccupancyGrid1D:
+        """The map (:attr:`world_map`), by its earlier name."""
+        return self.world_map
 
-    @property
-    def estimate(self) -> float:
-        """The best particle's position (m)."""
-        return pick_best_particle(self.particles, self.log_weights)[0]
+    def score_options(self) -> dict:
+        """Step 8's likelihood width and random-return term."""
+        return {"sigma": self.likelihood_sigma, "eps": self.eps}
 
-    def step(self, frame: Frame) -> StepInfo:
-        """Steps 2-11 for one frame (step 12 is calling this for every frame)."""
-        points = read_scan(frame)  # 2
-        imu = read_imu(frame)  # 3
-        dt = read_timing(frame)  # 4
-        moved = offset_by_motion(self.particles, imu, dt)  # 5
-        moved = perturb_with_noise(moved, self.motion_noise * dt, self.rng)  # 6
-        scores = score_particles(
-            moved, points, self.grid, self.likelihood_sigma, self.eps
-        )  # 7 + 8
-        log_w = normalise_log_weights(self.log_weights + scores)
-        pose, best = pick_best_particle(moved, log_w)  # 9
-        merge_scan(self.grid, pose, points)  # 10
-        self.particles, self.log_weights, resampled = resample_particles(  # 11
-            moved, log_w, self.rng, self.ess_fraction
-        )
-        weights = weights_from_log_weights(log_w)
-        return StepInfo(
-            moved=moved,
-            scores=scores,
-            log_weights=log_w,
-            weights=weights,
-            best=best,
-            estimate=pose,
-            mean=float(np.dot(weights, moved)),
-            ess=effective_sample_size(weights),
-            resampled=resampled,
-        )
+    def mean_pose(self, moved, weights) -> float:
+        """The weighted mean position ``sum_i w_i x_i`` (m)."""
+        return float(np.dot(weights, moved))
 
 
 def dead_reckon(recording: Recording1D, x0: float = 0.0) -> np.ndarray:
@@ -311,10 +269,10 @@ def run_slam_1d(
         n_particles,
         grid,
         motion_noise,
-        likelihood_sigma,
         np.random.default_rng(seed),
-        eps=eps,
         ess_fraction=ess_fraction,
+        likelihood_sigma=likelihood_sigma,
+        eps=eps,
     )
     k_frames = len(recording)
     estimated, mean_est, ess, resampled = (np.zeros(k_frames) for _ in range(4))
@@ -342,7 +300,7 @@ def run_slam_1d(
             particle_history[k] = info.moved
             weight_history[k] = info.weights
             map_history[k] = (
-                slam.grid.counts
+                slam.world_map.counts
             )  # a copy (into the int32 row): the grid changes in place
     return SLAM1DResult(
         times=recording.times.copy(),
@@ -352,11 +310,11 @@ def run_slam_1d(
         dead_reckoned=dead_reckon(recording),
         ess=ess,
         resampled=resampled,
-        grid=slam.grid,
+        grid=slam.world_map,
         landmarks_true=recording.world.landmarks.copy(),
         landmark_returns=recording.landmark_returns.copy(),
         landmarks_estimated=extract_landmarks(
-            slam.grid, likelihood_sigma, landmark_min_count
+            slam.world_map, likelihood_sigma, landmark_min_count
         ),
         particle_history=particle_history,
         weight_history=weight_history,

@@ -9,6 +9,10 @@ the best pose of each frame (the seed project's scheme; FastSLAM keeps a map per
 Step 6's spread per frame is ``sigma = motion_noise * dt``, with ``motion_noise = (sigma_forward (m/s),
 sigma_left (m/s), sigma_theta (rad/s))``: a speed error along the heading, a small sideways slip, and a
 yaw-rate error, each held over the interval.
+
+The per-frame loop is not written here: :class:`ParticleSLAM2D` is a :class:`slamlib.contract.StepsFilter` over
+:mod:`slamlib.sim2d.steps`, whose ``step(frame)`` is the one loop that 1D and 2D share; this class adds step 2's
+``max_points``. It returns the shared :class:`slamlib.contract.StepInfo` (``StepInfo2D`` is the same class).
 """
 
 from __future__ import annotations
@@ -17,25 +21,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from slamlib.resampling import (
-    effective_sample_size,
-    normalise_log_weights,
-    weights_from_log_weights,
-)
-from slamlib.sim2d.steps import (
-    OccupancyGrid2D,
-    initialise_particles,
-    merge_scan,
-    offset_by_motion,
-    perturb_with_noise,
-    pick_best_particle,
-    read_imu,
-    read_scan,
-    read_timing,
-    resample_particles,
-    score_particles,
-)
-from slamlib.sim2d.world import Frame2D, Recording2D, integrate_arc, wrap_angle
+import slamlib.sim2d.steps as steps_2d
+from slamlib.contract import StepInfo, StepsFilter
+from slamlib.sim2d.steps import OccupancyGrid2D
+from slamlib.sim2d.world import Recording2D, integrate_arc, wrap_angle
 
 __all__ = [
     "ParticleSLAM2D",
@@ -47,21 +36,9 @@ __all__ = [
     "run_slam_2d",
 ]
 
-
-@dataclass(frozen=True)
-class StepInfo2D:
-    """What one :meth:`ParticleSLAM2D.step` did: ``moved (P, 3)`` particles after steps 5-6, ``scores (P,)``,
-    normalised ``log_weights (P,)`` and linear ``weights``, the step-9 ``best`` index and ``estimate (3,)``,
-    the ``ess`` and whether step 11 ``resampled``."""
-
-    moved: np.ndarray
-    scores: np.ndarray
-    log_weights: np.ndarray
-    weights: np.ndarray
-    best: int
-    estimate: np.ndarray
-    ess: float
-    resampled: bool
+#: What one :meth:`ParticleSLAM2D.step` did: :class:`slamlib.contract.StepInfo`, the class every dimension
+#: returns (``moved (P, 3)``, ``estimate (3,)``, ``mean`` None); the name kept for the imports that use it.
+StepInfo2D = StepInfo
 
 
 def default_motion_noise(sensors) -> np.ndarray:
@@ -76,8 +53,12 @@ def default_motion_noise(sensors) -> np.ndarray:
     )
 
 
-class ParticleSLAM2D:
-    """Particle SLAM in the plane, one :meth:`step` per frame.
+class ParticleSLAM2D(StepsFilter):
+    """Particle SLAM in the plane, one :meth:`step` per frame (:class:`slamlib.contract.StepsFilter`).
+
+    The first four parameters and ``ess_fraction`` are the same, in the same order, as
+    :class:`slamlib.sim1d.ParticleSLAM1D`'s; what 2D adds comes after them with a default. Step 8's settings live
+    in the map (:class:`~slamlib.sim2d.steps.OccupancyGrid2D`: ``kind``, ``sigma``, ``eps``, ``n_sat``).
 
     Parameters
     ----------
@@ -89,6 +70,8 @@ class ParticleSLAM2D:
     max_points : optional down-sampling of the scan read at step 2 (scoring and merging use the same points).
     """
 
+    steps = steps_2d
+
     def __init__(
         self,
         n_particles: int,
@@ -98,45 +81,18 @@ class ParticleSLAM2D:
         ess_fraction: float | None = 0.5,
         max_points: int | None = None,
     ):
-        if not isinstance(rng, np.random.Generator):
-            raise TypeError("rng must be a numpy.random.Generator")
-        self.particles, self.log_weights = initialise_particles(n_particles)  # 1
-        self.world_map = world_map
-        self.motion_noise = np.asarray(motion_noise, dtype=np.float64).reshape(3)
-        self.rng = rng
-        self.ess_fraction = ess_fraction
+        super().__init__(
+            n_particles,
+            world_map,
+            np.asarray(motion_noise, dtype=np.float64).reshape(3),
+            rng,
+            ess_fraction,
+        )
         self.max_points = max_points
 
-    @property
-    def estimate(self) -> np.ndarray:
-        """The best particle's pose (3,)."""
-        return pick_best_particle(self.particles, self.log_weights)[0]
-
-    def step(self, frame: Frame2D) -> StepInfo2D:
-        """Steps 2-11 for one frame (step 12 is calling this for every frame)."""
-        points = read_scan(frame, self.max_points)  # 2
-        imu = read_imu(frame)  # 3
-        dt = read_timing(frame)  # 4
-        moved = offset_by_motion(self.particles, imu, dt)  # 5
-        moved = perturb_with_noise(moved, self.motion_noise * dt, self.rng)  # 6
-        scores = score_particles(moved, points, self.world_map)  # 7 + 8
-        log_w = normalise_log_weights(self.log_weights + scores)
-        pose, best = pick_best_particle(moved, log_w)  # 9
-        merge_scan(self.world_map, pose, points)  # 10
-        self.particles, self.log_weights, resampled = resample_particles(  # 11
-            moved, log_w, self.rng, self.ess_fraction
-        )
-        weights = weights_from_log_weights(log_w)
-        return StepInfo2D(
-            moved=moved,
-            scores=scores,
-            log_weights=log_w,
-            weights=weights,
-            best=best,
-            estimate=pose,
-            ess=effective_sample_size(weights),
-            resampled=resampled,
-        )
+    def scan_options(self) -> dict:
+        """Step 2's down-sampling."""
+        return {"max_points": self.max_points}
 
 
 def dead_reckon_2d(recording: Recording2D, pose0=None) -> np.ndarray:

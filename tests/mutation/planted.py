@@ -40,7 +40,7 @@ PLANTS = [
     ),
     (
         "1D filter drops the prior weights: `normalise(scores)`",
-        "slamlib/sim1d/filter.py",
+        "slamlib/contract.py",  # the 1D and 2D filters' shared loop, StepsFilter.step
         "log_w = normalise_log_weights(self.log_weights + scores)",
         "log_w = normalise_log_weights(scores)",
         [

@@ -338,17 +338,7 @@ def _filter_3d(recording_1d, recording_2d, ess_fraction):
     return ParticleSLAM3D(config), frames, steps3d, False  # 3D may refine step 9's pose
 
 
-FILTERS = [
-    _filter_1d,
-    _filter_2d,
-    pytest.param(
-        _filter_3d,
-        marks=pytest.mark.skipif(
-            not hasattr(ParticleSLAM3D, "step"),
-            reason="ParticleSLAM3D.step(frame) -> StepInfo is not written yet (3D keeps register_frame)",
-        ),
-    ),
-]
+FILTERS = [_filter_1d, _filter_2d, _filter_3d]
 
 
 @pytest.mark.parametrize("ess_fraction", [None, 0.0], ids=["always", "never"])

@@ -181,3 +181,26 @@ def test_resampling_and_annealing_are_counted_apart():
         slam.register_frame(_frame(scan))
     assert slam.n_annealed == 4  # two rounds in each of the two frames after the first
     assert slam.n_resampled == 2  # step 11 in each of them (ESS below P after scoring)
+
+
+def test_step_reports_a_degenerate_frame_as_unscored_and_register_frame_its_pose():
+    scan = _scan()
+    config = SLAM3DConfig.of(particles=20, scored_points=100)
+    slam = ParticleSLAM3D(config)
+    first = slam.step(_frame(scan))
+    assert first.resampled is False and np.all(first.scores == 0)
+    np.testing.assert_array_equal(first.estimate, np.eye(4))
+    before = slam.log_weights
+    empty = slam.step(_frame(np.zeros((0, 4), np.float32)))
+    assert empty.resampled is False and np.all(empty.scores == 0)
+    np.testing.assert_array_equal(empty.log_weights, before)
+    assert empty.moved is slam.particles and slam.n_skipped_frames == 1
+    scored = slam.step(_frame(scan))
+    assert np.ptp(scored.scores) > 0 and scored.resampled == (slam.n_resampled == 1)
+    twin = ParticleSLAM3D(config)
+    poses = [
+        twin.register_frame(f) for f in (_frame(scan), _frame(scan[:0]), _frame(scan))
+    ]
+    np.testing.assert_array_equal(
+        poses[-1], scored.estimate
+    )  # step() adds a report, not a change

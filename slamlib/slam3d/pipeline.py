@@ -41,9 +41,14 @@ from __future__ import annotations
 
 import numpy as np
 
+from slamlib.contract import StepInfo
 from slamlib.kernels import get_backend
 from slamlib.odometry import increment_matrix
-from slamlib.resampling import normalise_log_weights
+from slamlib.resampling import (
+    effective_sample_size,
+    normalise_log_weights,
+    weights_from_log_weights,
+)
 from slamlib.slam3d import steps
 from slamlib.slam3d.config import SLAM3DConfig
 from slamlib.slam3d.stages import Annealing, MapUpkeep, ScanPreparation, choose_stages
@@ -114,6 +119,29 @@ class ParticleSLAM3D:
         self.motion = self.prior = self.polish = None
 
     # ----------------------------------------------------------------------------------------- step 12
+    def step(self, frame) -> StepInfo:
+        """Step 12 as every dimension's filter offers it (:data:`slamlib.contract.FILTER_STEP`): steps 2-11 on
+        one frame (:meth:`register_frame`) and what they did, as a :class:`slamlib.contract.StepInfo`.
+
+        ``moved`` and ``log_weights`` are the particles and normalised log-weights step 11 resampled from (after
+        annealing and the polish's correction), ``scores`` the raw step-8 scores of the last weighing (before
+        tempering and the prior; zeros on a frame not scored), ``estimate`` the frame's pose ``T_world_body``
+        (4, 4), which the polish may have moved off ``moved[best]``.
+        """
+        pose = self.register_frame(frame)
+        log_w = self.last["log_weights"]
+        weights = weights_from_log_weights(log_w)
+        return StepInfo(
+            moved=self.last["moved"],
+            scores=self.last["scores"],
+            log_weights=log_w,
+            weights=weights,
+            best=int(np.argmax(log_w)),
+            estimate=pose,
+            ess=effective_sample_size(weights),
+            resampled=bool(self.last["resampled"]),
+        )
+
     def register_frame(self, frame) -> np.ndarray:
         """Run steps 2-11 on one frame (``.scan``, ``.velocity``, ``.angular_rate``, ``.dt``); return the pose.
 
@@ -161,9 +189,11 @@ class ParticleSLAM3D:
         """Step 11 when the effective sample size is below ``FilterConfig.ess_fraction`` of the particles;
         ``n_resampled`` counts the frames it resampled."""
         ess = self.config.filter.ess_fraction
+        self.last.update(moved=particles, log_weights=log_weights)
         self.particles, self.log_weights, resampled = steps.resample_particles(
             particles, log_weights, self.rng, ess, self.backend
         )
+        self.last["resampled"] = resampled
         self.n_resampled += int(resampled)
 
     def weigh(self, particles, log_weights, sample) -> np.ndarray:
@@ -181,6 +211,7 @@ class ParticleSLAM3D:
         else:
             self.n_skipped_frames += 1
         self._record(self.T0, imu, None, points, dt)
+        self._unscored()
         self.upkeep(self.map, self.poses)
         return self.poses[-1]
 
@@ -198,8 +229,16 @@ class ParticleSLAM3D:
         self._record(
             pose, imu, increment, points, dt, sample=points[:0], sigma=sigma, best=None
         )
+        self._unscored()
         self.upkeep(self.map, self.poses)
         return pose
+
+    def _unscored(self) -> None:
+        """What :meth:`step` reports of a frame not scored (the first, a degenerate one): the particles as they
+        are, their weights unchanged, zero scores, no resampling."""
+        P = len(self.particles)
+        self.last.update(moved=self.particles, log_weights=self.log_weights)
+        self.last.update(scores=np.zeros(P), resampled=False)
 
     def _record(self, pose, imu, increment, points, dt, **last) -> None:
         """Bookkeeping after step 10: the SLAM pose and its ``dt``, the motion stage's record of the frame (the

@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from slamlib.resampling import (
+    DEFAULT_ESS_FRACTION,
     effective_sample_size,
     normalise_log_weights,
     weights_from_log_weights,
@@ -100,7 +101,7 @@ class ParticleSLAM1D:
         likelihood_sigma: float,
         rng: np.random.Generator,
         eps: float = 0.05,
-        ess_fraction: float | None = 0.5,
+        ess_fraction: float | None = DEFAULT_ESS_FRACTION,
     ):
         if not isinstance(rng, np.random.Generator):
             raise TypeError("rng must be a numpy.random.Generator")
@@ -248,7 +249,7 @@ def run_slam_1d(
     likelihood_sigma: float | None = None,
     resolution: float = 0.05,
     eps: float = 0.05,
-    ess_fraction: float | None = 0.5,
+    ess_fraction: float | None = DEFAULT_ESS_FRACTION,
     keep_history: bool = True,
     landmark_min_count: int = 5,
     progress: bool = False,

@@ -39,6 +39,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from slamlib.resampling import (
+    DEFAULT_ESS_FRACTION,
     normalise_log_weights,
     resample_indexes,
     uniform_log_weights,
@@ -333,7 +334,7 @@ def resample_particles(
     particles: np.ndarray,
     log_weights: np.ndarray,
     rng: np.random.Generator,
-    ess_fraction: float | None = 0.5,
+    ess_fraction: float | None = DEFAULT_ESS_FRACTION,
 ):
     """Step 11: systematic resampling when the effective sample size drops.
 

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from slamlib.resampling import (
+    DEFAULT_ESS_FRACTION,
     effective_sample_size,
     normalise_log_weights,
     weights_from_log_weights,
@@ -95,7 +96,7 @@ class ParticleSLAM2D:
         world_map: OccupancyGrid2D,
         motion_noise,
         rng: np.random.Generator,
-        ess_fraction: float | None = 0.5,
+        ess_fraction: float | None = DEFAULT_ESS_FRACTION,
         max_points: int | None = None,
     ):
         if not isinstance(rng, np.random.Generator):
@@ -229,7 +230,7 @@ def run_slam_2d(
     likelihood_sigma: float | None = None,
     eps: float = 0.05,
     n_sat: int = 3,
-    ess_fraction: float | None = 0.5,
+    ess_fraction: float | None = DEFAULT_ESS_FRACTION,
     max_points: int | None = None,
     keep_history: bool = False,
     progress: bool = False,

@@ -48,6 +48,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from slamlib.resampling import (
+    DEFAULT_ESS_FRACTION,
     normalise_log_weights,
     resample_indexes,
     uniform_log_weights,
@@ -392,7 +393,7 @@ def resample_particles(
     particles: np.ndarray,
     log_weights,
     rng: np.random.Generator,
-    ess_fraction: float | None = 0.5,
+    ess_fraction: float | None = DEFAULT_ESS_FRACTION,
 ) -> tuple[np.ndarray, np.ndarray, bool]:
     """Step 11: systematic resampling when ``ESS < ess_fraction * P`` (``None``: always).
 

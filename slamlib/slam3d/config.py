@@ -15,6 +15,7 @@ from dataclasses import asdict, dataclass, field, fields, replace
 import numpy as np
 
 from slamlib.kitti.velodyne import SWEEP_PERIOD_S
+from slamlib.resampling import DEFAULT_ESS_FRACTION
 
 __all__ = [
     "MOTION_MODELS",
@@ -329,7 +330,8 @@ class FilterConfig:
     temperature : float
         Likelihood tempering: ``log L = score / (N * temperature)`` (:mod:`slamlib.slam3d.pipeline`).
     ess_fraction : float
-        Step 11 resamples when the effective sample size is below ``ess_fraction * P`` (1.0: every frame).
+        Step 11 resamples when the effective sample size is below ``ess_fraction * P`` (1.0: every frame; default
+        :data:`slamlib.resampling.DEFAULT_ESS_FRACTION`, 0.5, shared with the 1D and 2D filters).
     estimate : str
         Step 9: ``"best"`` particle or ``"mean"`` (weighted mean of the particles near the best).
     refine : int
@@ -376,7 +378,7 @@ class FilterConfig:
     particles: int = 300
     scored_points: int = 1000
     temperature: float = 0.02
-    ess_fraction: float = 0.5
+    ess_fraction: float = DEFAULT_ESS_FRACTION
     estimate: str = "best"
     refine: int = 0
     refine_shrink: float = 0.4

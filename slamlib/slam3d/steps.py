@@ -67,6 +67,7 @@ from slamlib.kitti.oxts import (
 )
 from slamlib.odometry import imu_increment
 from slamlib.resampling import (
+    DEFAULT_ESS_FRACTION,
     normalise_log_weights,
     resample_indexes,
     uniform_log_weights,
@@ -511,7 +512,7 @@ def resample_particles(
     particles: Particles3D,
     log_weights,
     rng: np.random.Generator,
-    ess_fraction: float | None = 0.5,
+    ess_fraction: float | None = DEFAULT_ESS_FRACTION,
     backend=DEFAULT_BACKEND,
 ) -> tuple[Particles3D, np.ndarray, bool]:
     """Step 11: systematic resampling by weight when ``ESS < ess_fraction * P`` (``None``: always).

@@ -14,6 +14,7 @@ from dataclasses import asdict, dataclass, field, fields, replace
 
 import numpy as np
 
+from slamlib.kernels import DEFAULT_BACKEND
 from slamlib.kitti.velodyne import SWEEP_PERIOD_S
 from slamlib.resampling import DEFAULT_ESS_FRACTION
 
@@ -465,7 +466,8 @@ class SLAM3DConfig:
     scan, motion, map, filter : :class:`ScanConfig`, :class:`MotionConfig`, :class:`MapConfig`,
         :class:`FilterConfig`.
     backend : str
-        ``"numpy"`` (reference, slow), ``"cpu"`` (Numba) or ``"cuda"``.
+        ``"numpy"`` (reference, slow), ``"cpu"`` (Numba; the default, :data:`slamlib.kernels.DEFAULT_BACKEND`) or
+        ``"cuda"``.
     seed : int
         Seed of the filter's ``numpy.random.Generator`` (noise, scoring sample, resampling offsets).
     """
@@ -474,7 +476,7 @@ class SLAM3DConfig:
     motion: MotionConfig = field(default_factory=MotionConfig)
     map: MapConfig = field(default_factory=MapConfig)
     filter: FilterConfig = field(default_factory=FilterConfig)
-    backend: str = "cpu"
+    backend: str = DEFAULT_BACKEND
     seed: int = 0
 
     def __post_init__(self):

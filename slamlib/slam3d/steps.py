@@ -59,7 +59,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from slamlib.geometry import make_pose, rpy_to_matrix
-from slamlib.kernels import Backend, get_backend
+from slamlib.kernels import DEFAULT_BACKEND, Backend, get_backend
 from slamlib.kitti.oxts import (
     MAX_ACCELERATION_MPS2,
     MAX_ANGULAR_RATE_RADPS,
@@ -98,9 +98,6 @@ __all__ = [
     "weighted_mean_pose",
     "project_to_rotation",
 ]
-
-#: Default compute backend of the step functions (Numba CPU kernels).
-DEFAULT_BACKEND = "cpu"
 
 
 def _backend(backend) -> Backend:

@@ -16,6 +16,7 @@ import numpy as np
 
 from slamlib.kernels import DEFAULT_BACKEND
 from slamlib.kitti.velodyne import SWEEP_PERIOD_S
+from slamlib.maps import DEFAULT_MAP_KIND, MAP_TYPES, make_map
 from slamlib.resampling import DEFAULT_ESS_FRACTION
 
 __all__ = [
@@ -29,12 +30,11 @@ __all__ = [
     "OLD_MAP_NAMES",
 ]
 
-#: Map kinds (:func:`slamlib.maps.make_map`): hashed NDT voxels, exact points in a Morton-code BVH.
-MAP_KINDS = ("voxel_hash", "morton_bvh")
+#: Map kinds (:func:`slamlib.maps.make_map`, the keys of :data:`slamlib.maps.MAP_TYPES`): hashed NDT voxels, exact
+#: points in a Morton-code BVH.
+MAP_KINDS = tuple(MAP_TYPES)
 #: Earlier spellings of the map kinds, still accepted by ``slamlib run --map`` (with a note) but not here.
 OLD_MAP_NAMES = {"voxel": "voxel_hash", "bvh": "morton_bvh"}
-#: Hash-table slots of the default voxel map (2**19 = 524,288 voxels before it must grow; ~22 MiB).
-DEFAULT_VOXEL_CAPACITY = 2**19
 #: Most particles: the particle arrays take ~200 bytes each (pose, noise, weights, copies when resampling), so
 #: 10**7 particles already need ~2 GB; more would fail to allocate (10**9 asked for 67 GiB) or run for hours a frame.
 MAX_PARTICLES = 10_000_000
@@ -260,8 +260,8 @@ class MapConfig:
         ``"voxel_hash"`` (hashed NDT voxels, :class:`slamlib.maps.VoxelHashMap`) or ``"morton_bvh"`` (exact points
         in a Morton-code BVH, :class:`slamlib.maps.MortonBVHMap`).
     params : dict
-        Keyword arguments of the map's constructor (e.g. ``{"voxel_size": 0.5}``); the voxel map gets
-        ``capacity = 2**19`` unless given.
+        Keyword arguments of the map's constructor (e.g. ``{"voxel_size": 0.5}``); the constructor's defaults for
+        the others (the voxel map's ``capacity``: :data:`slamlib.maps.DEFAULT_VOXEL_CAPACITY`, 2**19 slots).
     prune_every, prune_radius : int, float
         Every ``prune_every`` frames drop map elements farther than ``prune_radius`` metres from the vehicle
         (bounded memory and lookup time on long drives; 0 disables).
@@ -274,7 +274,7 @@ class MapConfig:
         every voxel; the voxel map only. Evicted voxels are not archived.
     """
 
-    kind: str = "voxel_hash"
+    kind: str = DEFAULT_MAP_KIND
     params: dict = field(default_factory=dict)
     prune_every: int = 20
     prune_radius: float = 120.0
@@ -310,12 +310,7 @@ class MapConfig:
 
     def make(self):
         """A fresh, empty map of this kind (:func:`slamlib.maps.make_map`)."""
-        from slamlib.maps import make_map
-
-        params = dict(self.params)
-        if self.kind == "voxel_hash":
-            params.setdefault("capacity", DEFAULT_VOXEL_CAPACITY)
-        return make_map(self.kind, **params)
+        return make_map(self.kind, **self.params)
 
 
 @dataclass(frozen=True)

@@ -72,7 +72,7 @@ from slamlib.resampling import (
     resample_indexes,
     uniform_log_weights,
 )
-from slamlib.slam3d.config import MotionConfig, ScanConfig
+from slamlib.slam3d.config import FilterConfig, MotionConfig, ScanConfig
 from slamlib.slam3d.preprocess import crop_and_downsample, deskew, sweep_times
 
 __all__ = [
@@ -472,16 +472,19 @@ def weighted_mean_pose(R, t, weights) -> np.ndarray:
 
 
 def pick_best_particle(
-    particles: Particles3D, log_weights, estimate: str = "best", radius: float = 0.5
+    particles: Particles3D, log_weights, estimate: str | None = None, radius: float = 0.5
 ) -> tuple[np.ndarray, int]:
     """Step 9: the pose estimate of this frame and the index of the highest-weight particle.
 
     ``estimate="best"``: the maximum-weight particle's pose (ties to the lowest index). ``estimate="mean"``: the
     weighted mean (:func:`weighted_mean_pose`) of the particles within ``radius`` metres of the best one -- a
-    local mean that averages out the sampling noise of the cloud without blending separate modes.
+    local mean that averages out the sampling noise of the cloud without blending separate modes. ``None``: the
+    default, :attr:`FilterConfig.estimate <slamlib.slam3d.config.FilterConfig>` (``"best"``).
 
     Returns ``(T_world_body (4, 4), best_index)``.
     """
+    if estimate is None:
+        estimate = FilterConfig.estimate
     log_w = np.asarray(log_weights, dtype=np.float64)
     R, t = particles.R, particles.t
     i = int(np.argmax(log_w))

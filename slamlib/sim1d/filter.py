@@ -26,6 +26,9 @@ from slamlib.resampling import (
     weights_from_log_weights,
 )
 from slamlib.sim1d.steps import (
+    DEFAULT_EPS,
+    DEFAULT_RESOLUTION,
+    LANDMARK_MIN_COUNT,
     OccupancyGrid1D,
     extract_landmarks,
     initialise_particles,
@@ -100,7 +103,7 @@ class ParticleSLAM1D:
         motion_noise: float,
         likelihood_sigma: float,
         rng: np.random.Generator,
-        eps: float = 0.05,
+        eps: float = DEFAULT_EPS,
         ess_fraction: float | None = DEFAULT_ESS_FRACTION,
     ):
         if not isinstance(rng, np.random.Generator):
@@ -247,11 +250,11 @@ def run_slam_1d(
     seed: int = 0,
     motion_noise: float | None = None,
     likelihood_sigma: float | None = None,
-    resolution: float = 0.05,
-    eps: float = 0.05,
+    resolution: float = DEFAULT_RESOLUTION,
+    eps: float = DEFAULT_EPS,
     ess_fraction: float | None = DEFAULT_ESS_FRACTION,
     keep_history: bool = True,
-    landmark_min_count: int = 5,
+    landmark_min_count: int = LANDMARK_MIN_COUNT,
     progress: bool = False,
 ) -> SLAM1DResult:
     """Run :class:`ParticleSLAM1D` over every frame of ``recording`` (step 12, the loop).

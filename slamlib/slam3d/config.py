@@ -170,11 +170,9 @@ class MotionConfig:
     the last one, over their time: one frame's estimate is noisy, and constant velocity would carry its noise into
     the next frame), its six components (``v`` forward, left, up, then the rates about them) multiplied by
     ``cv_damping``: a car's vertical velocity and its roll and pitch rates are close to zero, so an estimate of
-    them is mostly noise, which held drifts the height and the pitch. Both are off by default (1 frame, no
-    damping), the setting checked on the real scans: in one run on a synthetic 500-frame piece of route 07
-    (``lidar_only_ground_share`` 0.3) the KITTI error fell from 0.47 % to 0.30 % with ``cv_window = 3`` and
-    ``cv_damping = (1, 1, 0.3, 0.3, 0.3, 1)``, but on the ten real scans (slow, accelerating) the window let the
-    estimate lag by up to 12 cm; choosing them needs a sweep (``slamlib sweep``).
+    them is mostly noise, which held drifts the height and the pitch. Both are off by default (``cv_window`` 1 frame,
+    ``cv_damping`` all 1: no damping); why, and how to choose them (``slamlib sweep``): the book's "Why these
+    defaults" (``book/defaults.md``).
 
     At the second frame LIDAR-only knows no motion yet: the spread is ``cv_start_speed dt`` (speeds a car may have
     when the sequence starts: 15 m/s forward, 1 and 0.5 m/s sideways and up; 0.05, 0.05, 0.3 rad/s in roll, pitch,
@@ -341,11 +339,8 @@ class FilterConfig:
         Radians; > 0 holds roll and pitch to gravity: step 8 adds :func:`slamlib.slam3d.steps.tilt_log_prior`
         with the up direction the accelerometer measured over the last ``tilt_window`` seconds
         (:func:`slamlib.odometry.gravity_up`). 0 (default) = off; needs an IMU with ``specific_force``.
-        ``sigma`` is the prior's weight as much as an error bar: the window's up errs by a few mrad, but that
-        error comes and goes with the window, while every tilt error the map takes in stays, so a sigma below the
-        window's own error holds better. 0.003 (3 mrad) beat 0.005 over four seeds of the whole KITTI 00, 05, 07
-        routes with sweep distortion, traffic and bias walk (book chapter 09,
-        ``benchmarks/results/sweep_realistic_tilt3_refine2_4seeds``).
+        ``sigma`` is the prior's weight against the map as much as an error bar on the measured up; the value the
+        realistic sweeps use, and why: book chapter 09 and "Why these defaults" (``book/defaults.md``).
     tilt_window : float
         Seconds of accelerometer samples behind each up measurement (longer: less noise from the velocities).
     tilt_bias_sigma, tilt_world_sigma : float
@@ -367,8 +362,7 @@ class FilterConfig:
         (other maps are left as they are).
     scan_match_iterations : int
         Most Gauss-Newton steps per frame (each one only if it lowers the cost; the iteration also stops once a step
-        is tiny). 15: on the whole synthetic route 05, LIDAR-only, 5 steps stopped short of the peak (KITTI error
-        0.148 against 0.117 %, ``slamlib bench lidar_only``).
+        is tiny). Default 15; why: "Why these defaults" (``book/defaults.md``).
     """
 
     particles: int = 300

@@ -12,7 +12,10 @@ HELP = (
 
 def add_arguments(parser) -> None:
     from slamlib.commands import parameter_default
-    from slamlib.sim1d import SensorModel1D, run_slam_1d, simulate
+
+    # from the defining modules: tests replace the names in slamlib.sim1d to check that main() stops early
+    from slamlib.sim1d.filter import run_slam_1d
+    from slamlib.sim1d.world import SensorModel1D, simulate
 
     particles = parameter_default(run_slam_1d, "n_particles")
     frames = parameter_default(simulate, "n_frames")

@@ -11,7 +11,10 @@ HELP = "Run 2D particle SLAM (density grid or likelihood field) on a simulated c
 
 def add_arguments(parser) -> None:
     from slamlib.commands import parameter_default
-    from slamlib.sim2d import SensorModel2D, run_slam_2d, simulate
+
+    # from the defining modules: tests replace the names in slamlib.sim2d to check that main() stops early
+    from slamlib.sim2d.filter import run_slam_2d
+    from slamlib.sim2d.world import SensorModel2D, simulate
 
     particles = parameter_default(run_slam_2d, "n_particles")
     laps = parameter_default(simulate, "laps")

@@ -398,6 +398,7 @@ def test_1d_defaults_take_the_owners_values():
     owners = merged(
         constant_owners(slamlib.resampling),
         constant_owners(slamlib.sim1d.steps, names={"LANDMARK_MIN_COUNT": "min_count"}),
+        constant_owners(slamlib.sim1d.filter),
     )
     defaults = signature_defaults([slamlib.sim1d.steps, slamlib.sim1d.filter])
     aliases = {"slamlib.sim1d.filter.run_slam_1d(landmark_min_count)": "min_count"}
@@ -412,6 +413,8 @@ def test_1d_defaults_take_the_owners_values():
         "slamlib.sim1d.steps.score_particles(eps)",
         "slamlib.sim1d.steps.OccupancyGrid1D.empty(resolution)",
         "slamlib.sim1d.steps.extract_landmarks(min_count)",
+        "slamlib.sim1d.filter.SLAM1DResult.observed_landmarks(min_returns)",
+        "slamlib.sim1d.filter.SLAM1DResult.landmark_errors(min_returns)",
         *aliases,
     } <= walked
 

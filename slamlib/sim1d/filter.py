@@ -172,6 +172,11 @@ def dead_reckon(recording: Recording1D, x0: float = 0.0) -> np.ndarray:
     return x0 + np.cumsum(recording.measured_velocities * recording.dts)
 
 
+#: Frames in which the range sensor must have returned a true landmark for it to count as observed (enough to be
+#: mapped) when none is given (:meth:`SLAM1DResult.observed_landmarks`, :meth:`SLAM1DResult.landmark_errors`).
+DEFAULT_MIN_RETURNS = 5
+
+
 @dataclass
 class SLAM1DResult:
     """Everything a run produced, for plots, tests and the book.
@@ -213,11 +218,11 @@ class SLAM1DResult:
         """(K,) |dead reckoned - true| (m)."""
         return np.abs(self.dead_reckoned - self.true_positions)
 
-    def observed_landmarks(self, min_returns: int = 5) -> np.ndarray:
+    def observed_landmarks(self, min_returns: int = DEFAULT_MIN_RETURNS) -> np.ndarray:
         """True landmarks the range sensor returned in at least ``min_returns`` frames (enough to be mapped)."""
         return self.landmarks_true[self.landmark_returns >= min_returns]
 
-    def landmark_errors(self, min_returns: int = 5) -> np.ndarray:
+    def landmark_errors(self, min_returns: int = DEFAULT_MIN_RETURNS) -> np.ndarray:
         """For each observed true landmark, the distance to the nearest landmark read off the map (m)."""
         seen = self.observed_landmarks(min_returns)
         est = self.landmarks_estimated

@@ -74,6 +74,7 @@ from typing import Any, ClassVar, Protocol, runtime_checkable
 import numpy as np
 
 from slamlib.resampling import (
+    DEFAULT_ESS_FRACTION,
     effective_sample_size,
     normalise_log_weights,
     weights_from_log_weights,
@@ -316,7 +317,7 @@ class StepsFilter:
         world_map,
         motion_noise,
         rng: np.random.Generator,
-        ess_fraction: float | None = 0.5,
+        ess_fraction: float | None = DEFAULT_ESS_FRACTION,
     ):
         if not isinstance(rng, np.random.Generator):
             raise TypeError("rng must be a numpy.random.Generator")

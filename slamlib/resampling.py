@@ -34,6 +34,7 @@ from __future__ import annotations
 import numpy as np
 
 __all__ = [
+    "DEFAULT_ESS_FRACTION",
     "effective_sample_size",
     "multinomial_resample",
     "normalise_log_weights",
@@ -44,6 +45,11 @@ __all__ = [
     "uniform_log_weights",
     "weights_from_log_weights",
 ]
+
+#: Step 11's default threshold, in every dimension: resample when the effective sample size falls below half the
+#: particles, ``ESS < 0.5 P`` (Doucet, Godsill & Andrieu 2000). The 1D and 2D filters and
+#: :class:`slamlib.slam3d.config.FilterConfig` take their default from here.
+DEFAULT_ESS_FRACTION = 0.5
 
 
 def _check_weights(weights) -> np.ndarray:
@@ -332,7 +338,7 @@ def uniform_log_weights(n: int) -> np.ndarray:
 def resample_indexes(
     log_weights,
     rng: np.random.Generator,
-    ess_fraction: float | None = 0.5,
+    ess_fraction: float | None = DEFAULT_ESS_FRACTION,
     sampler=systematic_resample,
 ) -> np.ndarray | None:
     """Step 11's decision and draw, shared by every dimension: indexes of the survivors, or ``None`` (keep all).

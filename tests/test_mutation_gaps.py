@@ -594,12 +594,12 @@ def test_voxel_hash_parameters_defaults_and_limits():
     m = VoxelHashMap()
     assert (m.voxel_size, m.capacity, m.max_load, m.min_sigma, m.m_max) == (
         0.5,
-        2**18,
+        2**19,
         0.75,
         0.05,
         16.0,
     )
-    assert m.max_voxels == int(0.75 * 2**18) and m.log2_capacity == 18
+    assert m.max_voxels == int(0.75 * 2**19) and m.log2_capacity == 19
     for cap in (8, 24, 15, 2**10 + 2):
         with pytest.raises(
             ValueError, match=rf"^capacity must be a power of two >= 16, got {cap}$"

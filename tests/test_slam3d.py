@@ -604,7 +604,9 @@ def test_config_rejects_bad_values():
             SLAM3DConfig.of(**bad)
 
 
-def test_config_groups_hold_each_default_once_and_by_name():
+def test_config_changes_settings_by_name_and_keeps_the_other_defaults():
+    """``of`` changes the named settings in their groups; the others keep their default values (written out here:
+    tests/test_defaults.py checks that every signature repeating a setting has the config's value)."""
     c = SLAM3DConfig.of(particles=7, max_range=30.0, kind="morton_bvh", seed=4)
     assert (c.filter.particles, c.scan.max_range, c.map.kind, c.seed) == (
         7,
@@ -612,14 +614,16 @@ def test_config_groups_hold_each_default_once_and_by_name():
         "morton_bvh",
         4,
     )
-    assert (
-        c.scan.min_range == ScanConfig().min_range
-        and c.filter.scored_points == SLAM3DConfig().filter.scored_points
+    assert (c.scan.min_range, c.filter.scored_points, c.filter.ess_fraction) == (
+        3.0,
+        1000,
+        0.5,
     )
+    assert (c.filter.estimate, c.backend, c.map.prune_every) == ("best", "cpu", 20)
     d = c.as_dict()
-    assert d["filter"]["particles"] == 7 and d["motion"]["sigma_xyz_per_m"] == list(
-        MotionConfig().sigma_xyz_per_m
-    )
+    assert d["filter"]["particles"] == 7
+    assert d["motion"]["sigma_xyz_per_m"] == [0.02, 0.02, 0.01]
+    assert d["scan"]["min_range"] == 3.0 and d["map"]["params"] == {}
     json.dumps(d)
 
 

@@ -13,3 +13,11 @@ COMMANDS = {
     "synth": "slamlib.commands.synth",
     "sweep": "slamlib.commands.sweep",
 }
+
+
+def parameter_default(function, name: str):
+    """The default of ``function``'s parameter ``name``: an option's default read from the library function the
+    command passes it to, so that each default is written once (CONTRIBUTING.md)."""
+    import inspect
+
+    return inspect.signature(function).parameters[name].default

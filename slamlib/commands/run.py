@@ -74,6 +74,7 @@ def add_arguments(parser) -> None:
         MapConfig,
         SLAM3DConfig,
     )
+    from slamlib.slam3d.run import DEFAULT_MAP_FORMAT, MAP_FORMATS
 
     f = parser.add_argument_group("filter (defaults from slamlib.slam3d.config)")
     f.add_argument(
@@ -182,9 +183,9 @@ def add_arguments(parser) -> None:
     )
     o.add_argument(
         "--map-format",
-        choices=("ply", "pcd"),
-        default="ply",
-        help="map file format (default ply)",
+        choices=MAP_FORMATS,
+        default=DEFAULT_MAP_FORMAT,
+        help=f"map file format (default {DEFAULT_MAP_FORMAT})",
     )
     o.add_argument("--no-plots", action="store_true", help="do not write the PNG plots")
     o.add_argument("--no-progress", action="store_true", help="no progress bar")

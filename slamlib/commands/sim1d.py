@@ -11,14 +11,25 @@ HELP = (
 
 
 def add_arguments(parser) -> None:
+    from slamlib.commands import parameter_default
+
+    # from the defining modules: tests replace the names in slamlib.sim1d to check that main() stops early
+    from slamlib.sim1d.filter import run_slam_1d
+    from slamlib.sim1d.world import SensorModel1D, simulate
+
+    particles = parameter_default(run_slam_1d, "n_particles")
+    frames = parameter_default(simulate, "n_frames")
     parser.add_argument(
-        "--particles", type=int, default=200, help="number of particles P (default 200)"
+        "--particles",
+        type=int,
+        default=particles,
+        help=f"number of particles P (default {particles})",
     )
     parser.add_argument(
         "--frames",
         type=int,
-        default=300,
-        help="number of ~10 Hz frames (default 300, 30 s)",
+        default=frames,
+        help=f"number of ~10 Hz frames (default {frames}, {frames * SensorModel1D.period:g} s)",
     )
     parser.add_argument(
         "--seed",
@@ -29,20 +40,22 @@ def add_arguments(parser) -> None:
     parser.add_argument(
         "--motion-noise",
         type=float,
-        default=0.2,
-        help="velocity sensor noise sigma_v in m/s (default 0.2); the filter assumes the same",
+        default=SensorModel1D.velocity_noise,
+        help="velocity sensor noise sigma_v in m/s (default "
+        f"{SensorModel1D.velocity_noise:g}); the filter assumes the same",
     )
     parser.add_argument(
         "--sensor-noise",
         type=float,
-        default=0.05,
-        help="range sensor noise sigma_r in m (default 0.05); the filter assumes the same",
+        default=SensorModel1D.range_noise,
+        help=f"range sensor noise sigma_r in m (default {SensorModel1D.range_noise:g}); the filter "
+        "assumes the same",
     )
     parser.add_argument(
         "--bias",
         type=float,
-        default=0.1,
-        help="velocity sensor bias in m/s (default 0.1)",
+        default=SensorModel1D.velocity_bias,
+        help=f"velocity sensor bias in m/s (default {SensorModel1D.velocity_bias:g})",
     )
     parser.add_argument(
         "--plot",

@@ -10,11 +10,26 @@ HELP = "Run 2D particle SLAM (density grid or likelihood field) on a simulated c
 
 
 def add_arguments(parser) -> None:
+    from slamlib.commands import parameter_default
+
+    # from the defining modules: tests replace the names in slamlib.sim2d to check that main() stops early
+    from slamlib.sim2d.filter import run_slam_2d
+    from slamlib.sim2d.world import SensorModel2D, simulate
+
+    particles = parameter_default(run_slam_2d, "n_particles")
+    laps = parameter_default(simulate, "laps")
+    resolution = parameter_default(run_slam_2d, "resolution")
     parser.add_argument(
-        "--particles", type=int, default=200, help="number of particles P (default 200)"
+        "--particles",
+        type=int,
+        default=particles,
+        help=f"number of particles P (default {particles})",
     )
     parser.add_argument(
-        "--laps", type=float, default=1.0, help="laps of the ~76 m loop (default 1)"
+        "--laps",
+        type=float,
+        default=laps,
+        help=f"laps of the ~76 m loop (default {laps:g})",
     )
     parser.add_argument(
         "--seed",
@@ -29,13 +44,16 @@ def add_arguments(parser) -> None:
         help="map kind: likelihood field, the seed's density grid, or both (default)",
     )
     parser.add_argument(
-        "--resolution", type=float, default=0.05, help="map cell size in m (default 0.05)"
+        "--resolution",
+        type=float,
+        default=resolution,
+        help=f"map cell size in m (default {resolution:g})",
     )
     parser.add_argument(
         "--beams",
         type=int,
-        default=180,
-        help="LIDAR beams over 360 degrees (default 180)",
+        default=SensorModel2D.n_beams,
+        help=f"LIDAR beams over 360 degrees (default {SensorModel2D.n_beams})",
     )
     parser.add_argument(
         "--plot",

@@ -24,10 +24,11 @@ import shlex
 import time
 from pathlib import Path
 
+from slamlib.commands.synth import ROUTES  # the routes `slamlib synth` writes
+
 NAME = "sweep"
 HELP = "Run SLAM (and KISS-ICP) over routes x seeds x settings as Dask tasks; write one table (CSV) and a plot."
 
-ROUTES = ("straight", "loop", "00", "05", "07")  # slamlib.commands.synth.ROUTES
 OUT_FILES = ("sweep.csv", "sweep.json", "sweep.png")
 
 

@@ -29,6 +29,9 @@ from dataclasses import dataclass
 from slamlib.errors import BackendUnavailableError
 
 BACKENDS = ("numpy", "cpu", "cuda")
+#: The backend used when none is named: :func:`get_backend`, the 3D step functions
+#: (:mod:`slamlib.slam3d.steps`) and :attr:`slamlib.slam3d.config.SLAM3DConfig.backend` take it from here.
+DEFAULT_BACKEND = "cpu"
 _MODULES = {
     "numpy": "slamlib.kernels.reference",
     "cpu": "slamlib.kernels.cpu",
@@ -53,7 +56,7 @@ class Backend:
     systematic_resample: Callable
 
 
-def get_backend(name: str = "cpu") -> Backend:
+def get_backend(name: str = DEFAULT_BACKEND) -> Backend:
     """Return the backend called ``name`` (``"numpy"``, ``"cpu"`` or ``"cuda"``).
 
     The module behind it is imported on first use. For ``"cuda"``, :mod:`slamlib.kernels.cuda` must define the

@@ -15,13 +15,17 @@ from slamlib.maps.base import (
     VoxelHashLookup,
 )
 from slamlib.maps.morton_bvh import MortonBVHMap
-from slamlib.maps.voxel_hash import VoxelHashMap
+from slamlib.maps.voxel_hash import DEFAULT_VOXEL_CAPACITY, VoxelHashMap
 
+#: The map kinds by name: the one list of them (:data:`slamlib.slam3d.config.MAP_KINDS` is its keys).
 MAP_TYPES = {"voxel_hash": VoxelHashMap, "morton_bvh": MortonBVHMap}
+#: The kind :func:`make_map` builds when none is named, and :attr:`slamlib.slam3d.config.MapConfig.kind`'s default.
+DEFAULT_MAP_KIND = "voxel_hash"
 
 
-def make_map(kind: str = "voxel_hash", **kwargs) -> Map3D:
-    """Construct a map by name (``"voxel_hash"`` or ``"morton_bvh"``) with keyword parameters."""
+def make_map(kind: str = DEFAULT_MAP_KIND, **kwargs) -> Map3D:
+    """Construct a map by name (a key of :data:`MAP_TYPES`: ``"voxel_hash"`` or ``"morton_bvh"``) with keyword
+    parameters (the constructor's defaults for the others)."""
     if kind not in MAP_TYPES:
         raise ValueError(
             f"unknown map kind {kind!r}; choose one of {', '.join(MAP_TYPES)}"
@@ -38,5 +42,7 @@ __all__ = [
     "KIND_VOXEL_HASH",
     "KIND_MORTON",
     "MAP_TYPES",
+    "DEFAULT_MAP_KIND",
+    "DEFAULT_VOXEL_CAPACITY",
     "make_map",
 ]

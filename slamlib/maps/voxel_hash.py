@@ -47,6 +47,11 @@ from slamlib.maps.codes import (
     pack_key_nb,
 )
 
+#: Hash-table slots of a voxel map when none are asked for, the 3D filter's map among them (its
+#: :class:`~slamlib.slam3d.config.MapConfig` passes no ``capacity``): 2**19 slots hold up to 393,216 voxels at the
+#: default ``max_load`` 0.75 and take 66 MiB (132 bytes a slot).
+DEFAULT_VOXEL_CAPACITY = 2**19
+
 
 @njit(cache=True)
 def _update_field(s, count, s1, s2, mean, icov, corner_x, corner_y, corner_z, min_sigma2):
@@ -236,7 +241,7 @@ class VoxelHashMap(Map3D):
         Voxel edge in metres (default 0.5; planes are fitted per voxel, so the score's precision does not
         depend on it, but too small voxels hold too few points for a covariance).
     capacity : int
-        Number of hash slots, a power of two (default ``2**18``, about 32 MB).
+        Number of hash slots, a power of two (default :data:`DEFAULT_VOXEL_CAPACITY`, ``2**19``: 66 MiB).
     max_load : float
         Maximum fraction of occupied slots (default 0.75); beyond it new voxels are refused.
     min_sigma : float
@@ -259,7 +264,7 @@ class VoxelHashMap(Map3D):
     def __init__(
         self,
         voxel_size: float = 0.5,
-        capacity: int = 2**18,
+        capacity: int = DEFAULT_VOXEL_CAPACITY,
         max_load: float = 0.75,
         min_sigma: float = 0.05,
         m_max: float = 16.0,

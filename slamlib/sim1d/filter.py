@@ -26,7 +26,14 @@ import numpy as np
 
 import slamlib.sim1d.steps as steps_1d
 from slamlib.contract import StepInfo, StepsFilter
-from slamlib.sim1d.steps import OccupancyGrid1D, extract_landmarks
+from slamlib.resampling import DEFAULT_ESS_FRACTION
+from slamlib.sim1d.steps import (
+    DEFAULT_EPS,
+    DEFAULT_RESOLUTION,
+    LANDMARK_MIN_COUNT,
+    OccupancyGrid1D,
+    extract_landmarks,
+)
 from slamlib.sim1d.world import Recording1D
 
 __all__ = ["ParticleSLAM1D", "SLAM1DResult", "StepInfo", "dead_reckon", "run_slam_1d"]
@@ -100,9 +107,9 @@ class ParticleSLAM1D(StepsFilter):
         world_map: OccupancyGrid1D,
         motion_noise: float,
         rng: np.random.Generator,
-        ess_fraction: float | None = 0.5,
+        ess_fraction: float | None = DEFAULT_ESS_FRACTION,
         likelihood_sigma: float | None = None,
-        eps: float = 0.05,
+        eps: float = DEFAULT_EPS,
     ):
         super().__init__(n_particles, world_map, float(motion_noise), rng, ess_fraction)
         self.likelihood_sigma, self.eps = _scoring_settings(likelihood_sigma, eps)
@@ -124,6 +131,11 @@ class ParticleSLAM1D(StepsFilter):
 def dead_reckon(recording: Recording1D, x0: float = 0.0) -> np.ndarray:
     """Velocity-only positions ``x_k = x_{k-1} + u_k dt_k`` (steps 3-5 alone), ``(K,)`` float64."""
     return x0 + np.cumsum(recording.measured_velocities * recording.dts)
+
+
+#: Frames in which the range sensor must have returned a true landmark for it to count as observed (enough to be
+#: mapped) when none is given (:meth:`SLAM1DResult.observed_landmarks`, :meth:`SLAM1DResult.landmark_errors`).
+DEFAULT_MIN_RETURNS = 5
 
 
 @dataclass
@@ -167,11 +179,11 @@ class SLAM1DResult:
         """(K,) |dead reckoned - true| (m)."""
         return np.abs(self.dead_reckoned - self.true_positions)
 
-    def observed_landmarks(self, min_returns: int = 5) -> np.ndarray:
+    def observed_landmarks(self, min_returns: int = DEFAULT_MIN_RETURNS) -> np.ndarray:
         """True landmarks the range sensor returned in at least ``min_returns`` frames (enough to be mapped)."""
         return self.landmarks_true[self.landmark_returns >= min_returns]
 
-    def landmark_errors(self, min_returns: int = 5) -> np.ndarray:
+    def landmark_errors(self, min_returns: int = DEFAULT_MIN_RETURNS) -> np.ndarray:
         """For each observed true landmark, the distance to the nearest landmark read off the map (m)."""
         seen = self.observed_landmarks(min_returns)
         est = self.landmarks_estimated
@@ -204,11 +216,11 @@ def run_slam_1d(
     seed: int = 0,
     motion_noise: float | None = None,
     likelihood_sigma: float | None = None,
-    resolution: float = 0.05,
-    eps: float = 0.05,
-    ess_fraction: float | None = 0.5,
+    resolution: float = DEFAULT_RESOLUTION,
+    eps: float = DEFAULT_EPS,
+    ess_fraction: float | None = DEFAULT_ESS_FRACTION,
     keep_history: bool = True,
-    landmark_min_count: int = 5,
+    landmark_min_count: int = LANDMARK_MIN_COUNT,
     progress: bool = False,
 ) -> SLAM1DResult:
     """Run :class:`ParticleSLAM1D` over every frame of ``recording`` (step 12, the loop).

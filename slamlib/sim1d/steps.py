@@ -39,6 +39,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from slamlib.resampling import (
+    DEFAULT_ESS_FRACTION,
     normalise_log_weights,
     resample_indexes,
     uniform_log_weights,
@@ -46,6 +47,9 @@ from slamlib.resampling import (
 from slamlib.sim1d.world import Frame
 
 __all__ = [
+    "DEFAULT_EPS",
+    "DEFAULT_RESOLUTION",
+    "LANDMARK_MIN_COUNT",
     "OccupancyGrid1D",
     "extract_landmarks",
     "initialise_particles",
@@ -61,6 +65,15 @@ __all__ = [
     "score_particles",
     "transform_scan",
 ]
+
+#: Map cell size (m) when none is given (:meth:`OccupancyGrid1D.empty`, :func:`~slamlib.sim1d.run_slam_1d`).
+DEFAULT_RESOLUTION = 0.05
+#: Weight of the uniform "random return" term of the per-return likelihood ``F + eps`` (step 8) when none is given
+#: (:func:`score_particles`, :class:`~slamlib.sim1d.ParticleSLAM1D`, :func:`~slamlib.sim1d.run_slam_1d`).
+DEFAULT_EPS = 0.05
+#: Fewest merged returns near a peak that :func:`extract_landmarks` reads as a landmark when none is given (and
+#: :func:`~slamlib.sim1d.run_slam_1d`'s ``landmark_min_count``): fewer are clutter or stray returns.
+LANDMARK_MIN_COUNT = 5
 
 
 # ---------------------------------------------------------------------------------------------------- the map
@@ -85,7 +98,9 @@ class OccupancyGrid1D:
     counts: np.ndarray
 
     @classmethod
-    def empty(cls, lo: float, hi: float, resolution: float = 0.05) -> OccupancyGrid1D:
+    def empty(
+        cls, lo: float, hi: float, resolution: float = DEFAULT_RESOLUTION
+    ) -> OccupancyGrid1D:
         """An all-zero grid covering ``[lo, hi]``."""
         if not resolution > 0 or not hi > lo:
             raise ValueError(
@@ -251,7 +266,7 @@ def score_particles(
     points: np.ndarray,
     world_map: OccupancyGrid1D,
     sigma: float | None = None,
-    eps: float = 0.05,
+    eps: float = DEFAULT_EPS,
     field: np.ndarray | None = None,
 ) -> np.ndarray:
     """Steps 7 + 8: log-likelihood of each particle's transformed scan against the map built so far.
@@ -333,7 +348,7 @@ def resample_particles(
     particles: np.ndarray,
     log_weights: np.ndarray,
     rng: np.random.Generator,
-    ess_fraction: float | None = 0.5,
+    ess_fraction: float | None = DEFAULT_ESS_FRACTION,
 ):
     """Step 11: systematic resampling when the effective sample size drops.
 
@@ -362,7 +377,7 @@ def resample_particles(
 
 # ----------------------------------------------------------------------------------------- reading the map
 def extract_landmarks(
-    grid: OccupancyGrid1D, sigma: float = 0.1, min_count: int = 5
+    grid: OccupancyGrid1D, sigma: float = 0.1, min_count: int = LANDMARK_MIN_COUNT
 ) -> np.ndarray:
     """Landmark positions read off the map: peaks of the blurred counts, refined to a count-weighted centroid.
 

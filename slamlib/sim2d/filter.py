@@ -23,7 +23,8 @@ import numpy as np
 
 import slamlib.sim2d.steps as steps_2d
 from slamlib.contract import StepInfo, StepsFilter
-from slamlib.sim2d.steps import OccupancyGrid2D
+from slamlib.resampling import DEFAULT_ESS_FRACTION
+from slamlib.sim2d.steps import DEFAULT_MAP_KIND, DEFAULT_RESOLUTION, OccupancyGrid2D
 from slamlib.sim2d.world import Recording2D, integrate_arc, wrap_angle
 
 __all__ = [
@@ -78,7 +79,7 @@ class ParticleSLAM2D(StepsFilter):
         world_map: OccupancyGrid2D,
         motion_noise,
         rng: np.random.Generator,
-        ess_fraction: float | None = 0.5,
+        ess_fraction: float | None = DEFAULT_ESS_FRACTION,
         max_points: int | None = None,
     ):
         super().__init__(
@@ -179,13 +180,13 @@ def run_slam_2d(
     recording: Recording2D,
     n_particles: int = 200,
     seed: int = 0,
-    map_kind: str = "likelihood",
-    resolution: float = 0.05,
+    map_kind: str = DEFAULT_MAP_KIND,
+    resolution: float = DEFAULT_RESOLUTION,
     motion_noise=None,
     likelihood_sigma: float | None = None,
-    eps: float = 0.05,
-    n_sat: int = 3,
-    ess_fraction: float | None = 0.5,
+    eps: float = OccupancyGrid2D.eps,
+    n_sat: int = OccupancyGrid2D.n_sat,
+    ess_fraction: float | None = DEFAULT_ESS_FRACTION,
     max_points: int | None = None,
     keep_history: bool = False,
     progress: bool = False,

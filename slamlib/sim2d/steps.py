@@ -48,6 +48,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from slamlib.resampling import (
+    DEFAULT_ESS_FRACTION,
     normalise_log_weights,
     resample_indexes,
     uniform_log_weights,
@@ -55,6 +56,8 @@ from slamlib.resampling import (
 from slamlib.sim2d.world import Frame2D, integrate_arc, wrap_angle
 
 __all__ = [
+    "DEFAULT_MAP_KIND",
+    "DEFAULT_RESOLUTION",
     "MAP_KINDS",
     "OccupancyGrid2D",
     "initialise_particles",
@@ -72,6 +75,11 @@ __all__ = [
 
 #: The two scoring rules of :class:`OccupancyGrid2D`.
 MAP_KINDS = ("density", "likelihood")
+#: The scoring rule when none is given (:class:`OccupancyGrid2D`, its :meth:`~OccupancyGrid2D.empty`,
+#: :func:`~slamlib.sim2d.run_slam_2d`).
+DEFAULT_MAP_KIND = "likelihood"
+#: Cell size (m) when none is given (:meth:`OccupancyGrid2D.empty`, :func:`~slamlib.sim2d.run_slam_2d`).
+DEFAULT_RESOLUTION = 0.05
 
 
 # ------------------------------------------------------------------------------------------------- the map
@@ -102,7 +110,7 @@ class OccupancyGrid2D:
     origin: np.ndarray
     resolution: float
     counts: np.ndarray
-    kind: str = "likelihood"
+    kind: str = DEFAULT_MAP_KIND
     sigma: float = 0.1
     n_sat: int = 3
     eps: float = 0.05
@@ -131,7 +139,12 @@ class OccupancyGrid2D:
 
     @classmethod
     def empty(
-        cls, lo, hi, resolution: float = 0.1, kind: str = "likelihood", **kwargs
+        cls,
+        lo,
+        hi,
+        resolution: float = DEFAULT_RESOLUTION,
+        kind: str = DEFAULT_MAP_KIND,
+        **kwargs,
     ) -> OccupancyGrid2D:
         """An all-zero grid covering the box ``lo (2,)`` to ``hi (2,)`` (m)."""
         lo, hi = np.asarray(lo, dtype=np.float64), np.asarray(hi, dtype=np.float64)
@@ -392,7 +405,7 @@ def resample_particles(
     particles: np.ndarray,
     log_weights,
     rng: np.random.Generator,
-    ess_fraction: float | None = 0.5,
+    ess_fraction: float | None = DEFAULT_ESS_FRACTION,
 ) -> tuple[np.ndarray, np.ndarray, bool]:
     """Step 11: systematic resampling when ``ESS < ess_fraction * P`` (``None``: always).
 

@@ -14,7 +14,10 @@ from dataclasses import asdict, dataclass, field, fields, replace
 
 import numpy as np
 
+from slamlib.kernels import DEFAULT_BACKEND
 from slamlib.kitti.velodyne import SWEEP_PERIOD_S
+from slamlib.maps import DEFAULT_MAP_KIND, MAP_TYPES, make_map
+from slamlib.resampling import DEFAULT_ESS_FRACTION
 
 __all__ = [
     "MOTION_MODELS",
@@ -27,12 +30,11 @@ __all__ = [
     "OLD_MAP_NAMES",
 ]
 
-#: Map kinds (:func:`slamlib.maps.make_map`): hashed NDT voxels, exact points in a Morton-code BVH.
-MAP_KINDS = ("voxel_hash", "morton_bvh")
+#: Map kinds (:func:`slamlib.maps.make_map`, the keys of :data:`slamlib.maps.MAP_TYPES`): hashed NDT voxels, exact
+#: points in a Morton-code BVH.
+MAP_KINDS = tuple(MAP_TYPES)
 #: Earlier spellings of the map kinds, still accepted by ``slamlib run --map`` (with a note) but not here.
 OLD_MAP_NAMES = {"voxel": "voxel_hash", "bvh": "morton_bvh"}
-#: Hash-table slots of the default voxel map (2**19 = 524,288 voxels before it must grow; ~22 MiB).
-DEFAULT_VOXEL_CAPACITY = 2**19
 #: Most particles: the particle arrays take ~200 bytes each (pose, noise, weights, copies when resampling), so
 #: 10**7 particles already need ~2 GB; more would fail to allocate (10**9 asked for 67 GiB) or run for hours a frame.
 MAX_PARTICLES = 10_000_000
@@ -168,11 +170,9 @@ class MotionConfig:
     the last one, over their time: one frame's estimate is noisy, and constant velocity would carry its noise into
     the next frame), its six components (``v`` forward, left, up, then the rates about them) multiplied by
     ``cv_damping``: a car's vertical velocity and its roll and pitch rates are close to zero, so an estimate of
-    them is mostly noise, which held drifts the height and the pitch. Both are off by default (1 frame, no
-    damping), the setting checked on the real scans: in one run on a synthetic 500-frame piece of route 07
-    (``lidar_only_ground_share`` 0.3) the KITTI error fell from 0.47 % to 0.30 % with ``cv_window = 3`` and
-    ``cv_damping = (1, 1, 0.3, 0.3, 0.3, 1)``, but on the ten real scans (slow, accelerating) the window let the
-    estimate lag by up to 12 cm; choosing them needs a sweep (``slamlib sweep``).
+    them is mostly noise, which held drifts the height and the pitch. Both are off by default (``cv_window`` 1 frame,
+    ``cv_damping`` all 1: no damping); why, and how to choose them (``slamlib sweep``): the book's "Why these
+    defaults" (``book/defaults.md``).
 
     At the second frame LIDAR-only knows no motion yet: the spread is ``cv_start_speed dt`` (speeds a car may have
     when the sequence starts: 15 m/s forward, 1 and 0.5 m/s sideways and up; 0.05, 0.05, 0.3 rad/s in roll, pitch,
@@ -258,8 +258,8 @@ class MapConfig:
         ``"voxel_hash"`` (hashed NDT voxels, :class:`slamlib.maps.VoxelHashMap`) or ``"morton_bvh"`` (exact points
         in a Morton-code BVH, :class:`slamlib.maps.MortonBVHMap`).
     params : dict
-        Keyword arguments of the map's constructor (e.g. ``{"voxel_size": 0.5}``); the voxel map gets
-        ``capacity = 2**19`` unless given.
+        Keyword arguments of the map's constructor (e.g. ``{"voxel_size": 0.5}``); the constructor's defaults for
+        the others (the voxel map's ``capacity``: :data:`slamlib.maps.DEFAULT_VOXEL_CAPACITY`, 2**19 slots).
     prune_every, prune_radius : int, float
         Every ``prune_every`` frames drop map elements farther than ``prune_radius`` metres from the vehicle
         (bounded memory and lookup time on long drives; 0 disables).
@@ -272,7 +272,7 @@ class MapConfig:
         every voxel; the voxel map only. Evicted voxels are not archived.
     """
 
-    kind: str = "voxel_hash"
+    kind: str = DEFAULT_MAP_KIND
     params: dict = field(default_factory=dict)
     prune_every: int = 20
     prune_radius: float = 120.0
@@ -308,12 +308,7 @@ class MapConfig:
 
     def make(self):
         """A fresh, empty map of this kind (:func:`slamlib.maps.make_map`)."""
-        from slamlib.maps import make_map
-
-        params = dict(self.params)
-        if self.kind == "voxel_hash":
-            params.setdefault("capacity", DEFAULT_VOXEL_CAPACITY)
-        return make_map(self.kind, **params)
+        return make_map(self.kind, **self.params)
 
 
 @dataclass(frozen=True)
@@ -329,7 +324,8 @@ class FilterConfig:
     temperature : float
         Likelihood tempering: ``log L = score / (N * temperature)`` (:mod:`slamlib.slam3d.pipeline`).
     ess_fraction : float
-        Step 11 resamples when the effective sample size is below ``ess_fraction * P`` (1.0: every frame).
+        Step 11 resamples when the effective sample size is below ``ess_fraction * P`` (1.0: every frame; default
+        :data:`slamlib.resampling.DEFAULT_ESS_FRACTION`, 0.5, shared with the 1D and 2D filters).
     estimate : str
         Step 9: ``"best"`` particle or ``"mean"`` (weighted mean of the particles near the best).
     refine : int
@@ -343,11 +339,8 @@ class FilterConfig:
         Radians; > 0 holds roll and pitch to gravity: step 8 adds :func:`slamlib.slam3d.stages.prior.tilt_log_prior`
         with the up direction the accelerometer measured over the last ``tilt_window`` seconds
         (:func:`slamlib.slam3d.stages.prior.gravity_up`). 0 (default) = off; needs an IMU with ``specific_force``.
-        ``sigma`` is the prior's weight as much as an error bar: the window's up errs by a few mrad, but that
-        error comes and goes with the window, while every tilt error the map takes in stays, so a sigma below the
-        window's own error holds better. 0.003 (3 mrad) beat 0.005 over four seeds of the whole KITTI 00, 05, 07
-        routes with sweep distortion, traffic and bias walk (book chapter 09,
-        ``benchmarks/results/sweep_realistic_tilt3_refine2_4seeds``).
+        ``sigma`` is the prior's weight against the map as much as an error bar on the measured up; the value the
+        realistic sweeps use, and why: book chapter 09 and "Why these defaults" (``book/defaults.md``).
     tilt_window : float
         Seconds of accelerometer samples behind each up measurement (longer: less noise from the velocities).
     tilt_bias_sigma, tilt_world_sigma : float
@@ -369,14 +362,13 @@ class FilterConfig:
         (other maps are left as they are).
     scan_match_iterations : int
         Most Gauss-Newton steps per frame (each one only if it lowers the cost; the iteration also stops once a step
-        is tiny). 15: on the whole synthetic route 05, LIDAR-only, 5 steps stopped short of the peak (KITTI error
-        0.148 against 0.117 %, ``slamlib bench lidar_only``).
+        is tiny). Default 15; why: "Why these defaults" (``book/defaults.md``).
     """
 
     particles: int = 300
     scored_points: int = 1000
     temperature: float = 0.02
-    ess_fraction: float = 0.5
+    ess_fraction: float = DEFAULT_ESS_FRACTION
     estimate: str = "best"
     refine: int = 0
     refine_shrink: float = 0.4
@@ -463,7 +455,8 @@ class SLAM3DConfig:
     scan, motion, map, filter : :class:`ScanConfig`, :class:`MotionConfig`, :class:`MapConfig`,
         :class:`FilterConfig`.
     backend : str
-        ``"numpy"`` (reference, slow), ``"cpu"`` (Numba) or ``"cuda"``.
+        ``"numpy"`` (reference, slow), ``"cpu"`` (Numba; the default, :data:`slamlib.kernels.DEFAULT_BACKEND`) or
+        ``"cuda"``.
     seed : int
         Seed of the filter's ``numpy.random.Generator`` (noise, scoring sample, resampling offsets).
     """
@@ -472,7 +465,7 @@ class SLAM3DConfig:
     motion: MotionConfig = field(default_factory=MotionConfig)
     map: MapConfig = field(default_factory=MapConfig)
     filter: FilterConfig = field(default_factory=FilterConfig)
-    backend: str = "cpu"
+    backend: str = DEFAULT_BACKEND
     seed: int = 0
 
     def __post_init__(self):

@@ -29,6 +29,8 @@ __all__ = [
     "save_run",
     "check_output_dir",
     "RUN_FILES",
+    "MAP_FORMATS",
+    "DEFAULT_MAP_FORMAT",
 ]
 
 
@@ -177,8 +179,10 @@ def evaluate(run: SLAMRun) -> dict:
     return out
 
 
-#: The files :func:`save_run` may write into its folder (the ones :func:`check_output_dir` will not let it overwrite
-#: unless they come from an earlier run).
+#: Map file formats :func:`save_run` writes (open3d), and the one it writes when none is named (``slamlib run``'s
+#: ``--map-format`` reads both from here).
+MAP_FORMATS = ("ply", "pcd")
+DEFAULT_MAP_FORMAT = "ply"
 #: A map file of no points (PLY and PCD headers), written when the map is empty.
 _EMPTY_MAP = {
     "ply": "ply\nformat ascii 1.0\nelement vertex 0\nproperty double x\nproperty double y\n"
@@ -186,6 +190,8 @@ _EMPTY_MAP = {
     "pcd": "# .PCD v0.7 - Point Cloud Data file format\nVERSION 0.7\nFIELDS x y z\nSIZE 8 8 8\nTYPE F F F\n"
     "COUNT 1 1 1\nWIDTH 0\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS 0\nDATA ascii\n",
 }
+#: The files :func:`save_run` may write into its folder (the ones :func:`check_output_dir` will not let it overwrite
+#: unless they come from an earlier run).
 RUN_FILES = tuple(
     f"{name}_{kind}.txt"
     for name in ("slam", "dead_reckoning", "ground_truth")
@@ -259,7 +265,7 @@ def check_output_dir(out_dir, overwrite: bool = False) -> None:
 def save_run(
     run: SLAMRun,
     out_dir,
-    map_format: str = "ply",
+    map_format: str = DEFAULT_MAP_FORMAT,
     plots: bool = True,
     extra: dict | None = None,
 ) -> dict:
@@ -347,7 +353,7 @@ def _write_results(
     files["times"] = out / "times.txt"
     write_times(files["times"], run.timestamps)
 
-    if map_format not in ("ply", "pcd"):
+    if map_format not in MAP_FORMATS:
         raise ValueError(f"map_format must be 'ply' or 'pcd', got {map_format!r}")
     import open3d as o3d
 

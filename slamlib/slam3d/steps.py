@@ -61,7 +61,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from slamlib.geometry import make_pose, rpy_to_matrix
-from slamlib.kernels import Backend, get_backend
+from slamlib.kernels import DEFAULT_BACKEND, Backend, get_backend
 from slamlib.kitti.oxts import (
     MAX_ACCELERATION_MPS2,
     MAX_ANGULAR_RATE_RADPS,
@@ -69,11 +69,12 @@ from slamlib.kitti.oxts import (
 )
 from slamlib.odometry import imu_increment
 from slamlib.resampling import (
+    DEFAULT_ESS_FRACTION,
     normalise_log_weights,
     resample_indexes,
     uniform_log_weights,
 )
-from slamlib.slam3d.config import MotionConfig, ScanConfig
+from slamlib.slam3d.config import FilterConfig, MotionConfig, ScanConfig
 from slamlib.slam3d.preprocess import crop_and_downsample, deskew, sweep_times
 
 __all__ = [
@@ -100,9 +101,6 @@ __all__ = [
     "weighted_mean_pose",
     "project_to_rotation",
 ]
-
-#: Default compute backend of the step functions (Numba CPU kernels).
-DEFAULT_BACKEND = "cpu"
 
 
 def _backend(backend) -> Backend:
@@ -460,16 +458,19 @@ def weighted_mean_pose(R, t, weights) -> np.ndarray:
 
 
 def pick_best_particle(
-    particles: Particles3D, log_weights, estimate: str = "best", radius: float = 0.5
+    particles: Particles3D, log_weights, estimate: str | None = None, radius: float = 0.5
 ) -> tuple[np.ndarray, int]:
     """Step 9: the pose estimate of this frame and the index of the highest-weight particle.
 
     ``estimate="best"``: the maximum-weight particle's pose (ties to the lowest index). ``estimate="mean"``: the
     weighted mean (:func:`weighted_mean_pose`) of the particles within ``radius`` metres of the best one -- a
-    local mean that averages out the sampling noise of the cloud without blending separate modes.
+    local mean that averages out the sampling noise of the cloud without blending separate modes. ``None``: the
+    default, :attr:`FilterConfig.estimate <slamlib.slam3d.config.FilterConfig>` (``"best"``).
 
     Returns ``(T_world_body (4, 4), best_index)``.
     """
+    if estimate is None:
+        estimate = FilterConfig.estimate
     log_w = np.asarray(log_weights, dtype=np.float64)
     R, t = particles.R, particles.t
     i = int(np.argmax(log_w))
@@ -497,7 +498,7 @@ def resample_particles(
     particles: Particles3D,
     log_weights,
     rng: np.random.Generator,
-    ess_fraction: float | None = 0.5,
+    ess_fraction: float | None = DEFAULT_ESS_FRACTION,
     backend=DEFAULT_BACKEND,
 ) -> tuple[Particles3D, np.ndarray, bool]:
     """Step 11: systematic resampling by weight when ``ESS < ess_fraction * P`` (``None``: always).

@@ -1,0 +1,514 @@
+"""Each default lives once (CONTRIBUTING.md): a public signature that repeats a setting has its owner's value.
+
+The owners are the fields of the setting groups (a parameter named like a field is that setting) and the named
+constants ``DEFAULT_<NAME>`` of the modules below them (:data:`slamlib.resampling.DEFAULT_ESS_FRACTION`,
+:data:`slamlib.kernels.DEFAULT_BACKEND`, :data:`slamlib.maps.DEFAULT_VOXEL_CAPACITY`, ...). The walk reads every public
+function, constructor and method of the 3D steps, the config groups themselves, the kernels, the maps, resampling,
+the 1D and 2D filters and steps, and the option defaults of the ``slamlib`` commands, and reports each default that
+differs from one of its owners. Names that mean something else at one place are listed with the reason
+(:data:`UNRELATED_3D` ...); a parameter whose ``None`` is resolved from the config group inside the function is
+listed in :data:`RESOLVED_3D`, and a test checks that it is.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import inspect
+import pkgutil
+import types
+from dataclasses import MISSING, dataclass, fields
+
+import numpy as np
+import pytest
+
+import slamlib.kernels
+import slamlib.maps
+import slamlib.resampling
+import slamlib.sim1d.filter
+import slamlib.sim1d.steps
+import slamlib.sim1d.world
+import slamlib.sim2d.filter
+import slamlib.sim2d.steps
+import slamlib.sim2d.world
+import slamlib.slam3d.config
+import slamlib.slam3d.steps
+from slamlib.maps import MAP_TYPES, VoxelHashMap
+from slamlib.slam3d.config import (
+    MAP_KINDS,
+    FilterConfig,
+    MapConfig,
+    MotionConfig,
+    ScanConfig,
+    SLAM3DConfig,
+)
+
+
+# ---------------------------------------------------------------------------------------------------- the checker
+@dataclass(frozen=True)
+class Owner:
+    """Where a default is defined (``where``, for the message) and its value."""
+
+    value: object
+    where: str
+
+
+def _callables(module: types.ModuleType) -> dict[str, object]:
+    """``{label: callable}`` of the module's public functions (Numba dispatchers by their Python function), its
+    public classes (the constructor's signature: a dataclass's fields) and their public methods, defined there."""
+    out = {}
+    for name, obj in vars(module).items():
+        if name.startswith("_") or getattr(obj, "__module__", None) != module.__name__:
+            continue
+        label = f"{module.__name__}.{name}"
+        if inspect.isclass(obj):
+            out[label] = obj
+            for attr, member in vars(obj).items():
+                fn = getattr(member, "__func__", member)  # classmethod / staticmethod
+                if not attr.startswith("_") and inspect.isfunction(fn):
+                    out[f"{label}.{attr}"] = fn
+        elif inspect.isfunction(obj) or hasattr(obj, "py_func"):
+            out[label] = getattr(obj, "py_func", obj)
+    return out
+
+
+def signature_defaults(modules) -> list[tuple[str, str, object]]:
+    """``(where, parameter name, default)`` for every parameter with a default in the modules' public callables;
+    ``where`` reads ``module.function(parameter)``."""
+    found = []
+    for module in modules:
+        for label, fn in _callables(module).items():
+            try:
+                params = inspect.signature(fn).parameters.values()
+            except (
+                TypeError,
+                ValueError,
+            ):  # a builtin or compiled kernel without a Python signature
+                continue
+            found += [
+                (f"{label}({p.name})", p.name, p.default)
+                for p in params
+                if p.default is not inspect.Parameter.empty
+            ]
+    return found
+
+
+def parser_defaults(command: str) -> list[tuple[str, str, object]]:
+    """``(where, dest, default)`` of the options of ``slamlib COMMAND`` that take a value (flags left out)."""
+    module = importlib.import_module(f"slamlib.commands.{command}")
+    parser = argparse.ArgumentParser()
+    module.add_arguments(parser)
+    return [
+        (f"slamlib {command} {a.option_strings[-1]}", a.dest, a.default)
+        for a in parser._actions
+        if a.option_strings and a.nargs != 0 and a.default is not argparse.SUPPRESS
+    ]
+
+
+def field_owners(*classes) -> dict[str, list[Owner]]:
+    """``{field name: [Owner]}``: the defaults of dataclass fields (a factory's is left out)."""
+    owners: dict[str, list[Owner]] = {}
+    for cls in classes:
+        for f in fields(cls):
+            if f.default is not MISSING:
+                owners.setdefault(f.name, []).append(
+                    Owner(f.default, f"{cls.__qualname__}.{f.name}")
+                )
+    return owners
+
+
+def constant_owners(
+    *modules, names: dict[str, str] | None = None
+) -> dict[str, list[Owner]]:
+    """``{parameter name: [Owner]}`` from the modules' constants ``DEFAULT_<NAME>`` (the parameter ``name``), or
+    the constant -> parameter pairs of ``names`` where the two are not spelt alike."""
+    names = names or {}
+    owners: dict[str, list[Owner]] = {}
+    for module in modules:
+        for const, value in vars(module).items():
+            param = names.get(const)
+            if param is None and const.startswith("DEFAULT_"):
+                param = const.removeprefix("DEFAULT_").lower()
+            if param is not None:
+                owners.setdefault(param, []).append(
+                    Owner(value, f"{module.__name__}.{const}")
+                )
+    return owners
+
+
+def signature_owners(*functions) -> dict[str, list[Owner]]:
+    """``{parameter name: [Owner]}``: the defaults of the functions' own signatures (a command's options are the
+    parameters of the library function it passes them to)."""
+    owners: dict[str, list[Owner]] = {}
+    for fn in functions:
+        for p in inspect.signature(fn).parameters.values():
+            if p.default is not inspect.Parameter.empty:
+                owners.setdefault(p.name, []).append(
+                    Owner(p.default, f"{fn.__qualname__}({p.name})")
+                )
+    return owners
+
+
+def merged(*owner_maps) -> dict[str, list[Owner]]:
+    out: dict[str, list[Owner]] = {}
+    for owners in owner_maps:
+        for name, found in owners.items():
+            out.setdefault(name, []).extend(found)
+    return out
+
+
+def _same(a, b) -> bool:
+    """Equal and of the same type (``2**18`` is not ``2**18.0``; ``True`` is not ``1``)."""
+    try:
+        return type(a) is type(b) and bool(a == b)
+    except (TypeError, ValueError):
+        return False
+
+
+def default_mismatches(
+    defaults,
+    owners: dict[str, list[Owner]],
+    aliases: dict[str, str] | None = None,
+    resolved=frozenset(),
+    unrelated: dict[str, str] | None = None,
+) -> list[str]:
+    """Every default of ``defaults`` (``(where, name, value)``) that differs from one of the owners of its name.
+
+    ``aliases`` maps a ``where`` or a parameter ``name`` to the owner's name where they are spelt differently (the
+    ``where`` first). A ``where`` in ``resolved`` must default to ``None`` (the function reads the owner itself);
+    one in ``unrelated`` is another quantity that shares the name, and is skipped.
+    """
+    aliases, unrelated = aliases or {}, unrelated or {}
+    problems = []
+    for where, name, value in defaults:
+        if where in unrelated:
+            continue
+        key = aliases.get(where, aliases.get(name, name))
+        for owner in owners.get(key, ()):
+            if where in resolved:
+                if value is not None:
+                    problems.append(
+                        f"{where} = {value!r}: it is resolved from {owner.where}, so its default must be None"
+                    )
+            elif not _same(value, owner.value):
+                problems.append(
+                    f"{where} = {value!r}, but {owner.where} = {owner.value!r}"
+                )
+    return problems
+
+
+def _modules(package) -> list[types.ModuleType]:
+    """The package and every module in it."""
+    return [package] + [
+        importlib.import_module(m.name)
+        for m in pkgutil.walk_packages(package.__path__, package.__name__ + ".")
+    ]
+
+
+# ------------------------------------------------------------------------------------------- the checker can fail
+def test_the_checker_reports_a_planted_mismatch_in_a_fake_module():
+    fake = types.ModuleType("fake_steps")
+    exec(  # noqa: S102 (code written here)
+        "def merge(points, capacity=2**18, backend='cpu', radius=0.5):\n    pass\n"
+        "def pick(particles, estimate='mean'):\n    pass\n"
+        "def get(name='gpu'):\n    pass\n"
+        "def read(frame, estimate=0.3):\n    pass\n",
+        fake.__dict__,
+    )
+    owners = {
+        "capacity": [Owner(2**19, "maps.DEFAULT_VOXEL_CAPACITY")],
+        "backend": [Owner("cpu", "kernels.DEFAULT_BACKEND")],
+        "estimate": [Owner("best", "FilterConfig.estimate")],
+    }
+    defaults = signature_defaults([fake])
+    assert [d[0] for d in defaults] == [
+        "fake_steps.merge(capacity)",
+        "fake_steps.merge(backend)",
+        "fake_steps.merge(radius)",
+        "fake_steps.pick(estimate)",
+        "fake_steps.get(name)",
+        "fake_steps.read(estimate)",
+    ]
+    problems = default_mismatches(
+        defaults,
+        owners,
+        aliases={"fake_steps.get(name)": "backend"},
+        resolved={"fake_steps.pick(estimate)"},
+        unrelated={"fake_steps.read(estimate)": "another estimate"},
+    )
+    assert problems == [
+        "fake_steps.merge(capacity) = 262144, but maps.DEFAULT_VOXEL_CAPACITY = 524288",
+        "fake_steps.pick(estimate) = 'mean': it is resolved from FilterConfig.estimate, so its default must be None",
+        "fake_steps.get(name) = 'gpu', but kernels.DEFAULT_BACKEND = 'cpu'",
+    ]
+    # the same value of another type is a mismatch; an unowned name is not checked
+    assert default_mismatches([("f(x)", "x", 1.0)], {"x": [Owner(1, "X")]}) == [
+        "f(x) = 1.0, but X = 1"
+    ]
+    assert default_mismatches([("f(y)", "y", 1.0)], {"x": [Owner(1, "X")]}) == []
+
+
+def test_the_owners_are_derived_from_fields_and_default_constants():
+    fake = types.ModuleType("fake_lower")
+    fake.DEFAULT_ESS_FRACTION, fake.MAX_THINGS, fake.LANDMARK_MIN_COUNT = 0.5, 10, 5
+    owners = constant_owners(fake, names={"LANDMARK_MIN_COUNT": "min_count"})
+    assert owners == {
+        "ess_fraction": [Owner(0.5, "fake_lower.DEFAULT_ESS_FRACTION")],
+        "min_count": [Owner(5, "fake_lower.LANDMARK_MIN_COUNT")],
+    }
+    assert field_owners(MapConfig)["kind"] == [Owner("voxel_hash", "MapConfig.kind")]
+    assert "params" not in field_owners(MapConfig)  # a factory is no single value
+    assert parser_defaults("sim2d")[0] == ("slamlib sim2d --particles", "particles", 200)
+
+
+# ---------------------------------------------------------------------------------------------- 3D, maps, kernels
+GROUPS_3D = (ScanConfig, MotionConfig, MapConfig, FilterConfig, SLAM3DConfig)
+#: The lower modules' constants whose name is not the parameter's.
+CONSTANT_NAMES_3D = {"DEFAULT_MAP_KIND": "kind", "DEFAULT_VOXEL_CAPACITY": "capacity"}
+#: Parameters whose ``None`` the function resolves from the config group.
+RESOLVED_3D = {"slamlib.slam3d.steps.pick_best_particle(estimate)"}
+ALIASES_3D = {"slamlib.kernels.get_backend(name)": "backend"}
+#: Parameters that share a setting's name but are another quantity.
+UNRELATED_3D = {
+    "slamlib.kernels.cuda_static.capture_launches(particles)": "the launch size compiled for the static check",
+}
+
+
+def owners_3d() -> dict[str, list[Owner]]:
+    return merged(
+        field_owners(*GROUPS_3D),
+        constant_owners(
+            slamlib.kernels,
+            slamlib.maps,
+            slamlib.resampling,
+            names=CONSTANT_NAMES_3D,
+        ),
+    )
+
+
+def defaults_3d() -> list[tuple[str, str, object]]:
+    return signature_defaults(
+        [slamlib.slam3d.config, slamlib.slam3d.steps, slamlib.resampling]
+        + _modules(slamlib.kernels)
+        + _modules(slamlib.maps)
+    )
+
+
+def test_3d_steps_kernels_maps_and_resampling_take_their_defaults_from_the_owners():
+    defaults = defaults_3d()
+    assert (
+        default_mismatches(defaults, owners_3d(), ALIASES_3D, RESOLVED_3D, UNRELATED_3D)
+        == []
+    )
+    walked = {d[0] for d in defaults}
+    # the walk reaches what it is meant to check, and the exceptions still name something it walks
+    for where in (
+        "slamlib.maps.voxel_hash.VoxelHashMap(capacity)",
+        "slamlib.maps.make_map(kind)",
+        "slamlib.kernels.get_backend(name)",
+        "slamlib.slam3d.steps.resample_particles(ess_fraction)",
+        "slamlib.slam3d.steps.resample_particles(backend)",
+        "slamlib.slam3d.steps.score_particles(backend)",
+        "slamlib.resampling.resample_indexes(ess_fraction)",
+        "slamlib.slam3d.config.FilterConfig(ess_fraction)",
+        "slamlib.slam3d.config.MapConfig(kind)",
+        "slamlib.slam3d.config.SLAM3DConfig(backend)",
+        *RESOLVED_3D,
+        *UNRELATED_3D,
+        *ALIASES_3D,
+    ):
+        assert where in walked, where
+    owners = owners_3d()
+    for name in ("ess_fraction", "backend", "kind", "capacity"):
+        assert len(owners[name]) >= 1, name
+
+
+def test_3d_step_defaults_that_are_setting_groups_are_the_groups_defaults():
+    found = [
+        (where, value)
+        for where, _, value in signature_defaults([slamlib.slam3d.steps])
+        if isinstance(value, GROUPS_3D)
+    ]
+    assert {w for w, _ in found} >= {
+        "slamlib.slam3d.steps.read_scan(scan_config)",
+        "slamlib.slam3d.steps.motion_noise_sigma(motion_config)",
+    }
+    assert [w for w, value in found if value != type(value)()] == []
+
+
+def test_pick_best_particle_resolves_its_estimate_from_filter_config():
+    """``estimate=None`` is :attr:`FilterConfig.estimate` ("best"): the best particle, not the local mean."""
+    from slamlib.slam3d.steps import Particles3D, pick_best_particle
+
+    t = np.array([[0.0, 0, 0], [0.2, 0, 0], [0.4, 0, 0]])
+    p = Particles3D(np.repeat(np.eye(3)[None], 3, axis=0), t)
+    log_w = np.log([0.2, 0.5, 0.3])
+    T, i = pick_best_particle(p, log_w)
+    assert i == 1 and np.array_equal(T[:3, 3], [0.2, 0, 0])
+    assert np.array_equal(T, pick_best_particle(p, log_w, FilterConfig.estimate)[0])
+    assert not np.allclose(T, pick_best_particle(p, log_w, "mean")[0])
+
+
+def test_the_defaults_have_their_values():
+    """The values themselves, written out (a default moved to another owner keeps its value)."""
+    c = SLAM3DConfig()
+    assert (c.backend, c.seed) == ("cpu", 0)
+    assert (c.scan.min_range, c.scan.max_range, c.scan.downsample_voxel) == (
+        3.0,
+        60.0,
+        0.25,
+    )
+    assert (c.scan.deskew, c.scan.sweep_period) == (None, 0.10315)
+    assert (c.filter.particles, c.filter.scored_points, c.filter.temperature) == (
+        300,
+        1000,
+        0.02,
+    )
+    assert (c.filter.ess_fraction, c.filter.estimate, c.filter.refine) == (0.5, "best", 0)
+    assert (c.filter.tilt_sigma, c.filter.scan_match, c.filter.scan_match_iterations) == (
+        0.0,
+        None,
+        15,
+    )
+    assert (c.map.kind, c.map.params, c.map.prune_every, c.map.transient_span) == (
+        "voxel_hash",
+        {},
+        20,
+        0,
+    )
+    assert c.motion.sigma_xyz_per_m == (0.02, 0.02, 0.01) and c.motion.cv_window == 1
+    m = c.map.make()
+    assert (
+        type(m) is VoxelHashMap
+        and m.capacity == 2**19 == slamlib.maps.DEFAULT_VOXEL_CAPACITY
+    )
+    assert slamlib.kernels.get_backend().name == "cpu" == slamlib.kernels.DEFAULT_BACKEND
+    assert slamlib.resampling.DEFAULT_ESS_FRACTION == 0.5
+    assert MAP_KINDS == tuple(MAP_TYPES) == ("voxel_hash", "morton_bvh")
+    assert (
+        type(slamlib.maps.make_map())
+        is MAP_TYPES[slamlib.maps.DEFAULT_MAP_KIND]
+        is VoxelHashMap
+    )
+
+
+# ---------------------------------------------------------------------------------------------------- 1D and 2D
+def test_1d_defaults_take_the_owners_values():
+    owners = merged(
+        constant_owners(slamlib.resampling),
+        constant_owners(slamlib.sim1d.steps, names={"LANDMARK_MIN_COUNT": "min_count"}),
+        constant_owners(slamlib.sim1d.filter),
+    )
+    defaults = signature_defaults([slamlib.sim1d.steps, slamlib.sim1d.filter])
+    aliases = {"slamlib.sim1d.filter.run_slam_1d(landmark_min_count)": "min_count"}
+    assert default_mismatches(defaults, owners, aliases) == []
+    walked = {d[0] for d in defaults}
+    assert {
+        "slamlib.sim1d.filter.ParticleSLAM1D(ess_fraction)",
+        "slamlib.sim1d.filter.ParticleSLAM1D(eps)",
+        "slamlib.sim1d.filter.run_slam_1d(ess_fraction)",
+        "slamlib.sim1d.filter.run_slam_1d(resolution)",
+        "slamlib.sim1d.steps.resample_particles(ess_fraction)",
+        "slamlib.sim1d.steps.score_particles(eps)",
+        "slamlib.sim1d.steps.OccupancyGrid1D.empty(resolution)",
+        "slamlib.sim1d.steps.extract_landmarks(min_count)",
+        "slamlib.sim1d.filter.SLAM1DResult.observed_landmarks(min_returns)",
+        "slamlib.sim1d.filter.SLAM1DResult.landmark_errors(min_returns)",
+        *aliases,
+    } <= walked
+
+
+def test_2d_defaults_take_the_owners_values():
+    steps2d = slamlib.sim2d.steps
+    owners = merged(
+        constant_owners(slamlib.resampling),
+        constant_owners(steps2d, names={"DEFAULT_MAP_KIND": "kind"}),
+        field_owners(steps2d.OccupancyGrid2D),
+    )
+    defaults = signature_defaults([steps2d, slamlib.sim2d.filter])
+    aliases = {"slamlib.sim2d.filter.run_slam_2d(map_kind)": "kind"}
+    unrelated = {
+        "slamlib.sim2d.steps.OccupancyGrid2D.copy(kind)": "None keeps the grid's own kind"
+    }
+    assert default_mismatches(defaults, owners, aliases, unrelated=unrelated) == []
+    walked = {d[0] for d in defaults}
+    assert {
+        "slamlib.sim2d.filter.ParticleSLAM2D(ess_fraction)",
+        "slamlib.sim2d.filter.run_slam_2d(ess_fraction)",
+        "slamlib.sim2d.filter.run_slam_2d(eps)",
+        "slamlib.sim2d.filter.run_slam_2d(n_sat)",
+        "slamlib.sim2d.filter.run_slam_2d(resolution)",
+        "slamlib.sim2d.steps.resample_particles(ess_fraction)",
+        "slamlib.sim2d.steps.OccupancyGrid2D.empty(resolution)",
+        "slamlib.sim2d.steps.OccupancyGrid2D.empty(kind)",
+        *aliases,
+        *unrelated,
+    } <= walked
+
+
+# ----------------------------------------------------------------------------------------------------- the CLI
+def _cli_cases():
+    from slamlib.slam3d.run import save_run
+    from slamlib.synth import Hdl64, write_drive
+
+    return {
+        "run": (
+            merged(field_owners(*GROUPS_3D), signature_owners(save_run)),
+            {"points": "scored_points", "map_kind": "kind"},
+            {
+                "particles",
+                "points",
+                "map_kind",
+                "temperature",
+                "refine",
+                "tilt_sigma",
+                "transient_span",
+                "seed",
+                "backend",
+                "map_format",
+            },
+        ),
+        "sim1d": (
+            merged(
+                signature_owners(
+                    slamlib.sim1d.filter.run_slam_1d, slamlib.sim1d.world.simulate
+                ),
+                field_owners(slamlib.sim1d.world.SensorModel1D),
+            ),
+            {
+                "particles": "n_particles",
+                "frames": "n_frames",
+                "motion_noise": "velocity_noise",
+                "sensor_noise": "range_noise",
+                "bias": "velocity_bias",
+            },
+            {"particles", "frames", "motion_noise", "sensor_noise", "bias", "seed"},
+        ),
+        "sim2d": (
+            merged(
+                signature_owners(
+                    slamlib.sim2d.filter.run_slam_2d, slamlib.sim2d.world.simulate
+                ),
+                field_owners(slamlib.sim2d.world.SensorModel2D),
+            ),
+            {"particles": "n_particles", "beams": "n_beams"},
+            {"particles", "laps", "resolution", "beams", "seed"},
+        ),
+        # `slamlib synth` keeps its defaults beside it (no scipy / open3d on `slamlib --help`): checked here
+        "synth": (
+            merged(signature_owners(write_drive), field_owners(Hdl64)),
+            {},
+            {"route", "seed", "date", "drive", "columns"},
+        ),
+    }
+
+
+@pytest.mark.parametrize("command", ["run", "sim1d", "sim2d", "synth"])
+def test_command_option_defaults_are_the_library_defaults(command):
+    owners, aliases, checked = _cli_cases()[command]
+    # `synth --frames` is a string (A:B) of the library's tuple, compared in test_synth_command
+    unrelated = {"slamlib synth --frames": "a string, checked in test_synth_command"}
+    defaults = parser_defaults(command)
+    assert default_mismatches(defaults, owners, aliases, unrelated=unrelated) == []
+    owned = {dest for _, dest, _ in defaults if aliases.get(dest, dest) in owners}
+    assert checked <= owned, checked - owned

@@ -8,7 +8,7 @@ and 00 (1,101, 2,761 and 4,541 frames; ~0.7, 2.2 and 3.7 km), seed 0, generated 
 Both methods run on the same frames, one after the other in one process, LIDAR only:
 
 * slamlib: :class:`~slamlib.slam3d.SLAM3DConfig` defaults; without an IMU the filter is LIDAR-only (constant
-  velocity, :mod:`slamlib.slam3d.pipeline`), and each frame's best pose is scan-matched (``FilterConfig.scan_match``
+  velocity, :mod:`slamlib.slam3d.pipeline`), and each frame's best pose is scan-matched (``ScanMatchConfig.scan_match``
   None: on LIDAR-only; :mod:`slamlib.slam3d.match`);
 * KISS-ICP (:func:`slamlib.peers.kiss_icp_poses`, its default configuration, de-skewing off: the synthetic scans
   are cast from one pose).

@@ -68,15 +68,71 @@ def add_arguments(parser) -> None:
     )
     from slamlib.kernels import BACKENDS
     from slamlib.slam3d.config import (
+        AUTO,
         MAP_KINDS,
         OLD_MAP_NAMES,
+        AnnealConfig,
         FilterConfig,
         MapConfig,
         SLAM3DConfig,
+        TiltConfig,
+        UpkeepConfig,
     )
     from slamlib.slam3d.run import DEFAULT_MAP_FORMAT, MAP_FORMATS
 
-    f = parser.add_argument_group("filter (defaults from slamlib.slam3d.config)")
+    def tri_state(value: str):
+        """``auto`` / ``on`` / ``off`` of a tri-state option."""
+        return {"auto": AUTO, "on": True, "off": False}[value]
+
+    # --deskew alone is --deskew on
+    tri = {"type": tri_state, "choices": [AUTO, True, False], "metavar": "{auto,on,off}"}
+    tri.update(nargs="?", const=True)
+    sc = parser.add_argument_group(
+        "scan stage (step 2; settings of slamlib.slam3d.config, defaults from there)"
+    )
+    sc.add_argument(
+        "--deskew",
+        default=AUTO,
+        **tri,
+        help="motion-compensate each scan to the frame's pose time (ScanConfig.deskew; default auto: "
+        "when the scans were taken over a sweep and not yet motion-compensated, as those of real "
+        "KITTI raw drives and the default drive are; not the KITTI odometry benchmark's, which "
+        "KITTI compensated, nor synthetic drives written without --distortion)",
+    )
+    mo = parser.add_argument_group("motion stage (steps 3, 5, 6)")
+    mo.add_argument(
+        "--lidar-only",
+        action="store_true",
+        help="ignore the IMU: step 3 holds the filter's own last motion (constant velocity), as on data "
+        "without an IMU (the odometry layout, where it is always on)",
+    )
+    mo.add_argument(
+        "--noise",
+        type=float,
+        default=1.0,
+        metavar="SCALE",
+        help="scale of step 6's motion noise (all six sigmas; default 1.0 = the defaults)",
+    )
+    mp = parser.add_argument_group("map (steps 8 and 10) and its upkeep (after step 10)")
+    mp.add_argument(
+        "--map",
+        dest="map_kind",
+        choices=MAP_KINDS + tuple(OLD_MAP_NAMES),
+        default=MapConfig.kind,
+        metavar="{" + ",".join(MAP_KINDS) + "}",
+        help=f"map structure: hashed NDT voxels or exact points in a Morton BVH (default {MapConfig.kind}; "
+        f"the old names {' and '.join(OLD_MAP_NAMES)} still work)",
+    )
+    mp.add_argument(
+        "--transient-span",
+        type=int,
+        default=UpkeepConfig.transient_span,
+        metavar="FRAMES",
+        help="every FRAMES frames evict the map voxels hit only within fewer than FRAMES frames and not "
+        "since: the trails of moving cars and people (UpkeepConfig.transient_span; 0 = off, the "
+        f"default {UpkeepConfig.transient_span}; the voxel_hash map only)",
+    )
+    f = parser.add_argument_group("filter (steps 1, 8, 9, 11)")
     f.add_argument(
         "--particles",
         type=int,
@@ -90,71 +146,10 @@ def add_arguments(parser) -> None:
         help=f"scan points scored per particle per frame (default {FilterConfig.scored_points})",
     )
     f.add_argument(
-        "--map",
-        dest="map_kind",
-        choices=MAP_KINDS + tuple(OLD_MAP_NAMES),
-        default=MapConfig.kind,
-        metavar="{" + ",".join(MAP_KINDS) + "}",
-        help=f"map structure: hashed NDT voxels or exact points in a Morton BVH (default {MapConfig.kind}; "
-        f"the old names {' and '.join(OLD_MAP_NAMES)} still work)",
-    )
-    f.add_argument(
-        "--lidar-only",
-        action="store_true",
-        help="ignore the IMU: step 3 holds the filter's own last motion (constant velocity), as on data "
-        "without an IMU (the odometry layout, where it is always on)",
-    )
-    f.add_argument(
-        "--deskew",
-        action=argparse.BooleanOptionalAction,
-        default=None,
-        help="motion-compensate each scan to the frame's pose time, or not (ScanConfig.deskew; default: "
-        "when the scans were taken over a sweep and not yet motion-compensated, as those of real "
-        "KITTI raw drives and the default drive are; not the KITTI odometry benchmark's, which "
-        "KITTI compensated, nor synthetic drives written without --distortion)",
-    )
-    f.add_argument(
-        "--scan-match",
-        action=argparse.BooleanOptionalAction,
-        default=None,
-        help="after step 9, Gauss-Newton the best pose to the map score's nearest peak on the whole scan "
-        "and move the particles with it, or not (FilterConfig.scan_match; default: LIDAR-only)",
-    )
-    f.add_argument(
-        "--noise",
-        type=float,
-        default=1.0,
-        metavar="SCALE",
-        help="scale of step 6's motion noise (all six sigmas; default 1.0 = the tuned defaults)",
-    )
-    f.add_argument(
         "--temperature",
         type=float,
         default=FilterConfig.temperature,
         help=f"likelihood temperature: log L = score / (N * T) (default {FilterConfig.temperature})",
-    )
-    f.add_argument(
-        "--refine",
-        type=int,
-        default=FilterConfig.refine,
-        help=f"coarse-to-fine annealing rounds per frame (default {FilterConfig.refine})",
-    )
-    f.add_argument(
-        "--tilt-sigma",
-        type=float,
-        default=FilterConfig.tilt_sigma,
-        metavar="RAD",
-        help="hold roll and pitch to the accelerometer's gravity with this uncertainty (FilterConfig."
-        f"tilt_sigma, radians; 0 = off, the default {FilterConfig.tilt_sigma:g}; needs an IMU)",
-    )
-    f.add_argument(
-        "--transient-span",
-        type=int,
-        default=MapConfig.transient_span,
-        metavar="FRAMES",
-        help="every FRAMES frames evict the map voxels hit only within fewer than FRAMES frames and not "
-        "since: the trails of moving cars and people (MapConfig.transient_span; 0 = off, the "
-        f"default {MapConfig.transient_span}; the voxel_hash map only)",
     )
     f.add_argument(
         "--seed",
@@ -168,6 +163,49 @@ def add_arguments(parser) -> None:
         default=SLAM3DConfig.backend,
         help=f"compute backend (default {SLAM3DConfig.backend})",
     )
+    pr = parser.add_argument_group("prior stage (step 8's second term)")
+    pr.add_argument(
+        "--tilt-sigma",
+        type=float,
+        default=TiltConfig.tilt_sigma,
+        metavar="RAD",
+        help="hold roll and pitch to the accelerometer's gravity with this uncertainty (TiltConfig."
+        f"tilt_sigma, radians; 0 = off, the default {TiltConfig.tilt_sigma:g}; needs an IMU)",
+    )
+    se = parser.add_argument_group("search stage (steps 6-8 again inside a frame)")
+    se.add_argument(
+        "--anneal-rounds",
+        type=int,
+        default=AnnealConfig.anneal_rounds,
+        metavar="N",
+        help="coarse-to-fine annealing rounds per frame (AnnealConfig.anneal_rounds; default "
+        f"{AnnealConfig.anneal_rounds})",
+    )
+    se.add_argument(
+        "--refine",
+        dest="refine",
+        type=int,
+        default=None,
+        help=argparse.SUPPRESS,  # the name before the stages: --anneal-rounds, with a note
+    )
+    po = parser.add_argument_group("polish stage (step 9's pose sharpened)")
+    po.add_argument(
+        "--scan-match",
+        default=AUTO,
+        **tri,
+        help="after step 9, Gauss-Newton the best pose to the map score's nearest peak on the whole scan "
+        "and move the particles with it (ScanMatchConfig.scan_match; default auto: LIDAR-only)",
+    )
+    for old in (
+        "--no-deskew",
+        "--no-scan-match",
+    ):  # the switches before the tri-states, with a note
+        parser.add_argument(
+            old,
+            dest=old[2:].replace("-", "_"),
+            action="store_true",
+            help=argparse.SUPPRESS,
+        )
     o = parser.add_argument_group("output")
     o.add_argument(
         "--out",
@@ -226,7 +264,7 @@ _OPTION_OF = {
     "particles": "--particles",
     "scored_points": "--points",
     "temperature": "--temperature",
-    "refine": "--refine",
+    "anneal_rounds": "--anneal-rounds",
     "tilt_sigma": "--tilt-sigma",
     "seed": "--seed",
     "sigma": "--noise",
@@ -234,6 +272,21 @@ _OPTION_OF = {
     "backend": "--backend",
     "transient_span": "--transient-span",
 }
+
+
+def _old_options(args) -> None:
+    """The options before the filter's stages, taken as their new names with a note: ``--refine N`` is
+    ``--anneal-rounds N``; ``--no-deskew`` / ``--no-scan-match`` are ``--deskew off`` / ``--scan-match off``."""
+    if args.refine is not None:
+        print(
+            f"slamlib run: note: --refine {args.refine} is now --anneal-rounds {args.refine}"
+        )
+        args.anneal_rounds = args.refine
+    for name in ("deskew", "scan_match"):
+        if getattr(args, f"no_{name}"):
+            option = name.replace("_", "-")
+            print(f"slamlib run: note: --no-{option} is now --{option} off")
+            setattr(args, name, False)
 
 
 def _option_error(exc: ValueError) -> str:
@@ -299,6 +352,7 @@ def main(args) -> int:
             check_video_path(args.video, overwrite=args.overwrite)
         except (ValueError, ImportError) as exc:
             raise SystemExit(f"slamlib run: --video: {exc}") from None
+    _old_options(args)
     kind = OLD_MAP_NAMES.get(args.map_kind, args.map_kind)
     if kind != args.map_kind:
         print(f"slamlib run: note: --map {args.map_kind} is now called --map {kind}")
@@ -309,7 +363,7 @@ def main(args) -> int:
             kind=kind,
             backend=args.backend,
             seed=args.seed,
-            refine=args.refine,
+            anneal_rounds=args.anneal_rounds,
             temperature=args.temperature,
             deskew=args.deskew,
             scan_match=args.scan_match,

@@ -6,7 +6,7 @@ Examples::
     slamlib sweep --out sweeps/all --routes 00,05,07 --frames 0: --seeds 0,1       # the whole routes
     slamlib sweep --out sweeps/lidar --layouts odometry --particles 300,1000      # LIDAR-only, two settings
     slamlib sweep --out sweeps/real --routes 00,05,07 --frames 0: --distortion --traffic --bias-walk \\
-        --deskew --refine 2 --tilt-sigma 0.003                       # realistic drives, the filter at its best
+        --deskew --anneal-rounds 2 --tilt-sigma 0.003                # realistic drives, annealed, tilt held
     slamlib sweep --out sweeps/x --scheduler tcp://10.0.0.5:8786                  # on an existing Dask cluster
 
 Writes ``OUT/sweep.csv`` (one row per run: route, frames, seed, layout, method, settings, path length, KITTI
@@ -78,11 +78,13 @@ def add_arguments(parser) -> None:
         "each (default: the filter's default)",
     )
     parser.add_argument(
-        "--refine",
+        "--anneal-rounds",
+        "--refine",  # the name before the filter's stages
+        dest="anneal_rounds",
         type=int,
         default=None,
         metavar="K",
-        help="slamlib's coarse-to-fine annealing rounds per frame (FilterConfig.refine) in every "
+        help="slamlib's coarse-to-fine annealing rounds per frame (AnnealConfig.anneal_rounds) in every "
         "setting (default: the filter's default)",
     )
     parser.add_argument(
@@ -91,7 +93,7 @@ def add_arguments(parser) -> None:
         default=None,
         metavar="RAD",
         help="slamlib holds roll and pitch to the accelerometer's gravity with this uncertainty "
-        "(FilterConfig.tilt_sigma, radians; 0 = off, the default)",
+        "(TiltConfig.tilt_sigma, radians; 0 = off, the default)",
     )
     parser.add_argument(
         "--deskew",
@@ -105,7 +107,7 @@ def add_arguments(parser) -> None:
         "--scan-match",
         action=argparse.BooleanOptionalAction,
         default=None,
-        help="slamlib scan-matches its best pose after step 9, or never (FilterConfig.scan_match; "
+        help="slamlib scan-matches its best pose after step 9, or never (ScanMatchConfig.scan_match; "
         "default: LIDAR-only runs)",
     )
     real = parser.add_argument_group(
@@ -208,12 +210,13 @@ def main(args) -> int:
             check_traffic_scale(args.traffic)
         except ValueError as exc:
             _fail(str(exc))
-    if args.refine is not None:
-        from slamlib.slam3d.config import MAX_REFINE
+    if args.anneal_rounds is not None:
+        from slamlib.slam3d.config import MAX_ANNEAL_ROUNDS
 
-        if not 0 <= args.refine <= MAX_REFINE:
-            _fail(f"--refine must be in [0, {MAX_REFINE}], got {args.refine}")
-        settings = [dict(s, refine=args.refine) for s in settings]
+        rounds = args.anneal_rounds
+        if not 0 <= rounds <= MAX_ANNEAL_ROUNDS:
+            _fail(f"--anneal-rounds must be in [0, {MAX_ANNEAL_ROUNDS}], got {rounds}")
+        settings = [dict(s, anneal_rounds=rounds) for s in settings]
     if args.tilt_sigma is not None:
         if not (math.isfinite(args.tilt_sigma) and args.tilt_sigma >= 0):
             _fail(

@@ -1,16 +1,45 @@
-"""Settings of the 3D particle SLAM, in four groups: scan (step 2), motion (steps 5-6), map (steps 8 and 10), filter.
+"""Settings of the 3D particle SLAM, one group per stage of the filter (:mod:`slamlib.slam3d.stages`).
 
-Every default is written once, here: the step functions of :mod:`slamlib.slam3d.steps` take these groups as
-their default arguments, and ``slamlib run`` reads its option defaults from them. Defaults are tuned on the
-default synthetic drive on 2 CPU cores (``slamlib bench slam3d``).
+========== ======================= ============================================================================
+group      class                   what it sets
+========== ======================= ============================================================================
+scan       :class:`ScanConfig`      step 2: crop, down-sampling, de-skewing
+motion     :class:`MotionConfig`    steps 3, 5, 6: the motion source and step 6's spread; its
+                                   ``constant_velocity`` (:class:`ConstantVelocityConfig`) the LIDAR-only source
+map        :class:`MapConfig`       steps 8 and 10: the map structure, its parameters typed per kind
+upkeep     :class:`UpkeepConfig`    after step 10: pruning and eviction
+filter     :class:`FilterConfig`    the particle filter itself: particles, scoring sample, tempering, steps 9, 11
+prior      :class:`TiltConfig`      step 8's second term: roll and pitch held to gravity
+search     :class:`AnnealConfig`    annealing rounds inside a frame
+polish     :class:`ScanMatchConfig` scan matching of step 9's pose
+========== ======================= ============================================================================
+
+Every default is written once: here, or as a constant of the lower module that owns it (the backend, the
+map's parameters, ``ess_fraction``), which the field takes. The step functions of :mod:`slamlib.slam3d.steps`
+resolve their defaults from these groups, and ``slamlib run`` reads its option defaults from them
+(``tests/test_defaults.py`` checks both). Why a default has its value: the book's "Why these defaults".
 
 Build a configuration by group (``SLAM3DConfig(filter=FilterConfig(particles=100))``) or by setting name
-(``SLAM3DConfig.of(particles=100, max_range=30.0)``: every setting name is unique across the groups).
+(``SLAM3DConfig.of(particles=100, max_range=30.0, anneal_rounds=2)``: every setting name is unique across the
+groups; a nested group by its name and a dict, ``of(constant_velocity={"window": 3})``, or dotted,
+``of(**{"constant_velocity.window": 3})``). The names before the stages (``refine``, ``estimate``, ``cv_*``,
+``lidar_only_ground_share``, a map's ``params`` dict, ``None`` for ``deskew`` / ``scan_match``) are still
+accepted by :meth:`SLAM3DConfig.of` with a ``DeprecationWarning`` naming the new one (:data:`RENAMED`).
 """
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field, fields, replace
+import inspect
+import warnings
+from dataclasses import (
+    asdict,
+    dataclass,
+    field,
+    fields,
+    is_dataclass,
+    make_dataclass,
+    replace,
+)
 
 import numpy as np
 
@@ -20,21 +49,35 @@ from slamlib.maps import DEFAULT_MAP_KIND, MAP_TYPES, make_map
 from slamlib.resampling import DEFAULT_ESS_FRACTION
 
 __all__ = [
+    "AUTO",
     "MOTION_MODELS",
+    "POSE_ESTIMATES",
     "ScanConfig",
+    "ConstantVelocityConfig",
     "MotionConfig",
+    "VoxelHashParams",
+    "MortonBVHParams",
     "MapConfig",
+    "UpkeepConfig",
     "FilterConfig",
+    "TiltConfig",
+    "AnnealConfig",
+    "ScanMatchConfig",
     "SLAM3DConfig",
     "MAP_KINDS",
     "OLD_MAP_NAMES",
+    "RENAMED",
 ]
 
+#: A tri-state setting left to the data: ``deskew`` (the scans that were swept), ``scan_match`` (LIDAR-only).
+AUTO = "auto"
 #: Map kinds (:func:`slamlib.maps.make_map`, the keys of :data:`slamlib.maps.MAP_TYPES`): hashed NDT voxels, exact
 #: points in a Morton-code BVH.
 MAP_KINDS = tuple(MAP_TYPES)
 #: Earlier spellings of the map kinds, still accepted by ``slamlib run --map`` (with a note) but not here.
 OLD_MAP_NAMES = {"voxel": "voxel_hash", "bvh": "morton_bvh"}
+#: Step 9's estimates: the best particle, or the weighted mean of the particles near it.
+POSE_ESTIMATES = ("best", "mean")
 #: Most particles: the particle arrays take ~200 bytes each (pose, noise, weights, copies when resampling), so
 #: 10**7 particles already need ~2 GB; more would fail to allocate (10**9 asked for 67 GiB) or run for hours a frame.
 MAX_PARTICLES = 10_000_000
@@ -43,11 +86,12 @@ MAX_SCORED_POINTS = 1_000_000
 #: Most point scores per frame, ``particles * scored_points`` (work per frame; 10**10 is minutes per frame on a GPU).
 MAX_POINT_SCORES = 10_000_000_000
 #: Most annealing rounds per frame (each one costs a whole scoring pass).
-MAX_REFINE = 100
-#: Most Gauss-Newton steps of the scan matcher per frame (``FilterConfig.scan_match_iterations``; each a pass over
-#: the whole down-sampled scan).
+MAX_ANNEAL_ROUNDS = 100
+#: Most Gauss-Newton steps of the scan matcher per frame (``ScanMatchConfig.scan_match_iterations``; each a pass
+#: over the whole down-sampled scan).
 MAX_SCAN_MATCH_ITERATIONS = 100
-#: Most frames the LIDAR-only velocity is averaged over (``MotionConfig.cv_window``; 10 frames = 1 s at 10 Hz).
+#: Most frames the LIDAR-only velocity is averaged over (``ConstantVelocityConfig.window``; 10 frames = 1 s at
+#: 10 Hz).
 MAX_CV_WINDOW = 10
 #: Map constructor parameters that must be finite and > 0 (:class:`slamlib.maps.VoxelHashMap`,
 #: :class:`slamlib.maps.MortonBVHMap`).
@@ -61,6 +105,19 @@ POSITIVE_MAP_PARAMS = (
     "quantum",
     "max_points",
 )
+#: Setting names before the filter's stages, and the names that replaced them (:meth:`SLAM3DConfig.of`).
+RENAMED = {
+    "refine": "anneal_rounds",
+    "refine_shrink": "anneal_shrink",
+    "estimate": "pose_estimate",
+    "cv_accel": "constant_velocity.accel",
+    "cv_angular_accel": "constant_velocity.angular_accel",
+    "cv_start_speed": "constant_velocity.start_speed",
+    "cv_start_rounds": "constant_velocity.start_rounds",
+    "cv_window": "constant_velocity.window",
+    "cv_damping": "constant_velocity.damping",
+    "lidar_only_ground_share": "constant_velocity.ground_share",
+}
 
 
 def _finite(name: str, value) -> float:
@@ -93,9 +150,35 @@ def _integer(name: str, value, low: int, high: int | None = None) -> int:
     return v
 
 
+def _tri_state(name: str, value, what: str):
+    """``value`` of a tri-state setting: ``"auto"`` (:data:`AUTO`), True or False; ``None``, the spelling before,
+    becomes ``"auto"`` with a DeprecationWarning. ValueError naming ``name`` otherwise."""
+    if value is None:
+        warnings.warn(
+            f"{name}=None is now {name}={AUTO!r}", DeprecationWarning, stacklevel=4
+        )
+        return AUTO
+    if value == AUTO and isinstance(value, str):
+        return AUTO
+    if isinstance(value, (bool, np.bool_)):
+        return bool(value)
+    raise ValueError(f"{name} must be True, False or {AUTO!r} ({what}), got {value!r}")
+
+
+def _spreads(owner, names_sizes) -> None:
+    """Check and store as float tuples the per-axis spreads ``names_sizes`` of the frozen dataclass ``owner``."""
+    for name, size in names_sizes:
+        v = np.asarray(getattr(owner, name), dtype=np.float64)
+        if v.shape != (size,) or not np.all(np.isfinite(v)) or not np.all(v >= 0):
+            raise ValueError(
+                f"{name} must be {size} finite non-negative numbers, got {getattr(owner, name)!r}"
+            )
+        object.__setattr__(owner, name, tuple(float(x) for x in v))
+
+
 @dataclass(frozen=True)
 class ScanConfig:
-    """Step 2: how a raw scan becomes the body-frame points the filter uses.
+    """Step 2, the scan stage: how a raw scan becomes the body-frame points the filter uses.
 
     Attributes
     ----------
@@ -103,14 +186,14 @@ class ScanConfig:
         Range crop in the Velodyne frame, metres (drops returns off the car itself and sparse far returns).
     downsample_voxel : float
         Edge of the scan's down-sampling voxel, metres (one point kept per voxel; 0 = off). Not the map's voxel
-        (:attr:`MapConfig.params` ``voxel_size``).
-    deskew : bool or None
-        Motion-compensate each scan (:func:`slamlib.slam3d.steps.deskew_scan`) with the frame's motion. ``None``
-        (the default): for the scans taken over a sweep, the frames whose ``swept`` says so
+        (:attr:`VoxelHashParams.voxel_size`).
+    deskew : "auto", True or False
+        Motion-compensate each scan (:func:`slamlib.slam3d.steps.deskew_scan`) with the frame's motion. ``"auto"``
+        (the default): the frames whose ``swept`` says their scan was taken over a sweep
         (:func:`slamlib.slam3d.steps.should_deskew`: real KITTI raw drives and synthetic drives written with
-        ``distortion``, the default drive among them), not for scans cast from one pose or already
+        ``distortion``, the default drive among them), not scans cast from one pose or already
         motion-compensated (the KITTI odometry benchmark's), where it would add the very error it removes.
-        ``True`` / ``False``: every frame / none.
+        True / False: every frame / none.
     sweep_period : float
         Seconds one sweep takes (KITTI's HDL-64E: 0.10315 s, measured on raw drive 0001).
     """
@@ -118,14 +201,13 @@ class ScanConfig:
     min_range: float = 3.0
     max_range: float = 60.0
     downsample_voxel: float = 0.25
-    deskew: bool | None = None
+    deskew: str | bool = AUTO
     sweep_period: float = SWEEP_PERIOD_S
 
     def __post_init__(self):
         _finite("min_range", self.min_range)
-        if (
-            not 0 <= self.min_range < self.max_range
-        ):  # max_range may be inf (no far crop), not NaN
+        # max_range may be inf (no far crop), not NaN
+        if not 0 <= self.min_range < self.max_range:
             raise ValueError(
                 f"need 0 <= min_range < max_range, got {self.min_range}, {self.max_range}"
             )
@@ -135,48 +217,98 @@ class ScanConfig:
             )
         if not _finite("sweep_period", self.sweep_period) > 0:
             raise ValueError(f"sweep_period must be > 0 s, got {self.sweep_period}")
-        if self.deskew is not None and not isinstance(self.deskew, (bool, np.bool_)):
-            raise ValueError(
-                f"deskew must be True, False or None (when the scans are swept), got {self.deskew!r}"
-            )
+        deskew = _tri_state("deskew", self.deskew, "when the scans are swept")
+        object.__setattr__(self, "deskew", deskew)
 
 
-#: Step 3's motion sources: the IMU's velocities and rates, or the filter's own last estimated motion held
-#: (LIDAR-only; :func:`slamlib.slam3d.steps.read_imu`).
+#: Step 3's motion sources: the IMU's velocities and rates (LIDAR-only when the data has none), or the filter's
+#: own last estimated motion held (LIDAR-only; :class:`slamlib.slam3d.stages.ConstantVelocity`).
 MOTION_MODELS = ("imu", "constant_velocity")
-#: The :class:`MotionConfig` fields that are not per-axis spreads.
-_MOTION_SCALARS = ("model", "cv_start_rounds", "cv_window", "cv_damping")
+
+
+@dataclass(frozen=True)
+class ConstantVelocityConfig:
+    """The LIDAR-only motion source (:class:`slamlib.slam3d.stages.ConstantVelocity`): step 3 holds the filter's
+    own last estimated twist, step 6 covers what that cannot know.
+
+    Its error over a frame is the change of velocity in that frame, ``a dt`` over ``dt`` seconds, i.e. ``a dt^2``
+    in position (``alpha dt^2`` in angle): step 6 adds ``accel dt^2`` (m) and ``angular_accel dt^2`` (rad) to the
+    motion spreads, with ``a`` and ``alpha`` the accelerations a car typically has between two scans: about
+    2 m/s^2 forward (braking, pulling away), 0.5 m/s^2 sideways and up, 0.5 rad/s^2 in yaw (entering a turn),
+    0.2 rad/s^2 in roll and pitch. At 10 Hz that is 2 cm and 0.29 deg: several times the IMU model's spread.
+
+    Attributes
+    ----------
+    accel, angular_accel : (3,) m/s^2 forward, left, up; (3,) rad/s^2 about them.
+    start_speed : (6,)
+        At the second frame no motion is known yet: the spread is ``start_speed dt``, speeds a car may have when
+        the sequence starts (15 m/s forward, 1 and 0.5 m/s sideways and up; 0.05, 0.05, 0.3 rad/s in roll,
+        pitch, yaw), narrowed by ``start_rounds`` annealing rounds that halve it.
+    start_rounds : int
+    window : int
+        Frames the held twist spans (the motion from the pose ``window`` frames back to the last one, over their
+        time: one frame's estimate is noisy, and held it carries its noise into the next frame). 1: the last frame.
+    damping : (6,) in [0, 1]
+        Factors on the held twist's components (``v`` forward, left, up, then the rates about them): a car's
+        vertical velocity and roll and pitch rates are near zero, so an estimate of them is mostly noise, which
+        held drifts the height and the pitch. All 1 (no damping) by default; why: "Why these defaults".
+    ground_share : float in [0, 1]
+        The share of road points in step 8's sample (the rest stands above the road;
+        :func:`slamlib.slam3d.preprocess.thin_ground`): the road's rings in the map pull a constant-velocity
+        estimate toward zero motion. 1 keeps the scan's own mix.
+    """
+
+    accel: tuple = (2.0, 0.5, 0.5)
+    angular_accel: tuple = (0.2, 0.2, 0.5)
+    start_speed: tuple = (15.0, 1.0, 0.5, 0.05, 0.05, 0.3)
+    start_rounds: int = 8
+    window: int = 1
+    damping: tuple = (1.0, 1.0, 1.0, 1.0, 1.0, 1.0)
+    ground_share: float = 0.1
+
+    def __post_init__(self):
+        _integer("start_rounds", self.start_rounds, 0, MAX_ANNEAL_ROUNDS)
+        _integer("window", self.window, 1, MAX_CV_WINDOW)
+        damping = np.asarray(self.damping, dtype=np.float64)
+        if damping.shape != (6,) or not np.all((damping >= 0) & (damping <= 1)):
+            raise ValueError(f"damping must be 6 numbers in [0, 1], got {self.damping!r}")
+        object.__setattr__(self, "damping", tuple(float(x) for x in damping))
+        _spreads(self, (("accel", 3), ("angular_accel", 3), ("start_speed", 6)))
+        if not 0 <= _finite("ground_share", self.ground_share) <= 1:
+            raise ValueError(f"ground_share must be in [0, 1], got {self.ground_share}")
+
+    def scaled(self, k: float) -> ConstantVelocityConfig:
+        """The accelerations and start speeds multiplied by ``k``."""
+        return replace(
+            self,
+            **{n: tuple(k * x for x in getattr(self, n)) for n in _CV_SPREADS},
+        )
+
+
+#: The :class:`ConstantVelocityConfig` fields that are spreads (scaled with the motion noise).
+_CV_SPREADS = ("accel", "angular_accel", "start_speed")
+#: The :class:`MotionConfig` per-axis spreads.
+_MOTION_SPREADS = (
+    "sigma_xyz_per_m",
+    "sigma_xyz_per_s",
+    "sigma_rpy_per_m",
+    "sigma_rpy_per_s",
+)
 
 
 @dataclass(frozen=True)
 class MotionConfig:
-    """Steps 3, 5 and 6: where the motion comes from, and the spread of the motion noise per axis (body x, y, z,
-    then roll, pitch, yaw).
+    """Steps 3, 5 and 6, the motion stage: where the motion comes from, and the spread of the motion noise per axis
+    (body x, y, z, then roll, pitch, yaw).
 
     ``sigma_xyz = sigma_xyz_per_m |dp| + sigma_xyz_per_s dt`` (metres) and
     ``sigma_rpy = sigma_rpy_per_m |dp| + sigma_rpy_per_s dt`` (radians), with ``|dp|`` the distance travelled in
     the frame: odometry errors grow with distance (scale errors, slip) and with time (biases), as the odometry
     motion model's ``alpha`` parameters (Thrun, Burgard & Fox 2005, table 5.5).
 
-    **LIDAR-only** (``model="constant_velocity"``, or any frame without IMU values): step 3 holds the last
-    estimated twist (:func:`slamlib.odometry.twist_between`), and its error over a frame is the change of velocity
-    in that frame, ``a dt`` over ``dt`` seconds, i.e. ``a dt^2`` in position (``alpha dt^2`` in angle). Step 6
-    adds ``cv_accel dt^2`` (m) and ``cv_angular_accel dt^2`` (rad) to the spreads above, with ``a`` and ``alpha``
-    the accelerations a car typically has between two scans: about 2 m/s^2 forward (braking, pulling away),
-    0.5 m/s^2 sideways and up, 0.5 rad/s^2 in yaw (entering a turn), 0.2 rad/s^2 in roll and pitch. At 10 Hz that is
-    2 cm and 0.29 deg: several times the IMU model's spread, which the particles must cover.
-
-    The held twist is that of the last ``cv_window`` frames (the motion from the pose ``cv_window`` frames back to
-    the last one, over their time: one frame's estimate is noisy, and constant velocity would carry its noise into
-    the next frame), its six components (``v`` forward, left, up, then the rates about them) multiplied by
-    ``cv_damping``: a car's vertical velocity and its roll and pitch rates are close to zero, so an estimate of
-    them is mostly noise, which held drifts the height and the pitch. Both are off by default (``cv_window`` 1 frame,
-    ``cv_damping`` all 1: no damping); why, and how to choose them (``slamlib sweep``): the book's "Why these
-    defaults" (``book/defaults.md``).
-
-    At the second frame LIDAR-only knows no motion yet: the spread is ``cv_start_speed dt`` (speeds a car may have
-    when the sequence starts: 15 m/s forward, 1 and 0.5 m/s sideways and up; 0.05, 0.05, 0.3 rad/s in roll, pitch,
-    yaw), narrowed by ``cv_start_rounds`` annealing rounds that halve it (:mod:`slamlib.slam3d.pipeline`).
+    ``model``: ``"imu"`` (the IMU's velocities and rates; LIDAR-only on data without them) or
+    ``"constant_velocity"`` (LIDAR-only whatever the data). LIDAR-only, ``constant_velocity``
+    (:class:`ConstantVelocityConfig`) sets the held twist and what step 6 adds for it.
     """
 
     sigma_xyz_per_m: tuple = (0.02, 0.02, 0.01)
@@ -184,44 +316,29 @@ class MotionConfig:
     sigma_rpy_per_m: tuple = (0.0005, 0.0005, 0.002)
     sigma_rpy_per_s: tuple = (0.002, 0.002, 0.005)
     model: str = "imu"
-    cv_accel: tuple = (2.0, 0.5, 0.5)
-    cv_angular_accel: tuple = (0.2, 0.2, 0.5)
-    cv_start_speed: tuple = (15.0, 1.0, 0.5, 0.05, 0.05, 0.3)
-    cv_start_rounds: int = 8
-    cv_window: int = 1
-    cv_damping: tuple = (1.0, 1.0, 1.0, 1.0, 1.0, 1.0)
+    constant_velocity: ConstantVelocityConfig = field(
+        default_factory=ConstantVelocityConfig
+    )
 
     def __post_init__(self):
         if self.model not in MOTION_MODELS:
             raise ValueError(
                 f"model must be one of {', '.join(MOTION_MODELS)}, got {self.model!r}"
             )
-        _integer("cv_start_rounds", self.cv_start_rounds, 0, MAX_REFINE)
-        _integer("cv_window", self.cv_window, 1, MAX_CV_WINDOW)
-        damping = np.asarray(self.cv_damping, dtype=np.float64)
-        if damping.shape != (6,) or not np.all((damping >= 0) & (damping <= 1)):
+        _spreads(self, [(name, 3) for name in _MOTION_SPREADS])
+        if not isinstance(self.constant_velocity, ConstantVelocityConfig):
             raise ValueError(
-                f"cv_damping must be 6 numbers in [0, 1], got {self.cv_damping!r}"
+                f"constant_velocity must be a ConstantVelocityConfig, got {self.constant_velocity!r}"
             )
-        object.__setattr__(self, "cv_damping", tuple(float(x) for x in damping))
-        for f in fields(self):
-            if f.name in _MOTION_SCALARS:
-                continue
-            v = np.asarray(getattr(self, f.name), dtype=np.float64)
-            size = 6 if f.name == "cv_start_speed" else 3
-            if v.shape != (size,) or not np.all(np.isfinite(v)) or not np.all(v >= 0):
-                raise ValueError(
-                    f"{f.name} must be {size} finite non-negative numbers, got {getattr(self, f.name)!r}"
-                )
-            object.__setattr__(self, f.name, tuple(float(x) for x in v))
 
     def sigma(
         self, trans_delta, dt: float, constant_velocity: bool = False, start: bool = False
     ) -> np.ndarray:
         """Standard deviations ``(6,)`` for a frame that moved ``trans_delta`` (3,) metres in ``dt`` seconds; with
-        ``constant_velocity`` (LIDAR-only) widened by ``cv_accel dt^2`` and ``cv_angular_accel dt^2``; ``start``
-        (LIDAR-only, no motion known yet) adds ``cv_start_speed dt``."""
+        ``constant_velocity`` (LIDAR-only) widened by ``accel dt^2`` and ``angular_accel dt^2``; ``start``
+        (LIDAR-only, no motion known yet) adds ``start_speed dt`` (:class:`ConstantVelocityConfig`)."""
         d, dt = float(np.linalg.norm(trans_delta)), float(dt)
+        cv = self.constant_velocity
         s = np.empty(6)
         s[:3] = (
             np.asarray(self.sigma_xyz_per_m) * d + np.asarray(self.sigma_xyz_per_s) * dt
@@ -230,36 +347,103 @@ class MotionConfig:
             np.asarray(self.sigma_rpy_per_m) * d + np.asarray(self.sigma_rpy_per_s) * dt
         )
         if constant_velocity:
-            s[:3] += np.asarray(self.cv_accel) * dt**2
-            s[3:] += np.asarray(self.cv_angular_accel) * dt**2
+            s[:3] += np.asarray(cv.accel) * dt**2
+            s[3:] += np.asarray(cv.angular_accel) * dt**2
         if start:
-            s += np.asarray(self.cv_start_speed) * dt
+            s += np.asarray(cv.start_speed) * dt
         return s
 
     def scaled(self, k: float) -> MotionConfig:
-        """All spreads (and the LIDAR-only accelerations) multiplied by ``k`` (``slamlib run --noise``)."""
+        """All spreads (and the LIDAR-only accelerations and start speeds) multiplied by ``k``
+        (``slamlib run --noise``)."""
+        spreads = {n: tuple(k * x for x in getattr(self, n)) for n in _MOTION_SPREADS}
         return replace(
-            self,
-            **{
-                f.name: tuple(k * x for x in getattr(self, f.name))
-                for f in fields(self)
-                if f.name not in _MOTION_SCALARS
-            },
+            self, **spreads, constant_velocity=self.constant_velocity.scaled(k)
         )
+
+
+def _map_params_class(kind: str, name: str):
+    """A frozen dataclass of the constructor parameters of the map ``kind``, with the constructor's own defaults
+    (written once, there), each checked finite and > 0 where :data:`POSITIVE_MAP_PARAMS` says so."""
+    cls = MAP_TYPES[kind]
+    params = [
+        p for p in inspect.signature(cls.__init__).parameters.values() if p.name != "self"
+    ]
+
+    def __post_init__(self):
+        for p in params:
+            value = getattr(self, p.name)
+            if p.name in POSITIVE_MAP_PARAMS and not _finite(p.name, value) > 0:
+                raise ValueError(
+                    f"map parameter {p.name} must be finite and > 0, got {value!r}"
+                )
+
+    doc = (
+        f"Parameters of :class:`slamlib.maps.{cls.__name__}` (the map kind ``{kind!r}``), with its defaults: "
+        + ", ".join(f"``{p.name}={p.default!r}``" for p in params)
+        + "."
+    )
+    return make_dataclass(
+        name,
+        [(p.name, p.annotation, field(default=p.default)) for p in params],
+        frozen=True,
+        namespace={
+            "__post_init__": __post_init__,
+            "__doc__": doc,
+            "__module__": __name__,
+        },
+    )
+
+
+VoxelHashParams = _map_params_class("voxel_hash", "VoxelHashParams")
+MortonBVHParams = _map_params_class("morton_bvh", "MortonBVHParams")
 
 
 @dataclass(frozen=True)
 class MapConfig:
-    """Steps 8 and 10: the map structure and how it forgets.
+    """Steps 8 and 10: the map structure and its parameters.
 
     Attributes
     ----------
     kind : str
         ``"voxel_hash"`` (hashed NDT voxels, :class:`slamlib.maps.VoxelHashMap`) or ``"morton_bvh"`` (exact points
         in a Morton-code BVH, :class:`slamlib.maps.MortonBVHMap`).
-    params : dict
-        Keyword arguments of the map's constructor (e.g. ``{"voxel_size": 0.5}``); the constructor's defaults for
-        the others (the voxel map's ``capacity``: :data:`slamlib.maps.DEFAULT_VOXEL_CAPACITY`, 2**19 slots).
+    voxel_hash, morton_bvh : :class:`VoxelHashParams`, :class:`MortonBVHParams`
+        Each kind's constructor parameters, typed, with the constructor's defaults; :meth:`make` uses those of
+        ``kind``.
+    """
+
+    kind: str = DEFAULT_MAP_KIND
+    voxel_hash: VoxelHashParams = field(default_factory=VoxelHashParams)
+    morton_bvh: MortonBVHParams = field(default_factory=MortonBVHParams)
+
+    def __post_init__(self):
+        if self.kind not in MAP_KINDS:
+            hint = (
+                f" (now called {OLD_MAP_NAMES[self.kind]!r})"
+                if self.kind in OLD_MAP_NAMES
+                else ""
+            )
+            raise ValueError(
+                f"map kind must be one of {', '.join(map(repr, MAP_KINDS))}, got {self.kind!r}{hint}"
+            )
+
+    @property
+    def params(self) -> dict:
+        """The constructor parameters of the chosen kind, as keyword arguments."""
+        return asdict(getattr(self, self.kind))
+
+    def make(self):
+        """A fresh, empty map of this kind (:func:`slamlib.maps.make_map`)."""
+        return make_map(self.kind, **self.params)
+
+
+@dataclass(frozen=True)
+class UpkeepConfig:
+    """After step 10, the upkeep stage: what the map forgets (:class:`slamlib.slam3d.stages.MapUpkeep`).
+
+    Attributes
+    ----------
     prune_every, prune_radius : int, float
         Every ``prune_every`` frames drop map elements farther than ``prune_radius`` metres from the vehicle
         (bounded memory and lookup time on long drives; 0 disables).
@@ -272,43 +456,18 @@ class MapConfig:
         every voxel; the voxel map only. Evicted voxels are not archived.
     """
 
-    kind: str = DEFAULT_MAP_KIND
-    params: dict = field(default_factory=dict)
     prune_every: int = 20
     prune_radius: float = 120.0
     keep_pruned: bool = True
     transient_span: int = 0
 
     def __post_init__(self):
-        if self.kind not in MAP_KINDS:
-            hint = (
-                f" (now called {OLD_MAP_NAMES[self.kind]!r})"
-                if self.kind in OLD_MAP_NAMES
-                else ""
-            )
-            raise ValueError(
-                f"map kind must be one of {', '.join(map(repr, MAP_KINDS))}, got {self.kind!r}{hint}"
-            )
         if int(self.prune_every) < 0 or not self.prune_radius > 0:
             raise ValueError(
                 f"need prune_every >= 0 and prune_radius > 0, got {self.prune_every}, "
                 f"{self.prune_radius}"
             )
         _integer("transient_span", self.transient_span, 0)  # frames; 0 = off
-        if self.transient_span and self.kind != "voxel_hash":
-            raise ValueError(
-                f"transient_span needs the 'voxel_hash' map (its voxels remember when they were hit), "
-                f"got kind {self.kind!r}"
-            )
-        for name, value in dict(self.params).items():
-            if name in POSITIVE_MAP_PARAMS and not _finite(name, value) > 0:
-                raise ValueError(
-                    f"map parameter {name} must be finite and > 0, got {value!r}"
-                )
-
-    def make(self):
-        """A fresh, empty map of this kind (:func:`slamlib.maps.make_map`)."""
-        return make_map(self.kind, **self.params)
 
 
 @dataclass(frozen=True)
@@ -326,66 +485,17 @@ class FilterConfig:
     ess_fraction : float
         Step 11 resamples when the effective sample size is below ``ess_fraction * P`` (1.0: every frame; default
         :data:`slamlib.resampling.DEFAULT_ESS_FRACTION`, 0.5, shared with the 1D and 2D filters).
-    estimate : str
+    pose_estimate : str
         Step 9: ``"best"`` particle or ``"mean"`` (weighted mean of the particles near the best).
-    refine : int
-        Annealing rounds per frame (coarse to fine); 0 = plain particle filter.
-    refine_shrink : float
-        Noise scale factor per annealing round.
-    lidar_only_ground_share : float
-        LIDAR-only: the share of road points in step 8's sample (the rest stands above the road;
-        :func:`slamlib.slam3d.preprocess.thin_ground`). 1 keeps the scan's own mix.
-    tilt_sigma : float
-        Radians; > 0 holds roll and pitch to gravity: step 8 adds :func:`slamlib.slam3d.stages.prior.tilt_log_prior`
-        with the up direction the accelerometer measured over the last ``tilt_window`` seconds
-        (:func:`slamlib.slam3d.stages.prior.gravity_up`). 0 (default) = off; needs an IMU with ``specific_force``.
-        ``sigma`` is the prior's weight against the map as much as an error bar on the measured up; the value the
-        realistic sweeps use, and why: book chapter 09 and "Why these defaults" (``book/defaults.md``).
-    tilt_window : float
-        Seconds of accelerometer samples behind each up measurement (longer: less noise from the velocities).
-    tilt_bias_sigma, tilt_world_sigma : float
-        Radians; with the prior on, the filter also estimates, by least squares over the frames whose window spans
-        ``tilt_window`` (:func:`slamlib.slam3d.stages.prior.tilt_calibration_update`), the accelerometer's bias as
-        an angle ``b / g``, with prior standard deviation ``tilt_bias_sigma`` (default 0.01: 0.1 m/s^2), and how far the
-        world's z (the first body pose's) is from gravity's up, with ``tilt_world_sigma``. 0 holds either at 0.
-        The default 0 for the world takes the first pose as level (the synthetic drives start level): a slow tilt
-        drift of the map looks exactly like a tilted world, so estimating the world's up also gives in to that
-        drift. A bias turns with the body and a map's tilt does not, so turns tell those two apart.
-    tilt_heading_bins : int
-        Sectors of heading that weigh alike in that fit (:func:`slamlib.slam3d.stages.prior.balance_heading_bins`),
-        so that a long straight does not pass its share of the map's tilt to the bias; 1 = every frame alike.
-    scan_match : bool or None
-        After step 9, move the best particle's pose to the nearest peak of the map score with Gauss-Newton on the
-        whole down-sampled scan (:func:`slamlib.slam3d.match.match_scan`), and the particles with it (the
-        improved proposal of Grisetti et al. 2007). ``None`` (default): on LIDAR-only, where the constant-velocity
-        prior leaves the filter the most to find, off with an IMU; True / False force it. Voxel hash map only
-        (other maps are left as they are).
-    scan_match_iterations : int
-        Most Gauss-Newton steps per frame (each one only if it lowers the cost; the iteration also stops once a step
-        is tiny). Default 15; why: "Why these defaults" (``book/defaults.md``).
     """
 
     particles: int = 300
     scored_points: int = 1000
     temperature: float = 0.02
     ess_fraction: float = DEFAULT_ESS_FRACTION
-    estimate: str = "best"
-    refine: int = 0
-    refine_shrink: float = 0.4
-    lidar_only_ground_share: float = 0.1
-    tilt_sigma: float = 0.0
-    tilt_window: float = 2.0
-    tilt_bias_sigma: float = 0.01
-    tilt_world_sigma: float = 0.0
-    tilt_heading_bins: int = 8
-    scan_match: bool | None = None
-    scan_match_iterations: int = 15
+    pose_estimate: str = "best"
 
     def __post_init__(self):
-        if int(self.particles) < 1 or int(self.scored_points) < 1:
-            raise ValueError(
-                f"particles and scored_points must be >= 1, got {self.particles}, {self.scored_points}"
-            )
         p = _integer("particles", self.particles, 1, MAX_PARTICLES)
         n = _integer("scored_points", self.scored_points, 1, MAX_SCORED_POINTS)
         if p * n > MAX_POINT_SCORES:
@@ -399,13 +509,47 @@ class FilterConfig:
             )
         if not 0 <= _finite("ess_fraction", self.ess_fraction) <= 1:
             raise ValueError(f"ess_fraction must be in [0, 1], got {self.ess_fraction}")
-        if self.estimate not in ("best", "mean"):
-            raise ValueError(f"estimate must be 'best' or 'mean', got {self.estimate!r}")
-        if int(self.refine) < 0 or not 0 < self.refine_shrink <= 1:
+        if self.pose_estimate not in POSE_ESTIMATES:
             raise ValueError(
-                f"need refine >= 0 and 0 < refine_shrink <= 1, got {self.refine}, {self.refine_shrink}"
+                f"pose_estimate must be 'best' or 'mean', got {self.pose_estimate!r}"
             )
-        _integer("refine", self.refine, 0, MAX_REFINE)
+
+
+@dataclass(frozen=True)
+class TiltConfig:
+    """Step 8's second term, the prior stage: roll and pitch held to gravity
+    (:class:`slamlib.slam3d.stages.TiltPrior`).
+
+    Attributes
+    ----------
+    tilt_sigma : float
+        Radians; > 0 holds roll and pitch to gravity: step 8 adds :func:`slamlib.slam3d.stages.prior.tilt_log_prior`
+        with the up direction the accelerometer measured over the last ``tilt_window`` seconds
+        (:func:`slamlib.slam3d.stages.prior.gravity_up`). 0 (default) = off; needs an IMU with ``specific_force``.
+        ``sigma`` is the prior's weight against the map as much as an error bar on the measured up; the value the
+        realistic sweeps use, and why: book chapter 09 and "Why these defaults" (``book/defaults.md``).
+    tilt_window : float
+        Seconds of accelerometer samples behind each up measurement (longer: less noise from the velocities).
+    tilt_bias_sigma, tilt_world_sigma : float
+        Radians; with the prior on, the filter also estimates, by least squares over the frames whose window spans
+        ``tilt_window`` (:func:`slamlib.slam3d.stages.prior.tilt_calibration_update`), the accelerometer's bias as
+        an angle ``b / g``, with prior standard deviation ``tilt_bias_sigma`` (default 0.01: 0.1 m/s^2), and how
+        far the world's z (the first body pose's) is from gravity's up, with ``tilt_world_sigma``. 0 holds either
+        at 0. The default 0 for the world takes the first pose as level (the synthetic drives start level): a slow
+        tilt drift of the map looks exactly like a tilted world, so estimating the world's up also gives in to
+        that drift. A bias turns with the body and a map's tilt does not, so turns tell those two apart.
+    tilt_heading_bins : int
+        Sectors of heading that weigh alike in that fit (:func:`slamlib.slam3d.stages.prior.balance_heading_bins`),
+        so that a long straight does not pass its share of the map's tilt to the bias; 1 = every frame alike.
+    """
+
+    tilt_sigma: float = 0.0
+    tilt_window: float = 2.0
+    tilt_bias_sigma: float = 0.01
+    tilt_world_sigma: float = 0.0
+    tilt_heading_bins: int = 8
+
+    def __post_init__(self):
         if (
             not _finite("tilt_sigma", self.tilt_sigma) >= 0
             or not _finite("tilt_window", self.tilt_window) > 0
@@ -415,45 +559,127 @@ class FilterConfig:
                 f"{self.tilt_window}"
             )
         _integer("tilt_heading_bins", self.tilt_heading_bins, 1)
-        if self.scan_match is not None and not isinstance(
-            self.scan_match, (bool, np.bool_)
-        ):
-            raise ValueError(
-                f"scan_match must be True, False or None (LIDAR-only), got {self.scan_match!r}"
-            )
+        for name in ("tilt_bias_sigma", "tilt_world_sigma"):
+            if not _finite(name, getattr(self, name)) >= 0:
+                raise ValueError(
+                    f"need {name} >= 0 (0 = held at 0), got {getattr(self, name)}"
+                )
+
+
+@dataclass(frozen=True)
+class AnnealConfig:
+    """The search stage: annealing rounds inside a frame, coarse to fine (:class:`slamlib.slam3d.stages.Annealing`).
+
+    Attributes
+    ----------
+    anneal_rounds : int
+        Rounds per frame, each resampling, perturbing with step 6's spread shrunk and weighing again; 0 = a plain
+        particle filter.
+    anneal_shrink : float
+        Spread factor per round, in ``(0, 1]``.
+    """
+
+    anneal_rounds: int = 0
+    anneal_shrink: float = 0.4
+
+    def __post_init__(self):
+        _integer("anneal_rounds", self.anneal_rounds, 0, MAX_ANNEAL_ROUNDS)
+        if not 0 < _finite("anneal_shrink", self.anneal_shrink) <= 1:
+            raise ValueError(f"anneal_shrink must be in (0, 1], got {self.anneal_shrink}")
+
+
+@dataclass(frozen=True)
+class ScanMatchConfig:
+    """The polish stage: scan matching of step 9's pose (:class:`slamlib.slam3d.stages.ScanMatch`).
+
+    Attributes
+    ----------
+    scan_match : "auto", True or False
+        After step 9, move the best particle's pose to the nearest peak of the map score with Gauss-Newton on the
+        whole down-sampled scan (:func:`slamlib.slam3d.match.match_scan`), and the particles with it (the
+        improved proposal of Grisetti et al. 2007). ``"auto"`` (default): on LIDAR-only, where the constant-velocity
+        prior leaves the filter the most to find, off with an IMU; True / False force it. Voxel hash map only
+        (other maps are left as they are).
+    scan_match_iterations : int
+        Most Gauss-Newton steps per frame (each one only if it lowers the cost; the iteration also stops once a step
+        is tiny). Default 15; why: "Why these defaults" (``book/defaults.md``).
+    """
+
+    scan_match: str | bool = AUTO
+    scan_match_iterations: int = 15
+
+    def __post_init__(self):
+        object.__setattr__(
+            self, "scan_match", _tri_state("scan_match", self.scan_match, "LIDAR-only")
+        )
         _integer(
             "scan_match_iterations",
             self.scan_match_iterations,
             1,
             MAX_SCAN_MATCH_ITERATIONS,
         )
-        for name in ("tilt_bias_sigma", "tilt_world_sigma"):
-            if not _finite(name, getattr(self, name)) >= 0:
-                raise ValueError(
-                    f"need {name} >= 0 (0 = held at 0), got {getattr(self, name)}"
-                )
-        if not 0 <= _finite("lidar_only_ground_share", self.lidar_only_ground_share) <= 1:
-            raise ValueError(
-                f"lidar_only_ground_share must be in [0, 1], got {self.lidar_only_ground_share}"
-            )
 
 
+#: The groups of :class:`SLAM3DConfig`, by field name.
 _GROUPS = {
     "scan": ScanConfig,
     "motion": MotionConfig,
     "map": MapConfig,
+    "upkeep": UpkeepConfig,
     "filter": FilterConfig,
+    "prior": TiltConfig,
+    "search": AnnealConfig,
+    "polish": ScanMatchConfig,
 }
+#: Nested groups: name -> (the group holding it, its class).
+_NESTED = {
+    "constant_velocity": ("motion", ConstantVelocityConfig),
+    "voxel_hash": ("map", VoxelHashParams),
+    "morton_bvh": ("map", MortonBVHParams),
+}
+_TOP = ("backend", "seed")
+
+
+def _leaves() -> dict[str, tuple[str, ...]]:
+    """Every setting's name and its path: group fields by their own name (nested groups excepted); a nested
+    group's fields as ``nested.field`` and, for the maps' parameters (unique names), also by their own name."""
+    paths = {}
+    for g, cls in _GROUPS.items():
+        for f in fields(cls):
+            if f.name not in _NESTED:
+                paths[f.name] = (g, f.name)
+    for nested, (g, cls) in _NESTED.items():
+        for f in fields(cls):
+            paths[f"{nested}.{f.name}"] = (g, nested, f.name)
+            if g == "map":
+                paths.setdefault(f.name, (g, nested, f.name))
+    return paths
+
+
+_PATHS = _leaves()
+
+
+def _replace_path(obj, path: tuple[str, ...], value):
+    """``obj`` with the field at ``path`` replaced; a dataclass value replaces a whole group, a dict updates it."""
+    head, rest = path[0], path[1:]
+    current = getattr(obj, head)
+    if rest:
+        return replace(obj, **{head: _replace_path(current, rest, value)})
+    if isinstance(value, dict) and is_dataclass(current):
+        value = replace(current, **value)
+    return replace(obj, **{head: value})
 
 
 @dataclass(frozen=True)
 class SLAM3DConfig:
-    """All settings of :class:`slamlib.slam3d.ParticleSLAM3D`: four groups, the compute backend and the seed.
+    """All settings of :class:`slamlib.slam3d.ParticleSLAM3D`: one group per stage (module docstring), the compute
+    backend and the seed.
 
     Attributes
     ----------
-    scan, motion, map, filter : :class:`ScanConfig`, :class:`MotionConfig`, :class:`MapConfig`,
-        :class:`FilterConfig`.
+    scan, motion, map, upkeep, filter, prior, search, polish : :class:`ScanConfig`, :class:`MotionConfig`,
+        :class:`MapConfig`, :class:`UpkeepConfig`, :class:`FilterConfig`, :class:`TiltConfig`,
+        :class:`AnnealConfig`, :class:`ScanMatchConfig`.
     backend : str
         ``"numpy"`` (reference, slow), ``"cpu"`` (Numba; the default, :data:`slamlib.kernels.DEFAULT_BACKEND`) or
         ``"cuda"``.
@@ -464,12 +690,26 @@ class SLAM3DConfig:
     scan: ScanConfig = field(default_factory=ScanConfig)
     motion: MotionConfig = field(default_factory=MotionConfig)
     map: MapConfig = field(default_factory=MapConfig)
+    upkeep: UpkeepConfig = field(default_factory=UpkeepConfig)
     filter: FilterConfig = field(default_factory=FilterConfig)
+    prior: TiltConfig = field(default_factory=TiltConfig)
+    search: AnnealConfig = field(default_factory=AnnealConfig)
+    polish: ScanMatchConfig = field(default_factory=ScanMatchConfig)
     backend: str = DEFAULT_BACKEND
     seed: int = 0
 
     def __post_init__(self):
         _integer("seed", self.seed, 0)
+        for g, cls in _GROUPS.items():
+            if not isinstance(getattr(self, g), cls):
+                raise ValueError(
+                    f"{g} must be a {cls.__name__}, got {getattr(self, g)!r}"
+                )
+        if self.upkeep.transient_span and self.map.kind != "voxel_hash":
+            raise ValueError(
+                f"transient_span needs the 'voxel_hash' map (its voxels remember when they were hit), "
+                f"got kind {self.map.kind!r}"
+            )
 
     @classmethod
     def of(cls, **settings) -> SLAM3DConfig:
@@ -478,25 +718,53 @@ class SLAM3DConfig:
         return cls().with_(**settings)
 
     def with_(self, **settings) -> SLAM3DConfig:
-        """A copy with ``settings`` changed by name (group fields, or ``backend`` / ``seed``)."""
-        groups = {g: {} for g in _GROUPS}
-        top = {}
-        for name, value in settings.items():
-            owner = [g for g, c in _GROUPS.items() if name in {f.name for f in fields(c)}]
-            if owner:
-                groups[owner[0]][name] = value
-            elif name in ("backend", "seed"):
-                top[name] = value
+        """A copy with ``settings`` changed by name: a setting (:meth:`setting_names`), a group or nested group
+        (a dataclass, or a dict of the fields to change), or ``backend`` / ``seed``. A name of :data:`RENAMED`
+        (and a map's ``params`` dict) is taken as its new name, with a DeprecationWarning."""
+        config = self
+        for name, value in self._renamed(settings).items():
+            if name in _TOP or name in _GROUPS:
+                path = (name,)
+            elif name in _NESTED:
+                path = (_NESTED[name][0], name)
+            elif name in _PATHS:
+                path = _PATHS[name]
             else:
-                known = sorted(
-                    {f.name for c in _GROUPS.values() for f in fields(c)}
-                    | {"backend", "seed"}
-                )
                 raise ValueError(
-                    f"unknown SLAM3D setting {name!r}; known: {', '.join(known)}"
+                    f"unknown SLAM3D setting {name!r}; known: {', '.join(self.setting_names())}"
                 )
-        changed = {g: replace(getattr(self, g), **kw) for g, kw in groups.items() if kw}
-        return replace(self, **changed, **top)
+            config = _replace_path(config, path, value)
+        return config
+
+    def _renamed(self, settings: dict) -> dict:
+        """``settings`` with the names before the stages (:data:`RENAMED`, a map's ``params``) under their new
+        names, each with a DeprecationWarning."""
+        out = {}
+        for name, value in settings.items():
+            if name in RENAMED:
+                warnings.warn(
+                    f"SLAM3D setting {name!r} is now {RENAMED[name]!r}",
+                    DeprecationWarning,
+                    stacklevel=4,
+                )
+                out[RENAMED[name]] = value
+            elif name == "params":
+                kind = settings.get("kind", self.map.kind)
+                warnings.warn(
+                    f"a map's params dict is now its typed group {kind!r} "
+                    f"(e.g. of({kind}={{...}}), or each parameter by name)",
+                    DeprecationWarning,
+                    stacklevel=4,
+                )
+                out[kind] = dict(value)
+            else:
+                out[name] = value
+        return out
+
+    @staticmethod
+    def setting_names() -> list[str]:
+        """Every name :meth:`of` takes for one setting, sorted."""
+        return sorted(set(_PATHS) | set(_TOP))
 
     def as_dict(self) -> dict:
         """JSON-friendly nested dict of the settings."""

@@ -110,12 +110,12 @@ class ParticleSLAM3D:
         self.n_resampled = 0
         self.n_skipped_frames = 0
         self.last: dict = {}
-        f = cfg.filter
+        f = cfg.search
         self.scan = ScanPreparation(cfg.scan, self.T_body_velo)
         self.search = Annealing(
-            f.refine, f.refine_shrink, self.weigh, self.rng, self.backend
+            f.anneal_rounds, f.anneal_shrink, self.weigh, self.rng, self.backend
         )
-        self.upkeep = MapUpkeep(cfg.map)
+        self.upkeep = MapUpkeep(cfg.upkeep)
         self.motion = self.prior = self.polish = None
 
     # ----------------------------------------------------------------------------------------- step 12
@@ -170,7 +170,9 @@ class ParticleSLAM3D:
         log_w = self.weigh(moved, self.log_weights, sample)  # 7 + 8
         # 6-8 again, finer (annealing); 9: the best particle, sharpened (scan matching)
         moved, log_w = self.search(moved, log_w, sample, sigma, start_rounds)
-        pose, best = steps.pick_best_particle(moved, log_w, self.config.filter.estimate)
+        pose, best = steps.pick_best_particle(
+            moved, log_w, self.config.filter.pose_estimate
+        )
         pose, moved = self.polish(pose, points, moved, self.map)
         self.prior.calibrate(pose, dt)
         steps.merge_scan(self.map, pose, points, be)  # 10
@@ -273,7 +275,8 @@ class ParticleSLAM3D:
 
     @property
     def archive(self) -> list[np.ndarray]:
-        """``(K, 3)`` float32 world points pruned from the map (``MapConfig.keep_pruned``); see :meth:`map_points`."""
+        """``(K, 3)`` float32 world points pruned from the map (``UpkeepConfig.keep_pruned``); see
+        :meth:`map_points`."""
         return self.upkeep.archive
 
     @property

@@ -385,10 +385,10 @@ def _write_results(
     info["n_skipped_frames"] = skipped
     info["n_deskewed_frames"] = int(
         run.slam.n_deskewed
-    )  # ScanConfig.deskew None: the frames whose scans were swept
+    )  # ScanConfig.deskew auto: the frames whose scans were swept
     info["n_matched_frames"] = int(
         run.slam.n_matched
-    )  # FilterConfig.scan_match None: every LIDAR-only frame
+    )  # ScanMatchConfig.scan_match auto: every LIDAR-only frame
     if skipped:
         from slamlib.slam3d.pipeline import MIN_SCAN_POINTS
 

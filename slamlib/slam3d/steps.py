@@ -74,7 +74,7 @@ from slamlib.resampling import (
     resample_indexes,
     uniform_log_weights,
 )
-from slamlib.slam3d.config import FilterConfig, MotionConfig, ScanConfig
+from slamlib.slam3d.config import AUTO, FilterConfig, MotionConfig, ScanConfig
 from slamlib.slam3d.preprocess import crop_and_downsample, deskew, sweep_times
 
 __all__ = [
@@ -182,12 +182,13 @@ def read_scan(
 
 
 def should_deskew(frame, scan_config: ScanConfig = ScanConfig()) -> bool:
-    """Step 2's choice: de-skew this frame's scan? ``scan_config.deskew`` when set; by default (``None``) whether
+    """Step 2's choice: de-skew this frame's scan? ``scan_config.deskew`` when True or False; by default
+    (``"auto"``) whether
     the scan was taken over a sweep and is not yet motion-compensated, ``frame.swept``
     (:func:`slamlib.kitti.velodyne.scans_swept`: real KITTI raw scans and synthetic ones written with
     ``distortion``; not the KITTI odometry benchmark's). Frames without ``swept`` (simulated, hand-made) count
     as cast from one pose."""
-    if scan_config.deskew is not None:
+    if scan_config.deskew != AUTO:
         return bool(scan_config.deskew)
     return bool(getattr(frame, "swept", False))
 
@@ -458,26 +459,30 @@ def weighted_mean_pose(R, t, weights) -> np.ndarray:
 
 
 def pick_best_particle(
-    particles: Particles3D, log_weights, estimate: str | None = None, radius: float = 0.5
+    particles: Particles3D,
+    log_weights,
+    pose_estimate: str | None = None,
+    radius: float = 0.5,
 ) -> tuple[np.ndarray, int]:
     """Step 9: the pose estimate of this frame and the index of the highest-weight particle.
 
-    ``estimate="best"``: the maximum-weight particle's pose (ties to the lowest index). ``estimate="mean"``: the
-    weighted mean (:func:`weighted_mean_pose`) of the particles within ``radius`` metres of the best one -- a
-    local mean that averages out the sampling noise of the cloud without blending separate modes. ``None``: the
-    default, :attr:`FilterConfig.estimate <slamlib.slam3d.config.FilterConfig>` (``"best"``).
+    ``pose_estimate="best"``: the maximum-weight particle's pose (ties to the lowest index).
+    ``pose_estimate="mean"``: the weighted mean (:func:`weighted_mean_pose`) of the particles within ``radius``
+    metres of the best one -- a local mean that averages out the sampling noise of the cloud without blending
+    separate modes. ``None``: the default, :attr:`FilterConfig.pose_estimate
+    <slamlib.slam3d.config.FilterConfig>` (``"best"``).
 
     Returns ``(T_world_body (4, 4), best_index)``.
     """
-    if estimate is None:
-        estimate = FilterConfig.estimate
+    if pose_estimate is None:
+        pose_estimate = FilterConfig.pose_estimate
     log_w = np.asarray(log_weights, dtype=np.float64)
     R, t = particles.R, particles.t
     i = int(np.argmax(log_w))
-    if estimate == "best":
+    if pose_estimate == "best":
         return make_pose(R[i], t[i]), i
-    if estimate != "mean":
-        raise ValueError(f"estimate must be 'best' or 'mean', got {estimate!r}")
+    if pose_estimate != "mean":
+        raise ValueError(f"pose_estimate must be 'best' or 'mean', got {pose_estimate!r}")
     near = np.sum((t - t[i]) ** 2, axis=1) <= radius**2
     w = np.exp(log_w[near] - log_w[i])
     return weighted_mean_pose(R[near], t[near], w), i

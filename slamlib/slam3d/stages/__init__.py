@@ -21,6 +21,7 @@ upkeep         after step 10: what the map forgets            :class:`MapUpkeep`
 
 from __future__ import annotations
 
+from slamlib.slam3d.config import AUTO
 from slamlib.slam3d.stages.motion import ConstantVelocity, ImuMotion, has_imu, held_twist
 from slamlib.slam3d.stages.polish import NoPolish, ScanMatch
 from slamlib.slam3d.stages.prior import NoPrior, TiltPrior
@@ -49,18 +50,22 @@ def choose_stages(config, frame, T0):
 
     LIDAR-only (:class:`ConstantVelocity`) when ``config.motion.model == "constant_velocity"`` or the frame has no
     IMU values (the KITTI odometry layout); then there is no tilt prior (no accelerometer) and scan matching is
-    on unless ``config.filter.scan_match`` is False. With an IMU: :class:`ImuMotion`, the tilt prior when
-    ``config.filter.tilt_sigma > 0``, scan matching only when ``config.filter.scan_match`` is True.
+    on unless ``config.polish.scan_match`` is False. With an IMU: :class:`ImuMotion`, the tilt prior when
+    ``config.prior.tilt_sigma > 0``, scan matching only when ``config.polish.scan_match`` is True.
     """
-    f = config.filter
+    points = config.filter.scored_points
     lidar_only = config.motion.model == "constant_velocity" or not has_imu(frame)
     if lidar_only:
-        motion = ConstantVelocity(
-            config.motion, f.scored_points, f.lidar_only_ground_share
-        )
+        motion = ConstantVelocity(config.motion, points)
     else:
-        motion = ImuMotion(config.motion, f.scored_points, T0)
-    prior = TiltPrior(f) if f.tilt_sigma and not lidar_only else NoPrior()
-    match = lidar_only if f.scan_match is None else bool(f.scan_match)
-    polish = ScanMatch(f.scan_match_iterations, road=lidar_only) if match else NoPolish()
+        motion = ImuMotion(config.motion, points, T0)
+    prior = (
+        TiltPrior(config.prior)
+        if config.prior.tilt_sigma and not lidar_only
+        else NoPrior()
+    )
+    match = config.polish.scan_match
+    match = lidar_only if match == AUTO else match
+    iterations = config.polish.scan_match_iterations
+    polish = ScanMatch(iterations, road=lidar_only) if match else NoPolish()
     return motion, prior, polish

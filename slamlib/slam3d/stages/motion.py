@@ -15,9 +15,9 @@ Two sources, chosen once for a drive (:func:`slamlib.slam3d.stages.choose_stages
     (:func:`held_twist`: the twist between its recent poses) over the next ``dt``: the constant-velocity model of
     LIDAR odometry (KISS-ICP). Step 6 widens its spread by the accelerations that model cannot know. At the second
     frame no motion is known yet (the vehicle may already drive at 15 m/s): step 6 spreads the particles by the
-    speeds a car may have (``cv_start_speed``) and the search stage runs ``cv_start_rounds`` extra annealing
+    speeds a car may have (``start_speed``) and the search stage runs ``start_rounds`` extra annealing
     rounds, each halving the spread (:class:`slamlib.slam3d.stages.Annealing`). Step 8 scores mostly what stands
-    above the road (:func:`slamlib.slam3d.preprocess.thin_ground`, ``FilterConfig.lidar_only_ground_share``): the
+    above the road (:func:`slamlib.slam3d.preprocess.thin_ground`, ``ground_share``): the
     road's rings in the map would pull the estimate toward zero motion, a pull the IMU outweighs but the
     constant-velocity model does not. There is no dead-reckoning twin.
 
@@ -50,7 +50,7 @@ def held_twist(
     of ``poses`` (``F`` of them, ``T_world_body`` (4, 4)) in their time ``sum(dts[-k:])`` seconds
     (:func:`slamlib.odometry.twist_between`), its six components (forward, left, up, then the rates about them)
     multiplied by ``damping``; zero before two poses (the vehicle is taken to start at rest, as KISS-ICP does).
-    ``window`` and ``damping`` are :class:`~slamlib.slam3d.config.MotionConfig`'s ``cv_window``, ``cv_damping``.
+    ``window`` and ``damping`` are :class:`~slamlib.slam3d.config.ConstantVelocityConfig`'s.
     """
     if len(poses) < 2:
         return np.zeros(3), np.zeros(3)
@@ -106,18 +106,15 @@ class ConstantVelocity:
     lidar_only = True
     dr_poses = None
 
-    def __init__(self, config: MotionConfig, scored_points: int, ground_share: float):
-        self.config, self.scored_points, self.ground_share = (
-            config,
-            scored_points,
-            ground_share,
-        )
+    def __init__(self, config: MotionConfig, scored_points: int):
+        self.config, self.scored_points = config, scored_points
+        self.held = config.constant_velocity  # ConstantVelocityConfig
         self.previous = None
 
     def read(self, frame, poses, dts):
         """Step 3: :func:`held_twist` of the poses so far, checked as an IMU sample would be
         (:func:`slamlib.slam3d.steps.check_twist`: a diverged estimate stops with a clear error)."""
-        v, w = held_twist(poses, dts, self.config.cv_window, self.config.cv_damping)
+        v, w = held_twist(poses, dts, self.held.window, self.held.damping)
         return steps.check_twist(
             v, w, steps.frame_label(frame) + " (constant-velocity estimate)"
         )
@@ -125,17 +122,16 @@ class ConstantVelocity:
     def predict(self, imu, dt: float, poses):
         """``(increment, sigma, start_rounds)``: the held twist over ``dt``; the spread widened by the
         accelerations the model cannot know, and at the second frame (one pose: no motion known yet) by the
-        speeds a car may have, with ``cv_start_rounds`` annealing rounds to narrow it."""
+        speeds a car may have, with ``start_rounds`` annealing rounds to narrow it."""
         increment = steps.motion_increment(imu, dt)
         start = len(poses) == 1
         sigma = self.config.sigma(increment[1], dt, constant_velocity=True, start=start)
-        return increment, sigma, self.config.cv_start_rounds if start else 0
+        return increment, sigma, self.held.start_rounds if start else 0
 
     def scoring_sample(self, points, rng):
         """Step 8's points: the road thinned to ``ground_share`` of them, then ``scored_points`` drawn."""
-        return sample_points(
-            thin_ground(points, self.ground_share, rng), self.scored_points, rng
-        )
+        pool = thin_ground(points, self.held.ground_share, rng)
+        return sample_points(pool, self.scored_points, rng)
 
     def record(self, imu, increment) -> None:
         """After a frame: keep the held twist (``previous``)."""

@@ -13,9 +13,9 @@ an attitude filter uses its accelerometer. An accelerometer bias ``b`` tilts the
 so after step 9 each frame's estimated rotation and measured up also go into a least-squares estimate of the bias
 (:func:`tilt_calibration_update`; a bias turns with the body, a tilted map does not), and step 8
 compares each particle's ``R_i^T g_w`` with the measured up less the bias. ``g_w``, the world's up, is ``e_z``
-(the first body pose taken as level) unless ``FilterConfig.tilt_world_sigma > 0`` lets the fit move it.
+(the first body pose taken as level) unless ``TiltConfig.tilt_world_sigma > 0`` lets the fit move it.
 
-:class:`NoPrior` (``FilterConfig.tilt_sigma = 0``, or LIDAR-only: no accelerometer) adds nothing.
+:class:`NoPrior` (``TiltConfig.tilt_sigma = 0``, or LIDAR-only: no accelerometer) adds nothing.
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ import numpy as np
 
 from slamlib.odometry import increment_matrix
 from slamlib.slam3d import steps
-from slamlib.slam3d.config import FilterConfig
+from slamlib.slam3d.config import TiltConfig
 
 __all__ = [
     "NoPrior",
@@ -248,7 +248,7 @@ class TiltPrior:
         ``bins`` ``(Lambdas, etas, weights)``, the least-squares sums of each heading sector.
     """
 
-    def __init__(self, config: FilterConfig):
+    def __init__(self, config: TiltConfig):
         self.sigma, self.window = config.tilt_sigma, config.tilt_window
         self.samples: deque = deque()
         self.up, self.up_span = None, 0.0

@@ -4,9 +4,10 @@ With few particles in 6 dimensions the best of the cloud is still a few centimet
 likelihood's peak. Each annealing round (Deutscher, Blake & Reid, "Articulated body motion capture by annealed
 particle filtering", CVPR 2000) resamples by the current weights, perturbs with step 6's spread shrunk by a factor,
 and weighs again (steps 7 + 8). The result is still a particle filter (a sequence of importance-sampling /
-resampling stages on the same posterior), just with a sharper proposal. ``FilterConfig.refine`` rounds shrink the
-spread by ``refine_shrink`` each; the motion stage may ask for more at the start of a LIDAR-only drive, where no
-motion is known yet: ``start_rounds`` rounds first, the ``k``-th shrinking the (wide) spread by ``START_SHRINK**k``.
+resampling stages on the same posterior), just with a sharper proposal. ``AnnealConfig.anneal_rounds`` rounds
+shrink the spread by ``anneal_shrink`` each; the motion stage may ask for more at the start of a LIDAR-only drive,
+where no motion is known yet: ``start_rounds`` rounds first, the ``k``-th shrinking the (wide) spread by
+``START_SHRINK**k``.
 No rounds: the particles and weights pass through unchanged.
 """
 

@@ -1,6 +1,6 @@
 """The upkeep stage, after step 10: what the map forgets.
 
-Every ``MapConfig.prune_every`` frames the map drops what lies farther than ``prune_radius`` from the vehicle
+Every ``UpkeepConfig.prune_every`` frames the map drops what lies farther than ``prune_radius`` from the vehicle
 (bounded memory and lookup time on long drives), keeping those points for the exported map when ``keep_pruned``;
 every ``transient_span`` frames the voxel map evicts the voxels hit only within fewer than ``transient_span``
 consecutive frames and not lately (:meth:`slamlib.maps.VoxelHashMap.evict_transients`): the trails of moving cars
@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from slamlib.slam3d.config import MapConfig
+from slamlib.slam3d.config import UpkeepConfig
 
 __all__ = ["MapUpkeep"]
 
@@ -20,7 +20,7 @@ class MapUpkeep:
     """Pruning and eviction on their schedules (module docstring). ``archive``: list of ``(K, 3)`` float32 world
     points pruned from the map (``keep_pruned``)."""
 
-    def __init__(self, config: MapConfig):
+    def __init__(self, config: UpkeepConfig):
         self.config = config
         self.archive: list[np.ndarray] = []
 

@@ -132,9 +132,8 @@ def run(
         t = kc.to_device(rng.normal(0, 0.3, (P, 3)))
         for n in sizes["N"]:
             pts = kc.to_device(world[rng.choice(len(world), n)])
-            for (
-                layout
-            ) in kc.SCORE_LAYOUTS:  # one block per particle, or particle x point tiles
+            # one block per particle, or particle x point tiles
+            for layout in kc.SCORE_LAYOUTS:
                 timed(
                     "score_particles",
                     P * n,

@@ -103,9 +103,8 @@ def run(quick: bool) -> dict:
         entry["score_one_thread"] = {"P": 300, "N": n1, **tm}
         print(f"{name:10s} score P=300 N={n1} on 1 thread: {tm['median_s'] * 1e3:.2f} ms")
 
-        fresh = iter(
-            [street_scene(rng, merge_n) for _ in range(repeat + 1)]
-        )  # a new scan per merge
+        # a new scan per merge
+        fresh = iter([street_scene(rng, merge_n) for _ in range(repeat + 1)])
         entry["merge"] = {
             "points": merge_n,
             **median_time(lambda: m.merge(next(fresh)), repeat=repeat),

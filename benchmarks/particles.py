@@ -68,10 +68,8 @@ def run(quick: bool) -> dict:
         philox = np.random.Generator(np.random.Philox(1))
         lut = N.LutNoise(tables, 3, 7)
         lut_seed = N.LutNoise(seed_tables, 3, 7)
-        Rs, ts = (
-            np.ascontiguousarray(R.transpose(1, 2, 0)),
-            np.ascontiguousarray(t.T),
-        )  # component-major
+        # component-major
+        Rs, ts = np.ascontiguousarray(R.transpose(1, 2, 0)), np.ascontiguousarray(t.T)
         Rs32, ts32 = Rs.astype(np.float32), ts.astype(np.float32)
 
         def move_soa(Rc, tc):
@@ -94,9 +92,8 @@ def run(quick: bool) -> dict:
             "numpy_drawn": lambda: move(pcg.standard_normal((P, 6))),
             "philox_drawn": lambda: move(philox.standard_normal((P, 6))),
         }
-        R_copy = (
-            np.empty_like(R) if P == sizes[-1] else None
-        )  # the copy limit, at the largest size
+        # the copy limit, at the largest size
+        R_copy = np.empty_like(R) if P == sizes[-1] else None
         copy = {"copyto": lambda: np.copyto(R_copy, R)} if R_copy is not None else {}
         res = _rounds(
             {**fns, **copy},

@@ -53,16 +53,15 @@ def _compare(drive, repeats: int = 1) -> dict:
     from slamlib.slam3d import SLAM3DConfig, run_drive
 
     medians = {"kiss_icp": [], "slamlib": []}
-    spread = {
-        "kiss_icp": 0.0,
-        "slamlib": 0.0,
-    }  # largest difference of a repeat's poses from the first's
+    # largest difference of a repeat's poses from the first's
+    spread = {"kiss_icp": 0.0, "slamlib": 0.0}
     for r in range(repeats):
         slam = run_drive(drive, SLAM3DConfig(), progress=False)
         kiss_poses, kiss_seconds, n_points = _kiss_icp(drive)
         if r == 0:
             first = {"kiss_icp": kiss_poses, "slamlib": np.asarray(slam.poses)}
-        else:  # slamlib repeats bit for bit; KISS-ICP's parallel sums may differ in the last bits
+        # slamlib repeats bit for bit; KISS-ICP's parallel sums may differ in the last bits
+        else:
             for name, poses in (("kiss_icp", kiss_poses), ("slamlib", slam.poses)):
                 spread[name] = max(
                     spread[name], float(np.max(np.abs(np.asarray(poses) - first[name])))
@@ -117,9 +116,8 @@ def run(quick: bool = False) -> dict:
 
     source = default_drive(progress=False, realism=False)
     drive = KittiRawDrive(*source, frames=range(0, 60) if quick else None)
-    _compare(
-        KittiRawDrive(*source, frames=range(0, 5))
-    )  # JIT compilation and caches, untimed
+    # JIT compilation and caches, untimed
+    _compare(KittiRawDrive(*source, frames=range(0, 5)))
     repeats = 1 if quick else REPEATS
     drives = {f"default drive {DEFAULT_FRAMES}": _compare(drive, repeats)}
     if not quick:

@@ -83,11 +83,8 @@ def run(quick: bool = False) -> dict:
     basedir, date, drive_id = default_drive(progress=False, realism=False)
     a, b = QUICK_FRAMES if quick else SWEEP_FRAMES
     drive = KittiRawDrive(basedir, date, drive_id, frames=range(a, b))
-    run_drive(
-        KittiRawDrive(basedir, date, drive_id, frames=range(0, 5)),
-        SLAM3DConfig.of(particles=50),
-        progress=False,
-    )  # JIT / cache warm-up
+    warm = KittiRawDrive(basedir, date, drive_id, frames=range(0, 5))
+    run_drive(warm, SLAM3DConfig.of(particles=50), progress=False)  # JIT / cache warm-up
     default = SLAM3DConfig()
 
     particles = [

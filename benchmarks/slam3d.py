@@ -49,9 +49,8 @@ def run(quick: bool = False) -> dict:
     warm = KittiRawDrive(basedir, date, drive_id, frames=range(0, 5))
     rows = []
     for kind in MAPS:
-        run_drive(
-            warm, SLAM3DConfig.of(kind=kind, particles=50), progress=False
-        )  # JIT / cache warm-up
+        # JIT / cache warm-up
+        run_drive(warm, SLAM3DConfig.of(kind=kind, particles=50), progress=False)
         for P in QUICK_PARTICLES if quick else PARTICLES:
             cfg = SLAM3DConfig.of(particles=P, kind=kind)
             r = run_drive(drive, cfg, progress=False)
@@ -85,8 +84,9 @@ def run(quick: bool = False) -> dict:
             "path_length_m": round(m["path_length_m"], 1),
             "backend": "cpu",
             "numba_threads": int(numba.get_num_threads()),
+            # the rows change filter.particles and map.kind
             "config": SLAM3DConfig().as_dict(),
-        },  # the rows change filter.particles and map.kind
+        },
         "results": rows,
     }
 

@@ -58,9 +58,8 @@ def run(quick: bool = False) -> dict:
     lidar = Hdl64()
     route, n = resolve_route(ROUTE, (0, n_frames))
     t = route.t0 + SCAN_PERIOD * np.arange(n)
-    dense_t = np.linspace(
-        t[0], t[-1], max(2, int((t[-1] - t[0]) * 20) + 2)
-    )  # as write_drive samples the route
+    # as write_drive samples the route
+    dense_t = np.linspace(t[0], t[-1], max(2, int((t[-1] - t[0]) * 20) + 2))
     positions = route.position(dense_t)
 
     def make_scene():

@@ -121,15 +121,14 @@ def kernel_rows(sizes, repeat_for, backends) -> tuple[list, list]:
             .normal(0.0, 20.0, (min(n, BLOCK), 3))
             .astype(np.float32)
         )
-        for a in range(
-            0, n, BLOCK
-        ):  # a random block tiled over the array (cheap at 1e8; touches every page)
+        # a random block tiled over the array (cheap at 1e8; touches every page)
+        for a in range(0, n, BLOCK):
             pts[a : a + BLOCK] = block[: min(BLOCK, n - a)]
         out = np.empty_like(pts)
-        out[...] = 0.0  # touched: the ``out`` and copy rows pay no page faults
-        work = (
-            pts.copy()
-        )  # the in-place rows transform this one (values drift; the time does not)
+        # touched: the ``out`` and copy rows pay no page faults
+        # the in-place rows transform this one (values drift; the time does not)
+        out[...] = 0.0
+        work = pts.copy()
         flat_in, flat_out = pts.reshape(-1), out.reshape(-1)
         copy_fns = {
             ("copy", "numpy.copyto"): lambda: np.copyto(out, pts),
@@ -143,9 +142,8 @@ def kernel_rows(sizes, repeat_for, backends) -> tuple[list, list]:
                 reuse[(name, "inplace")] = lambda be=be: be.transform_points(
                     T, work, out=work
                 )
-            if (
-                name == "cpu"
-            ):  # one thread, like memcpy: a like-for-like pair even when another job holds a core
+            # one thread, like memcpy: a like-for-like pair even when another job holds a core
+            if name == "cpu":
                 reuse[(name, "out_1thread")] = lambda be=be: _one_thread(
                     be.transform_points, T, pts, out=out
                 )
@@ -227,11 +225,12 @@ def program_rows(configs, sizes, runs: int) -> list:
     script = Path(__file__).with_name("transform_program.py")
     rows = []
     for backend, mode in configs:
+        # cache
         subprocess.run(
             [sys.executable, str(script), backend, "8", mode],
             check=True,
             capture_output=True,
-        )  # cache
+        )
         for n in sizes:
             reports, walls = [], []
             for _ in range(runs):

@@ -56,9 +56,8 @@ def main(argv) -> dict:
     T[:3, :3] = [[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]
     T[:3, 3] = TRANSLATION
     t1 = time.time()
-    warm = np.zeros(
-        (8, 3), np.float32
-    )  # JIT (cache load or compile) of the very kernel timed below
+    # JIT (cache load or compile) of the very kernel timed below
+    warm = np.zeros((8, 3), np.float32)
     be.transform_points(
         T, warm, **({"out": warm} if mode == "inplace" and backend != "cuda" else {})
     )
@@ -67,9 +66,8 @@ def main(argv) -> dict:
     pts[...] = POINT
     t3 = time.time()
     transfer = copy_back = 0.0
-    if (
-        backend == "cuda"
-    ):  # the seed's program: copy in, kernel, copy back (a new device array for the result)
+    # the seed's program: copy in, kernel, copy back (a new device array for the result)
+    if backend == "cuda":
         d_pts = cuda.to_device(pts)
         cuda.synchronize()
         t4 = time.time()

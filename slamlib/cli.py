@@ -47,9 +47,8 @@ def _check_single_values(
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    args.argv = list(
-        sys.argv[1:] if argv is None else argv
-    )  # as typed, for results that record their command
+    # as typed, for results that record their command
+    args.argv = list(sys.argv[1:] if argv is None else argv)
     if args.command is None:
         parser.print_help()
         return 0

@@ -368,9 +368,8 @@ class StepsFilter:
         dt = s.read_timing(frame)  # 4
         moved = s.offset_by_motion(self.particles, imu, dt)  # 5
         moved = s.perturb_with_noise(moved, self.motion_noise * dt, self.rng)  # 6
-        scores = s.score_particles(
-            moved, points, self.world_map, **self.score_options()
-        )  # 7 + 8
+        # 7 + 8
+        scores = s.score_particles(moved, points, self.world_map, **self.score_options())
         log_w = normalise_log_weights(self.log_weights + scores)
         pose, best = s.pick_best_particle(moved, log_w)  # 9
         s.merge_scan(self.world_map, pose, points)  # 10

@@ -326,9 +326,8 @@ def kitti_odometry_error(
     L = np.asarray(lengths, dtype=np.float64)
     first = np.repeat(starts, L.size)
     length = np.tile(L, starts.size)
-    last = np.searchsorted(
-        d, d[first] + length, side="right"
-    )  # first index with d > d_f + L
+    # first index with d > d_f + L
+    last = np.searchsorted(d, d[first] + length, side="right")
     ok = last < n
     first, last, length = first[ok], last[ok], length[ok]
     if first.size == 0:

@@ -79,9 +79,8 @@ def _check_weights(weights) -> np.ndarray:
         raise ValueError(f"weights must be non-negative, got {w[i]!r} at index {i}")
     with np.errstate(over="ignore"):  # an overflowing sum is handled just below
         total = w.sum()
-    if not np.isfinite(
-        total
-    ):  # finite weights near 1e308 overflow their sum: divide by the largest first
+    # finite weights near 1e308 overflow their sum: divide by the largest first
+    if not np.isfinite(total):
         w = w / w.max()
         total = w.sum()
     if not total > 0:
@@ -236,7 +235,8 @@ def residual_resample(weights, rng: np.random.Generator) -> np.ndarray:
             extra = np.searchsorted(c, rng.random(remaining), side="right").astype(
                 np.int64
             )
-        else:  # round-off only: floor(P w) summed to P - tiny; fill from the weights themselves
+        # round-off only: floor(P w) summed to P - tiny; fill from the weights themselves
+        else:
             extra = np.searchsorted(
                 _cumulative(w), rng.random(remaining), side="right"
             ).astype(np.int64)
@@ -311,9 +311,8 @@ def weights_from_log_weights(log_weights) -> np.ndarray:
         possible: the filter has diverged).
     """
     lw = _check_log_weights(log_weights)
-    with np.errstate(
-        over="ignore"
-    ):  # e.g. -1e308 - 1e308 = -inf, whose exp is the right 0
+    # e.g. -1e308 - 1e308 = -inf, whose exp is the right 0
+    with np.errstate(over="ignore"):
         w = np.exp(lw - lw.max())
     return w / w.sum()
 

@@ -255,7 +255,8 @@ def _drive_hint(basedir: Path, date: str | None, drive: str | None) -> str:
         d == str(drive) or (d.isdigit() and str(drive).isdigit() and int(d) == int(drive))
         for d in drives
     ):
-        return ""  # the drive is there: the error is about its contents, which the message names
+        # the drive is there: the error is about its contents, which the message names
+        return ""
     return f"--drive {drive!r} not found in {basedir / date}; drives there: {', '.join(drives) or 'none'}"
 
 
@@ -293,9 +294,8 @@ def _option_error(exc: ValueError) -> str:
     """``--option: message`` for a configuration ValueError (``--a, --b: message`` when it names several settings)."""
     text = str(exc)
     hits = sorted((text.find(k), opt) for k, opt in _OPTION_OF.items() if k in text)
-    options = list(
-        dict.fromkeys(opt for _, opt in hits)
-    )  # every option the message is about, in its order
+    # every option the message is about, in its order
+    options = list(dict.fromkeys(opt for _, opt in hits))
     return f"{', '.join(options)}: {text}" if options else text
 
 
@@ -387,9 +387,8 @@ def main(args) -> int:
             "kitti odometry",
         )
     elif all(given):
-        drive_id = (
-            int(args.drive) if str(args.drive).isdigit() else args.drive
-        )  # "5" and "0005" both work
+        # "5" and "0005" both work
+        drive_id = int(args.drive) if str(args.drive).isdigit() else args.drive
         basedir, date, source = args.basedir, args.date, "kitti"
     else:
         from slamlib.synth import default_drive
@@ -455,10 +454,8 @@ def main(args) -> int:
             run = run_drive(drive, cfg, progress=not args.no_progress)
     except BackendUnavailableError as exc:
         raise SystemExit(f"slamlib run: {exc}") from None
-    except (
-        DataFormatError,
-        ValueError,
-    ) as exc:  # bad frame data (e.g. IMU values beyond physical limits)
+    # bad frame data (e.g. IMU values beyond physical limits)
+    except (DataFormatError, ValueError) as exc:
         raise SystemExit(f"slamlib run: {exc}") from None
     try:
         files = save_run(
@@ -473,10 +470,8 @@ def main(args) -> int:
                 ("sequence" if odometry else "drive"): str(drive_id),
             },
         )
-    except (
-        ValueError,
-        OSError,
-    ) as exc:  # a non-finite pose refused by the writers, a full disk, ...
+    # a non-finite pose refused by the writers, a full disk, ...
+    except (ValueError, OSError) as exc:
         raise SystemExit(
             f"slamlib run: could not write the results into {args.out}: {exc}"
         ) from None

@@ -104,9 +104,8 @@ def offscreen_available() -> bool:
             img = np.asarray(r.render_to_image())
             del r
         return img.shape[:2] == (16, 16)
-    except (
-        Exception
-    ):  # no open3d, no EGL/Vulkan driver, no rendering module in this build
+    # no open3d, no EGL/Vulkan driver, no rendering module in this build
+    except Exception:
         return False
 
 
@@ -164,9 +163,8 @@ def _render_open3d(
         r = rendering.OffscreenRenderer(w, h)
     try:
         r.scene.set_background(list(background) + [1.0])
-        r.scene.view.set_post_processing(
-            False
-        )  # no tone mapping: the colours come out as given
+        # no tone mapping: the colours come out as given
+        r.scene.view.set_post_processing(False)
         pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts))
         pcd.colors = o3d.utility.Vector3dVector(colours)
         mat = rendering.MaterialRecord()

@@ -133,9 +133,8 @@ class SweepTask:
         from slamlib.synth import GENERATOR_VERSION
 
         key = [GENERATOR_VERSION, self.route, list(self.frames), self.seed, self.layout]
-        if (
-            self.drive != DriveOptions()
-        ):  # drives without options keep the names they always had
+        # drives without options keep the names they always had
+        if self.drive != DriveOptions():
             key.append([self.drive.distortion, self.drive.traffic, self.drive.bias_walk])
         text = json.dumps(key)
         return f"{self.layout}-{self.route}-s{self.seed}-{hashlib.sha1(text.encode()).hexdigest()[:10]}"
@@ -249,9 +248,8 @@ def run_task(task: SweepTask, base: str) -> dict:
     else:
         from slamlib.peers import kiss_icp_poses
 
-        swept = (
-            task.drive.distortion
-        )  # KISS-ICP de-skews swept scans, its poses then moved to the frames' pose times
+        # KISS-ICP de-skews swept scans, its poses then moved to the frames' pose times
+        swept = task.drive.distortion
         poses, _ = kiss_icp_poses(frames, deskew=swept, pose_times=swept)
         gt = (
             frames.ground_truth_poses()
@@ -262,9 +260,8 @@ def run_task(task: SweepTask, base: str) -> dict:
         dr = None
     seconds = time.perf_counter() - t0
     m = trajectory_metrics(poses, gt)
-    m_dr = (
-        trajectory_metrics(dr, gt) if dr is not None else {}
-    )  # slamlib's runs only: the IMU-only twin
+    # slamlib's runs only: the IMU-only twin
+    m_dr = trajectory_metrics(dr, gt) if dr is not None else {}
     row.update(
         path_length_m=float(trajectory_distances(gt)[-1]),
         kitti_t_err_percent=m.get("kitti_t_err_percent", float("nan")),
@@ -410,8 +407,7 @@ def plot_sweep(rows, ax=None):
                 ax.plot([x] * len(vals), vals, "o", color=f"C{j}", ms=4)
     ax.set_xticks(range(len(routes)), [f"route {r}" for r in routes])
     ax.set_ylabel("KITTI translational error (%)")
-    if ax.get_legend_handles_labels()[
-        0
-    ]:  # drives shorter than 100 m have no KITTI error to draw
+    # drives shorter than 100 m have no KITTI error to draw
+    if ax.get_legend_handles_labels()[0]:
         ax.legend(fontsize=10)
     return fig

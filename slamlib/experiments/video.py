@@ -44,9 +44,8 @@ def check_video_path(path, overwrite: bool = True) -> str:
             f"{str(path)!r} exists; give --overwrite to replace it, or another name"
         )
     parent = Path(path).parent
-    while (
-        not parent.exists()
-    ):  # the folders the writer will make: the nearest existing one must be a folder
+    # the folders the writer will make: the nearest existing one must be a folder
+    while not parent.exists():
         parent = parent.parent
     if not parent.is_dir():
         raise ValueError(
@@ -162,9 +161,8 @@ def map_video_frames(
             yaw = np.arctan2(pose[1, 0], pose[0, 0])
             c, s_ = np.cos(yaw), np.sin(yaw)
             car.set_data([pose[0, 3]], [pose[1, 3]])
-            car.set_marker(
-                _CAR @ np.array([[c, s_], [-s_, c]])
-            )  # a dart pointing along the body x axis
+            # a dart pointing along the body x axis
+            car.set_marker(_CAR @ np.array([[c, s_], [-s_, c]]))
             title.set_text(f"frame {k}: map of {len(snapshots[j][1]):,} elements")
             fig.canvas.draw()
             yield np.asarray(fig.canvas.buffer_rgba())[:, :, :3].copy()

@@ -210,9 +210,8 @@ def _make_move_kernels(soa: bool):
             p = np.uint64(P)
             for b in prange(_ceil_div(P, block)):
                 for i in range(np.uint64(b * block), np.uint64(min(P, (b + 1) * block))):
-                    h = _thread_hash(
-                        i, key
-                    )  # one hash per particle; the six table indexes come from it
+                    # one hash per particle; the six table indexes come from it
+                    h = _thread_hash(i, key)
                     i3 = _hash_index(h, 3, perm, bits)
                     i4 = _hash_index(h, 4, perm, bits)
                     i5 = _hash_index(h, 5, perm, bits)
@@ -366,9 +365,8 @@ def _move(R, t, P, rpy_delta, trans_delta, noise, sigma, out, soa):
     sigma = _vector(sigma, 6, "sigma")
     rpy = _vector(rpy_delta, 3, "rpy_delta")
     trans = _vector(trans_delta, 3, "trans_delta").astype(dtype)
-    d = tuple(
-        np.asarray(_rpy_rotation(*rpy), dtype)
-    )  # dR as a row-major 9-tuple: registers in the loop
+    # dR as a row-major 9-tuple: registers in the loop
+    d = tuple(np.asarray(_rpy_rotation(*rpy), dtype))
     if out is None:
         R_new, t_new = np.empty_like(R), np.empty_like(t)
     else:
@@ -510,7 +508,8 @@ def _transform_stream_nb(R, t, x, y, head, chunk):
                 stream_line(
                     y, k0 + np.uint64(LINE_F32 * q), lines, np.uint64(LINE_F32 * q)
                 )
-        store_fence()  # the stores are weakly ordered: all in memory before the caller reads y
+        # the stores are weakly ordered: all in memory before the caller reads y
+        store_fence()
 
 
 @njit(parallel=True, cache=True, fastmath={"contract"})
@@ -645,15 +644,14 @@ def _score_voxel_nb(
     miss = -0.5 * m_max
     for task in prange(npc * nqc):
         c, j0, j1, i0, i1 = _task_span(task, nqc, N, P, pt_chunk, part_chunk)
-        slots = np.empty(
-            8, np.int64
-        )  # the 8 corner slots of the block (cx, cy, cz), looked up once per block
-        cx = cy = cz = _NO_BLOCK  # no block yet
+        # the 8 corner slots of the block (cx, cy, cz), looked up once per block
+        # no block yet
+        slots = np.empty(8, np.int64)
+        cx = cy = cz = _NO_BLOCK
         for j in range(j0, j1):
             x, y, z = np.float64(pts[j, 0]), np.float64(pts[j, 1]), np.float64(pts[j, 2])
-            for i in range(
-                i0, i1
-            ):  # the particles' copies of point j fall in the same few blocks of voxels
+            # the particles' copies of point j fall in the same few blocks of voxels
+            for i in range(i0, i1):
                 wx, wy, wz = _world_point(R, t, i, x, y, z)
                 ux0, uy0, uz0, fx, fy, fz, ok = _voxel_cell(wx, wy, wz, inv_h)
                 if not ok:
@@ -764,9 +762,8 @@ def morton_nn_nb(
     size0 = np.float64(np.int64(1) << cell_level)
     lim = _cells_per_axis(cell_level)
     q2 = quantum * quantum
-    for rnd in range(
-        2
-    ):  # round 0: the cell that holds the point; round 1: the other seven
+    # round 0: the cell that holds the point; round 1: the other seven
+    for rnd in range(2):
         for blk in range(8):
             cx = cx0 + (blk & 1)
             cy = cy0 + ((blk >> 1) & 1)
@@ -905,9 +902,8 @@ def _score_morton_nb(
             for i in range(i0, i1):
                 wx, wy, wz = _world_point(R, t, i, x, y, z)
                 best, found = r2, -1
-                if (
-                    prev >= 0
-                ):  # warm start: the previous particle's neighbour bounds this one's distance
+                # warm start: the previous particle's neighbour bounds this one's distance
+                if prev >= 0:
                     best, found = _nearest_in_run(
                         points, prev, prev + 1, wx, wy, wz, r2, -1
                     )

@@ -603,9 +603,8 @@ def transform_points(
         else cuda.device_array(pts_d.shape, np.float32)
     )
     if pts_d.shape[0]:
-        _transform_kernel[
-            _blocks(pts_d.shape[0], threads, max_blocks), threads
-        ](  # the pose as a batch of one
+        # the pose as a batch of one
+        _transform_kernel[_blocks(pts_d.shape[0], threads, max_blocks), threads](
             to_device(np.ascontiguousarray(T[None, :3, :3], dtype=np.float32)),
             to_device(np.ascontiguousarray(T[None, :3, 3], dtype=np.float32)),
             pts_d,
@@ -679,9 +678,8 @@ def score_particles(
     elif lk.kind == KIND_MORTON:
         scale = -0.5 / float(lk.sigma) ** 2
         r2 = float(lk.radius) ** 2
-        if (
-            P and lk.cell_codes.shape[0] == 0
-        ):  # empty map: every point costs the truncation
+        # empty map: every point costs the truncation
+        if P and lk.cell_codes.shape[0] == 0:
             vals = np.full(P, scale * r2 * pts_d.shape[0])
             return to_device(vals) if on_device else vals
         if P:

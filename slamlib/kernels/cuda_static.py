@@ -153,9 +153,8 @@ def module_kernels(kc) -> list[str]:
     for name, obj in vars(kc).items():
         if hasattr(obj, "targetoptions"):  # numba-cuda's CUDADispatcher
             device = obj.targetoptions.get("device")
-        elif hasattr(obj, "_device") and hasattr(
-            obj, "fn"
-        ):  # the simulator's FakeCUDAKernel
+        # the simulator's FakeCUDAKernel
+        elif hasattr(obj, "_device") and hasattr(obj, "fn"):
             device = obj._device
         else:
             continue
@@ -236,9 +235,8 @@ def capture_launches(
                 kc.score_particles(
                     R, t, pts, morton.lookup(), threads=threads, layout=layout
                 )
-            wrapper[0] = (
-                "systematic_resample"  # more weights than threads: the block totals are scanned too
-            )
+            # more weights than threads: the block totals are scanned too
+            wrapper[0] = "systematic_resample"
             kc.systematic_resample(rng.random(max(P, threads + 1)), 0.5, threads=threads)
     finally:
         for name, kernel in saved.items():
@@ -330,9 +328,8 @@ def compile_launch(launch: dict, cc) -> dict:
     try:
         sig = tuple(spec_type(s) for s in launch["args"])
         kernel = kernel_dispatcher(launch["kernel"], launch["threads"])
-        opts = (
-            kernel.targetoptions
-        )  # the kernel's own cuda.jit options, as a launch would compile it
+        # the kernel's own cuda.jit options, as a launch would compile it
+        opts = kernel.targetoptions
         ptx, _ = cuda.compile_ptx(
             kernel.py_func,
             sig,

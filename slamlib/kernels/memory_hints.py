@@ -113,7 +113,8 @@ def _prefetch_ir(typingctx, arr, i):
 @intrinsic
 def _store_fence_ir(typingctx):
     def codegen(context, builder, sig, args):
-        if _X86:  # LLVM lowers a seq_cst fence to ``lock or``, which the SDM does not promise orders WC stores
+        # LLVM lowers a seq_cst fence to ``lock or``, which the SDM does not promise orders WC stores
+        if _X86:
             sfence = cgutils.get_or_insert_function(
                 builder.module, ir.FunctionType(ir.VoidType(), []), "llvm.x86.sse.sfence"
             )

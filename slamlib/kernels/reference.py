@@ -64,9 +64,8 @@ def move_particles(R, t, rpy_delta, trans_delta, noise, sigma, out=None):
 def transform_points(T, points, out=None):
     """``p' = R p + t`` for ``T`` (4, 4) and ``points`` (N, 3) float32 -> (N, 3) float32 (computed in float64,
     rounded once). ``out`` (N, 3) float32 receives the result and is returned (``out=points``: in place)."""
-    pts = np.asarray(points, dtype=np.float32).astype(
-        np.float64
-    )  # float32 inputs, float64 arithmetic
+    # float32 inputs, float64 arithmetic
+    pts = np.asarray(points, dtype=np.float32).astype(np.float64)
     res = geometry.transform_points(np.asarray(T, dtype=np.float64), pts)
     if out is None:
         return res.astype(np.float32)
@@ -113,9 +112,8 @@ def _terms_voxel_hash(world, lookup):
     total = np.zeros(len(world))
     for corner in np.ndindex(2, 2, 2):
         d = np.asarray(corner)
-        u, ok_c = axis_indices(
-            base + d, 1.0
-        )  # voxel index + 2**20 (exact: base + d is integral)
+        # voxel index + 2**20 (exact: base + d is integral)
+        u, ok_c = axis_indices(base + d, 1.0)
         keys = pack_keys(np.where(ok_c[:, None], u, 0))
         w = np.prod(np.where(d == 1, f, 1.0 - f), axis=1)
         total += w * _voxel_terms_at(world, keys, ok_c, lookup, stored, occupied)

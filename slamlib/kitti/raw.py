@@ -169,9 +169,8 @@ def _normalise_frames(frames, n: int) -> np.ndarray:
         )
     if np.issubdtype(given.dtype, np.integer):
         whole = np.ones(given.shape, bool)
-    elif np.issubdtype(
-        given.dtype, np.floating
-    ):  # 2.0 is frame 2; 0.5 is no frame (astype would truncate it)
+    # 2.0 is frame 2; 0.5 is no frame (astype would truncate it)
+    elif np.issubdtype(given.dtype, np.floating):
         whole = np.isfinite(given) & (given == np.floor(given))
     else:
         whole = np.zeros(given.shape, bool)
@@ -254,12 +253,10 @@ class KittiRawDrive:
             )
         check_calibration(self.calib_dir)
         self.T_velo_imu = load_T_velo_imu(self.calib_dir)
-        self.T_imu_velo = np.linalg.inv(
-            self.T_velo_imu
-        )  # general inverse, as T_w_velo = T_w_imu @ inv(T_velo_imu)
-        self.swept = scans_swept(
-            self.path
-        )  # real scans are; a synthetic drive's only if written with distortion
+        # general inverse, as T_w_velo = T_w_imu @ inv(T_velo_imu)
+        self.T_imu_velo = np.linalg.inv(self.T_velo_imu)
+        # real scans are; a synthetic drive's only if written with distortion
+        self.swept = scans_swept(self.path)
 
         self.oxts_dir = self.path / "oxts" / "data"
         self.velo_dir = self.path / "velodyne_points" / "data"
@@ -332,9 +329,8 @@ class KittiRawDrive:
                 for e in os.scandir(self.oxts_dir)
                 if e.name.endswith(".txt") and e.name[0] != "."
             )
-            if (
-                first != self.oxts_path(0).name
-            ):  # pykitti takes the first *.txt by name as frame 0
+            # pykitti takes the first *.txt by name as frame 0
+            if first != self.oxts_path(0).name:
                 raise DataFormatError(
                     self.oxts_dir / first,
                     "pykitti would read this file as frame 0's OXTS packet "

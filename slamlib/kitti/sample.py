@@ -108,9 +108,8 @@ def make_tiny_drive(
         if i > 0:
             dt = (ts[i] - ts[i - 1]) * 1e-9
             step = base.vf * dt
-            lat += math.degrees(
-                step * math.sin(yaw) / r
-            )  # yaw 0 = east, counter-clockwise
+            # yaw 0 = east, counter-clockwise
+            lat += math.degrees(step * math.sin(yaw) / r)
             lon += math.degrees(step * math.cos(yaw) / (r * math.cos(math.radians(lat))))
             yaw += yaw_rate * dt
         write_oxts_packet(

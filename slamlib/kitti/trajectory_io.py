@@ -73,9 +73,8 @@ def _check_poses(poses) -> np.ndarray:
     T = np.asarray(poses, dtype=np.float64)
     if T.ndim != 3 or T.shape[1:] not in ((4, 4), (3, 4)):
         raise ValueError(f"poses must be (N, 4, 4) or (N, 3, 4), got {T.shape}")
-    bad = ~np.isfinite(T).all(
-        axis=(1, 2)
-    )  # per pose; an empty trajectory (0, 4, 4) is fine
+    # per pose; an empty trajectory (0, 4, 4) is fine
+    bad = ~np.isfinite(T).all(axis=(1, 2))
     if bad.any():
         raise ValueError(
             f"refusing to write a trajectory with non-finite (NaN / inf) poses: {int(bad.sum())} of "

@@ -74,16 +74,14 @@ def read_velodyne_scan(path: str | os.PathLike) -> np.ndarray:
     path = os.fspath(path)
     if not os.path.isfile(path):
         raise DataFormatError(path, "Velodyne scan file not found")
-    if path.endswith(
-        ".xz"
-    ):  # an xz-compressed .bin (the package's real sample scans): the same bytes inside
+    # an xz-compressed .bin (the package's real sample scans): the same bytes inside
+    if path.endswith(".xz"):
         import lzma
 
         try:
             with lzma.open(path) as f:
-                raw = bytearray(
-                    f.read()
-                )  # writable: the scan is a writable array, as from a .bin
+                # writable: the scan is a writable array, as from a .bin
+                raw = bytearray(f.read())
         except (lzma.LZMAError, EOFError) as exc:
             raise DataFormatError(path, f"not a readable xz file: {exc}") from None
         size = len(raw)

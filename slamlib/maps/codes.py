@@ -60,10 +60,8 @@ _HASH_LO, _HASH_HI = (
     np.uint64(HASH_MULTIPLIER >> 32),
 )
 _M32 = np.uint64(0xFFFFFFFF)  # low 32 bits
-_S32, _U64_BITS = (
-    np.uint64(32),
-    np.uint64(64),
-)  # shift counts, typed so that Numba keeps uint64 arithmetic
+# shift counts, typed so that Numba keeps uint64 arithmetic
+_S32, _U64_BITS = np.uint64(32), np.uint64(64)
 
 #: Masks of the five shift-or-mask steps (shifts 32, 16, 8, 4, 2) that spread the 21 bits of an index to every
 #: third bit (part1by2), the magic-number form of Morton encoding (Karras 2012, "Thinking parallel, part III";

@@ -121,10 +121,8 @@ class MortonBVHMap(Map3D):
         room = self.max_points - self._codes.size
         if codes.size > room:
             self.n_dropped += int(codes.size - room)
-            codes, pts = (
-                codes[:room],
-                pts[:room],
-            )  # keeps the lowest codes; documented as "dropped"
+            # keeps the lowest codes; documented as "dropped"
+            codes, pts = codes[:room], pts[:room]
         if codes.size == 0:
             return
         ins = np.searchsorted(self._codes, codes) + np.arange(codes.size)

@@ -119,9 +119,8 @@ def _merge_nb(
             and abs(y * inv_h) < 2.0**21
             and abs(z * inv_h) < 2.0**21
         ):
-            state[2] += (
-                1  # non-finite, or so far out that the int64 conversion below could overflow
-            )
+            # non-finite, or so far out that the int64 conversion below could overflow
+            state[2] += 1
             continue
         ux = axis_index_nb(x, inv_h)
         uy = axis_index_nb(y, inv_h)
@@ -159,12 +158,10 @@ def _merge_nb(
         s2[s, 4] += ly * lz
         s2[s, 5] += lz * lz
         slots[j] = s
-    for j in range(
-        n
-    ):  # refresh the field of every touched voxel (a repeat gives the same field: skip the
-        s = slots[
-            j
-        ]  # previous point's voxel, which the next points of a ring often share)
+    # refresh the field of every touched voxel (a repeat gives the same field: skip the
+    # previous point's voxel, which the next points of a ring often share)
+    for j in range(n):
+        s = slots[j]
         if s >= 0 and (j == 0 or s != slots[j - 1]):
             key = keys[s]
             ux = key & AXIS_MASK
@@ -294,10 +291,10 @@ class VoxelHashMap(Map3D):
         self._s2 = np.zeros((capacity, 6), np.float64)
         self._mean = np.zeros((capacity, 3), np.float32)
         self._icov = np.zeros((capacity, 6), np.float32)
-        self._first = np.zeros(
-            capacity, np.int32
-        )  # frame of the merge that opened the voxel
-        self._last = np.zeros(capacity, np.int32)  # frame of the last merge that hit it
+        # frame of the merge that opened the voxel
+        # frame of the last merge that hit it
+        self._first = np.zeros(capacity, np.int32)
+        self._last = np.zeros(capacity, np.int32)
         self.frames = 0
         self._state = np.zeros(3, np.int64)  # n_voxels, max_probe, n_dropped
         self._changed()

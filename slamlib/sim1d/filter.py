@@ -265,9 +265,8 @@ def run_slam_1d(
             f"measured velocities (bias included) can reach in {recording.times[-1]:.3g} s, more than "
             f"{MAX_GRID_CELLS:,}; use a smaller velocity bias, fewer frames or a coarser resolution"
         )
-    kernel = min(
-        cells, 8.0 * likelihood_sigma / resolution
-    )  # the blur's width in cells (at most the grid)
+    # the blur's width in cells (at most the grid)
+    kernel = min(cells, 8.0 * likelihood_sigma / resolution)
     if not cells * kernel <= MAX_FIELD_WORK:
         raise ValueError(
             f"a likelihood field {likelihood_sigma:.3g} m wide over {cells:.3g} cells of {resolution:g} m "
@@ -311,9 +310,8 @@ def run_slam_1d(
         if keep_history:
             particle_history[k] = info.moved
             weight_history[k] = info.weights
-            map_history[k] = (
-                slam.world_map.counts
-            )  # a copy (into the int32 row): the grid changes in place
+            # a copy (into the int32 row): the grid changes in place
+            map_history[k] = slam.world_map.counts
     return SLAM1DResult(
         times=recording.times.copy(),
         true_positions=recording.true_positions.copy(),

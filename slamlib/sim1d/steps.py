@@ -143,9 +143,8 @@ def _gaussian_blur(counts: np.ndarray, sigma_cells: float) -> np.ndarray:
     half = min(max(1, int(np.ceil(4.0 * sigma_cells))), counts.size - 1)
     k = np.arange(-half, half + 1, dtype=np.float64)
     kernel = np.exp(-0.5 * (k / sigma_cells) ** 2)
-    return np.convolve(counts.astype(np.float64), kernel)[
-        half : half + counts.size
-    ]  # = mode "same" for 2 half < C
+    # = mode "same" for 2 half < C
+    return np.convolve(counts.astype(np.float64), kernel)[half : half + counts.size]
 
 
 def _running_max(values: np.ndarray, half: int) -> np.ndarray:
@@ -180,9 +179,10 @@ def likelihood_field(
         raise ValueError(f"n_sat must be positive, got {n_sat}")
     s_cells = sigma / grid.resolution
     blurred = _gaussian_blur(grid.counts, s_cells)
+    # same: exact
     local_max = _running_max(
         blurred, min(max(1, int(np.ceil(3 * s_cells))), grid.counts.size)
-    )  # same: exact
+    )
     return blurred / np.maximum(local_max, n_sat)
 
 

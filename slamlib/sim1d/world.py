@@ -261,9 +261,8 @@ def scan_landmarks(
     in_range = np.flatnonzero(np.abs(offsets) <= sensors.max_range)
     returned = in_range[rng.random(in_range.size) >= sensors.dropout]
     noisy = offsets[returned] + sensors.range_noise * rng.standard_normal(returned.size)
-    gate = (
-        np.abs(noisy) <= sensors.max_range
-    )  # the sensor reports nothing beyond its range
+    # the sensor reports nothing beyond its range
+    gate = np.abs(noisy) <= sensors.max_range
     returned, noisy = returned[gate], noisy[gate]
     kept = offsets[returned]
     clutter = rng.uniform(

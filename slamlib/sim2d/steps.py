@@ -130,9 +130,8 @@ class OccupancyGrid2D:
         if self.field is None:
             self.field = np.zeros(self.counts.shape, dtype=np.float64)
             occupied = np.argwhere(self.counts > 0)
-            if len(
-                occupied
-            ):  # a grid given counts only: the field of its occupied cells' centres
+            # a grid given counts only: the field of its occupied cells' centres
+            if len(occupied):
                 self._raise_field(
                     self.origin + (occupied[:, ::-1] + 0.5) * self.resolution
                 )

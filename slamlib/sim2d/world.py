@@ -66,9 +66,8 @@ def integrate_arc(pose, speed, yaw_rate, dt):
     """
     pose = np.asarray(pose, dtype=np.float64)
     dth = float(yaw_rate) * float(dt)
-    chord = (
-        float(speed) * float(dt) * np.sinc(dth / (2 * np.pi))
-    )  # np.sinc(x) = sin(pi x) / (pi x)
+    # np.sinc(x) = sin(pi x) / (pi x)
+    chord = float(speed) * float(dt) * np.sinc(dth / (2 * np.pi))
     mid = pose[..., 2] + dth / 2
     out = np.empty(np.broadcast_shapes(pose.shape, (3,)))
     out[..., 0] = pose[..., 0] + chord * np.cos(mid)

@@ -102,9 +102,10 @@ class ParticleSLAM3D:
         )
         self.map = cfg.map.make()
         self.T0 = np.eye(4) if T0 is None else np.asarray(T0, dtype=np.float64)
+        # step 1
         self.particles, self.log_weights = steps.initialise_particles(
             cfg.filter.particles, self.T0
-        )  # step 1
+        )
         self.poses: list[np.ndarray] = []
         self.dts: list[float] = []
         self.n_resampled = 0

@@ -48,9 +48,8 @@ def plot_trajectories(
     if map_points is not None and len(map_points):
         m = _subsample(np.asarray(map_points), 60_000)
         ax.scatter(m[:, 0], m[:, 1], s=0.2, c="0.8", lw=0, rasterized=True)
-        ax.plot(
-            [], [], "o", color="0.8", ms=4, label="map"
-        )  # legend proxy (the dots are tiny)
+        # legend proxy (the dots are tiny)
+        ax.plot([], [], "o", color="0.8", ms=4, label="map")
     if ground_truth is not None:
         ax.plot(
             ground_truth[:, 0, 3],

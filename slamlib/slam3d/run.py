@@ -129,9 +129,8 @@ def run_drive(
         tf = time.perf_counter()
         pose = slam.register_frame(frame)
         frame_seconds.append(time.perf_counter() - tf)
-        gt.append(
-            getattr(frame, "T_w_body", getattr(frame, "T_w_imu", None))
-        )  # odometry layout: T_w_body
+        # odometry layout: T_w_body
+        gt.append(getattr(frame, "T_w_body", getattr(frame, "T_w_imu", None)))
         times.append(float(getattr(frame, "time_s", k * 0.1)))
         idx.append(int(getattr(frame, "index", k)))
         if snapshot_every and k % snapshot_every == 0:
@@ -296,18 +295,16 @@ def save_run(
     from pathlib import Path
 
     final = Path(out_dir)
-    earlier = final.is_dir() and _is_earlier_run(
-        final
-    )  # then its result files not rewritten now are stale: removed
+    # then its result files not rewritten now are stale: removed
+    earlier = final.is_dir() and _is_earlier_run(final)
     final.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(
         tempfile.mkdtemp(prefix=f".{final.name}.", suffix=".partial", dir=final.parent)
     )
     umask = os.umask(0)
     os.umask(umask)
-    os.chmod(
-        tmp, 0o777 & ~umask
-    )  # mkdtemp makes it private (0700); the results folder gets the usual mode
+    # mkdtemp makes it private (0700); the results folder gets the usual mode
+    os.chmod(tmp, 0o777 & ~umask)
     try:
         files = _write_results(run, tmp, map_format, plots, extra)
     except BaseException:
@@ -320,7 +317,8 @@ def save_run(
             os.replace(path, final / path.name)
         tmp.rmdir()
     files = {key: final / Path(path).name for key, path in files.items()}
-    if earlier:  # e.g. an earlier map.ply beside this run's map.pcd, or dead-reckoning files beside a LIDAR-only run
+    # e.g. an earlier map.ply beside this run's map.pcd, or dead-reckoning files beside a LIDAR-only run
+    if earlier:
         written = {path.name for path in files.values()}
         for name in RUN_FILES:
             if name not in written and (final / name).is_file():
@@ -359,9 +357,8 @@ def _write_results(
 
     pts = run.slam.map_points()
     files["map"] = out / f"map.{map_format}"
-    if (
-        len(pts) == 0
-    ):  # every scan degenerate: open3d writes no empty cloud, so an empty file in the same format
+    # every scan degenerate: open3d writes no empty cloud, so an empty file in the same format
+    if len(pts) == 0:
         files["map"].write_text(_EMPTY_MAP[map_format], encoding="ascii")
     else:
         pcd = o3d.geometry.PointCloud(
@@ -383,12 +380,10 @@ def _write_results(
     }
     skipped = int(getattr(run.slam, "n_skipped_frames", 0))
     info["n_skipped_frames"] = skipped
-    info["n_deskewed_frames"] = int(
-        run.slam.n_deskewed
-    )  # ScanConfig.deskew auto: the frames whose scans were swept
-    info["n_matched_frames"] = int(
-        run.slam.n_matched
-    )  # ScanMatchConfig.scan_match auto: every LIDAR-only frame
+    # ScanConfig.deskew auto: the frames whose scans were swept
+    info["n_deskewed_frames"] = int(run.slam.n_deskewed)
+    # ScanMatchConfig.scan_match auto: every LIDAR-only frame
+    info["n_matched_frames"] = int(run.slam.n_matched)
     if skipped:
         from slamlib.slam3d.pipeline import MIN_SCAN_POINTS
 

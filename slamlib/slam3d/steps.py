@@ -171,9 +171,8 @@ def read_scan(
     if scan.ndim != 2 or scan.shape[1] not in (3, 4):
         raise ValueError(f"scan must have shape (N, 3) or (N, 4), got {scan.shape}")
     c = scan_config
-    pts = crop_and_downsample(
-        scan[:, :3], c.min_range, c.max_range, c.downsample_voxel
-    )  # one O(N) pass
+    # one O(N) pass
+    pts = crop_and_downsample(scan[:, :3], c.min_range, c.max_range, c.downsample_voxel)
     pts = np.asarray(pts, dtype=np.float32)
     if T_body_velo is not None:
         T = np.asarray(T_body_velo, dtype=np.float64)
@@ -412,9 +411,8 @@ def transform_scan(particles, points, backend=DEFAULT_BACKEND) -> np.ndarray:
     pts = np.ascontiguousarray(points, dtype=np.float32)
     if isinstance(particles, Particles3D):
         out = np.empty((len(particles), len(pts), 3), np.float32)
-        for i, T in enumerate(
-            particles.poses()
-        ):  # each particle's scan straight into its slice: no stacking copy
+        # each particle's scan straight into its slice: no stacking copy
+        for i, T in enumerate(particles.poses()):
             be.transform_points(T, pts, out=out[i])
         return out
     return be.transform_points(np.asarray(particles, dtype=np.float64), pts)

@@ -392,7 +392,8 @@ def write_sequence(
     T_imu_velo = invert_pose(load_T_velo_imu(_SAMPLE))
     T_w_velo = r.pose(t_route) @ T_imu_velo
     t_sweep = _route_time(r, ts, "velo") if distortion else None
-    if distortion:  # the odometry ground truth is the scan's pose: its mid-sweep instant, not the OXTS one
+    # the odometry ground truth is the scan's pose: its mid-sweep instant, not the OXTS one
+    if distortion:
         T_w_velo = r.pose_extended(t_sweep) @ T_imu_velo
     Tr = write_odometry_calib(sdir)
     write_times(sdir / "times.txt", (ts["velo"] - ts["velo"][0]) * 1e-9)

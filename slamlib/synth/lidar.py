@@ -354,9 +354,8 @@ def _azimuth_mask(
     if dist.min() <= spread + 0.5:
         return np.ones(len(azimuth), dtype=bool)
     theta = np.arctan2(rel[:, 1], rel[:, 0])[f]  # (F, 3)
-    d = np.angle(
-        np.exp(1j * (theta - theta[:, :1]))
-    )  # unwrapped about the first vertex, in (-pi, pi]
+    # unwrapped about the first vertex, in (-pi, pi]
+    d = np.angle(np.exp(1j * (theta - theta[:, :1])))
     width = 2 * np.pi / AZIMUTH_BINS
     margin = np.arcsin(min(1.0, spread / dist.min())) + 2 * width
     lo = theta[:, 0] + d.min(1) - margin
@@ -364,9 +363,8 @@ def _azimuth_mask(
     first = np.floor(lo / width).astype(np.int64)
     count = np.floor(hi / width).astype(np.int64) - first + 1
     start = first % AZIMUTH_BINS
-    marks = np.zeros(
-        2 * AZIMUTH_BINS + 1, dtype=np.int64
-    )  # two turns: spans crossing +-pi do not wrap
+    # two turns: spans crossing +-pi do not wrap
+    marks = np.zeros(2 * AZIMUTH_BINS + 1, dtype=np.int64)
     np.add.at(marks, start, 1)
     np.add.at(marks, np.minimum(start + count, 2 * AZIMUTH_BINS), -1)
     covered = np.cumsum(marks)[:-1] > 0

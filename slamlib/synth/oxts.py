@@ -101,9 +101,8 @@ class ImuNoise:
         if not (k >= 0 and np.isfinite(k)):
             raise ValueError(f"noise scale must be a finite number >= 0, got {k}")
 
-        def scale(
-            x,
-        ):  # "+ 0.0" turns the -0.0 of 0 * (negative bias) into 0.0, so as_dict() matches ZERO_NOISE's
+        # "+ 0.0" turns the -0.0 of 0 * (negative bias) into 0.0, so as_dict() matches ZERO_NOISE's
+        def scale(x):
             return k * float(x) + 0.0
 
         out = {}

@@ -294,9 +294,8 @@ def build_scene(
             xy, size, yaw, 0.75 * road_clearance if kind == 3 else road_clearance
         ):
             return
-        z = (
-            ground_z(xy)[0] - 0.3 + z_lift
-        )  # sink 0.3 m so sloped ground never shows a gap underneath
+        # sink 0.3 m so sloped ground never shows a gap underneath
+        z = ground_z(xy)[0] - 0.3 + z_lift
         b.add(
             template,
             np.r_[xy, z],
@@ -367,9 +366,8 @@ def build_scene(
                 else:
                     u = rng.random()
                     if u < 0.5:
-                        van = (
-                            rng.random() < 0.3
-                        )  # vans and SUVs: the only vehicles taller than the sensor
+                        # vans and SUVs: the only vehicles taller than the sensor
+                        van = rng.random() < 0.3
                         size = (
                             (rng.uniform(4.8, 5.6), 2.0, rng.uniform(2.0, 2.6))
                             if van

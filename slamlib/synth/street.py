@@ -28,9 +28,8 @@ def street_primitives(length: float = 80.0, half_width: float = 8.0):
         for k, x0 in enumerate(xs):
             y = side * (W + (0.6 if k % 2 else 0.0))
             rects.append(_rect([x0, y, 0.0], [4.0, 0, 0], [0, 0, 7.0]))  # facade segment
-            rects.append(
-                _rect([x0, side * W, 0.0], [0, side * 0.6, 0], [0, 0, 7.0])
-            )  # step face
+            # step face
+            rects.append(_rect([x0, side * W, 0.0], [0, side * 0.6, 0], [0, 0, 7.0]))
     cylinders = [
         (x, s * (W - 1.5), 0.12, 4.5)
         for x in np.arange(-L / 2 + 3, L / 2, 6.0)

@@ -347,9 +347,8 @@ class Traffic:
         present = self.present(t, s)
         road, tan = self.line.frame(s)
         centre = road
-        centre[..., 0] -= (
-            self.lateral * tan[..., 1]
-        )  # + lateral x the left normal (-tan_y, tan_x)
+        # + lateral x the left normal (-tan_y, tan_x)
+        centre[..., 0] -= self.lateral * tan[..., 1]
         centre[..., 1] += self.lateral * tan[..., 0]
         yaw = np.arctan2(self.heading * tan[..., 1], self.heading * tan[..., 0])
         return s, present, centre, yaw
@@ -363,10 +362,10 @@ class Traffic:
         """:meth:`mesh` at each of ``times (T,)`` (route times, s), computed together."""
         _, present, centre, yaw = self._state(np.asarray(times, dtype=np.float64))
         tv, tf = _BOX
-        v = (
-            tv[None] * (self.size + [0.0, 0.0, SINK])[:, None, :]
-        )  # (N, 8, 3) box in its own frame
-        c, s = np.cos(yaw)[..., None], np.sin(yaw)[..., None]  # (T, N, 1)
+        # (N, 8, 3) box in its own frame
+        # (T, N, 1)
+        v = tv[None] * (self.size + [0.0, 0.0, SINK])[:, None, :]
+        c, s = np.cos(yaw)[..., None], np.sin(yaw)[..., None]
         world = np.stack(
             [
                 c * v[..., 0] - s * v[..., 1],

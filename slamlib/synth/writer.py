@@ -84,13 +84,12 @@ _FRAME_FILES = (
 SCAN_PERIOD = SWEEP_PERIOD_S
 #: The OXTS clock (100 Hz) and how its packets are matched to scans (module docstring; all in ns), from drive 0001:
 OXTS_TICK_NS = 10_000_000
-OXTS_MIN_DELAY_NS = (
-    11_550_000  # the shortest delay of a frame's packet tick after the scan stamp
-)
-OXTS_LATE_MEAN_NS = (
-    300_000  # mean extra threshold (exponential): ~3 % of packets a tick later
-)
-OXTS_GRID_JITTER_NS = 500_000  # packets stamped up to 0.5 ms after their tick (real: 5-95 % of 0.03-0.48 ms)
+# the shortest delay of a frame's packet tick after the scan stamp
+# mean extra threshold (exponential): ~3 % of packets a tick later
+# packets stamped up to 0.5 ms after their tick (real: 5-95 % of 0.03-0.48 ms)
+OXTS_MIN_DELAY_NS = 11_550_000
+OXTS_LATE_MEAN_NS = 300_000
+OXTS_GRID_JITTER_NS = 500_000
 _SAMPLE = kitti_sample_dir() / "raw" / "2011_09_26"
 
 
@@ -161,9 +160,8 @@ def frame_timestamps_ns(
     theta = OXTS_MIN_DELAY_NS + np.round(rng.exponential(OXTS_LATE_MEAN_NS, n)).astype(
         np.int64
     )
-    ticks = -(
-        (g0 - velo - theta) // OXTS_TICK_NS
-    )  # ceil((velo + theta - g0) / tick) in exact integers
+    # ceil((velo + theta - g0) / tick) in exact integers
+    ticks = -((g0 - velo - theta) // OXTS_TICK_NS)
     oxts = g0 + ticks * OXTS_TICK_NS + rng.integers(0, OXTS_GRID_JITTER_NS, n)
     return {"velo": velo, "start": start, "end": end, "oxts": oxts}
 

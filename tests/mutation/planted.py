@@ -50,8 +50,8 @@ PLANTS = [
     (
         "`VoxelHashMap` merge does not refresh the last voxel touched",
         "slamlib/maps/voxel_hash.py",
-        "    for j in range(n):  # refresh",
-        "    for j in range(n - 1):  # refresh",
+        "    # previous point's voxel, which the next points of a ring often share)\n    for j in range(n):",
+        "    # previous point's voxel, which the next points of a ring often share)\n    for j in range(n - 1):",
         [
             "tests/test_maps.py::test_voxel_hash_statistics_after_merging_one_point",
             "tests/test_maps.py::test_voxel_hash_merge_in_pieces_equals_merge_at_once",

@@ -125,9 +125,8 @@ def tilt_calibration_update(
     ``eta += w H^T y`` with ``weight w = 1 / sigma_u^2`` times the frame's share of an independent sample.
     """
     R = np.asarray(R, dtype=np.float64)
-    H = np.column_stack(
-        [R[0], R[1], np.eye(3)[:, 0], np.eye(3)[:, 1]]
-    )  # rows of R: R^T e_x, R^T e_y
+    # rows of R: R^T e_x, R^T e_y
+    H = np.column_stack([R[0], R[1], np.eye(3)[:, 0], np.eye(3)[:, 1]])
     y = np.asarray(up, dtype=np.float64) - R[2]
     return info + weight * H.T @ H, eta + weight * H.T @ y
 

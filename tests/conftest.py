@@ -37,6 +37,15 @@ def street_maps():
     return world, out
 
 
+@pytest.fixture(scope="module")
+def drive():
+    """A 30-frame drive through the tiny 3D world of ``world3d.py``: ``(frames, ground-truth poses)``, built once a
+    module, shared by the 3D filter's tests (steps, pipeline, whole runs)."""
+    from world3d import simulate
+
+    return simulate()
+
+
 # The tiny KITTI raw drive shared by the reader tests (test_kitti_errors.py, test_kitti_values_raw.py).
 TINY_DRIVE_FRAMES = 4
 TINY_DRIVE_POINT_STRIDE = 500  # every 500th point of the embedded sample scans: ~250 points a scan, fast to read

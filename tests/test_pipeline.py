@@ -14,7 +14,11 @@ import textwrap
 from dataclasses import fields
 
 import numpy as np
+from world3d import tiny_config
 
+from slamlib.geometry import make_pose, rpy_to_matrix
+from slamlib.metrics import absolute_trajectory_error
+from slamlib.odometry import dead_reckon
 from slamlib.slam3d import ParticleSLAM3D, SLAM3DConfig
 from slamlib.slam3d.config import FilterConfig, MapConfig, MotionConfig, ScanConfig
 from slamlib.slam3d.stages import (
@@ -204,3 +208,137 @@ def test_step_reports_a_degenerate_frame_as_unscored_and_register_frame_its_pose
     np.testing.assert_array_equal(
         poses[-1], scored.estimate
     )  # step() adds a report, not a change
+
+
+# ------------------------------------------------------------------ step 12 over whole drives of the tiny world
+def test_register_frame_beats_dead_reckoning(drive):
+    frames, gt = drive
+    slam = ParticleSLAM3D(tiny_config())
+    for f in frames:
+        slam.register_frame(f)
+    ate_slam = absolute_trajectory_error(slam.trajectory, gt).rmse
+    ate_dr = absolute_trajectory_error(slam.dead_reckoning, gt).rmse
+    assert ate_dr > 0.3  # the IMU alone drifts
+    assert ate_slam < ate_dr / 4
+    assert slam.n_resampled > 0 and len(slam.poses) == len(frames)
+
+
+def test_dead_reckoning_twin_is_the_imu_integral(drive):
+    frames, _ = drive
+    slam = ParticleSLAM3D(tiny_config(particles=5, scored_points=50))
+    for f in frames[:6]:
+        slam.register_frame(f)
+    v = np.array([f.velocity for f in frames[:6]])
+    w = np.array([f.angular_rate for f in frames[:6]])
+    assert np.allclose(
+        slam.dead_reckoning, dead_reckon(v, w, [f.dt for f in frames[:6]]), atol=1e-12
+    )
+
+
+def test_same_seed_same_trajectory_other_seed_differs(drive):
+    frames, _ = drive
+
+    def traj(seed):
+        slam = ParticleSLAM3D(tiny_config(particles=50, scored_points=200, seed=seed))
+        for f in frames[:8]:
+            slam.register_frame(f)
+        return slam.trajectory
+
+    a, b, c = traj(1), traj(1), traj(2)
+    assert np.array_equal(a, b)
+    assert not np.allclose(a[1:], c[1:])
+
+
+def test_numpy_and_cpu_backends_give_the_same_trajectory(drive):
+    frames, _ = drive
+
+    def traj(backend):
+        slam = ParticleSLAM3D(
+            tiny_config(particles=16, scored_points=100, backend=backend, seed=7)
+        )
+        for f in frames[:4]:
+            slam.register_frame(f)
+        return slam.trajectory
+
+    assert np.allclose(traj("numpy"), traj("cpu"), atol=1e-9)
+
+
+def test_cuda_backend_gives_the_cpu_trajectory(drive):
+    """In Numba's CUDA simulator (tests/conftest.py) unless SLAMLIB_REAL_CUDA=1: tiny sizes."""
+    frames, _ = drive
+
+    def traj(backend):
+        slam = ParticleSLAM3D(
+            tiny_config(
+                particles=8,
+                scored_points=30,
+                backend=backend,
+                seed=7,
+                downsample_voxel=1.5,
+            )
+        )
+        for f in frames[:3]:
+            slam.register_frame(f)
+        return slam.trajectory
+
+    assert np.allclose(traj("cuda"), traj("cpu"), atol=1e-6)
+
+
+def test_pruned_map_points_are_kept_for_export(drive):
+    frames, _ = drive
+    slam = ParticleSLAM3D(
+        tiny_config(particles=10, scored_points=50, prune_every=5, prune_radius=12.0)
+    )
+    for f in frames[:10]:  # pruned after frames 5 and 10
+        slam.register_frame(f)
+    assert slam.archive and len(slam.map_points()) == len(slam.map) + sum(
+        len(a) for a in slam.archive
+    )
+    assert (
+        np.linalg.norm(slam.map.points() - slam.poses[-1][:3, 3], axis=1).max()
+        <= 12.0 + 1e-4
+    )
+    assert (
+        np.linalg.norm(slam.archive[-1] - slam.poses[-1][:3, 3], axis=1).min()
+        > 12.0 - 1e-4
+    )
+
+
+def test_transient_voxels_are_evicted_every_span_frames(drive):
+    frames, _ = drive
+    span = 4
+    slam = ParticleSLAM3D(
+        tiny_config(particles=10, scored_points=50, transient_span=span, prune_every=0)
+    )
+    plain = ParticleSLAM3D(tiny_config(particles=10, scored_points=50, prune_every=0))
+    for k, f in enumerate(frames[: 2 * span]):
+        slam.register_frame(f)
+        plain.register_frame(f)
+        if (k + 1) % span == 0:
+            assert not slam.map.transients(span).any()
+    assert slam.map.frames == plain.map.frames == 2 * span
+    assert len(slam.map) < len(plain.map) and plain.map.transients(span).any()
+
+
+def test_tilt_prior_pulls_a_tilted_start_back_to_gravity(drive):
+    """Started with a 40 mrad pitch error (the map is built tilted), the map alone keeps the filter tilted; the
+    accelerometer's up (step 3) in step 8 pulls it back toward level against that map (2 mrad: a strong prior;
+    40 -> 4-13 mrad in 30 frames on seeds 0 and 1). A pose's up in its body is its rotation's third row."""
+    frames, gt = drive
+    T0 = make_pose(rpy_to_matrix([0.0, 0.04, 0.0]), [0.0, 0.0, 0.0])
+
+    def run(**kw):
+        slam = ParticleSLAM3D(tiny_config(**kw), T0=T0)
+        for f in frames:
+            slam.register_frame(f)
+        return np.linalg.norm(slam.poses[-1][2, :3] - gt[-1][2, :3]), slam
+
+    without, plain = run()
+    with_prior, slam = run(
+        tilt_sigma=0.002, tilt_world_sigma=0.0, tilt_bias_sigma=0.0
+    )  # level world, no bias
+    assert without > 0.03 and plain.prior.up is None  # the map holds the start's tilt
+    assert with_prior < without / 2, (with_prior, without)
+    np.testing.assert_allclose(
+        slam.prior.up, gt[-1][2, :3], atol=0.01
+    )  # the measured up is the true one

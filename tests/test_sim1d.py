@@ -793,3 +793,51 @@ def test_run_slam_1d_progress_bar_only_when_asked(world, capsys):
         and "0/5 [00:00<?, ?frame/s]" in err
         and "5/5" in err
     )
+
+
+# ------------------------------------------------------------------ the steps' checks and edge values
+def test_sim1d_steps_checks_and_edge_values():
+    """Each check of the 1D steps alone with its message, and the smallest valid values (one particle, ``n_sat``
+    below 1); step 6 adds ``sigma n`` (not subtracts), also for ``sigma = 1``; resampling's default ESS fraction is
+    one half."""
+    from slamlib.sim1d import steps
+
+    grid = steps.OccupancyGrid1D.empty(-2.0, 2.0, 0.05)
+    with pytest.raises(ValueError, match=r"^sigma must be positive, got 0.0$"):
+        steps.likelihood_field(grid, 0.0)
+    with pytest.raises(ValueError, match=r"^n_sat must be positive, got 0.0$"):
+        steps.likelihood_field(grid, 0.1, 0.0)
+    assert steps.likelihood_field(grid, 0.1, 0.5).shape == grid.counts.shape
+    x, lw = steps.initialise_particles(1, 2.0)
+    assert x.tolist() == [2.0] and lw.tolist() == [0.0]
+    assert steps.pick_best_particle(x, lw) == (2.0, 0)
+    p = np.array([0.0, 1.0, 2.0])
+    for sigma in (1.0, 0.3):
+        want = p + sigma * np.random.default_rng(5).standard_normal(3)
+        np.testing.assert_array_equal(
+            steps.perturb_with_noise(p, sigma, np.random.default_rng(5)), want
+        )
+    with pytest.raises(ValueError, match=r"^sigma must be non-negative, got -1.0$"):
+        steps.perturb_with_noise(p, -1.0, np.random.default_rng(5))
+    with pytest.raises(
+        ValueError,
+        match=r"^log_weights must be a non-empty \(P,\) array, got shape \(1, 3\)$",
+    ):
+        steps.pick_best_particle(p, np.zeros((1, 3)))
+    with pytest.raises(
+        ValueError,
+        match=r"^particles shape \(2,\) does not match log_weights shape \(3,\)$",
+    ):
+        steps.pick_best_particle(p[:2], np.zeros(3))
+    with pytest.raises(
+        ValueError,
+        match=r"^log_weights shape \(3,\) does not match particles shape \(2,\)$",
+    ):
+        steps.resample_particles(p[:2], np.zeros(3), np.random.default_rng(5))
+    # ESS of weights (0.8, 0.1, 0.1) is 1 / 0.66 = 1.52 >= 0.5 * 3: no resampling by default, but below 0.6 * 3
+    lw3 = np.log([0.8, 0.1, 0.1])
+    assert steps.resample_particles(p, lw3, np.random.default_rng(5))[2] is False
+    assert (
+        steps.resample_particles(p, lw3, np.random.default_rng(5), ess_fraction=0.6)[2]
+        is True
+    )

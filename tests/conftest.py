@@ -46,7 +46,7 @@ def drive():
     return simulate()
 
 
-# The tiny KITTI raw drive shared by the reader tests (test_kitti_errors.py, test_kitti_values_raw.py).
+# The tiny KITTI raw drive shared by the reader tests (test_kitti_errors.py, test_kitti_reader.py, test_kitti_oxts.py).
 TINY_DRIVE_FRAMES = 4
 TINY_DRIVE_POINT_STRIDE = 500  # every 500th point of the embedded sample scans: ~250 points a scan, fast to read
 

@@ -76,3 +76,27 @@ def open_drive(drive_dir):
     return lambda **kw: KittiRawDrive(
         drive_dir.parent.parent, SAMPLE_DATE, SAMPLE_DRIVE, **kw
     )
+
+
+@pytest.fixture
+def cli_drive(tmp_path):
+    """``slamlib run``'s arguments for a tiny KITTI raw drive (4 frames, every 50th point of the sample scans; 10
+    particles, 50 points, no progress bar, no plots) and the drive's folder: ``(args, drive_dir)``."""
+    from slamlib.kitti.sample import SAMPLE_DATE, SAMPLE_DRIVE, make_tiny_drive
+
+    d = make_tiny_drive(tmp_path / "kitti", n_frames=TINY_DRIVE_FRAMES, point_stride=50)
+    return [
+        "run",
+        "--basedir",
+        str(d.parent.parent),
+        "--date",
+        SAMPLE_DATE,
+        "--drive",
+        SAMPLE_DRIVE,
+        "--no-progress",
+        "--no-plots",
+        "--particles",
+        "10",
+        "--points",
+        "50",
+    ], d

@@ -263,3 +263,18 @@ def test_pykitti_check_key_line_splits_at_first_colon(tmp_path):
     _write(path, "T: 0 0 0\nR: 1:2\n")
     err = _raises(lambda: check_calibration_for_pykitti(d))
     assert err.path == str(path) and err.line == 2 and "'R'" in err.message
+
+
+# ------------------------------------------------------------------ a calibration offset farther than a vehicle
+def test_calibration_offset_farther_than_a_vehicle_is_a_data_format_error(tmp_path):
+    from slamlib.kitti.calib import read_rigid
+
+    path = tmp_path / "calib_imu_to_velo.txt"
+    path.write_text("R: 1 0 0 0 1 0 0 0 1\nT: -0.8 0.3 524348\n")
+    with pytest.raises(
+        DataFormatError,
+        match=r"calib_imu_to_velo.txt: calibration T .* farther than 100 m",
+    ):
+        read_rigid(path)
+    path.write_text("R: 1 0 0 0 1 0 0 0 1\nT: -0.8 0.3 -1.2\n")
+    assert read_rigid(path)[2, 3] == -1.2

@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 import pytest
+from drive_edits import set_oxts_field
 
 from slamlib.errors import DataFormatError
 from slamlib.kitti.oxts import (
@@ -18,6 +19,7 @@ from slamlib.kitti.oxts import (
     read_oxts_packet,
     write_oxts_packet,
 )
+from slamlib.kitti.sample import SAMPLE_DATE, SAMPLE_DRIVE
 
 
 def _raises(fn) -> DataFormatError:
@@ -204,3 +206,58 @@ def test_poses_from_packets_default_reference_is_first_packet():
     )
     np.testing.assert_allclose(out[0], np.eye(4), atol=1e-12)
     np.testing.assert_allclose(out[1], expected1, atol=1e-9)
+
+
+# ------------------------------------------------------------------ physical ranges, read through a tiny drive
+def _read_all(drive_dir):
+    from slamlib.kitti import KittiRawDrive
+
+    return [
+        f.T_w_imu
+        for f in KittiRawDrive(drive_dir.parent.parent, SAMPLE_DATE, SAMPLE_DRIVE)
+    ]
+
+
+@pytest.mark.parametrize(
+    "name,value",
+    [
+        ("lat", "91"),
+        ("lat", "-90"),
+        ("lat", "90"),
+        ("lon", "1e308"),
+        ("lon", "-180.5"),
+        ("alt", "1e9"),
+        ("vf", "1e300"),
+        ("vn", "-200"),
+        ("wz", "1e6"),
+        ("ax", "5e4"),
+        ("yaw", "100"),
+        ("pos_accuracy", "-1"),
+    ],
+)
+def test_oxts_value_outside_its_physical_range_names_file_line_and_field(
+    drive_dir, name, value
+):
+    _read_all(drive_dir)  # the drive is fine before
+    set_oxts_field(drive_dir, 2, name, value)
+    with pytest.raises(DataFormatError) as info:
+        _read_all(drive_dir)
+    err = info.value
+    assert err.path.endswith("0000000002.txt") and err.line == 1
+    assert f"{name} = " in str(err) and "physical range" in str(err), str(err)
+
+
+def test_oxts_latitude_out_of_range_in_packet_0_fails_at_open(drive_dir):
+    from slamlib.kitti import KittiRawDrive
+
+    set_oxts_field(drive_dir, 0, "lat", "91")
+    with pytest.raises(DataFormatError, match="0000000000.txt:1: .*lat = 91.0"):
+        KittiRawDrive(drive_dir.parent.parent, SAMPLE_DATE, SAMPLE_DRIVE)
+
+
+def test_real_oxts_sample_is_within_the_ranges():
+    from slamlib.kitti import read_oxts_packet
+    from slamlib.kitti.sample import sample_raw_paths
+
+    p = read_oxts_packet(sample_raw_paths()["oxts_packet"])
+    assert 48 < p.lat < 50

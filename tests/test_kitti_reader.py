@@ -445,3 +445,134 @@ def test_progress_bars_labelled_and_cleared(drive_dir, capsys, open_drive):
     err = capsys.readouterr().err
     assert err.startswith("\rOXTS:   0%|") and "0/4 [00:00<?, ?packet/s]" in err
     assert "\n" not in err and err.endswith("\r")
+
+
+# ------------------------------------------------------------------ drive.calib on what pykitti parses more strictly
+def _replace_line(path, key, text):
+    lines = [
+        text if line.startswith(key) else line for line in path.read_text().splitlines()
+    ]
+    path.write_text("\n".join(lines) + "\n")
+
+
+def _trailing_spaces(d):
+    p = d / "oxts" / "timestamps.txt"
+    p.write_text("".join(line + "  \n" for line in p.read_text().splitlines()))
+
+
+def _blank_line_at_the_end(d):
+    p = d / "oxts" / "timestamps.txt"
+    p.write_text(p.read_text() + "\n")
+
+
+def _non_utf8_byte(d):
+    p = d.parent / "calib_cam_to_cam.txt"
+    p.write_bytes(p.read_bytes().replace(b"calib_time: ", b"calib_time: \xff", 1))
+
+
+def _blank_calib_line(d):
+    p = d.parent / "calib_cam_to_cam.txt"
+    p.write_text("\n" + p.read_text())
+
+
+def _key_with_a_leading_space(d):
+    p = d.parent / "calib_cam_to_cam.txt"
+    p.write_text(p.read_text().replace("R_rect_00:", " R_rect_00:"))
+
+
+def _blank_oxts_line(d):
+    p = d / "oxts" / "data" / "0000000000.txt"
+    p.write_text("\n" + p.read_text())
+
+
+def _a_file_sorted_before_frame_0(d):
+    (d / "oxts" / "data" / "0.txt").write_text("not a packet\n")
+
+
+@pytest.mark.parametrize(
+    "corrupt,where",
+    [
+        (
+            _trailing_spaces,
+            r"oxts/timestamps.txt:1: pykitti cannot parse timestamp line '2011-09-26 13:02:25.964389445  '",
+        ),
+        (
+            _blank_line_at_the_end,
+            r"oxts/timestamps.txt:4: pykitti cannot parse timestamp line ''",
+        ),
+        (_non_utf8_byte, r"calib_cam_to_cam.txt:1: byte b'\\xff' is not"),
+        (_blank_calib_line, r"calib_cam_to_cam.txt:1: line without ':'"),
+        (
+            _key_with_a_leading_space,
+            r"calib_cam_to_cam.txt:9: calibration key 'R_rect_00' has spaces around it",
+        ),
+        (
+            _blank_oxts_line,
+            r"oxts/data/0000000000.txt:1: blank line in an OXTS packet file",
+        ),
+        (
+            _a_file_sorted_before_frame_0,
+            r"oxts/data/0.txt: pykitti would read this file as frame 0's OXTS packet",
+        ),
+    ],
+)
+def test_drive_calib_on_what_pykitti_cannot_parse_is_a_data_format_error(
+    tmp_path, corrupt, where
+):
+    """These drives open in slamlib; ``drive.calib`` is a DataFormatError naming the file, not pykitti's error."""
+    from slamlib.kitti import KittiRawDrive
+    from slamlib.kitti.sample import SAMPLE_DATE, SAMPLE_DRIVE, make_tiny_drive
+
+    d = make_tiny_drive(tmp_path / "k", n_frames=3, point_stride=500)
+    corrupt(d)
+    drive = KittiRawDrive(tmp_path / "k", SAMPLE_DATE, SAMPLE_DRIVE)
+    assert len(list(drive)) == 3  # slamlib itself reads it
+    with pytest.raises(DataFormatError, match=where):
+        _ = drive.calib  # the calibration is read on first use
+
+
+@pytest.mark.parametrize(
+    "key,value,where",
+    [
+        (
+            "R_rect_00:",
+            "R_rect_00: 0 0 0 0 0 0 0 0 0",
+            r"calib_cam_to_cam.txt:9: calibration R_rect_00 is not a rotation",
+        ),
+        (
+            "R_rect_02:",
+            "R_rect_02: 1 0 0 0 1 0 0 0 -1",
+            r"calib_cam_to_cam.txt:25: calibration R_rect_02 is not a rotation",
+        ),
+        (
+            "P_rect_00:",
+            "P_rect_00: 0 0 609 0 0 721 172 0 0 0 1 0",
+            r"calib_cam_to_cam.txt:10: calibration P_rect_00 has focal length P\[0, 0\] = 0",
+        ),
+    ],
+)
+def test_camera_calibration_pykitti_cannot_use_is_refused_at_open(
+    tmp_path, key, value, where
+):
+    """A singular R_rect_00 (pykitti's LinAlgError) or P_rect_00[0, 0] = 0 (NaN in drive.calib): refused at open."""
+    from slamlib.kitti import KittiRawDrive
+    from slamlib.kitti.sample import SAMPLE_DATE, SAMPLE_DRIVE, make_tiny_drive
+
+    d = make_tiny_drive(tmp_path / "k", n_frames=3, point_stride=500)
+    _replace_line(d.parent / "calib_cam_to_cam.txt", key, value)
+    with pytest.raises(DataFormatError, match=where):
+        KittiRawDrive(tmp_path / "k", SAMPLE_DATE, SAMPLE_DRIVE)
+
+
+def test_drive_calib_of_a_clean_drive_still_matches_pykitti(tmp_path):
+    import numpy as np
+    import pykitti
+
+    from slamlib.kitti import KittiRawDrive
+    from slamlib.kitti.sample import SAMPLE_DATE, SAMPLE_DRIVE, make_tiny_drive
+
+    make_tiny_drive(tmp_path / "k", n_frames=3, point_stride=500)
+    mine = KittiRawDrive(tmp_path / "k", SAMPLE_DATE, SAMPLE_DRIVE).calib
+    theirs = pykitti.raw(str(tmp_path / "k"), SAMPLE_DATE, SAMPLE_DRIVE).calib
+    for name, value in theirs._asdict().items():
+        np.testing.assert_array_equal(getattr(mine, name), value)

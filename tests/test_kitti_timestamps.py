@@ -148,3 +148,32 @@ def test_write_timestamps_round_trip(tmp_path):
         read_timestamps_ns(tmp_path / "ts.txt", strictly_increasing=False), ns
     )
     assert format_timestamp_ns(ns[1]) == "2011-09-26 13:02:25.964389445"
+
+
+# ------------------------------------------------------------------ stamps beyond and at the int64-nanosecond limits
+@pytest.mark.parametrize(
+    "stamp",
+    [
+        "0001-01-01 00:00:00.000000000",
+        "9999-12-31 23:59:59.999999999",
+        "2262-04-12 00:00:00.000000000",
+        "1677-09-21 00:00:00.000000000",
+    ],
+)
+def test_timestamp_outside_int64_nanoseconds_is_a_data_format_error(tmp_path, stamp):
+    from slamlib.kitti.timestamps import read_timestamps_ns
+
+    path = tmp_path / "timestamps.txt"
+    path.write_text(f"2011-09-26 13:02:25.964389445\n{stamp}\n")
+    with pytest.raises(
+        DataFormatError, match=r"timestamps.txt:2: bad timestamp .*1678-2262"
+    ):
+        read_timestamps_ns(path, strictly_increasing=False)
+
+
+def test_timestamps_at_the_int64_limits_still_parse():
+    from slamlib.kitti.timestamps import format_timestamp_ns, parse_timestamp_ns
+
+    for ns in (-(2**63) + 10**9, 2**63 - 1):
+        text = format_timestamp_ns(ns)
+        assert parse_timestamp_ns(text) == ns

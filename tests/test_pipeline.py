@@ -12,10 +12,11 @@ from __future__ import annotations
 import ast
 import inspect
 import textwrap
-from dataclasses import fields
+from dataclasses import dataclass, fields
 from types import SimpleNamespace
 
 import numpy as np
+import pytest
 from world3d import tiny_config
 
 from slamlib import geometry
@@ -970,3 +971,113 @@ def test_lidar_only_start_rounds_halve_the_spread(monkeypatch):
     assert len(sigmas) == 5
     for got, k in zip(sigmas[1:], (0.5, 0.25, 0.125, 0.3)):
         np.testing.assert_allclose(got, sigmas[0] * k, rtol=1e-15)
+
+
+# ------------------------------------------------------------------ degenerate frames and bad IMU values
+@dataclass
+class Frame:
+    scan: np.ndarray
+    velocity: np.ndarray
+    angular_rate: np.ndarray
+    dt: float
+    index: int = 0
+
+
+def _box_scan(rng, n=3000):
+    """Points on the walls of a 40 x 30 x 6 m box around the sensor (a static world seen from its centre)."""
+    u = rng.uniform(-1, 1, (n, 3)) * [20.0, 15.0, 3.0]
+    axis = rng.integers(0, 2, n)
+    u[np.arange(n), axis] = np.sign(u[np.arange(n), axis]) * np.array([20.0, 15.0])[axis]
+    return np.c_[u, np.full(n, 0.5)].astype(np.float32)
+
+
+def _frames(n=6, empty=(), seed=0):
+    rng = np.random.default_rng(seed)
+    out = []
+    for k in range(n):
+        scan = np.zeros((0, 4), np.float32) if k in empty else _box_scan(rng)
+        out.append(
+            Frame(
+                scan,
+                np.array([1.0, 0.0, 0.0]),
+                np.array([0.0, 0.0, 0.02]),
+                0.0 if k == 0 else 0.1,
+                k,
+            )
+        )
+    return out
+
+
+def _slam(**kw):
+    base = dict(
+        particles=30,
+        scored_points=200,
+        min_range=1.0,
+        max_range=40.0,
+        downsample_voxel=0.5,
+        params={"capacity": 2**12},
+        seed=1,
+    )
+    base.update(kw)
+    return ParticleSLAM3D(SLAM3DConfig.of(backend="numpy", **base))
+
+
+@pytest.mark.parametrize("scan", ["empty", "zeros", "far", "few"])
+def test_degenerate_frame_skips_scoring_and_keeps_the_motion_prediction(scan):
+    frames = _frames()
+    n = {"empty": 0, "zeros": 500, "far": 500, "few": MIN_SCAN_POINTS - 1}[scan]
+    bad = {
+        "empty": np.zeros((0, 4)),
+        "zeros": np.zeros((n, 4)),
+        "far": np.c_[np.full((n, 3), 1e10), np.ones(n)],
+        "few": frames[3].scan[:n],
+    }[scan]
+    frames[3].scan = bad.astype(np.float32)
+    slam = _slam()
+    for f in frames[:3]:
+        slam.register_frame(f)
+    before, map_size = slam.poses[-1].copy(), len(slam.map)
+    weights = slam.log_weights.copy()
+    pose = slam.register_frame(frames[3])
+    assert slam.n_skipped_frames == 1
+    assert len(slam.map) == map_size  # nothing merged
+    np.testing.assert_array_equal(slam.log_weights, weights)  # not scored
+    expected = before @ np.linalg.inv(slam.dr_poses[-2]) @ slam.dr_poses[-1]
+    np.testing.assert_allclose(
+        pose, expected, atol=1e-9
+    )  # the motion prediction (the dead-reckoning increment)
+    for f in frames[4:]:
+        slam.register_frame(f)
+    assert slam.n_skipped_frames == 1
+    assert np.all(np.isfinite(slam.trajectory)) and np.all(np.isfinite(slam.log_weights))
+
+
+def test_degenerate_first_frame_waits_for_a_scan_to_start_the_map():
+    slam = _slam()
+    for f in _frames(empty=(0, 1)):
+        slam.register_frame(f)
+    assert slam.n_skipped_frames == 2 and len(slam.map) > 0
+    assert np.all(np.isfinite(slam.trajectory))
+
+
+@pytest.mark.parametrize(
+    "field,value",
+    [
+        ("velocity", np.nan),
+        ("velocity", np.inf),
+        ("velocity", 1e300),
+        ("angular_rate", np.nan),
+        ("angular_rate", -np.inf),
+        ("angular_rate", 1e3),
+    ],
+)
+def test_register_frame_rejects_non_finite_or_impossible_imu(field, value):
+    frames = _frames(n=3)
+    getattr(frames[2], field)[0] = value
+    slam = _slam()
+    slam.register_frame(frames[0])
+    slam.register_frame(frames[1])
+    with pytest.raises(
+        ValueError, match=f"IMU {field} \\(frame 2\\) must be finite and within"
+    ):
+        slam.register_frame(frames[2])

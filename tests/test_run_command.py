@@ -5,9 +5,10 @@ import json
 
 import numpy as np
 import pytest
+from drive_edits import set_oxts_field
 
 
-# ------------------------------------------------------------------------------------------ slamlib run
+# ------------------------------------------------------------------ whole runs on a tiny synthetic drive
 @pytest.fixture(scope="module")
 def tiny_drive(tmp_path_factory):
     from slamlib.synth import Hdl64, write_drive
@@ -227,3 +228,287 @@ def test_slamlib_run_default_drive_is_realistic_unless_still(
                     str(tmp_path / "x"),
                 ]
             )
+
+
+# ---------------------------------------------------------- bad options and outputs, refused in one line before the run
+@pytest.mark.parametrize(
+    "option,value",
+    [
+        ("--temperature", "0"),
+        ("--temperature", "-1"),
+        ("--temperature", "nan"),
+        ("--temperature", "inf"),
+        ("--seed", "-1"),
+        ("--particles", "1000000000"),
+        ("--refine", "-1"),
+        ("--noise", "inf"),
+        ("--noise", "nan"),
+        ("--tilt-sigma", "-0.01"),
+        ("--tilt-sigma", "nan"),
+    ],
+)
+def test_slamlib_run_bad_option_is_one_line_naming_it(
+    cli_drive, tmp_path, monkeypatch, option, value
+):
+    import slamlib.slam3d
+    from slamlib.cli import main
+
+    monkeypatch.setattr(
+        slamlib.slam3d, "run_drive", lambda *a, **k: pytest.fail("the run started")
+    )
+    args, _ = cli_drive
+    with pytest.raises(SystemExit) as exc:
+        main(args + [option, value, "--out", str(tmp_path / "o")])
+    msg = str(exc.value)
+    assert msg.startswith(f"slamlib run: {option}") and "\n" not in msg, msg
+
+
+def test_slamlib_run_out_at_an_existing_file_is_refused_before_the_run(
+    cli_drive, tmp_path, monkeypatch
+):
+    import slamlib.slam3d
+    from slamlib.cli import main
+
+    monkeypatch.setattr(
+        slamlib.slam3d, "run_drive", lambda *a, **k: pytest.fail("the run started")
+    )
+    args, _ = cli_drive
+    f = tmp_path / "file.txt"
+    f.write_text("keep me\n")
+    with pytest.raises(SystemExit, match="--out: .*file.txt exists and is not a folder"):
+        main(args + ["--out", str(f)])
+    assert f.read_text() == "keep me\n"
+
+
+def test_slamlib_run_with_an_empty_scan_counts_it_and_writes_valid_json(
+    cli_drive, tmp_path, capsys
+):
+    from slamlib.cli import main
+    from slamlib.kitti import read_kitti_poses
+
+    args, d = cli_drive
+    (d / "velodyne_points" / "data" / "0000000002.bin").write_bytes(b"")
+    out = tmp_path / "o"
+    assert main(args + ["--out", str(out)]) == 0
+    text = (out / "metrics.json").read_text()
+    info = json.loads(text, parse_constant=lambda c: pytest.fail(f"{c} in metrics.json"))
+    assert info["n_skipped_frames"] == 1 and "1 of 4 frames" in info["warnings"][0]
+    assert np.all(np.isfinite(read_kitti_poses(out / "slam_poses.txt")))
+    assert "warning: 1 of 4 frames" in capsys.readouterr().out
+
+
+def test_slamlib_run_tilt_sigma_reaches_the_filter(cli_drive, tmp_path):
+    """``--tilt-sigma`` turns on the tilt prior on the real OXTS samples (ax, ay, az) and is recorded."""
+    from slamlib.cli import main
+    from slamlib.kitti import read_kitti_poses
+
+    args, _ = cli_drive
+    out = tmp_path / "o"
+    assert main(args + ["--tilt-sigma", "0.005", "--out", str(out)]) == 0
+    info = json.loads((out / "metrics.json").read_text())
+    assert info["config"]["filter"]["tilt_sigma"] == 0.005
+    assert np.all(np.isfinite(read_kitti_poses(out / "slam_poses.txt")))
+
+
+def test_slamlib_run_transient_span_reaches_the_map_and_names_itself(cli_drive, tmp_path):
+    """``--transient-span`` turns on the eviction of movers' trails (recorded in metrics.json); with the Morton
+    map, which keeps no hit times, the error names both options."""
+    from slamlib.cli import main
+
+    args, _ = cli_drive
+    out = tmp_path / "o"
+    assert main(args + ["--transient-span", "2", "--out", str(out)]) == 0
+    assert (
+        json.loads((out / "metrics.json").read_text())["config"]["map"]["transient_span"]
+        == 2
+    )
+    with pytest.raises(
+        SystemExit,
+        match=r"--transient-span, --map: transient_span needs the 'voxel_hash' map",
+    ):
+        main(
+            args
+            + [
+                "--transient-span",
+                "2",
+                "--map",
+                "morton_bvh",
+                "--out",
+                str(tmp_path / "p"),
+            ]
+        )
+    with pytest.raises(
+        SystemExit, match=r"--transient-span: transient_span must be >= 0"
+    ):
+        main(args + ["--transient-span", "-1", "--out", str(tmp_path / "q")])
+
+
+def test_slamlib_run_bad_oxts_is_one_message_without_a_wrong_drive_hint(
+    cli_drive, tmp_path
+):
+    from slamlib.cli import main
+
+    args, d = cli_drive
+    set_oxts_field(d, 2, "lat", "91")
+    with pytest.raises(SystemExit) as exc:
+        main(args + ["--out", str(tmp_path / "o")])
+    msg = str(exc.value)
+    assert (
+        "0000000002.txt:1:" in msg and "lat = 91.0" in msg and "drives there" not in msg
+    ), msg
+    assert not (tmp_path / "o" / "metrics.json").exists()
+
+
+def test_slamlib_run_refuses_to_write_a_nan_trajectory_with_a_message(
+    cli_drive, tmp_path, monkeypatch
+):
+    import slamlib.slam3d
+    from slamlib.cli import main
+
+    real = slamlib.slam3d.run_drive
+
+    def poisoned(*a, **k):
+        run = real(*a, **k)
+        run.poses[2, 0, 3] = np.nan  # what a filter bug would leave behind
+        return run
+
+    monkeypatch.setattr(slamlib.slam3d, "run_drive", poisoned)
+    args, _ = cli_drive
+    out = tmp_path / "o"
+    with pytest.raises(SystemExit, match="could not write the results into .*non-finite"):
+        main(args + ["--out", str(out)])
+    assert not (out / "slam_poses.txt").exists() and not (out / "metrics.json").exists()
+
+
+def test_slamlib_run_refuses_to_overwrite_user_files_but_replaces_its_own(
+    cli_drive, tmp_path
+):
+    from slamlib.cli import main
+
+    args, _ = cli_drive
+    out = tmp_path / "o"
+    out.mkdir()
+    (out / "map.ply").write_text("my own map")
+    with pytest.raises(SystemExit, match="--out: .*map.ply.*--overwrite"):
+        main(args + ["--out", str(out)])
+    assert (out / "map.ply").read_text() == "my own map"
+    assert main(args + ["--out", str(out), "--overwrite"]) == 0
+    assert (
+        main(args + ["--out", str(out)]) == 0
+    )  # an earlier run's results are replaced without asking
+
+
+def test_slamlib_run_again_with_another_map_format_drops_the_stale_map(
+    cli_drive, tmp_path
+):
+    from slamlib.cli import main
+
+    args, _ = cli_drive
+    out = tmp_path / "o"
+    assert main(args + ["--out", str(out), "--map-format", "ply"]) == 0
+    assert main(args + ["--out", str(out), "--map-format", "pcd"]) == 0
+    assert (out / "map.pcd").is_file() and not (out / "map.ply").exists()
+
+
+# -------------------------------------------------- counts and frame selections named in one line; a run of empty scans
+@pytest.mark.parametrize(
+    "option,value",
+    [
+        ("--points", "0"),
+        ("--points", "-3"),
+        ("--particles", "0"),
+        ("--points", "100000000"),
+    ],
+)
+def test_slamlib_run_count_error_names_the_option_given(
+    tmp_path, monkeypatch, option, value
+):
+    import slamlib.slam3d
+    from slamlib.cli import main
+
+    monkeypatch.setattr(
+        slamlib.slam3d, "run_drive", lambda *a, **k: pytest.fail("the run started")
+    )
+    with pytest.raises(SystemExit) as exc:
+        main(["run", "--no-progress", option, value, "--out", str(tmp_path / "o")])
+    msg = str(exc.value)
+    assert (
+        msg.startswith("slamlib run: ")
+        and option in msg.split(":")[1]
+        and "\n" not in msg
+    ), msg
+
+
+@pytest.mark.parametrize("frames", ["1", "0:1", "2:"])
+def test_slamlib_run_one_frame_selection_names_frames(tmp_path, monkeypatch, frames):
+    import slamlib.slam3d
+    from slamlib.cli import main
+    from slamlib.kitti.sample import SAMPLE_DATE, SAMPLE_DRIVE, make_tiny_drive
+
+    monkeypatch.setattr(
+        slamlib.slam3d, "run_drive", lambda *a, **k: pytest.fail("the run started")
+    )
+    d = make_tiny_drive(tmp_path / "k", n_frames=3, point_stride=500)
+    with pytest.raises(SystemExit) as exc:
+        main(
+            [
+                "run",
+                "--basedir",
+                str(d.parent.parent),
+                "--date",
+                SAMPLE_DATE,
+                "--drive",
+                SAMPLE_DRIVE,
+                "--frames",
+                frames,
+                "--out",
+                str(tmp_path / "o"),
+            ]
+        )
+    assert str(exc.value).startswith(
+        f"slamlib run: --frames {frames!r} selects 1 frame"
+    ), str(exc.value)
+
+
+@pytest.mark.parametrize("fmt", ["ply", "pcd"])
+def test_slamlib_run_with_every_scan_empty_writes_an_empty_map(tmp_path, fmt):
+    import json
+
+    import open3d as o3d
+
+    from slamlib.cli import main
+    from slamlib.kitti.sample import SAMPLE_DATE, SAMPLE_DRIVE, make_tiny_drive
+
+    d = make_tiny_drive(tmp_path / "k", n_frames=3, point_stride=500)
+    for p in (d / "velodyne_points" / "data").iterdir():
+        p.write_bytes(b"")
+    out = tmp_path / "o"
+    assert (
+        main(
+            [
+                "run",
+                "--basedir",
+                str(d.parent.parent),
+                "--date",
+                SAMPLE_DATE,
+                "--drive",
+                SAMPLE_DRIVE,
+                "--no-progress",
+                "--no-plots",
+                "--particles",
+                "8",
+                "--points",
+                "30",
+                "--backend",
+                "numpy",
+                "--map-format",
+                fmt,
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
+    assert len(o3d.io.read_point_cloud(str(out / f"map.{fmt}")).points) == 0
+    info = json.loads((out / "metrics.json").read_text())
+    assert info["map_points_written"] == 0 and info["n_skipped_frames"] == 3

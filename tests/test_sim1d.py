@@ -1,5 +1,6 @@
 """Tests for slamlib.sim1d: the world and sensors, each of the twelve steps, the filter and the command."""
 
+import math
 import re
 
 import numpy as np
@@ -1151,3 +1152,131 @@ def test_extract_landmarks_rounds_to_nine_decimals():
         _grid([0, 5, 0], origin=0.123456789123), sigma=0.02, min_count=5
     )
     assert out.tolist() == [1.623456789]
+
+
+# ----------------------------------------------------- bad settings and options refused, the work of huge noise bounded
+def test_likelihood_field_wider_than_the_grid_keeps_the_grid_shape():
+    from slamlib.sim1d.steps import OccupancyGrid1D, likelihood_field
+
+    grid = OccupancyGrid1D.empty(0.0, 1.0, 0.05)
+    grid.counts[5] = 10
+    for sigma in (0.1, 20.0, 1e6):
+        f = likelihood_field(grid, sigma)
+        assert f.shape == grid.counts.shape and np.all(np.isfinite(f))
+    from slamlib.sim1d.steps import _gaussian_blur
+
+    c = np.arange(grid.counts.size, dtype=np.float64)
+    kernel = np.exp(
+        -0.5 * (np.arange(-8, 9) / 2.0) ** 2
+    )  # 2 cells, cut at 4 sigma: fits the 20-cell grid
+    np.testing.assert_allclose(
+        _gaussian_blur(grid.counts, 2.0), np.convolve(grid.counts, kernel, "same")
+    )
+    for s_cells in (
+        30.0,
+        1e7,
+    ):  # wider than the grid: every offset inside the grid is kept, nothing else
+        np.testing.assert_allclose(
+            _gaussian_blur(grid.counts, s_cells),
+            10 * np.exp(-0.5 * ((c - 5) / s_cells) ** 2),
+        )
+
+
+def test_sim1d_huge_sensor_noise_runs(capsys):
+    from slamlib.cli import main
+
+    assert main(["sim1d", "--sensor-noise", "20", "--frames", "20"]) == 0
+    assert "particle SLAM" in capsys.readouterr().out
+
+
+def test_run_slam_1d_bounds_the_map_a_huge_bias_asks_for():
+    from slamlib.sim1d import SensorModel1D, make_world, run_slam_1d, simulate
+    from slamlib.sim1d.filter import MAX_GRID_CELLS
+
+    rec = simulate(
+        make_world(seed=0), n_frames=50, seed=0, sensors=SensorModel1D(velocity_bias=1e6)
+    )
+    with pytest.raises(ValueError, match=f"more than {MAX_GRID_CELLS:,}"):
+        run_slam_1d(rec, n_particles=10, keep_history=False)
+
+
+def test_run_slam_1d_bounds_the_likelihood_field_work():
+    from slamlib.sim1d import SensorModel1D, make_world, run_slam_1d, simulate
+
+    rec = simulate(
+        make_world(seed=0),
+        n_frames=50,
+        seed=0,
+        sensors=SensorModel1D(velocity_bias=1e3, range_noise=1e6),
+    )
+    with pytest.raises(ValueError, match="operations per frame"):
+        run_slam_1d(rec, n_particles=10, keep_history=False)
+
+
+@pytest.mark.parametrize(
+    "name", ["velocity_bias", "velocity_noise", "range_noise", "period", "max_range"]
+)
+@pytest.mark.parametrize("value", [math.nan, math.inf])
+def test_sensor_model_rejects_non_finite(name, value):
+    from slamlib.sim1d import SensorModel1D
+
+    with pytest.raises(ValueError, match=f"{name} must be finite"):
+        SensorModel1D(**{name: value})
+
+
+@pytest.mark.parametrize(
+    "kw",
+    [
+        dict(motion_noise=math.nan),
+        dict(likelihood_sigma=math.inf),
+        dict(eps=-1.0),
+        dict(ess_fraction=2.0),
+    ],
+)
+def test_particle_slam_1d_rejects_bad_settings(kw):
+    from slamlib.sim1d import ParticleSLAM1D
+    from slamlib.sim1d.steps import OccupancyGrid1D
+
+    args = dict(
+        n_particles=5,
+        grid=OccupancyGrid1D.empty(0, 1),
+        motion_noise=0.1,
+        likelihood_sigma=0.1,
+        rng=np.random.default_rng(0),
+    )
+    args.update(kw)
+    with pytest.raises(ValueError, match=next(iter(kw))):
+        ParticleSLAM1D(**args)
+
+
+@pytest.mark.parametrize(
+    "option,value",
+    [
+        ("--bias", "nan"),
+        ("--bias", "inf"),
+        ("--motion-noise", "nan"),
+        ("--sensor-noise", "inf"),
+        ("--seed", "-1"),
+        ("--particles", "0"),
+        ("--frames", "1000000000"),
+        ("--plot", "FILE/fig.png"),
+        ("--plot", "fig.nosuchformat"),
+    ],
+)
+def test_sim1d_bad_option_is_refused_before_the_run(tmp_path, monkeypatch, option, value):
+    import slamlib.sim1d
+    from slamlib.cli import main
+
+    monkeypatch.setattr(
+        slamlib.sim1d, "run_slam_1d", lambda *a, **k: pytest.fail("the run started")
+    )
+    (tmp_path / "FILE").write_text("")
+    if option == "--plot":
+        value = str(tmp_path / value)
+    with pytest.raises(SystemExit) as exc:
+        main(
+            ["sim1d", option, value, "--frames", "5"]
+            if option != "--frames"
+            else ["sim1d", option, value]
+        )
+    assert str(exc.value).startswith(f"slamlib sim1d: {option}"), str(exc.value)

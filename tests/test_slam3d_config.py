@@ -1,6 +1,7 @@
 """The 3D filter's settings (:mod:`slamlib.slam3d.config`): the groups' checks and the defaults ``of`` keeps."""
 
 import json
+import math
 
 import pytest
 
@@ -51,3 +52,42 @@ def test_config_changes_settings_by_name_and_keeps_the_other_defaults():
     assert d["motion"]["sigma_xyz_per_m"] == [0.02, 0.02, 0.01]
     assert d["scan"]["min_range"] == 3.0 and d["map"]["params"] == {}
     json.dumps(d)
+
+
+# ------------------------------------------------------------------ settings out of range
+def test_min_range_above_max_range_is_refused():
+    with pytest.raises(ValueError, match="min_range < max_range"):
+        SLAM3DConfig.of(min_range=50.0, max_range=10.0)
+
+
+@pytest.mark.parametrize(
+    "kw,needle",
+    [
+        (dict(temperature=0), "temperature"),
+        (dict(temperature=-1), "temperature"),
+        (dict(temperature=math.nan), "temperature"),
+        (dict(temperature=math.inf), "temperature"),
+        (dict(seed=-1), "seed"),
+        (dict(particles=10**9), "particles"),
+        (dict(refine=-1), "refine"),
+        (dict(refine=10**6), "refine"),
+        (dict(ess_fraction=math.nan), "ess_fraction"),
+        (dict(ess_fraction=1.5), "ess_fraction"),
+        (dict(params={"voxel_size": -1}), "voxel_size"),
+        (dict(params={"voxel_size": math.inf}), "voxel_size"),
+        (dict(sigma_xyz_per_m=(-0.1, 0, 0)), "sigma_xyz_per_m"),
+        (dict(sigma_rpy_per_s=(math.nan, 0, 0)), "sigma_rpy_per_s"),
+        (dict(sigma_xyz_per_s=(math.inf, 0, 0)), "sigma_xyz_per_s"),
+        (dict(downsample_voxel=-1), "downsample_voxel"),
+        (dict(min_range=math.nan), "min_range"),
+        (dict(particles=1_000_000, scored_points=1_000_000), "point scores"),
+    ],
+)
+def test_config_rejects_out_of_range_settings(kw, needle):
+    with pytest.raises(ValueError, match=needle):
+        SLAM3DConfig.of(**kw)
+
+
+def test_motion_noise_scaled_by_inf_is_refused():
+    with pytest.raises(ValueError, match="finite"):
+        SLAM3DConfig().motion.scaled(math.inf)

@@ -450,3 +450,20 @@ def test_writers_convert_object_arrays_to_float(tmp_path):
     for x, y in ("ab", "cd", "ef"):
         assert (tmp_path / f"{x}.txt").read_text() == (tmp_path / f"{y}.txt").read_text()
     assert (tmp_path / "f.txt").read_text() == "0.5\n1.5\n"
+
+
+# ------------------------------------------------------------------ the writers refuse non-finite poses and times
+@pytest.mark.parametrize("writer", ["kitti", "tum", "times"])
+def test_trajectory_writers_refuse_nan(tmp_path, writer):
+    from slamlib.kitti.trajectory_io import write_kitti_poses, write_times, write_tum
+
+    T = np.tile(np.eye(4), (3, 1, 1))
+    T[1, 0, 3] = np.nan
+    path = tmp_path / "t.txt"
+    with pytest.raises(ValueError, match="non-finite"):
+        {
+            "kitti": lambda: write_kitti_poses(path, T),
+            "tum": lambda: write_tum(path, [0, 1, 2], T),
+            "times": lambda: write_times(path, [0.0, np.nan, 1.0]),
+        }[writer]()
+    assert not path.exists()

@@ -252,7 +252,7 @@ def test_kitti_segment_ends_at_the_first_frame_strictly_beyond_the_length():
     assert (r.t_err_percent, r.n_segments) == (pytest.approx(t_ref, rel=1e-12), n_ref)
 
 
-# ------------------------------------------------------------------ value tests closing mutation survivors
+# ------------------------------------------------------------------ the formulas, value by value
 def _drifting_pair(n=40, seed=8):
     """Ground truth (random walk, non-trivial rotations) and an estimate with per-step noise, float64."""
     rng = np.random.default_rng(seed)

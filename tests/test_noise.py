@@ -177,9 +177,7 @@ def test_hash_once_then_six_indexes_is_lut_index(thread, step, seed):
         )
 
 
-# Value tests pinning the formulas (issue 15, mutation testing).
-
-
+# ------------------------------------------------------------------ the formulas, value by value
 def _fmix32_ref(h):
     """MurmurHash3's fmix32 on Python ints (Appleby)."""
     h &= 0xFFFFFFFF

@@ -345,7 +345,17 @@ def test_maps_reject_bad_shapes_and_report_memory(kind):
         m.merge(np.zeros((5, 4), np.float32))
     m.merge(np.zeros((0, 3), np.float32))
     assert len(m) == 0
-    assert m.memory_bytes() >= 0
+    # the buffers' bytes: a voxel hash slot holds a key and a count (int64), sums (3 + 6 float64), a mean and an
+    # inverse covariance (3 + 6 float32) and two frame numbers (int32); the Morton map a code (int64) and xyz
+    # (3 float32) a point, a code and a start (int64) and a box (2 x 3 float32) a cell, and one more start
+    if kind == "voxel_hash":
+        per_slot = 8 + 8 + 3 * 8 + 6 * 8 + 3 * 4 + 6 * 4 + 2 * 4
+        assert m.memory_bytes() == per_slot * m.capacity
+    else:
+        assert m.memory_bytes() == 8  # no point, no cell: cell_start = [0]
+        m.merge(np.array([[0.0, 0.0, 0.0], [0.5, 0.0, 0.0], [5.0, 5.0, 5.0]], np.float32))
+        cells = len(m.lookup().cell_codes)
+        assert len(m) == 3 and m.memory_bytes() == 20 * 3 + 40 * cells + 8
     with pytest.raises(ValueError):
         make_map("octomap")
 

@@ -58,7 +58,12 @@ def test_slamlib_run_writes_trajectories_map_metrics_and_plots(tiny_drive, tmp_p
     info = json.loads((out / "metrics.json").read_text())
     assert info["frames"] == 10 and info["fps"] > 0 and info["frame_indices"] == [1, 10]
     assert {"slam", "dead_reckoning"} <= set(info["metrics"])
-    assert info["metrics"]["slam"]["ate_rmse_m"] >= 0
+    # ATE: the RMSE of the position errors against the written ground truth, no alignment (both start at 0)
+    gt = read_kitti_poses(out / "ground_truth_poses.txt")
+    ate = np.sqrt(np.mean(np.sum((slam[:, :3, 3] - gt[:, :3, 3]) ** 2, axis=1)))
+    assert ate > 0 and info["metrics"]["slam"]["ate_rmse_m"] == pytest.approx(
+        ate, rel=1e-6
+    )
     import open3d as o3d
 
     assert (

@@ -1,4 +1,5 @@
-"""ATE, RPE and the KITTI odometry metric: invariants, a literal devkit translation, and the golden values."""
+"""ATE, RPE and the KITTI odometry metric: invariants, a literal devkit translation, and the golden values; the
+metrics' JSON output."""
 
 import json
 

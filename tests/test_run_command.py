@@ -1,5 +1,5 @@
-"""``slamlib run`` (:mod:`slamlib.commands.run`) on tiny synthetic and KITTI drives: what it writes, and the
-one-line messages for a wrong drive or a bad setting."""
+"""``slamlib run`` (:mod:`slamlib.commands.run`) on tiny synthetic and KITTI drives: what it writes (never over a
+user's file), and the one-line messages, given before the run, for a wrong drive, a bad option or bad data."""
 
 import json
 

@@ -1,4 +1,5 @@
-"""Whole drives and their results (:mod:`slamlib.slam3d.run`): ``run_drive``, the frame selection of ``--frames``."""
+"""Whole drives and their results (:mod:`slamlib.slam3d.run`): ``run_drive``, the frame selection of ``--frames``,
+the output folder (``check_output_dir``) and ``save_run``, which writes the results whole or not at all."""
 
 import numpy as np
 import pytest

@@ -1,4 +1,5 @@
-"""Tests of the synthetic KITTI drive generator (slamlib.synth): layout, ground truth, sensor statistics, noise."""
+"""Tests of the synthetic KITTI drive generator (slamlib.synth): layout, ground truth, sensor statistics, noise,
+and writing over existing folders."""
 
 import json
 

@@ -80,7 +80,7 @@ MUTATE_JIT          ?= 0
 MUTATE_PURE         := slamlib.resampling.* slamlib.metrics.* slamlib.geometry.* slamlib.odometry.* \
                        slamlib.sim1d.* slamlib.slam3d.* slamlib.kitti.* slamlib.contract.*
 MUTATE_JITTED       := slamlib.noise.* slamlib.maps.* slamlib.kernels.*
-MUTATE_JITTED_TESTS := tests/test_noise.py tests/test_maps.py tests/test_kernels_cpu.py tests/test_mutation_gaps.py
+MUTATE_JITTED_TESTS := tests/test_noise.py tests/test_maps.py tests/test_kernels_cpu.py
 mutate: setup
 	$(MAKE) --no-print-directory mutate-run MUTATE_DIR=_build/mutate-pure MUTATE_JIT=1 MUTANTS='$(MUTATE_PURE)'
 	$(MAKE) --no-print-directory mutate-run MUTATE_DIR=_build/mutate-jitted MUTATE_JIT=0 MUTANTS='$(MUTATE_JITTED)' \

@@ -37,7 +37,16 @@ def street_maps():
     return world, out
 
 
-# The tiny KITTI raw drive shared by the reader tests (test_kitti_errors.py, test_kitti_values_raw.py).
+@pytest.fixture(scope="module")
+def drive():
+    """A 30-frame drive through the tiny 3D world of ``world3d.py``: ``(frames, ground-truth poses)``, built once a
+    module, shared by the 3D filter's tests (steps, pipeline, whole runs)."""
+    from world3d import simulate
+
+    return simulate()
+
+
+# The tiny KITTI raw drive shared by the reader tests (test_kitti_errors.py, test_kitti_reader.py, test_kitti_oxts.py).
 TINY_DRIVE_FRAMES = 4
 TINY_DRIVE_POINT_STRIDE = 500  # every 500th point of the embedded sample scans: ~250 points a scan, fast to read
 
@@ -67,3 +76,27 @@ def open_drive(drive_dir):
     return lambda **kw: KittiRawDrive(
         drive_dir.parent.parent, SAMPLE_DATE, SAMPLE_DRIVE, **kw
     )
+
+
+@pytest.fixture
+def cli_drive(tmp_path):
+    """``slamlib run``'s arguments for a tiny KITTI raw drive (4 frames, every 50th point of the sample scans; 10
+    particles, 50 points, no progress bar, no plots) and the drive's folder: ``(args, drive_dir)``."""
+    from slamlib.kitti.sample import SAMPLE_DATE, SAMPLE_DRIVE, make_tiny_drive
+
+    d = make_tiny_drive(tmp_path / "kitti", n_frames=TINY_DRIVE_FRAMES, point_stride=50)
+    return [
+        "run",
+        "--basedir",
+        str(d.parent.parent),
+        "--date",
+        SAMPLE_DATE,
+        "--drive",
+        SAMPLE_DRIVE,
+        "--no-progress",
+        "--no-plots",
+        "--particles",
+        "10",
+        "--points",
+        "50",
+    ], d

@@ -3,6 +3,8 @@
 import subprocess
 import sys
 
+import pytest
+
 import slamlib
 from slamlib.cli import build_parser, main
 from slamlib.commands import COMMANDS
@@ -40,3 +42,18 @@ def test_shipped_kitti_samples_keep_their_attribution():
     readme = (kitti_sample_dir() / "README.md").read_text()
     assert "CC BY-NC-SA 3.0" in readme and "Geiger" in readme
     assert (kitti_sample_dir() / "raw/2011_09_26/calib_imu_to_velo.txt").is_file()
+
+
+# ------------------------------------------------------------------ an option's value that looks like an option
+@pytest.mark.parametrize(
+    "command,option", [("synth", "--drive"), ("sim2d", "--particles")]
+)
+def test_option_equals_double_dash_is_a_one_line_error(tmp_path, capsys, command, option):
+    from slamlib.cli import main
+
+    argv = [command, f"{option}=--"] + (
+        ["--out", str(tmp_path / "s")] if command == "synth" else []
+    )
+    with pytest.raises(SystemExit) as exc:
+        main(argv)
+    assert exc.value.code == 2 and option in capsys.readouterr().err

@@ -60,9 +60,7 @@ def test_invert_pose_and_transform(r, p, y, x, yy, z):
     np.testing.assert_allclose(back, pts, atol=1e-9)
 
 
-# Value tests pinning the formulas (issue 15, mutation testing).
-
-
+# ------------------------------------------------------------------ the formulas, value by value
 def test_elementary_rotations_at_a_known_angle():
     a = np.pi / 6
     c, s = np.sqrt(3) / 2, 0.5

@@ -1,9 +1,11 @@
-"""The KITTI raw reader on the real shipped pieces and on tiny drives built from them (vs pykitti)."""
+"""The KITTI raw reader (:mod:`slamlib.kitti.raw`) on the real shipped pieces and on tiny drives built from them
+(vs pykitti); exact values and whole messages of its folder names, frame selection, opening and frames."""
 
 import numpy as np
 import pykitti
 import pytest
 
+from slamlib.errors import DataFormatError
 from slamlib.geometry import invert_pose
 from slamlib.kitti import (
     OXTS_FIELDS,
@@ -18,12 +20,14 @@ from slamlib.kitti import (
     read_velodyne_scan,
     write_velodyne_scan,
 )
+from slamlib.kitti.raw import _normalise_frames, check_numbered_files, drive_folder_name
 from slamlib.kitti.sample import (
     SAMPLE_DATE,
     SAMPLE_DRIVE,
     make_tiny_drive,
     sample_raw_paths,
 )
+from slamlib.kitti.timestamps import write_timestamps_ns
 
 P = sample_raw_paths()
 
@@ -249,3 +253,326 @@ def test_world_is_first_imu_pose_not_enu(tiny):
     G = drive.ground_truth_poses()
     t5 = (drive.timestamps_ns[5] - drive.timestamps_ns[0]) * 1e-9
     assert G[5, 0, 3] == pytest.approx(first.oxts.vf * t5, rel=0.02)
+
+
+# ------------------------------------------------------------------ raw: names and frame selection
+def test_drive_folder_name_keeps_string_drive_as_given():
+    """A drive given as a string is used verbatim (only ints are zero-padded to 4 digits)."""
+    assert drive_folder_name("2011_09_26", "1") == "2011_09_26_drive_1_sync"
+    assert drive_folder_name("2011_09_26", 1) == "2011_09_26_drive_0001_sync"
+
+
+def test_check_numbered_files_full_message(tmp_path):
+    """The missing-file message names the count, the first missing file and that numbering starts at 0."""
+    (tmp_path / "0000000000.txt").write_text("")
+    with pytest.raises(DataFormatError) as info:
+        check_numbered_files(tmp_path, ".txt", 3, "OXTS packets", "timestamps")
+    assert info.value.message == (
+        "fewer OXTS packets than the 3 timestamps: 2 of 3 missing "
+        "(first: 0000000001.txt; files are numbered 0000000000.txt upwards)"
+    )
+
+
+N = 4  # frames in the drive that _normalise_frames is told about
+
+
+def test_normalise_frames_values_and_dtype():
+    """Every accepted form of ``frames`` gives int64 frame numbers, including floats, generators and lists."""
+    cases = [
+        (None, [0, 1, 2, 3]),
+        (slice(1, None, 2), [1, 3]),
+        (range(1, 3), [1, 2]),
+        ([0.0, 2.0], [0, 2]),
+        ((i for i in (0, 3)), [0, 3]),
+        ([0], [0]),
+        (np.array([3, 0]), [3, 0]),
+    ]
+    for frames, expected in cases:
+        idx = _normalise_frames(frames, N)
+        assert idx.dtype == np.int64
+        assert idx.tolist() == expected
+
+
+def test_normalise_frames_error_messages():
+    """Full messages for a 0-d / 2-D selection, for frame numbers that are not whole numbers (0.5 was read as
+    frame 0) and for frame numbers just past the last frame."""
+    msg = "frames must be a range, a slice or a 1-D sequence of frame numbers"
+    for bad in (np.array(2), np.zeros((2, 2), dtype=int)):
+        with pytest.raises(ValueError) as info:
+            _normalise_frames(bad, N)
+        assert str(info.value) == msg
+    for bad, shown in (([0, 0.5], "0.5"), ([np.inf], "inf"), (["1"], "'1'")):
+        with pytest.raises(ValueError) as info:
+            _normalise_frames(bad, N)
+        assert str(info.value).startswith(
+            "frames must be whole frame numbers, got "
+        ) and shown in str(info.value)
+    with pytest.raises(ValueError) as info:
+        _normalise_frames([0, N], N)
+    assert (
+        str(info.value)
+        == "frames out of range: the drive has frames 0..3, asked for 0..4"
+    )
+    assert _normalise_frames([N - 1], N).tolist() == [N - 1]
+
+
+def test_normalise_frames_of_float32_whole_numbers():
+    """float32 frame numbers are floats too: whole ones are frames, others an error (not "not whole" for all)."""
+    assert _normalise_frames(np.array([0.0, 2.0], np.float32), N).tolist() == [0, 2]
+    with pytest.raises(ValueError, match="^frames must be whole frame numbers, got "):
+        _normalise_frames(np.array([1.5], np.float32), N)
+
+
+# ------------------------------------------------------------------ raw: opening
+def test_missing_drive_folder_full_message(tmp_path):
+    """The folder-not-found message repeats basedir, date and drive exactly as the user passed them."""
+    with pytest.raises(DataFormatError) as info:
+        KittiRawDrive(tmp_path, "2011_09_26", 7)
+    expected_path = tmp_path / "2011_09_26" / "2011_09_26_drive_0007_sync"
+    assert info.value.path == str(expected_path)
+    assert info.value.message == (
+        "KITTI raw drive folder not found (expected basedir/DATE/DATE_drive_XXXX_sync with "
+        f"basedir={str(tmp_path)!r}, date='2011_09_26', drive='0007')"
+    )
+
+
+def test_dataset_suffix_selects_folder(drive_dir, tiny_drive_frames):
+    """``dataset='extract'`` opens ``DATE_drive_XXXX_extract`` (the suffix is not always ``sync``)."""
+    other = drive_dir.with_name(drive_dir.name.replace("_sync", "_extract"))
+    drive_dir.rename(other)
+    drive = KittiRawDrive(
+        other.parent.parent, SAMPLE_DATE, SAMPLE_DRIVE, dataset="extract"
+    )
+    assert drive.path == other
+    assert len(drive) == tiny_drive_frames
+
+
+def test_without_velodyne_timestamps(drive_dir, open_drive):
+    """Without velodyne_points/timestamps.txt the drive opens and the scan times are None."""
+    (drive_dir / "velodyne_points" / "timestamps.txt").unlink()
+    drive = open_drive()
+    assert drive.all_velo_timestamps_ns is None and drive.velo_timestamps_ns is None
+    assert drive[1].scan_time_offset_s == 0.0
+
+
+def test_frames_carry_the_scan_stamp_relative_to_the_pose(open_drive):
+    """``Frame.scan_time_offset_s`` = Velodyne timestamp - OXTS timestamp (s) of the frame itself: 12-24 ms before
+    the pose in the generator's drives, as on KITTI raw."""
+    drive = open_drive(frames=[2, 0])
+    for f, velo in zip(drive, drive.velo_timestamps_ns):
+        assert f.scan_time_offset_s == (int(velo) - f.timestamp_ns) * 1e-9
+        assert -0.0245 < f.scan_time_offset_s < -0.0115
+
+
+def test_velodyne_timestamps_need_not_increase(drive_dir, open_drive):
+    """Scan times out of order are accepted (informational) and returned as written, per selected frame."""
+    f = drive_dir / "velodyne_points" / "timestamps.txt"
+    ts = read_timestamps_ns(f)[::-1].copy()
+    write_timestamps_ns(f, ts)
+    drive = open_drive(frames=[2, 0])
+    assert drive.velo_timestamps_ns.tolist() == [ts[2], ts[0]]
+
+
+def test_repr_exact(drive_dir, open_drive):
+    """``repr`` names the drive folder and the selection size."""
+    drive = open_drive(frames=range(1, 3))
+    assert repr(drive) == f"KittiRawDrive({str(drive_dir)!r}, 2 of 4 frames)"
+
+
+# ------------------------------------------------------------------ raw: frames
+def test_oxts_packets_are_cached(drive_dir, open_drive):
+    """A packet is read once: a later change of its file does not change what the drive returns."""
+    drive = open_drive()
+    first = drive.oxts_packet(1)
+    (drive_dir / "oxts" / "data" / "0000000001.txt").write_text("garbage\n")
+    assert drive.oxts_packet(1) is first
+    assert drive.oxts_packet(0) is drive.reference_packet
+
+
+def test_getitem_bounds_dt_and_path(drive_dir, open_drive):
+    """``drive[-n]`` is the first frame (dt 0.0), ``drive[n]`` raises with the full message; the path is kept."""
+    drive = open_drive(frames=[1, 3])
+    ts = drive.all_timestamps_ns
+    first = drive[-2]
+    assert first.index == 1 and first.dt == 0.0
+    assert drive[0].dt == 0.0
+    assert drive[1].dt == pytest.approx((ts[3] - ts[1]) * 1e-9, rel=1e-12)
+    assert (
+        drive[1].velodyne_path
+        == drive_dir / "velodyne_points" / "data" / "0000000003.bin"
+    )
+    with pytest.raises(IndexError) as info:
+        drive[2]
+    assert str(info.value) == "frame position 2 out of range for 2 frames"
+    with pytest.raises(IndexError):
+        drive[-3]
+
+
+def test_ground_truth_poses_bad_frame_message(drive_dir, open_drive):
+    """The full message for an unknown pose frame."""
+    with pytest.raises(ValueError) as info:
+        open_drive().ground_truth_poses("cam")
+    assert str(info.value) == "frame must be 'imu' or 'velo', got 'cam'"
+
+
+def test_imu_arrays_two_frames(drive_dir, open_drive):
+    """With two selected frames ``dt[1]`` is their time difference and the timestamps are the selected ones."""
+    drive = open_drive(frames=[0, 2])
+    ts = drive.all_timestamps_ns
+    a = drive.imu_arrays()
+    assert a.timestamps_ns.tolist() == [ts[0], ts[2]]
+    assert a.dt[0] == 0.0
+    assert a.dt[1] == pytest.approx((ts[2] - ts[0]) * 1e-9, rel=1e-12)
+
+
+def test_progress_off_by_default(drive_dir, capsys, open_drive):
+    """By default neither iterating nor reading the packets draws a progress bar."""
+    drive = open_drive()
+    list(drive)
+    drive.imu_arrays()
+    assert capsys.readouterr().err == ""
+
+
+def test_progress_bars_labelled_and_cleared(drive_dir, capsys, open_drive):
+    """``progress=True`` draws a 'frames' bar counting 'frame' and an 'OXTS' bar counting 'packet', both removed
+    when done (no bar left behind: the output ends in a carriage return, not a newline)."""
+    drive = open_drive(progress=True)
+    list(drive)
+    err = capsys.readouterr().err
+    assert err.startswith("\rframes:   0%|") and "0/4 [00:00<?, ?frame/s]" in err
+    assert "\n" not in err and err.endswith("\r")
+    drive.imu_arrays()
+    err = capsys.readouterr().err
+    assert err.startswith("\rOXTS:   0%|") and "0/4 [00:00<?, ?packet/s]" in err
+    assert "\n" not in err and err.endswith("\r")
+
+
+# ------------------------------------------------------------------ drive.calib on what pykitti parses more strictly
+def _replace_line(path, key, text):
+    lines = [
+        text if line.startswith(key) else line for line in path.read_text().splitlines()
+    ]
+    path.write_text("\n".join(lines) + "\n")
+
+
+def _trailing_spaces(d):
+    p = d / "oxts" / "timestamps.txt"
+    p.write_text("".join(line + "  \n" for line in p.read_text().splitlines()))
+
+
+def _blank_line_at_the_end(d):
+    p = d / "oxts" / "timestamps.txt"
+    p.write_text(p.read_text() + "\n")
+
+
+def _non_utf8_byte(d):
+    p = d.parent / "calib_cam_to_cam.txt"
+    p.write_bytes(p.read_bytes().replace(b"calib_time: ", b"calib_time: \xff", 1))
+
+
+def _blank_calib_line(d):
+    p = d.parent / "calib_cam_to_cam.txt"
+    p.write_text("\n" + p.read_text())
+
+
+def _key_with_a_leading_space(d):
+    p = d.parent / "calib_cam_to_cam.txt"
+    p.write_text(p.read_text().replace("R_rect_00:", " R_rect_00:"))
+
+
+def _blank_oxts_line(d):
+    p = d / "oxts" / "data" / "0000000000.txt"
+    p.write_text("\n" + p.read_text())
+
+
+def _a_file_sorted_before_frame_0(d):
+    (d / "oxts" / "data" / "0.txt").write_text("not a packet\n")
+
+
+@pytest.mark.parametrize(
+    "corrupt,where",
+    [
+        (
+            _trailing_spaces,
+            r"oxts/timestamps.txt:1: pykitti cannot parse timestamp line '2011-09-26 13:02:25.964389445  '",
+        ),
+        (
+            _blank_line_at_the_end,
+            r"oxts/timestamps.txt:4: pykitti cannot parse timestamp line ''",
+        ),
+        (_non_utf8_byte, r"calib_cam_to_cam.txt:1: byte b'\\xff' is not"),
+        (_blank_calib_line, r"calib_cam_to_cam.txt:1: line without ':'"),
+        (
+            _key_with_a_leading_space,
+            r"calib_cam_to_cam.txt:9: calibration key 'R_rect_00' has spaces around it",
+        ),
+        (
+            _blank_oxts_line,
+            r"oxts/data/0000000000.txt:1: blank line in an OXTS packet file",
+        ),
+        (
+            _a_file_sorted_before_frame_0,
+            r"oxts/data/0.txt: pykitti would read this file as frame 0's OXTS packet",
+        ),
+    ],
+)
+def test_drive_calib_on_what_pykitti_cannot_parse_is_a_data_format_error(
+    tmp_path, corrupt, where
+):
+    """These drives open in slamlib; ``drive.calib`` is a DataFormatError naming the file, not pykitti's error."""
+    from slamlib.kitti import KittiRawDrive
+    from slamlib.kitti.sample import SAMPLE_DATE, SAMPLE_DRIVE, make_tiny_drive
+
+    d = make_tiny_drive(tmp_path / "k", n_frames=3, point_stride=500)
+    corrupt(d)
+    drive = KittiRawDrive(tmp_path / "k", SAMPLE_DATE, SAMPLE_DRIVE)
+    assert len(list(drive)) == 3  # slamlib itself reads it
+    with pytest.raises(DataFormatError, match=where):
+        _ = drive.calib  # the calibration is read on first use
+
+
+@pytest.mark.parametrize(
+    "key,value,where",
+    [
+        (
+            "R_rect_00:",
+            "R_rect_00: 0 0 0 0 0 0 0 0 0",
+            r"calib_cam_to_cam.txt:9: calibration R_rect_00 is not a rotation",
+        ),
+        (
+            "R_rect_02:",
+            "R_rect_02: 1 0 0 0 1 0 0 0 -1",
+            r"calib_cam_to_cam.txt:25: calibration R_rect_02 is not a rotation",
+        ),
+        (
+            "P_rect_00:",
+            "P_rect_00: 0 0 609 0 0 721 172 0 0 0 1 0",
+            r"calib_cam_to_cam.txt:10: calibration P_rect_00 has focal length P\[0, 0\] = 0",
+        ),
+    ],
+)
+def test_camera_calibration_pykitti_cannot_use_is_refused_at_open(
+    tmp_path, key, value, where
+):
+    """A singular R_rect_00 (pykitti's LinAlgError) or P_rect_00[0, 0] = 0 (NaN in drive.calib): refused at open."""
+    from slamlib.kitti import KittiRawDrive
+    from slamlib.kitti.sample import SAMPLE_DATE, SAMPLE_DRIVE, make_tiny_drive
+
+    d = make_tiny_drive(tmp_path / "k", n_frames=3, point_stride=500)
+    _replace_line(d.parent / "calib_cam_to_cam.txt", key, value)
+    with pytest.raises(DataFormatError, match=where):
+        KittiRawDrive(tmp_path / "k", SAMPLE_DATE, SAMPLE_DRIVE)
+
+
+def test_drive_calib_of_a_clean_drive_still_matches_pykitti(tmp_path):
+    import numpy as np
+    import pykitti
+
+    from slamlib.kitti import KittiRawDrive
+    from slamlib.kitti.sample import SAMPLE_DATE, SAMPLE_DRIVE, make_tiny_drive
+
+    make_tiny_drive(tmp_path / "k", n_frames=3, point_stride=500)
+    mine = KittiRawDrive(tmp_path / "k", SAMPLE_DATE, SAMPLE_DRIVE).calib
+    theirs = pykitti.raw(str(tmp_path / "k"), SAMPLE_DATE, SAMPLE_DRIVE).calib
+    for name, value in theirs._asdict().items():
+        np.testing.assert_array_equal(getattr(mine, name), value)

@@ -1,9 +1,11 @@
-"""Issue 12: the KITTI odometry layout (reader, synthetic writer, ``slamlib run --odometry-dir``) and LIDAR-only
-SLAM (step 3 from the filter's own constant-velocity estimate)."""
+"""The KITTI odometry layout (:mod:`slamlib.kitti.sequence`: the reader, the synthetic writer,
+``slamlib run --odometry-dir``) and LIDAR-only SLAM on it (step 3 from the filter's own constant-velocity
+estimate); the reader's exact values and whole messages on hand-written sequences."""
 
 from __future__ import annotations
 
 import json
+import math
 import shutil
 import subprocess
 import sys
@@ -14,6 +16,7 @@ import pytest
 from slamlib.errors import DataFormatError
 from slamlib.geometry import make_pose, rpy_to_matrix
 from slamlib.kitti import KittiOdometrySequence, KittiRawDrive
+from slamlib.kitti.sequence import sequence_name
 from slamlib.odometry import imu_increment, increment_matrix, twist_between
 from slamlib.slam3d import SLAM3DConfig, evaluate, run_drive, steps
 from slamlib.synth import Hdl64, write_drive, write_sequence
@@ -442,3 +445,251 @@ def test_own_motion_window_and_damping():
         SLAM3DConfig.of(cv_damping=(1, 1, 1, 1, 1, 2))
     with pytest.raises(ValueError, match="cv_window must be in"):
         SLAM3DConfig.of(cv_window=0)
+
+
+# ------------------------------------------------------------------ the reader on hand-written sequences
+# A rotation of 90 degrees about z and a 1 m / 2 m / 3 m offset: a valid, non-trivial calibration Tr.
+TR = np.array([[0.0, -1.0, 0.0, 1.0], [1.0, 0.0, 0.0, 2.0], [0.0, 0.0, 1.0, 3.0]])
+TIMES = [0.0, 0.25, 0.75]
+
+
+def _line(values):
+    return " ".join(repr(float(v)) for v in np.ravel(values))
+
+
+def _scan(i):
+    """Two points whose values encode the frame number ``i``."""
+    return (np.arange(8, dtype=np.float32).reshape(2, 4) + 10 * i).astype(np.float32)
+
+
+def _pose(k):
+    """Camera pose ``k``: a turn of ``0.1 k`` rad about z and a translation ``(k, k / 2, 0)`` m."""
+    c, s = math.cos(0.1 * k), math.sin(0.1 * k)
+    return np.array([[c, -s, 0.0, float(k)], [s, c, 0.0, 0.5 * k], [0.0, 0.0, 1.0, 0.0]])
+
+
+def _make_sequence(base, seq="04", times=TIMES, tr=TR, poses=True, scans=None):
+    """Write ``base/sequences/<seq>`` by hand: calib.txt (P0..P3, Tr), times.txt, velodyne/*.bin, poses."""
+    d = base / "sequences" / seq
+    (d / "velodyne").mkdir(parents=True)
+    p = _line(np.hstack([np.eye(3), np.zeros((3, 1))]))
+    (d / "calib.txt").write_text(
+        "".join(f"P{i}: {p}\n" for i in range(4)) + f"Tr: {_line(tr)}\n"
+    )
+    (d / "times.txt").write_text("".join(f"{t!r}\n" for t in times))
+    for i in range(len(times) if scans is None else scans):
+        _scan(i).astype("<f4").tofile(d / "velodyne" / f"{i:06d}.bin")
+    if poses:
+        (base / "poses").mkdir(exist_ok=True)
+        (base / "poses" / f"{seq}.txt").write_text(
+            "".join(_line(_pose(k)) + "\n" for k in range(len(times)))
+        )
+    return d
+
+
+def _tr4():
+    T = np.eye(4)
+    T[:3] = TR
+    return T
+
+
+@pytest.fixture
+def base(tmp_path):
+    _make_sequence(tmp_path)
+    return tmp_path
+
+
+def _err(fn, exc=DataFormatError):
+    with pytest.raises(exc) as info:
+        fn()
+    return info.value
+
+
+# ------------------------------------------------------------------ sequence_name
+def test_sequence_name_error_message_is_whole():
+    """A non-numeric sequence is refused with the message naming the value (repr)."""
+    assert (
+        str(_err(lambda: sequence_name("x7"), ValueError))
+        == "sequence must be a number like 07, got 'x7'"
+    )
+
+
+# ------------------------------------------------------------------ opening
+def test_values_read_at_open(base):
+    """calib, Tr (4x4), times and the ground truth inv(Tr) P_k Tr of a hand-written sequence."""
+    seq = KittiOdometrySequence(base, 4)
+    np.testing.assert_array_equal(seq.calib["Tr"], TR.ravel())
+    np.testing.assert_array_equal(seq.Tr, _tr4())
+    np.testing.assert_array_equal(seq.times, TIMES)
+    assert seq.poses_path == base / "poses" / "04.txt"
+    for k in range(3):
+        P = np.eye(4)
+        P[:3] = _pose(k)
+        np.testing.assert_allclose(
+            seq.ground_truth[k], np.linalg.inv(_tr4()) @ P @ _tr4(), atol=1e-12
+        )
+
+
+def test_missing_sequence_folder_lists_the_sequences_there(tmp_path):
+    """The message lists only the numbered folders under sequences/ (not files, not other names), sorted."""
+    for name in ("11", "03", "abc"):
+        (tmp_path / "sequences" / name).mkdir(parents=True)
+    (tmp_path / "sequences" / "05").write_text("")
+    err = _err(lambda: KittiOdometrySequence(tmp_path, 7))
+    path = tmp_path / "sequences" / "07"
+    assert str(err) == (
+        f"{path}: KITTI odometry sequence folder not found (expected basedir/sequences/NN); "
+        "sequences there: 03, 11"
+    )
+    assert err.path == str(path)
+
+
+def test_missing_sequences_folder_says_none(tmp_path):
+    """Without a sequences/ folder the list reads ``none``."""
+    err = _err(lambda: KittiOdometrySequence(tmp_path, "00"))
+    assert str(err) == (
+        f"{tmp_path / 'sequences' / '00'}: KITTI odometry sequence folder not found (expected "
+        "basedir/sequences/NN); sequences there: none"
+    )
+
+
+def test_tr_offset_too_far_names_tr_offset(tmp_path):
+    """A Tr translation over 100 m is refused, the message calling it Tr's offset."""
+    tr = TR.copy()
+    tr[:, 3] = [200.0, 0.0, 0.0]
+    d = _make_sequence(tmp_path, tr=tr)
+    err = _err(lambda: KittiOdometrySequence(tmp_path, 4))
+    assert str(err) == (
+        f"{d / 'calib.txt'}: calibration Tr's offset = [200.0, 0.0, 0.0] m is farther than 100 m: "
+        "not an offset between two sensors of one vehicle"
+    )
+
+
+def test_missing_times_file_message(base):
+    """No times.txt: the whole message, naming the file."""
+    times = base / "sequences" / "04" / "times.txt"
+    times.unlink()
+    assert str(_err(lambda: KittiOdometrySequence(base, 4))) == (
+        f"{times}: times file not found (one time in seconds per frame; the odometry layout needs it for the "
+        "frame intervals)"
+    )
+
+
+def test_empty_times_file_has_no_frames(base):
+    """An empty times.txt: DataFormatError naming it (path attribute too), no line."""
+    times = base / "sequences" / "04" / "times.txt"
+    times.write_text("")
+    err = _err(lambda: KittiOdometrySequence(base, 4))
+    assert str(err) == f"{times}: holds no times: the sequence has no frames"
+    assert err.path == str(times) and err.line is None
+
+
+def test_one_frame_sequence_opens(tmp_path):
+    """One time, one scan, one pose: a valid 1-frame sequence (the lower bound)."""
+    _make_sequence(tmp_path, times=[0.5])
+    seq = KittiOdometrySequence(tmp_path, 4)
+    assert len(seq) == 1 and seq[0].time_s == 0.5 and seq[0].dt == 0.0
+    np.testing.assert_array_equal(seq[0].scan, _scan(0))
+
+
+def test_missing_scan_message(tmp_path):
+    """Fewer scans than times: the message says what is missing against what."""
+    d = _make_sequence(tmp_path, scans=2)
+    assert str(_err(lambda: KittiOdometrySequence(tmp_path, 4))) == (
+        f"{d / 'velodyne'}: fewer Velodyne scans than the 3 times in times.txt: 1 of 3 missing "
+        "(first: 000002.bin; files are numbered 000000.bin upwards)"
+    )
+
+
+def test_missing_velodyne_folder_message(base):
+    """No velodyne/ folder: the message names the folder and what it should hold."""
+    d = base / "sequences" / "04" / "velodyne"
+    for f in d.iterdir():
+        f.unlink()
+    d.rmdir()
+    assert str(_err(lambda: KittiOdometrySequence(base, 4))) == (
+        f"{d}: folder of Velodyne scans not found (needed for 3 frames)"
+    )
+
+
+def test_explicit_poses_file_is_read(base, tmp_path):
+    """``poses=`` reads that file, not basedir/poses/NN.txt."""
+    other = tmp_path / "gt.txt"
+    P = np.eye(4)
+    P[:3, 3] = [5.0, 6.0, 7.0]
+    other.write_text("".join(_line(P[:3]) + "\n" for _ in range(3)))
+    seq = KittiOdometrySequence(base, 4, poses=other)
+    assert seq.poses_path == other
+    np.testing.assert_allclose(
+        seq.ground_truth[1], np.linalg.inv(_tr4()) @ P @ _tr4(), atol=1e-12
+    )
+
+
+def test_explicit_missing_poses_file_is_an_error(base, tmp_path):
+    """An explicit poses file that does not exist is an error naming it, not silently no ground truth."""
+    err = _err(lambda: KittiOdometrySequence(base, 4, poses=tmp_path / "nope.txt"))
+    assert err.path == str(tmp_path / "nope.txt")
+
+
+def test_poses_rotation_is_checked(base):
+    """A pose whose 3x3 block is not a rotation is refused at open (check_rotation)."""
+    bad = _pose(1)
+    bad[0, 0] = 2.0
+    f = base / "poses" / "04.txt"
+    f.write_text(_line(_pose(0)) + "\n" + _line(bad) + "\n" + _line(_pose(2)) + "\n")
+    err = _err(lambda: KittiOdometrySequence(base, 4))
+    assert err.path == str(f) and err.line == 2
+
+
+def test_no_poses_file_means_no_ground_truth(tmp_path):
+    """Without poses/NN.txt: poses_path and ground_truth None, frames without T_w_body, a clear ValueError."""
+    _make_sequence(tmp_path, poses=False)
+    seq = KittiOdometrySequence(tmp_path, 4)
+    assert seq.poses_path is None and seq.ground_truth is None
+    assert seq[1].T_w_body is None
+    err = _err(seq.ground_truth_poses, ValueError)
+    assert (
+        str(err)
+        == f"{tmp_path / 'sequences' / '04'} has no ground truth ({tmp_path / 'poses' / '04'}.txt)"
+    )
+
+
+# ------------------------------------------------------------------ frames
+def test_frame_values(base):
+    """index, time_s, dt against the previous selected frame, scan, T_w_body and the scan path."""
+    seq = KittiOdometrySequence(base, 4, frames=[0, 2])
+    f = seq[1]
+    assert f.index == 2 and f.time_s == 0.75 and f.dt == 0.75
+    assert f.velodyne_path == base / "sequences" / "04" / "velodyne" / "000002.bin"
+    np.testing.assert_array_equal(f.scan, _scan(2))
+    np.testing.assert_array_equal(f.T_w_body, seq.ground_truth[2])
+    assert (
+        repr(seq)
+        == f"KittiOdometrySequence({str(base / 'sequences' / '04')!r}, 2 of 3 frames)"
+    )
+
+
+def test_getitem_bounds(base):
+    """Positions -n..n-1 are valid (-n is the first), n and -n-1 raise IndexError with the whole message."""
+    seq = KittiOdometrySequence(base, 4)
+    assert seq[-3].index == 0 and seq[2].index == 2
+    assert (
+        str(_err(lambda: seq[3], IndexError))
+        == "frame position 3 out of range for 3 frames"
+    )
+    assert (
+        str(_err(lambda: seq[-4], IndexError))
+        == "frame position -4 out of range for 3 frames"
+    )
+
+
+def test_progress_bar_only_when_asked(base, capsys):
+    """progress=True draws a transient 'frames' bar counting 'frame' units on stderr; the default draws none."""
+    assert [f.index for f in KittiOdometrySequence(base, 4)] == [0, 1, 2]
+    assert capsys.readouterr().err == ""
+    assert [f.index for f in KittiOdometrySequence(base, 4, progress=True)] == [0, 1, 2]
+    err = capsys.readouterr().err
+    assert err.startswith("\rframes:   0%|") and " 0/3 " in err and "frame/s]" in err
+    assert not err.endswith(
+        "\n"
+    )  # leave=False: the bar is cleared, not left on its own line

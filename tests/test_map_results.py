@@ -13,6 +13,7 @@ from slamlib.experiments.video import (
     write_map_video,
 )
 from slamlib.kitti import KittiRawDrive
+from slamlib.kitti.sample import SAMPLE_DATE, SAMPLE_DRIVE, make_tiny_drive
 from slamlib.slam3d import SLAM3DConfig, run_drive
 
 
@@ -197,3 +198,106 @@ def test_render_map_3d_rejects_bad_input():
         render_map_3d(np.zeros((0, 3)))
     with pytest.raises(ValueError, match="16 x 16"):
         render_map_3d(np.ones((5, 3)), size=(8, 8))
+
+
+# ----------------------------------------------------------- --video where it would lose a file, refused before the run
+def test_slamlib_run_video_under_a_file_is_refused_before_the_run(cli_drive, tmp_path):
+    from slamlib.cli import main
+
+    args, _ = cli_drive
+    (tmp_path / "a-file").write_text("mine\n")
+    with pytest.raises(SystemExit) as exc:
+        main(
+            args
+            + [
+                "--out",
+                str(tmp_path / "o"),
+                "--video",
+                str(tmp_path / "a-file" / "x.mp4"),
+            ]
+        )
+    assert "--video" in str(exc.value) and not (tmp_path / "o").exists()
+
+
+# ------------------------------------------------------------------ an existing video is replaced only with --overwrite
+@pytest.fixture
+def run_args(tmp_path):
+    d = make_tiny_drive(tmp_path / "kitti", n_frames=3, point_stride=500)
+    return [
+        "run",
+        "--basedir",
+        str(d.parent.parent),
+        "--date",
+        SAMPLE_DATE,
+        "--drive",
+        SAMPLE_DRIVE,
+        "--no-progress",
+        "--no-plots",
+        "--particles",
+        "8",
+        "--points",
+        "30",
+        "--backend",
+        "numpy",
+    ]
+
+
+def test_slamlib_run_refuses_an_existing_video_file_before_the_run(
+    run_args, tmp_path, monkeypatch
+):
+    pytest.importorskip("PIL")
+    import slamlib.slam3d
+    from slamlib.cli import main
+
+    monkeypatch.setattr(
+        slamlib.slam3d, "run_drive", lambda *a, **k: pytest.fail("the run started")
+    )
+    video = tmp_path / "mine.gif"
+    video.write_bytes(b"GIF89a my holiday")
+    with pytest.raises(SystemExit) as exc:
+        main(run_args + ["--out", str(tmp_path / "o"), "--video", str(video)])
+    msg = str(exc.value)
+    assert (
+        msg.startswith("slamlib run: --video: ")
+        and "--overwrite" in msg
+        and "\n" not in msg
+    ), msg
+    assert video.read_bytes() == b"GIF89a my holiday"
+
+
+def test_slamlib_run_replaces_an_existing_video_with_overwrite(run_args, tmp_path):
+    pytest.importorskip("PIL")
+    from slamlib.cli import main
+
+    video = tmp_path / "mine.gif"
+    video.write_bytes(b"old")
+    assert (
+        main(
+            run_args
+            + ["--out", str(tmp_path / "o"), "--video", str(video), "--overwrite"]
+        )
+        == 0
+    )
+    assert video.read_bytes()[:6] in (b"GIF89a", b"GIF87a")
+
+
+def test_slamlib_run_refuses_a_folder_as_video(run_args, tmp_path, monkeypatch):
+    pytest.importorskip("PIL")
+    import slamlib.slam3d
+    from slamlib.cli import main
+
+    monkeypatch.setattr(
+        slamlib.slam3d, "run_drive", lambda *a, **k: pytest.fail("the run started")
+    )
+    (tmp_path / "v.gif").mkdir()
+    with pytest.raises(SystemExit, match="--video: .*is a folder"):
+        main(
+            run_args
+            + [
+                "--out",
+                str(tmp_path / "o"),
+                "--video",
+                str(tmp_path / "v.gif"),
+                "--overwrite",
+            ]
+        )

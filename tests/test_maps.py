@@ -24,6 +24,9 @@ from slamlib.maps.codes import (
 )
 from slamlib.synth.street import street_scan, street_scene
 
+REF = get_backend("numpy")
+CPU = get_backend("cpu")
+
 
 @njit(cache=True)
 def _codes_nb(u, log2c):
@@ -342,7 +345,17 @@ def test_maps_reject_bad_shapes_and_report_memory(kind):
         m.merge(np.zeros((5, 4), np.float32))
     m.merge(np.zeros((0, 3), np.float32))
     assert len(m) == 0
-    assert m.memory_bytes() >= 0
+    # the buffers' bytes: a voxel hash slot holds a key and a count (int64), sums (3 + 6 float64), a mean and an
+    # inverse covariance (3 + 6 float32) and two frame numbers (int32); the Morton map a code (int64) and xyz
+    # (3 float32) a point, a code and a start (int64) and a box (2 x 3 float32) a cell, and one more start
+    if kind == "voxel_hash":
+        per_slot = 8 + 8 + 3 * 8 + 6 * 8 + 3 * 4 + 6 * 4 + 2 * 4
+        assert m.memory_bytes() == per_slot * m.capacity
+    else:
+        assert m.memory_bytes() == 8  # no point, no cell: cell_start = [0]
+        m.merge(np.array([[0.0, 0.0, 0.0], [0.5, 0.0, 0.0], [5.0, 5.0, 5.0]], np.float32))
+        cells = len(m.lookup().cell_codes)
+        assert len(m) == 3 and m.memory_bytes() == 20 * 3 + 40 * cells + 8
     with pytest.raises(ValueError):
         make_map("octomap")
 
@@ -494,3 +507,467 @@ def test_voxel_hash_merge_in_pieces_equals_merge_at_once():
     for s in occupied:
         p = pts[inv == np.searchsorted(uniq, la.keys[s])].astype(np.float64)
         np.testing.assert_allclose(la.mean[s], p.mean(axis=0), atol=2e-5)
+
+
+# ------------------------------------------------------------------ prune, merge, parameters and layouts, by value
+def _voxel_stats(m):
+    """``{key: (count, mean, icov)}`` of every occupied voxel of a VoxelHashMap."""
+    lk = m.lookup()
+    occ = np.flatnonzero(lk.keys != -1)
+    return {
+        int(lk.keys[s]): (int(m._count[s]), lk.mean[s].copy(), lk.icov[s].copy())
+        for s in occ
+    }
+
+
+def _probe_distances(lk):
+    """Linear-probe distance of every stored key from its home slot (the documented hash)."""
+    from slamlib.maps.codes import hash_slots
+
+    occ = np.flatnonzero(lk.keys != -1)
+    home = hash_slots(lk.keys[occ], lk.log2_capacity)
+    return (occ - home) % (1 << lk.log2_capacity)
+
+
+def test_voxel_hash_prune_keeps_exactly_the_near_voxels_with_their_statistics():
+    """``prune(c, r)`` keeps the voxels whose mean is within ``r`` of ``c`` (a mean at exactly ``r`` is kept), each
+    with its count, mean, inverse covariance and sums (merging more points later equals a map built from the kept
+    points); the rebuilt table (small: keys collide and probes wrap around the end) finds every key, ``max_probe``
+    is the longest probe of the new layout, the buffers keep their dtypes and ``n_dropped`` is unchanged. Returns the
+    number evicted; nothing to evict changes nothing; ``center`` may be any shape of 3 values."""
+    from slamlib.maps.codes import hash_slots, pack_keys
+
+    rng = np.random.default_rng(21)
+    centres = (
+        np.array([[x, y, 0.0] for x in range(-3, 4) for y in range(-3, 4)], np.float64)[
+            :40
+        ]
+        + 0.5
+    )
+    # three more near voxels whose home slots are the last ones (62, 63; found by search): reinserted after the
+    # grid's keys, one of them wraps around the end of the table
+    last = np.array([[-1, 0, 1], [0, 1, 2], [1, 2, -3]])
+    assert hash_slots(pack_keys(last + 2**20), 6).tolist() == [63, 62, 63]
+    centres = np.vstack([centres, last + [0.5, 0.5, 0.5]])
+    pts = np.vstack([c + rng.uniform(-0.4, 0.4, (5, 3)) * [1, 1, 0.5] for c in centres])
+    c0 = np.array([0.5, 0.5, 0.0])
+    pts = np.vstack([pts, [c0 + [0.0, 4.0, 0.0]]]).astype(
+        np.float32
+    )  # alone in its voxel: mean at distance 4.0
+    m = VoxelHashMap(voxel_size=1.0, capacity=64, max_load=0.7)
+    m.merge(pts)
+    assert m.n_dropped == 0 and len(m) == 44
+    before = _voxel_stats(m)
+    version = m.version
+    assert (
+        m.prune(c0, 100.0) == 0
+        and m.version == version
+        and _voxel_stats(m).keys() == before.keys()
+    )
+    means = {k: v[1].astype(np.float64) for k, v in before.items()}
+    near = {k for k, mu in means.items() if np.sum((mu - c0) ** 2) <= 16.0}
+    assert (
+        any(np.sum((mu - c0) ** 2) == 16.0 for mu in means.values())
+        and 0 < len(near) < 44
+    )
+    assert {pack_key_of(p) for p in last + 0.5} <= near
+    evicted = m.prune(c0.reshape(3, 1), 4.0)  # a column is fine too
+    assert (
+        evicted == 44 - len(near)
+        and len(m) == len(near)
+        and m.version != version
+        and m.n_dropped == 0
+    )
+    after = _voxel_stats(m)
+    assert after.keys() == near
+    for k in near:
+        assert after[k][0] == before[k][0]
+        np.testing.assert_array_equal(after[k][1], before[k][1])
+        np.testing.assert_array_equal(after[k][2], before[k][2])
+    lk = m.lookup()
+    assert (lk.keys.dtype, lk.mean.dtype, lk.icov.dtype, m.counts().dtype) == (
+        np.int64,
+        np.float32,
+        np.float32,
+        np.int64,
+    )
+    for s in np.flatnonzero(lk.keys != -1):
+        assert _find(lk.keys, int(lk.keys[s]), lk.log2_capacity, lk.max_probe) == s
+    assert lk.max_probe == _probe_distances(lk).max() > 0
+    occ = np.flatnonzero(lk.keys != -1)
+    assert np.any(hash_slots(lk.keys[occ], 6) > occ)  # a probe wrapped around the end
+    # the sums travelled too: more points into the kept voxels == a fresh map of all the kept points
+    keep_pts = np.array([p for p in pts if pack_key_of(p) in near], np.float32)
+    extra = (keep_pts[:7] + 0.01).astype(np.float32)
+    fresh = VoxelHashMap(voxel_size=1.0, capacity=64, max_load=0.7)
+    fresh.merge(np.vstack([keep_pts, extra]))
+    m.merge(extra)
+    got, want = _voxel_stats(m), _voxel_stats(fresh)
+    assert got.keys() == want.keys()
+    for k in want:
+        assert got[k][0] == want[k][0]
+        np.testing.assert_allclose(got[k][1], want[k][1], atol=1e-6)
+        np.testing.assert_allclose(got[k][2], want[k][2], rtol=1e-4, atol=1e-2)
+    # down to one voxel: no probe at all
+    assert m.prune(c0 + [0.0, 4.0, 0.0], 0.1) == len(near) - 1 and len(m) == 1
+    assert m.max_probe == 0 and m.lookup().max_probe == 0
+
+
+def pack_key_of(p, h=1.0):
+    from slamlib.maps.codes import axis_indices, pack_keys
+
+    u, ok = axis_indices(np.asarray(p, np.float64)[None], 1.0 / h)
+    return int(pack_keys(u)[0])
+
+
+def test_morton_prune_keeps_exactly_the_points_within_the_radius():
+    """``prune(c, r)`` keeps the points within ``r`` of ``c`` (a point at exactly ``r`` is kept), and the map is then
+    the map built from those points alone (codes, points, cells, boxes); nothing to drop changes nothing."""
+    rng = np.random.default_rng(22)
+    pts = np.vstack(
+        [rng.uniform(-6, 6, (400, 3)), [[3.0, 4.0, 3.0], [1.0, 2.0, 2.0]]]
+    ).astype(np.float32)
+    m = MortonBVHMap(radius=0.3, dedup_level=0)
+    m.merge(pts)
+    version = m.version
+    assert m.prune([1.0, 2.0, 2.0], 100.0) == 0 and m.version == version and len(m) == 402
+    c = np.array([1.0, 2.0, 2.0])
+    d2 = np.sum((pts.astype(np.float64) - c) ** 2, axis=1)
+    keep = d2 <= 9.0
+    assert keep[-2] and d2[-2] == 9.0 and 0 < keep.sum() < 402
+    assert (
+        m.prune(c.reshape(3, 1), 3.0) == 402 - keep.sum()
+        and len(m) == keep.sum()
+        and m.version != version
+    )
+    fresh = MortonBVHMap(radius=0.3, dedup_level=0)
+    fresh.merge(pts[keep])
+    a, b = m.lookup(), fresh.lookup()
+    for name in ("codes", "points", "cell_codes", "cell_start", "cell_lo", "cell_hi"):
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
+
+
+def test_make_map_by_name():
+    from slamlib.maps import make_map
+
+    assert type(make_map()) is VoxelHashMap
+    m = make_map("morton_bvh", radius=0.5, sigma=0.2)
+    assert type(m) is MortonBVHMap and (m.radius, m.sigma) == (0.5, 0.2)
+    assert make_map("voxel_hash", voxel_size=2.0).voxel_size == 2.0
+    with pytest.raises(
+        ValueError,
+        match=r"^unknown map kind 'octree'; choose one of voxel_hash, morton_bvh$",
+    ):
+        make_map("octree")
+
+
+def test_fresh_code_functions_follow_the_formulas():
+    """A fresh identity build of ``make_code_functions`` (the source of every build): ``axis_index``, ``in_range``
+    at its bounds, and ``find_slot`` on a hand-made table whose probe wraps around the end."""
+    from slamlib.maps.codes import make_code_functions
+
+    f = make_code_functions()
+    for x, inv_h in ((0.0, 2.0), (-0.1, 2.0), (3.7, 2.0), (-1e5, 10.0), (0.49999, 2.0)):
+        assert f["axis_index"](x, inv_h) == np.floor(x * inv_h) + 2**20
+    assert [bool(f["in_range"](np.int64(u))) for u in (-1, 0, 2**21 - 1, 2**21)] == [
+        False,
+        True,
+        True,
+        False,
+    ]
+    log2c = 4
+    keys = np.full(16, -1, np.int64)
+    # three keys with the home slot 15: stored at 15, 0, 1 (linear probing wraps around)
+    homes = [
+        k for k in range(1, 5000) if f["hash_slot"](np.int64(k), np.int64(log2c)) == 15
+    ][:3]
+    for slot, k in zip((15, 0, 1), homes):
+        keys[slot] = k
+    for slot, k in zip((15, 0, 1), homes):
+        assert f["find_slot"](keys, np.int64(k), np.int64(log2c), np.int64(2)) == slot
+    assert (
+        f["find_slot"](keys, np.int64(homes[2]), np.int64(log2c), np.int64(1)) == -1
+    )  # beyond max_probe
+    other = next(
+        k
+        for k in range(5000, 10000)
+        if f["hash_slot"](np.int64(k), np.int64(log2c)) == 15
+    )
+    assert (
+        f["find_slot"](keys, np.int64(other), np.int64(log2c), np.int64(5)) == -1
+    )  # stops at the empty slot 2
+    full = (
+        np.arange(16, dtype=np.int64) + 100
+    )  # a full table without the key: gives up after max_probe + 1
+    assert f["find_slot"](full, np.int64(7), np.int64(log2c), np.int64(15)) == -1
+    assert (
+        f["part1by2"](np.int64(0b1011)) == 0b1000001001
+        and f["part1by2"](np.int64(2**21)) == 0
+    )  # masked to 21 bits
+
+
+def test_pack_keys_of_unsigned_or_narrow_indices():
+    """``pack_keys`` converts its indices to int64 first: uint64 or int32 input gives the same keys."""
+    from slamlib.maps.codes import pack_keys
+
+    u = np.array([[5, 2**20, 2**21 - 1], [0, 1, 2]])
+    want = u[:, 0] | u[:, 1] << 21 | u[:, 2] << 42
+    for dtype in (np.int64, np.uint64, np.uint32):
+        got = pack_keys(u.astype(dtype))
+        assert got.dtype == np.int64 and got.tolist() == want.tolist()
+
+
+def test_morton_map_of_one_point_and_pruned_to_nothing():
+    """One point: one cell, ``cell_start = [0, 1]``, its box the point. Pruned to nothing: the empty layout (shapes
+    (0,), (1,) = [0], (0, 3)) and every query costs ``-0.5 r^2 / sigma^2``."""
+    m = MortonBVHMap(radius=0.5, sigma=0.25)
+    p = np.array([[1.0, -2.0, 0.5]], np.float32)
+    m.merge(p)
+    lk = m.lookup()
+    assert (
+        lk.codes.shape == (1,)
+        and lk.cell_codes.shape == (1,)
+        and lk.cell_start.tolist() == [0, 1]
+    )
+    assert lk.cell_codes[0] == lk.codes[0] >> (3 * lk.cell_level)
+    np.testing.assert_array_equal(lk.cell_lo, p)
+    np.testing.assert_array_equal(lk.cell_hi, p)
+    q = np.array([[1.1, -2.0, 0.5], [3.0, 3.0, 3.0]], np.float32)
+    I, z = np.eye(3)[None], np.zeros((1, 3))
+    floor = -0.5 * 0.5**2 / 0.25**2
+    for backend in (REF, CPU):
+        np.testing.assert_allclose(
+            backend.score_particles(I, z, q[:1], lk), -0.5 * 0.1**2 / 0.25**2, rtol=1e-5
+        )
+    assert m.prune([0.0, 0.0, 0.0], 1.0) == 1 and len(m) == 0
+    lk = m.lookup()
+    assert lk.codes.shape == (0,) and lk.points.shape == (0, 3)
+    assert lk.cell_codes.shape == (0,) and lk.cell_codes.dtype == np.int64
+    assert lk.cell_start.tolist() == [0] and lk.cell_start.dtype == np.int64
+    assert (
+        lk.cell_lo.shape == lk.cell_hi.shape == (0, 3)
+        and lk.cell_lo.dtype == lk.cell_hi.dtype == np.float32
+    )
+    for backend in (REF, CPU):
+        np.testing.assert_allclose(backend.score_particles(I, z, q, lk), 2 * floor)
+
+
+def test_morton_parameters_defaults_and_limits():
+    m = MortonBVHMap()
+    assert (m.radius, m.sigma, m.quantum, m.dedup_level, m.max_points) == (
+        0.3,
+        0.1,
+        0.01,
+        3,
+        4_000_000,
+    )
+    msg = r"^radius, sigma, quantum, max_points must be > 0 and 0 <= dedup_level <= 20$"
+    for bad in (
+        {"radius": 0.0},
+        {"sigma": 0.0},
+        {"quantum": 0.0},
+        {"max_points": 0},
+        {"dedup_level": -1},
+        {"dedup_level": 21},
+        {"radius": -1.0, "sigma": 1.0},
+    ):
+        with pytest.raises(ValueError, match=msg):
+            MortonBVHMap(**bad)
+    for ok in ({"dedup_level": 0}, {"dedup_level": 20}, {"max_points": 1}):
+        MortonBVHMap(**ok)
+    assert (
+        MortonBVHMap(radius=0.004, quantum=0.01).cell_level == 0
+    )  # 2 r < quantum: cells of one quantum
+    assert MortonBVHMap(radius=0.01 * 2**19, quantum=0.01).cell_level == 20
+    with pytest.raises(
+        ValueError,
+        match=r"^radius too large for quantum: cells would exceed the 21-bit range$",
+    ):
+        MortonBVHMap(radius=0.01 * 2**19 * 1.01, quantum=0.01)
+
+
+def test_morton_merge_counts_drops_and_dedups_against_the_map():
+    """Dropped points add up over merges (non-finite ones, and those beyond ``max_points``); merging the same
+    points again adds nothing (each, including the one with the highest code, is already there); points stay
+    float32; a bad shape names ``points_world``."""
+    rng = np.random.default_rng(23)
+    m = MortonBVHMap(max_points=10, dedup_level=0)
+    a = rng.uniform(-2, 2, (6, 3)).astype(np.float32)
+    m.merge(np.vstack([a, [[np.nan, 0, 0]]]))
+    assert len(m) == 6 and m.n_dropped == 1
+    m.merge(a)  # all already there
+    assert len(m) == 6 and m.n_dropped == 1
+    m.merge(rng.uniform(-2, 2, (6, 3)).astype(np.float32))
+    assert len(m) == 10 and m.n_dropped == 3
+    m.merge(np.array([[np.inf, 0, 0]], np.float32))
+    assert m.n_dropped == 4
+    assert m.lookup().points.dtype == np.float32
+    with pytest.raises(ValueError, match=r"^points_world must have shape \(N, 3\)"):
+        m.merge(np.zeros((3, 2)))
+    v = VoxelHashMap()
+    with pytest.raises(ValueError, match=r"^points_world must have shape \(N, 3\)"):
+        v.merge(np.zeros(3))
+
+
+@pytest.mark.parametrize("kind", [VoxelHashMap, MortonBVHMap])
+def test_lookup_carries_the_map_version(kind):
+    """The lookup's ``version`` is the map's stamp (the CUDA backend re-uses its device copy while it is equal):
+    non-zero, new after each merge."""
+    m = kind()
+    v0 = m.lookup().version
+    assert v0 == m.version != 0
+    m.merge(np.ones((2, 3), np.float32))
+    assert m.lookup().version == m.version not in (0, v0)
+
+
+def test_voxel_hash_merge_drops_out_of_range_points_and_counts_them():
+    """Non-finite points and points outside the +-2**20-voxel range on any one axis are dropped and counted (over
+    merges); points far out but in range (1000 voxels up) are merged; with a tiny voxel the overflow guard drops a
+    point whose index would not fit in int64. Slots that no point reached keep their zeros (no statistics
+    refreshed from an empty slot)."""
+    m = VoxelHashMap(voxel_size=1.0, capacity=2**10)
+    out = 1.5 * 2**20  # index + 2**20 beyond 21 bits
+    bad = np.array(
+        [[np.nan, 0, 0], [0, np.inf, 0], [out, 0, 0], [0, -out, 0], [0, 0, out]],
+        np.float32,
+    )
+    m.merge(bad)
+    assert len(m) == 0 and m.n_dropped == 5
+    lk = m.lookup()
+    assert not lk.mean.any() and not lk.icov.any()
+    good = np.array(
+        [[0.5, 0.5, 1000.5], [1000.5, 0.5, 0.5], [0.5, -1000.5, 0.5], [0.2, 0.3, 0.4]],
+        np.float32,
+    )
+    m.merge(np.vstack([bad[:2], good]))
+    assert len(m) == 4 and m.n_dropped == 7
+    np.testing.assert_allclose(np.sort(m.points(), axis=0), np.sort(good, axis=0))
+    lk = m.lookup()
+    empty = lk.keys == -1
+    assert (
+        not lk.mean[empty].any()
+        and not lk.icov[empty].any()
+        and np.isfinite(lk.icov).all()
+    )
+    tiny = VoxelHashMap(voxel_size=1e-10, capacity=2**4)
+    tiny.merge(np.array([[1e9, 0, 0], [0, 1e9, 0], [0, 0, -1e9], [0, 0, 0]], np.float32))
+    assert len(tiny) == 1 and tiny.n_dropped == 3
+
+
+def test_voxel_hash_max_probe_is_the_longest_probe():
+    """``max_probe`` is the longest linear-probe distance of any stored key: 0 for one voxel, and exactly the
+    layout's longest after many colliding inserts (lookups give up after ``max_probe + 1`` slots)."""
+    m = VoxelHashMap(voxel_size=1.0, capacity=16)
+    m.merge(np.array([[0.5, 0.5, 0.5], [0.6, 0.5, 0.5]], np.float32))
+    assert m.max_probe == 0 == m.lookup().max_probe
+    rng = np.random.default_rng(24)
+    m = VoxelHashMap(voxel_size=1.0, capacity=64, max_load=0.7)
+    m.merge(rng.uniform(-4, 4, (300, 3)).astype(np.float32))
+    lk = m.lookup()
+    assert len(m) == 44 and lk.max_probe == _probe_distances(lk).max() >= 2
+
+
+def test_voxel_hash_parameters_defaults_and_limits():
+    m = VoxelHashMap()
+    assert (m.voxel_size, m.capacity, m.max_load, m.min_sigma, m.m_max) == (
+        0.5,
+        2**19,
+        0.75,
+        0.05,
+        16.0,
+    )
+    assert m.max_voxels == int(0.75 * 2**19) and m.log2_capacity == 19
+    for cap in (8, 24, 15, 2**10 + 2):
+        with pytest.raises(
+            ValueError, match=rf"^capacity must be a power of two >= 16, got {cap}$"
+        ):
+            VoxelHashMap(capacity=cap)
+    assert VoxelHashMap(capacity=16).capacity == 16
+    msg = r"^voxel_size, min_sigma, m_max must be > 0 and 0 < max_load < 1$"
+    for bad in (
+        {"voxel_size": 0.0},
+        {"max_load": 0.0},
+        {"max_load": 1.0},
+        {"max_load": 1.5},
+        {"min_sigma": 0.0},
+        {"m_max": 0.0},
+    ):
+        with pytest.raises(ValueError, match=msg):
+            VoxelHashMap(capacity=16, **bad)
+
+
+def test_as_points_names_the_argument_and_converts():
+    from slamlib.maps.base import as_points
+
+    with pytest.raises(
+        ValueError, match=r"^points must have shape \(N, 3\), got \(3,\)$"
+    ):
+        as_points(np.zeros(3))
+    with pytest.raises(
+        ValueError, match=r"^scan must have shape \(N, 3\), got \(2, 4\)$"
+    ):
+        as_points(np.zeros((2, 4)), "scan")
+    a = as_points(np.arange(12, dtype=np.float64).reshape(3, 4)[:, :3])
+    assert (
+        a.dtype == np.float32
+        and a.flags.c_contiguous
+        and a.tolist() == [[0, 1, 2], [4, 5, 6], [8, 9, 10]]
+    )
+
+
+def test_axis_indices_in_float64_at_the_range_ends():
+    """``axis_indices``: float32 points are offset in float64 (``70.1f * 10`` is 700.99998..., index 700, while a
+    float32 product rounds to 701); int64 result; the valid range is exactly ``[-2**20, 2**20)`` voxels."""
+    from slamlib.maps.codes import axis_indices
+
+    u, ok = axis_indices(np.array([[70.1, 27.3, -91.9]], np.float32), 10.0)
+    assert u.dtype == np.int64 and ok.tolist() == [True]
+    assert (u[0] - 2**20).tolist() == [700, 272, -920]
+    h = 0.5
+    pts = np.array(
+        [
+            [-(2**20) * h, 0, 0],
+            [(2**20 - 1) * h, 0, 0],
+            [0, -(2**20) * h - h, 0],
+            [0, 0, 2**20 * h],
+            [np.nan, 0, 0],
+        ]
+    )
+    u, ok = axis_indices(pts, 1.0 / h)
+    assert ok.tolist() == [True, True, False, False, False]
+    assert u[0, 0] == 0 and u[1, 0] == 2**21 - 1
+
+
+def test_voxel_in_slot_zero_is_refreshed():
+    """The voxel whose home slot is 0 gets its statistics like any other (the refresh loop includes slot 0)."""
+    from slamlib.maps.codes import hash_slots, pack_keys
+
+    r = np.arange(-4, 5)
+    u = np.stack(np.meshgrid(r, r, r, indexing="ij"), -1).reshape(-1, 3)
+    home0 = u[hash_slots(pack_keys(u + 2**20), 4) == 0][0]
+    p = (home0 + [0.2, 0.3, 0.4]).astype(np.float32)[None]
+    m = VoxelHashMap(
+        voxel_size=1.0, capacity=16, min_sigma=0.05, m_max=0.5
+    )  # m_max may be below 1
+    m.merge(p)
+    lk = m.lookup()
+    assert lk.keys[0] != -1 and lk.voxel_size == 1.0 and lk.m_max == 0.5
+    np.testing.assert_allclose(lk.mean[0], p[0], atol=1e-6)
+    np.testing.assert_allclose(lk.icov[0], [400, 0, 0, 400, 0, 400], rtol=1e-5, atol=1e-3)
+    assert m.counts().dtype == np.int64 and m.counts().tolist() == [1]
+
+
+def test_fresh_morton_map_layout():
+    """Before any merge the lookup is the empty layout with the documented dtypes (and scores the floor)."""
+    lk = MortonBVHMap(radius=0.5, sigma=0.25).lookup()
+    assert (lk.codes.shape, lk.codes.dtype) == ((0,), np.int64)
+    assert (lk.points.shape, lk.points.dtype) == ((0, 3), np.float32)
+    assert (lk.cell_codes.shape, lk.cell_codes.dtype) == ((0,), np.int64)
+    assert lk.cell_start.tolist() == [0] and lk.cell_start.dtype == np.int64
+    for box in (lk.cell_lo, lk.cell_hi):
+        assert (box.shape, box.dtype) == ((0, 3), np.float32)
+    I, z = np.eye(3)[None], np.zeros((1, 3))
+    np.testing.assert_allclose(
+        CPU.score_particles(I, z, np.zeros((3, 3), np.float32), lk),
+        -1.5 * 0.5**2 / 0.25**2,
+    )

@@ -1,4 +1,7 @@
-"""ATE, RPE and the KITTI odometry metric: invariants, a literal devkit translation, and the golden values."""
+"""ATE, RPE and the KITTI odometry metric: invariants, a literal devkit translation, and the golden values; the
+metrics' JSON output."""
+
+import json
 
 import numpy as np
 import pytest
@@ -250,7 +253,7 @@ def test_kitti_segment_ends_at_the_first_frame_strictly_beyond_the_length():
     assert (r.t_err_percent, r.n_segments) == (pytest.approx(t_ref, rel=1e-12), n_ref)
 
 
-# ------------------------------------------------------------------ value tests closing mutation survivors
+# ------------------------------------------------------------------ the formulas, value by value
 def _drifting_pair(n=40, seed=8):
     """Ground truth (random walk, non-trivial rotations) and an estimate with per-step noise, float64."""
     rng = np.random.default_rng(seed)
@@ -600,3 +603,30 @@ def test_plane_residuals_are_distances_to_the_local_plane_of_the_reference():
     np.testing.assert_allclose(
         np.abs(normal), [[0, 0, 1], [0, 0, 1], [1, 0, 0], [1, 0, 0]], atol=1e-9
     )
+
+
+# ------------------------------------------------------------------ non-finite numbers in JSON
+def test_json_safe_turns_non_finite_numbers_into_null():
+    from slamlib.metrics import json_safe
+
+    obj = {
+        "a": float("nan"),
+        "b": [1.0, float("inf"), np.float32(-np.inf)],
+        "c": {"d": np.float64(2.5)},
+        "e": np.int64(3),
+        "f": (np.nan,),
+        "g": np.array([1.0, np.nan]),
+        "h": True,
+        "i": "text",
+    }
+    text = json.dumps(json_safe(obj), allow_nan=False)
+    assert json.loads(text) == {
+        "a": None,
+        "b": [1.0, None, None],
+        "c": {"d": 2.5},
+        "e": 3,
+        "f": [None],
+        "g": [1.0, None],
+        "h": True,
+        "i": "text",
+    }

@@ -177,9 +177,7 @@ def test_hash_once_then_six_indexes_is_lut_index(thread, step, seed):
         )
 
 
-# Value tests pinning the formulas (issue 15, mutation testing).
-
-
+# ------------------------------------------------------------------ the formulas, value by value
 def _fmix32_ref(h):
     """MurmurHash3's fmix32 on Python ints (Appleby)."""
     h &= 0xFFFFFFFF
@@ -371,3 +369,19 @@ def test_float32_and_degenerate_inputs_of_the_helpers():
         assert np.isnan(N.lag_correlation(np.full(6, 2.0), 2))
     t = N.make_tables(seed=2, bits=6)
     assert N.lut_normal_nb(t, 5, step=1, seed=1).dtype == np.float32
+
+
+# ------------------------------------------------------------------ the fill kernel, built afresh
+def test_fill_kernel_built_afresh_draws_what_lut_normal_draws():
+    """``noise._make_fill(lut_draw)`` (the ``prange`` kernel behind ``lut_normal_nb``, built once per process by
+    ``numba_functions``) fills row ``i``, column ``k`` with draw ``k`` of thread ``i``: a fresh build (so that
+    mutation runs see its body) gives :func:`slamlib.noise.lut_normal` bit for bit on every row of a 37 x 6 array."""
+    from numba import njit
+
+    from slamlib.noise import _make_fill, lut_normal, make_lut_functions, make_tables
+
+    tables = make_tables(seed=3, bits=8)
+    fill = _make_fill(make_lut_functions(njit(inline="always"))["lut_draw"])
+    out = np.full((37, 6), np.nan, np.float32)
+    fill(tables.normal, tables.perm, np.int64(tables.bits), np.int64(4), np.int64(9), out)
+    np.testing.assert_array_equal(out, lut_normal(tables, 37, 4, 9))

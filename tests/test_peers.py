@@ -1,4 +1,4 @@
-"""slamlib.peers: KISS-ICP's poses moved to the frames' pose times (issue 11: comparing with a de-skewing peer)."""
+"""slamlib.peers: KISS-ICP's poses moved to the frames' pose times, to compare slamlib with a de-skewing peer."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Issue 15's four planted bugs stay caught: ``tests/mutation/planted.py`` plants each in a copy of the package and
+"""The four planted bugs stay caught: ``tests/mutation/planted.py`` plants each in a copy of the package and
 requires its named unit tests to pass unplanted and fail planted."""
 
 import subprocess

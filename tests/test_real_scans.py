@@ -1,4 +1,4 @@
-"""Issue 12: LIDAR-only slamlib on the ten real KITTI scans the package ships, beside a direct registration and
+"""LIDAR-only slamlib on the ten real KITTI scans the package ships, beside a direct registration and
 KISS-ICP (installed by ``make setup``: the ``peers`` extra)."""
 
 from __future__ import annotations

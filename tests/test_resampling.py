@@ -394,3 +394,23 @@ def test_resample_indexes_threshold_is_strict_and_indexes_are_int64():
         sampler=lambda w, u: np.arange(w.size, dtype=np.int32),
     )
     assert idx.dtype == np.int64
+
+
+# ------------------------------------------------------------------ huge finite weights
+@pytest.mark.parametrize(
+    "name", ["systematic", "stratified", "multinomial", "residual", "ess"]
+)
+def test_resampling_huge_finite_weights(name):
+    from slamlib import resampling as rs
+
+    w, rng = np.array([1e308, 1e308]), np.random.default_rng(0)
+    if name == "ess":
+        assert rs.effective_sample_size(w) == 2.0
+        return
+    fn = {
+        "systematic": lambda: rs.systematic_resample(w, 0.3),
+        "stratified": lambda: rs.stratified_resample(w, rng),
+        "multinomial": lambda: rs.multinomial_resample(w, rng),
+        "residual": lambda: rs.residual_resample(w, rng),
+    }
+    assert set(fn[name]().tolist()) <= {0, 1}

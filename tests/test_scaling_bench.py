@@ -34,16 +34,20 @@ def test_quick_run_writes_sweeps_fits_and_route(scaling, tmp_path, monkeypatch):
     monkeypatch.setattr(scaling, "QUICK_FRAMES", (0, 6))
     monkeypatch.setattr(scaling, "QUICK_PARTICLES", (20, 40))
     monkeypatch.setattr(scaling, "QUICK_POINTS", (100, 200))
+    runs, row = [], scaling._row  # the runs behind the sweep rows, in order
+    monkeypatch.setattr(
+        scaling, "_row", lambda run, *a, **kw: runs.append(run) or row(run, *a, **kw)
+    )
     assert main(["bench", "scaling", "--quick"]) == 0
     d = json.loads((tmp_path / "scaling-quick.json").read_text())
     assert [r["particles"] for r in d["particles"]] == [20, 40]
     assert [r["points"] for r in d["points"]] == [100, 200]
-    for r in d["particles"] + d["points"]:
-        assert (
-            r["frames"] == 6
-            and 0 < r["frame_ms_best"] <= r["frame_ms_median"]
-            and r["ate_rmse_m"] >= 0
-        )
+    for r, run in zip(d["particles"] + d["points"], runs, strict=True):
+        assert r["frames"] == 6 and 0 < r["frame_ms_best"] <= r["frame_ms_median"]
+        # ATE: the RMSE of the position errors, no alignment (both start at the origin), to 4 decimals
+        err = run.poses[:, :3, 3] - run.ground_truth[:, :3, 3]
+        ate = np.sqrt(np.mean(np.sum(err**2, axis=1)))
+        assert ate > 0 and r["ate_rmse_m"] == pytest.approx(ate, abs=5e-5 + 1e-12)
     assert {"intercept", "slope", "r2"} <= set(d["fit_ms_vs_particles"]) and "slope" in d[
         "fit_ms_vs_points"
     ]

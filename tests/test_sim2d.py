@@ -284,3 +284,38 @@ def test_sim2d_command_prints_both_maps_and_dead_reckoning(capsys):
     assert (
         "SLAM, density" in out and "SLAM, likelihood" in out and "dead reckoning" in out
     )
+
+
+# ------------------------------------------------------------------ bad options, refused before the run
+@pytest.mark.parametrize(
+    "option,value",
+    [
+        ("--laps", "inf"),
+        ("--laps", "nan"),
+        ("--laps", "0"),
+        ("--laps", "1e9"),
+        ("--resolution", "nan"),
+        ("--resolution", "1e-9"),
+        ("--beams", "0"),
+        ("--beams", "1000000000"),
+        ("--particles", "1000000000"),
+        ("--seed", "-1"),
+        ("--plot", "FILE/fig.png"),
+    ],
+)
+def test_sim2d_bad_option_is_refused_before_the_run(tmp_path, monkeypatch, option, value):
+    import slamlib.sim2d
+    from slamlib.cli import main
+
+    monkeypatch.setattr(
+        slamlib.sim2d, "run_slam_2d", lambda *a, **k: pytest.fail("the run started")
+    )
+    monkeypatch.setattr(
+        slamlib.sim2d, "simulate", lambda *a, **k: pytest.fail("the simulation started")
+    )
+    (tmp_path / "FILE").write_text("")
+    if option == "--plot":
+        value = str(tmp_path / value)
+    with pytest.raises(SystemExit) as exc:
+        main(["sim2d", option, value])
+    assert str(exc.value).startswith(f"slamlib sim2d: {option}"), str(exc.value)

@@ -1,4 +1,5 @@
-"""Issue 11, item 6: ``slamlib sweep`` runs SLAM and KISS-ICP over routes x seeds x settings as Dask tasks."""
+"""``slamlib sweep`` (:mod:`slamlib.experiments.sweep`) runs SLAM and KISS-ICP over routes x seeds x settings as
+Dask tasks."""
 
 from __future__ import annotations
 

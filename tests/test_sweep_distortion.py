@@ -1,4 +1,4 @@
-"""Issue 11, items 1 and 4: scans cast over a sweep as KITTI's HDL-64E takes them, and slamlib's de-skewing."""
+"""Scans cast over a sweep as KITTI's HDL-64E takes them (:mod:`slamlib.synth`), and slamlib's de-skewing of them."""
 
 from __future__ import annotations
 

@@ -9,6 +9,7 @@ import pytest
 from slamlib.cli import main
 from slamlib.commands import synth as synth_command
 from slamlib.kitti import KittiRawDrive
+from slamlib.kitti.sample import SAMPLE_DATE
 from slamlib.synth import (
     DEFAULT_FRAMES,
     ROUTE_NAMES,
@@ -243,3 +244,60 @@ def test_distortion_flag_writes_swept_scans(tmp_path, layout):
             else out / "sequences" / "00"
         )
         assert read_marker(folder).get("distortion", False) is bool(flag)
+
+
+# ------------------------------------------------------------------ bad options and --out, refused before writing
+@pytest.mark.parametrize(
+    "option,value",
+    [("--columns", "1000000000"), ("--imu-noise", "1e300"), ("--imu-noise", "nan")],
+)
+def test_synth_bad_option_is_refused_before_writing(tmp_path, option, value):
+    from slamlib.cli import main
+
+    with pytest.raises(SystemExit) as exc:
+        main(["synth", "--out", str(tmp_path / "d"), "--frames", "0:4", option, value])
+    assert str(exc.value).startswith(f"slamlib synth: {option} must be"), str(exc.value)
+    assert not (tmp_path / "d").exists()
+
+
+def test_synth_out_whose_date_folder_is_a_file_is_one_line(tmp_path):
+    from slamlib.cli import main
+
+    (tmp_path / SAMPLE_DATE).write_text("a file\n")
+    with pytest.raises(SystemExit) as exc:
+        main(
+            [
+                "synth",
+                "--out",
+                str(tmp_path),
+                "--route",
+                "straight",
+                "--frames",
+                "3",
+                "--no-progress",
+            ]
+        )
+    assert str(exc.value).startswith("slamlib synth: ") and SAMPLE_DATE in str(exc.value)
+
+
+# ------------------------------------------------------------------ frames beyond the route
+def test_synth_frames_beyond_the_route_names_frames(tmp_path):
+    from slamlib.cli import main
+
+    with pytest.raises(SystemExit) as exc:
+        main(
+            [
+                "synth",
+                "--out",
+                str(tmp_path / "s"),
+                "--route",
+                "straight",
+                "--frames",
+                "583",
+                "--no-progress",
+            ]
+        )
+    assert str(exc.value).startswith(
+        "slamlib synth: --frames '583': route 'straight' spans at most"
+    ), str(exc.value)
+    assert not (tmp_path / "s").exists()

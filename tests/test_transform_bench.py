@@ -58,7 +58,7 @@ def test_transform_quick_writes_kernel_copy_program_and_gpu_rows(results):
             assert r["startup_s"] == pytest.approx(
                 r["interpreter_s"] + r["import_s"] + r["jit_s"], rel=0.5
             )
-            assert r["wall_s"] >= r["startup_s"] > 0 and r["kernel_s"] >= 0
+            assert r["wall_s"] >= r["startup_s"] > 0 and 0 < r["kernel_s"] < r["wall_s"]
             assert r["seed_wall_s"] == d["seed"]["whole_program_s"][str(n)]
     gpu = d["gpu_rows"]
     assert {r["n"] for r in gpu} == set(sizes)

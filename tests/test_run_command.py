@@ -1,0 +1,519 @@
+"""``slamlib run`` (:mod:`slamlib.commands.run`) on tiny synthetic and KITTI drives: what it writes (never over a
+user's file), and the one-line messages, given before the run, for a wrong drive, a bad option or bad data."""
+
+import json
+
+import numpy as np
+import pytest
+from drive_edits import set_oxts_field
+
+
+# ------------------------------------------------------------------ whole runs on a tiny synthetic drive
+@pytest.fixture(scope="module")
+def tiny_drive(tmp_path_factory):
+    from slamlib.synth import Hdl64, write_drive
+
+    base = tmp_path_factory.mktemp("kitti")
+    return write_drive(
+        base,
+        route="07",
+        frames=(0, 12),
+        seed=1,
+        lidar=Hdl64(columns=500, beam_stride=2),
+        progress=False,
+    )
+
+
+def test_slamlib_run_writes_trajectories_map_metrics_and_plots(tiny_drive, tmp_path):
+    from slamlib.cli import main
+    from slamlib.kitti import read_kitti_poses, read_tum
+
+    base, date, drive = tiny_drive
+    out = tmp_path / "out"
+    rc = main(
+        [
+            "run",
+            "--basedir",
+            str(base),
+            "--date",
+            date,
+            "--drive",
+            str(drive),
+            "--frames",
+            "1:11",
+            "--particles",
+            "50",
+            "--points",
+            "200",
+            "--out",
+            str(out),
+            "--no-progress",
+        ]
+    )
+    assert rc == 0
+    slam = read_kitti_poses(out / "slam_poses.txt")
+    _, tum = read_tum(out / "slam_tum.txt")
+    assert slam.shape == (10, 4, 4) and np.allclose(tum, slam, atol=1e-9)
+    assert read_kitti_poses(out / "dead_reckoning_poses.txt").shape == (10, 4, 4)
+    info = json.loads((out / "metrics.json").read_text())
+    assert info["frames"] == 10 and info["fps"] > 0 and info["frame_indices"] == [1, 10]
+    assert {"slam", "dead_reckoning"} <= set(info["metrics"])
+    # ATE: the RMSE of the position errors against the written ground truth, no alignment (both start at 0)
+    gt = read_kitti_poses(out / "ground_truth_poses.txt")
+    ate = np.sqrt(np.mean(np.sum((slam[:, :3, 3] - gt[:, :3, 3]) ** 2, axis=1)))
+    assert ate > 0 and info["metrics"]["slam"]["ate_rmse_m"] == pytest.approx(
+        ate, rel=1e-6
+    )
+    import open3d as o3d
+
+    assert (
+        len(o3d.io.read_point_cloud(str(out / "map.ply")).points)
+        == info["map_points_written"]
+        > 0
+    )
+    assert (out / "trajectory.png").stat().st_size > 1000 and (
+        out / "map_topdown.png"
+    ).stat().st_size > 1000
+
+
+@pytest.mark.parametrize(
+    "which,needle",
+    [
+        ("basedir", "is not a folder"),
+        ("date", "dates there: 2011_09_26"),
+        ("drive", "drives there: 0001"),
+    ],
+)
+def test_slamlib_run_explains_a_wrong_drive(tiny_drive, tmp_path, which, needle):
+    from slamlib.cli import main
+
+    base, date, drive = tiny_drive
+    args = {"basedir": str(base), "date": date, "drive": str(drive)}
+    args[which] = {
+        "basedir": str(tmp_path / "nowhere"),
+        "date": "2011_10_03",
+        "drive": "0042",
+    }[which]
+    with pytest.raises(SystemExit) as exc:
+        main(
+            [
+                "run",
+                "--basedir",
+                args["basedir"],
+                "--date",
+                args["date"],
+                "--drive",
+                args["drive"],
+                "--out",
+                str(tmp_path / "o"),
+                "--no-progress",
+            ]
+        )
+    assert needle in str(exc.value) and "not found" in str(exc.value)
+
+
+def test_slamlib_run_map_names_and_bad_settings(tiny_drive, tmp_path, capsys):
+    from slamlib.cli import main
+
+    base, date, drive = tiny_drive
+    common = [
+        "run",
+        "--basedir",
+        str(base),
+        "--date",
+        date,
+        "--drive",
+        str(drive),
+        "--no-progress",
+        "--no-plots",
+    ]
+    with pytest.raises(SystemExit) as exc:
+        main(common + ["--particles", "0", "--out", str(tmp_path / "a")])
+    assert "particles" in str(exc.value) and ">= 1" in str(exc.value)
+    assert (
+        main(
+            common
+            + [
+                "--frames",
+                "0:3",
+                "--particles",
+                "5",
+                "--points",
+                "20",
+                "--map",
+                "bvh",
+                "--out",
+                str(tmp_path / "b"),
+            ]
+        )
+        == 0
+    )
+    assert "--map bvh is now called --map morton_bvh" in capsys.readouterr().out
+    info = json.loads((tmp_path / "b" / "metrics.json").read_text())
+    assert (
+        info["config"]["map"]["kind"] == "morton_bvh"
+        and info["config"]["filter"]["particles"] == 5
+    )
+    # a still synthetic drive (no distortion): by default (deskew None) no scan is de-skewed; --deskew does all
+    assert info["config"]["scan"]["deskew"] is None and info["n_deskewed_frames"] == 0
+    assert (
+        main(
+            common
+            + [
+                "--frames",
+                "0:3",
+                "--particles",
+                "5",
+                "--points",
+                "20",
+                "--deskew",
+                "--out",
+                str(tmp_path / "c"),
+            ]
+        )
+        == 0
+    )
+    info = json.loads((tmp_path / "c" / "metrics.json").read_text())
+    assert info["config"]["scan"]["deskew"] is True and info["n_deskewed_frames"] == 3
+
+
+def test_slamlib_run_default_drive_is_realistic_unless_still(
+    tiny_drive, tmp_path, monkeypatch, capsys
+):
+    """With no drive given, ``slamlib run`` asks for the realistic default drive; ``--still-default`` for the still
+    one (``default_drive(realism=False)``), and says so."""
+    import slamlib.synth
+    from slamlib.cli import main
+
+    asked = []
+    monkeypatch.setattr(
+        slamlib.synth, "default_drive", lambda **kw: asked.append(kw) or tiny_drive
+    )
+    for flags, realism in (([], True), (["--still-default"], False)):
+        assert (
+            main(
+                [
+                    "run",
+                    "--frames",
+                    "0:3",
+                    "--particles",
+                    "5",
+                    "--points",
+                    "20",
+                    "--no-progress",
+                    "--no-plots",
+                    "--out",
+                    str(tmp_path / str(realism)),
+                ]
+                + flags
+            )
+            == 0
+        )
+        assert asked[-1]["realism"] is realism
+        assert ("default drive (still)" in capsys.readouterr().out) is not realism
+    base, date, drive = tiny_drive
+    for flag in (
+        "--still-default",
+        "--full-default",
+    ):  # not silently ignored beside a given drive
+        with pytest.raises(
+            SystemExit, match=f"{flag} chooses among the synthetic default drives"
+        ):
+            main(
+                [
+                    "run",
+                    "--basedir",
+                    str(base),
+                    "--date",
+                    date,
+                    "--drive",
+                    str(drive),
+                    flag,
+                    "--out",
+                    str(tmp_path / "x"),
+                ]
+            )
+
+
+# ---------------------------------------------------------- bad options and outputs, refused in one line before the run
+@pytest.mark.parametrize(
+    "option,value",
+    [
+        ("--temperature", "0"),
+        ("--temperature", "-1"),
+        ("--temperature", "nan"),
+        ("--temperature", "inf"),
+        ("--seed", "-1"),
+        ("--particles", "1000000000"),
+        ("--refine", "-1"),
+        ("--noise", "inf"),
+        ("--noise", "nan"),
+        ("--tilt-sigma", "-0.01"),
+        ("--tilt-sigma", "nan"),
+    ],
+)
+def test_slamlib_run_bad_option_is_one_line_naming_it(
+    cli_drive, tmp_path, monkeypatch, option, value
+):
+    import slamlib.slam3d
+    from slamlib.cli import main
+
+    monkeypatch.setattr(
+        slamlib.slam3d, "run_drive", lambda *a, **k: pytest.fail("the run started")
+    )
+    args, _ = cli_drive
+    with pytest.raises(SystemExit) as exc:
+        main(args + [option, value, "--out", str(tmp_path / "o")])
+    msg = str(exc.value)
+    assert msg.startswith(f"slamlib run: {option}") and "\n" not in msg, msg
+
+
+def test_slamlib_run_out_at_an_existing_file_is_refused_before_the_run(
+    cli_drive, tmp_path, monkeypatch
+):
+    import slamlib.slam3d
+    from slamlib.cli import main
+
+    monkeypatch.setattr(
+        slamlib.slam3d, "run_drive", lambda *a, **k: pytest.fail("the run started")
+    )
+    args, _ = cli_drive
+    f = tmp_path / "file.txt"
+    f.write_text("keep me\n")
+    with pytest.raises(SystemExit, match="--out: .*file.txt exists and is not a folder"):
+        main(args + ["--out", str(f)])
+    assert f.read_text() == "keep me\n"
+
+
+def test_slamlib_run_with_an_empty_scan_counts_it_and_writes_valid_json(
+    cli_drive, tmp_path, capsys
+):
+    from slamlib.cli import main
+    from slamlib.kitti import read_kitti_poses
+
+    args, d = cli_drive
+    (d / "velodyne_points" / "data" / "0000000002.bin").write_bytes(b"")
+    out = tmp_path / "o"
+    assert main(args + ["--out", str(out)]) == 0
+    text = (out / "metrics.json").read_text()
+    info = json.loads(text, parse_constant=lambda c: pytest.fail(f"{c} in metrics.json"))
+    assert info["n_skipped_frames"] == 1 and "1 of 4 frames" in info["warnings"][0]
+    assert np.all(np.isfinite(read_kitti_poses(out / "slam_poses.txt")))
+    assert "warning: 1 of 4 frames" in capsys.readouterr().out
+
+
+def test_slamlib_run_tilt_sigma_reaches_the_filter(cli_drive, tmp_path):
+    """``--tilt-sigma`` turns on the tilt prior on the real OXTS samples (ax, ay, az) and is recorded."""
+    from slamlib.cli import main
+    from slamlib.kitti import read_kitti_poses
+
+    args, _ = cli_drive
+    out = tmp_path / "o"
+    assert main(args + ["--tilt-sigma", "0.005", "--out", str(out)]) == 0
+    info = json.loads((out / "metrics.json").read_text())
+    assert info["config"]["filter"]["tilt_sigma"] == 0.005
+    assert np.all(np.isfinite(read_kitti_poses(out / "slam_poses.txt")))
+
+
+def test_slamlib_run_transient_span_reaches_the_map_and_names_itself(cli_drive, tmp_path):
+    """``--transient-span`` turns on the eviction of movers' trails (recorded in metrics.json); with the Morton
+    map, which keeps no hit times, the error names both options."""
+    from slamlib.cli import main
+
+    args, _ = cli_drive
+    out = tmp_path / "o"
+    assert main(args + ["--transient-span", "2", "--out", str(out)]) == 0
+    assert (
+        json.loads((out / "metrics.json").read_text())["config"]["map"]["transient_span"]
+        == 2
+    )
+    with pytest.raises(
+        SystemExit,
+        match=r"--transient-span, --map: transient_span needs the 'voxel_hash' map",
+    ):
+        main(
+            args
+            + [
+                "--transient-span",
+                "2",
+                "--map",
+                "morton_bvh",
+                "--out",
+                str(tmp_path / "p"),
+            ]
+        )
+    with pytest.raises(
+        SystemExit, match=r"--transient-span: transient_span must be >= 0"
+    ):
+        main(args + ["--transient-span", "-1", "--out", str(tmp_path / "q")])
+
+
+def test_slamlib_run_bad_oxts_is_one_message_without_a_wrong_drive_hint(
+    cli_drive, tmp_path
+):
+    from slamlib.cli import main
+
+    args, d = cli_drive
+    set_oxts_field(d, 2, "lat", "91")
+    with pytest.raises(SystemExit) as exc:
+        main(args + ["--out", str(tmp_path / "o")])
+    msg = str(exc.value)
+    assert (
+        "0000000002.txt:1:" in msg and "lat = 91.0" in msg and "drives there" not in msg
+    ), msg
+    assert not (tmp_path / "o" / "metrics.json").exists()
+
+
+def test_slamlib_run_refuses_to_write_a_nan_trajectory_with_a_message(
+    cli_drive, tmp_path, monkeypatch
+):
+    import slamlib.slam3d
+    from slamlib.cli import main
+
+    real = slamlib.slam3d.run_drive
+
+    def poisoned(*a, **k):
+        run = real(*a, **k)
+        run.poses[2, 0, 3] = np.nan  # what a filter bug would leave behind
+        return run
+
+    monkeypatch.setattr(slamlib.slam3d, "run_drive", poisoned)
+    args, _ = cli_drive
+    out = tmp_path / "o"
+    with pytest.raises(SystemExit, match="could not write the results into .*non-finite"):
+        main(args + ["--out", str(out)])
+    assert not (out / "slam_poses.txt").exists() and not (out / "metrics.json").exists()
+
+
+def test_slamlib_run_refuses_to_overwrite_user_files_but_replaces_its_own(
+    cli_drive, tmp_path
+):
+    from slamlib.cli import main
+
+    args, _ = cli_drive
+    out = tmp_path / "o"
+    out.mkdir()
+    (out / "map.ply").write_text("my own map")
+    with pytest.raises(SystemExit, match="--out: .*map.ply.*--overwrite"):
+        main(args + ["--out", str(out)])
+    assert (out / "map.ply").read_text() == "my own map"
+    assert main(args + ["--out", str(out), "--overwrite"]) == 0
+    assert (
+        main(args + ["--out", str(out)]) == 0
+    )  # an earlier run's results are replaced without asking
+
+
+def test_slamlib_run_again_with_another_map_format_drops_the_stale_map(
+    cli_drive, tmp_path
+):
+    from slamlib.cli import main
+
+    args, _ = cli_drive
+    out = tmp_path / "o"
+    assert main(args + ["--out", str(out), "--map-format", "ply"]) == 0
+    assert main(args + ["--out", str(out), "--map-format", "pcd"]) == 0
+    assert (out / "map.pcd").is_file() and not (out / "map.ply").exists()
+
+
+# -------------------------------------------------- counts and frame selections named in one line; a run of empty scans
+@pytest.mark.parametrize(
+    "option,value",
+    [
+        ("--points", "0"),
+        ("--points", "-3"),
+        ("--particles", "0"),
+        ("--points", "100000000"),
+    ],
+)
+def test_slamlib_run_count_error_names_the_option_given(
+    tmp_path, monkeypatch, option, value
+):
+    import slamlib.slam3d
+    from slamlib.cli import main
+
+    monkeypatch.setattr(
+        slamlib.slam3d, "run_drive", lambda *a, **k: pytest.fail("the run started")
+    )
+    with pytest.raises(SystemExit) as exc:
+        main(["run", "--no-progress", option, value, "--out", str(tmp_path / "o")])
+    msg = str(exc.value)
+    assert (
+        msg.startswith("slamlib run: ")
+        and option in msg.split(":")[1]
+        and "\n" not in msg
+    ), msg
+
+
+@pytest.mark.parametrize("frames", ["1", "0:1", "2:"])
+def test_slamlib_run_one_frame_selection_names_frames(tmp_path, monkeypatch, frames):
+    import slamlib.slam3d
+    from slamlib.cli import main
+    from slamlib.kitti.sample import SAMPLE_DATE, SAMPLE_DRIVE, make_tiny_drive
+
+    monkeypatch.setattr(
+        slamlib.slam3d, "run_drive", lambda *a, **k: pytest.fail("the run started")
+    )
+    d = make_tiny_drive(tmp_path / "k", n_frames=3, point_stride=500)
+    with pytest.raises(SystemExit) as exc:
+        main(
+            [
+                "run",
+                "--basedir",
+                str(d.parent.parent),
+                "--date",
+                SAMPLE_DATE,
+                "--drive",
+                SAMPLE_DRIVE,
+                "--frames",
+                frames,
+                "--out",
+                str(tmp_path / "o"),
+            ]
+        )
+    assert str(exc.value).startswith(
+        f"slamlib run: --frames {frames!r} selects 1 frame"
+    ), str(exc.value)
+
+
+@pytest.mark.parametrize("fmt", ["ply", "pcd"])
+def test_slamlib_run_with_every_scan_empty_writes_an_empty_map(tmp_path, fmt):
+    import json
+
+    import open3d as o3d
+
+    from slamlib.cli import main
+    from slamlib.kitti.sample import SAMPLE_DATE, SAMPLE_DRIVE, make_tiny_drive
+
+    d = make_tiny_drive(tmp_path / "k", n_frames=3, point_stride=500)
+    for p in (d / "velodyne_points" / "data").iterdir():
+        p.write_bytes(b"")
+    out = tmp_path / "o"
+    assert (
+        main(
+            [
+                "run",
+                "--basedir",
+                str(d.parent.parent),
+                "--date",
+                SAMPLE_DATE,
+                "--drive",
+                SAMPLE_DRIVE,
+                "--no-progress",
+                "--no-plots",
+                "--particles",
+                "8",
+                "--points",
+                "30",
+                "--backend",
+                "numpy",
+                "--map-format",
+                fmt,
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
+    assert len(o3d.io.read_point_cloud(str(out / f"map.{fmt}")).points) == 0
+    info = json.loads((out / "metrics.json").read_text())
+    assert info["map_points_written"] == 0 and info["n_skipped_frames"] == 3

@@ -1,0 +1,83 @@
+"""Step 2's point preparation (:mod:`slamlib.slam3d.preprocess`): the range crop, voxel down-sampling (the fused
+Numba pass against the two numpy functions) and the scoring sample."""
+
+import numpy as np
+
+from slamlib.slam3d import crop_range, sample_points, voxel_downsample
+
+
+# ------------------------------------------------------------------------------------------ preprocessing
+def test_crop_range_keeps_the_annulus():
+    pts = np.array([[1, 0, 0], [0, 3, 0], [0, 0, 10], [20, 0, 0]], np.float32)
+    assert np.array_equal(crop_range(pts, 2.0, 15.0), pts[1:3])
+
+
+def test_voxel_downsample_one_exact_point_per_voxel():
+    rng = np.random.default_rng(0)
+    pts = rng.uniform(-3, 3, (5000, 3)).astype(np.float32)
+    out = voxel_downsample(pts, 1.0)
+    keys = np.floor(out / 1.0).astype(int)
+    assert (
+        len(np.unique(keys, axis=0))
+        == len(out)
+        == len(np.unique(np.floor(pts).astype(int), axis=0))
+    )
+    # kept points are input points (the first of each voxel, in input order)
+    first = {}
+    for i, k in enumerate(map(tuple, np.floor(pts).astype(int))):
+        first.setdefault(k, i)
+    assert np.array_equal(out, pts[sorted(first.values())])
+
+
+def test_sample_points_is_seeded_and_distinct():
+    pts = np.arange(3000, dtype=np.float32).reshape(1000, 3)
+    a = sample_points(pts, 100, np.random.default_rng(5))
+    b = sample_points(pts, 100, np.random.default_rng(5))
+    c = sample_points(pts, 100, np.random.default_rng(6))
+    assert np.array_equal(a, b) and not np.array_equal(a, c)
+    assert len(np.unique(a[:, 0])) == 100
+    assert len(sample_points(pts, 5000, np.random.default_rng(0))) == 1000
+
+
+def test_crop_and_downsample_equals_crop_then_downsample():
+    """The fused Numba pass of step 2 against the two numpy reference functions: same points, same order."""
+    from slamlib.kitti.sample import real_scan_frames
+    from slamlib.slam3d.preprocess import (
+        crop_and_downsample,
+        crop_range,
+        voxel_downsample,
+    )
+
+    real = real_scan_frames(range(1))[0].scan
+    cases = [
+        (real[:, :3], 3.0, 60.0, 0.25),
+        (real, 0.0, np.inf, 0.5),
+        (real[:, :3], 3.0, 60.0, 0.0),
+    ]
+    rng = np.random.default_rng(7)
+    for _ in range(30):
+        scale = rng.choice([0.01, 1.0, 30.0, 1e3])
+        pts = (rng.standard_normal((int(rng.integers(0, 2000)), 3)) * scale).astype(
+            np.float32
+        )
+        cases.append(
+            (
+                pts,
+                float(rng.uniform(0, 1)),
+                float(rng.uniform(1, 50)),
+                float(rng.choice([0, 0.05, 0.3])),
+            )
+        )
+    cases.append(
+        (
+            np.array([[1e7, 0, 0], [1, 1, 1], [1.01, 1.01, 1.01]], np.float32),
+            0.0,
+            np.inf,
+            0.25,
+        )
+    )  # far out
+    for pts, lo, hi, h in cases:
+        np.testing.assert_array_equal(
+            crop_and_downsample(pts, lo, hi, h),
+            voxel_downsample(crop_range(pts, lo, hi), h),
+        )

@@ -330,9 +330,8 @@ class StepsFilter:
             raise ValueError(
                 f"ess_fraction must be in [0, 1] or None, got {ess_fraction!r}"
             )
-        self.particles, self.log_weights = self.steps.initialise_particles(
-            n_particles
-        )  # 1
+        # 1
+        self.particles, self.log_weights = self.steps.initialise_particles(n_particles)
         self.world_map = world_map
         self.motion_noise = motion_noise
         self.rng = rng

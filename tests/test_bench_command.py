@@ -38,11 +38,12 @@ def test_list_shows_every_benchmark_from_any_folder(tmp_path):
     assert res.returncode == 0, res.stderr
     listed = [line.split()[0] for line in res.stdout.splitlines() if line.strip()]
     assert listed == list(NAMES)
+    # with HELP
     assert all(
         len(line.split(maxsplit=1)) == 2
         for line in res.stdout.splitlines()
         if line.strip()
-    )  # with HELP
+    )
 
 
 def test_benchmarks_package_is_the_one_beside_slamlib():
@@ -54,9 +55,8 @@ def test_benchmarks_package_is_the_one_beside_slamlib():
 
 
 def test_without_a_source_checkout_it_says_so_in_one_line(tmp_path, monkeypatch):
-    monkeypatch.setattr(
-        paths, "SOURCE_ROOT", tmp_path
-    )  # an installed slamlib: no benchmarks/ beside it
+    # an installed slamlib: no benchmarks/ beside it
+    monkeypatch.setattr(paths, "SOURCE_ROOT", tmp_path)
     with pytest.raises(SystemExit) as exc:
         main(["bench", "--list"])
     message = str(exc.value.code)

@@ -443,9 +443,8 @@ class _Recorder:
 @pytest.mark.parametrize("make", [_filter_1d, _filter_2d], ids=IDS[:2])
 def test_the_loop_calls_the_steps_in_order_once_each(make, recording_1d, recording_2d):
     slam, frames, module, _ = make(recording_1d, recording_2d, 0.5)
-    slam.steps = recorder = _Recorder(
-        module
-    )  # on the instance: the class keeps its module
+    # on the instance: the class keeps its module
+    slam.steps = recorder = _Recorder(module)
     slam.step(frames[0])
     slam.step(frames[1])
     assert recorder.calls == list(LOOP_ORDER) * 2

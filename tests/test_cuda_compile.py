@@ -26,9 +26,8 @@ def test_every_kernel_is_launched_by_a_wrapper(report):
         for name, obj in vars(kc).items()
         if name.endswith("_kernels") and hasattr(obj, "cache_info")
     }
-    assert factories == set(
-        cs.FACTORIES
-    )  # a new per-block-size factory must be listed there
+    # a new per-block-size factory must be listed there
+    assert factories == set(cs.FACTORIES)
     kernels = set(cs.module_kernels(kc)) | set(cs.BLOCK_KERNELS)
     assert len(kernels) >= 12
     launched = {launch["kernel"] for launch in report["launches"]}

@@ -35,12 +35,20 @@ import slamlib.slam3d.config
 import slamlib.slam3d.steps
 from slamlib.maps import MAP_TYPES, VoxelHashMap
 from slamlib.slam3d.config import (
+    AUTO,
     MAP_KINDS,
+    AnnealConfig,
+    ConstantVelocityConfig,
     FilterConfig,
     MapConfig,
+    MortonBVHParams,
     MotionConfig,
     ScanConfig,
+    ScanMatchConfig,
     SLAM3DConfig,
+    TiltConfig,
+    UpkeepConfig,
+    VoxelHashParams,
 )
 
 
@@ -257,16 +265,29 @@ def test_the_owners_are_derived_from_fields_and_default_constants():
         "min_count": [Owner(5, "fake_lower.LANDMARK_MIN_COUNT")],
     }
     assert field_owners(MapConfig)["kind"] == [Owner("voxel_hash", "MapConfig.kind")]
-    assert "params" not in field_owners(MapConfig)  # a factory is no single value
+    assert "voxel_hash" not in field_owners(MapConfig)  # a factory is no single value
     assert parser_defaults("sim2d")[0] == ("slamlib sim2d --particles", "particles", 200)
 
 
 # ---------------------------------------------------------------------------------------------- 3D, maps, kernels
-GROUPS_3D = (ScanConfig, MotionConfig, MapConfig, FilterConfig, SLAM3DConfig)
+#: The config groups whose fields own defaults. VoxelHashParams / MortonBVHParams are made from the maps'
+#: constructors, defaults included (test_map_params_are_the_constructors), so they own none of their own.
+GROUPS_3D = (
+    ScanConfig,
+    MotionConfig,
+    ConstantVelocityConfig,
+    MapConfig,
+    UpkeepConfig,
+    FilterConfig,
+    TiltConfig,
+    AnnealConfig,
+    ScanMatchConfig,
+    SLAM3DConfig,
+)
 #: The lower modules' constants whose name is not the parameter's.
 CONSTANT_NAMES_3D = {"DEFAULT_MAP_KIND": "kind", "DEFAULT_VOXEL_CAPACITY": "capacity"}
 #: Parameters whose ``None`` the function resolves from the config group.
-RESOLVED_3D = {"slamlib.slam3d.steps.pick_best_particle(estimate)"}
+RESOLVED_3D = {"slamlib.slam3d.steps.pick_best_particle(pose_estimate)"}
 ALIASES_3D = {"slamlib.kernels.get_backend(name)": "backend"}
 #: Parameters that share a setting's name but are another quantity.
 UNRELATED_3D = {
@@ -337,7 +358,8 @@ def test_3d_step_defaults_that_are_setting_groups_are_the_groups_defaults():
 
 
 def test_pick_best_particle_resolves_its_estimate_from_filter_config():
-    """``estimate=None`` is :attr:`FilterConfig.estimate` ("best"): the best particle, not the local mean."""
+    """``pose_estimate=None`` is :attr:`FilterConfig.pose_estimate` ("best"): the best particle, not the local
+    mean."""
     from slamlib.slam3d.steps import Particles3D, pick_best_particle
 
     t = np.array([[0.0, 0, 0], [0.2, 0, 0], [0.4, 0, 0]])
@@ -345,7 +367,7 @@ def test_pick_best_particle_resolves_its_estimate_from_filter_config():
     log_w = np.log([0.2, 0.5, 0.3])
     T, i = pick_best_particle(p, log_w)
     assert i == 1 and np.array_equal(T[:3, 3], [0.2, 0, 0])
-    assert np.array_equal(T, pick_best_particle(p, log_w, FilterConfig.estimate)[0])
+    assert np.array_equal(T, pick_best_particle(p, log_w, FilterConfig.pose_estimate)[0])
     assert not np.allclose(T, pick_best_particle(p, log_w, "mean")[0])
 
 
@@ -358,25 +380,39 @@ def test_the_defaults_have_their_values():
         60.0,
         0.25,
     )
-    assert (c.scan.deskew, c.scan.sweep_period) == (None, 0.10315)
+    assert (c.scan.deskew, c.scan.sweep_period) == (AUTO, 0.10315)
     assert (c.filter.particles, c.filter.scored_points, c.filter.temperature) == (
         300,
         1000,
         0.02,
     )
-    assert (c.filter.ess_fraction, c.filter.estimate, c.filter.refine) == (0.5, "best", 0)
-    assert (c.filter.tilt_sigma, c.filter.scan_match, c.filter.scan_match_iterations) == (
+    assert (c.filter.ess_fraction, c.filter.pose_estimate, c.search.anneal_rounds) == (
+        0.5,
+        "best",
+        0,
+    )
+    assert (c.prior.tilt_sigma, c.polish.scan_match, c.polish.scan_match_iterations) == (
         0.0,
-        None,
+        AUTO,
         15,
     )
-    assert (c.map.kind, c.map.params, c.map.prune_every, c.map.transient_span) == (
+    assert (c.map.kind, c.upkeep.prune_every, c.upkeep.transient_span) == (
         "voxel_hash",
-        {},
         20,
         0,
     )
-    assert c.motion.sigma_xyz_per_m == (0.02, 0.02, 0.01) and c.motion.cv_window == 1
+    assert c.map.params == {
+        "voxel_size": 0.5,
+        "capacity": 2**19,
+        "max_load": 0.75,
+        "min_sigma": 0.05,
+        "m_max": 16.0,
+    }
+    cv = c.motion.constant_velocity
+    assert c.motion.sigma_xyz_per_m == (0.02, 0.02, 0.01) and (
+        cv.window,
+        cv.start_rounds,
+    ) == (1, 8)
     m = c.map.make()
     assert (
         type(m) is VoxelHashMap
@@ -460,7 +496,7 @@ def _cli_cases():
                 "points",
                 "map_kind",
                 "temperature",
-                "refine",
+                "anneal_rounds",
                 "tilt_sigma",
                 "transient_span",
                 "seed",
@@ -512,3 +548,21 @@ def test_command_option_defaults_are_the_library_defaults(command):
     assert default_mismatches(defaults, owners, aliases, unrelated=unrelated) == []
     owned = {dest for _, dest, _ in defaults if aliases.get(dest, dest) in owners}
     assert checked <= owned, checked - owned
+
+
+def test_map_params_are_the_constructors():
+    """The typed map parameters are the maps' constructor parameters with the constructors' defaults."""
+    import inspect
+
+    for params, cls in (
+        (VoxelHashParams, slamlib.maps.VoxelHashMap),
+        (MortonBVHParams, slamlib.maps.MortonBVHMap),
+    ):
+        ctor = [
+            p
+            for p in inspect.signature(cls.__init__).parameters.values()
+            if p.name != "self"
+        ]
+        assert [(f.name, f.default) for f in fields(params)] == [
+            (p.name, p.default) for p in ctor
+        ]

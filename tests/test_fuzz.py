@@ -537,7 +537,7 @@ OPTIONS = {
         "--particles",
         "--points",
         "--temperature",
-        "--refine",
+        "--anneal-rounds",
         "--tilt-sigma",
         "--seed",
         "--noise",

@@ -97,9 +97,8 @@ def test_make_pose_and_invert_pose_values():
     np.testing.assert_array_equal(T[:3, 3], [1, 2, 3])
     Ti = invert_pose(T)
     np.testing.assert_allclose(Ti[:3, :3], R.T, atol=1e-15)
-    np.testing.assert_allclose(
-        Ti[:3, 3], -R.T @ [1.0, 2.0, 3.0], atol=1e-15
-    )  # (-2, 1, -3)
+    # (-2, 1, -3)
+    np.testing.assert_allclose(Ti[:3, 3], -R.T @ [1.0, 2.0, 3.0], atol=1e-15)
     np.testing.assert_array_equal(Ti[3], [0, 0, 0, 1])
     # batched: (2, 4, 4)
     Tb = make_pose(np.stack([R, R.T]), [[1.0, 0, 0], [0, 1.0, 0]])
@@ -121,9 +120,8 @@ def test_transform_points_values_and_dtype():
     out32 = transform_points(T, pts.astype(np.float32))
     assert out32.dtype == np.float32
     np.testing.assert_allclose(out32, [[10.0, 1.0, -1.0], [8.0, 0.0, 2.0]], atol=1e-5)
-    outi = transform_points(
-        T, np.array([[1, 0, 0], [0, 2, 3]])
-    )  # integer points -> float64
+    # integer points -> float64
+    outi = transform_points(T, np.array([[1, 0, 0], [0, 2, 3]]))
     assert outi.dtype == np.float64
     np.testing.assert_allclose(outi, [[10.0, 1.0, -1.0], [8.0, 0.0, 2.0]], atol=1e-12)
 

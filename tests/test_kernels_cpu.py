@@ -87,14 +87,16 @@ def test_move_particles_is_step5_then_step6():
         R_new, t_new = backend.move_particles(R, t, rpy_delta, trans_delta, noise, sigma)
         for i in range(P):
             T = geometry.make_pose(R[i], t[i])
+            # step 5
             T = (
                 T
                 @ geometry.make_pose(dR, np.zeros(3))
                 @ geometry.make_pose(np.eye(3), trans_delta)
-            )  # step 5
+            )
+            # step 6
             T = T @ geometry.make_pose(
                 geometry.rpy_to_matrix(sigma[3:] * noise[i, 3:]), sigma[:3] * noise[i, :3]
-            )  # step 6
+            )
             np.testing.assert_allclose(
                 geometry.make_pose(R_new[i], t_new[i]), T, atol=1e-12
             )
@@ -139,9 +141,8 @@ def test_transform_points_out_and_in_place_equal_the_allocating_call(N):
     np.testing.assert_allclose(fresh, REF.transform_points(T, pts), atol=1e-4, rtol=1e-5)
     out = np.full_like(pts, np.nan)
     assert CPU.transform_points(T, pts, out=out) is out
-    assert np.array_equal(out, fresh) and np.array_equal(
-        pts, keep
-    )  # the input is untouched
+    # the input is untouched
+    assert np.array_equal(out, fresh) and np.array_equal(pts, keep)
     work = pts.copy()
     assert CPU.transform_points(T, work, out=work) is work
     assert np.array_equal(work, fresh)
@@ -211,12 +212,10 @@ def test_transform_points_streams_large_outputs_with_the_plain_results(monkeypat
     monkeypatch.setattr(cpu, "STREAM_MIN_POINTS", 1000)
     for _, out in _float_slices(len(pts))[1]:
         assert CPU.transform_points(T, pts, out=out) is out and np.array_equal(out, want)
-    assert len(calls) == 16 and sorted(set(calls)) == list(
-        range(16)
-    )  # every head length taken
-    assert (
-        np.array_equal(CPU.transform_points(T, pts), want) and len(calls) == 16
-    )  # a fresh output: plain stores
+    # every head length taken
+    assert len(calls) == 16 and sorted(set(calls)) == list(range(16))
+    # a fresh output: plain stores
+    assert np.array_equal(CPU.transform_points(T, pts), want) and len(calls) == 16
     monkeypatch.undo()
     big = rng.normal(0.0, 30.0, (cpu.STREAM_MIN_POINTS + 5, 3)).astype(np.float32)
     plain = np.empty_like(big)
@@ -246,9 +245,8 @@ def test_streaming_kernels_carry_their_memory_hints():
     x, y = np.zeros(300, np.float32), np.zeros(300, np.float32)
     R, t = np.eye(3, dtype=np.float32)[None], np.zeros((1, 3), np.float32)
     asm = {}
-    head = cpu._stream_head(
-        y
-    )  # a wrong head would fault: non-temporal vector stores need aligned lines
+    # a wrong head would fault: non-temporal vector stores need aligned lines
+    head = cpu._stream_head(y)
     for name, args in (
         ("_transform_stream_nb", (R, t, x, y, head, 1)),
         ("_transform_inplace_nb", (R, t, x, 1)),
@@ -371,9 +369,8 @@ def test_move_particles_soa_is_the_same_math_in_the_other_layout(P, bits):
     with pytest.raises(ValueError, match=r"R \(3, 3, P\) and t \(3, P\)"):
         move_particles_soa(R, t, *args, lut, sigma)
     with pytest.raises(ValueError, match=r"noise must have shape \(6, P\)"):
-        move_particles_soa(
-            Rs, ts, *args, noise, sigma
-        )  # (P, 6): the particle-major noise
+        # (P, 6): the particle-major noise
+        move_particles_soa(Rs, ts, *args, noise, sigma)
 
 
 def test_move_particles_soa_keeps_float64_for_mixed_or_other_types():
@@ -458,9 +455,8 @@ def test_score_particles_cpu_equals_reference(P, N, seed):
     maps = _maps(rng)
     R, t = _particles(rng, P, spread=0.1)
     t *= 0.1
-    pts = rng.uniform(-7, 7, (N, 3)).astype(
-        np.float32
-    )  # many near surfaces, some outside the map
+    # many near surfaces, some outside the map
+    pts = rng.uniform(-7, 7, (N, 3)).astype(np.float32)
     for m in maps:
         lk = m.lookup()
         ref = REF.score_particles(R, t, pts, lk)
@@ -537,9 +533,8 @@ def test_systematic_resample_by_definition():
             j += 1
         want.append(j)
     np.testing.assert_array_equal(CPU.systematic_resample(w, u0), want)
-    np.testing.assert_array_equal(
-        REF.systematic_resample(w * 7.0, u0), want
-    )  # scale does not matter
+    # scale does not matter
+    np.testing.assert_array_equal(REF.systematic_resample(w * 7.0, u0), want)
 
 
 def test_systematic_resample_matches_slamlib_resampling_when_present():
@@ -689,9 +684,8 @@ def test_shared_point_math_python_and_numba_builds_agree_bit_for_bit():
     for r, p, y in rng.uniform(-np.pi, np.pi, (20, 3)):
         for f, o in zip((PY, NB), out):
             f["rpy_matrix"](r, p, y, o)
-        np.testing.assert_allclose(
-            out[0], out[1], rtol=0, atol=1e-15
-        )  # libm sin/cos on both sides
+        # libm sin/cos on both sides
+        np.testing.assert_allclose(out[0], out[1], rtol=0, atol=1e-15)
         np.testing.assert_allclose(
             out[0], geometry.rpy_to_matrix(np.array([r, p, y])), atol=1e-15
         )
@@ -767,9 +761,8 @@ def test_score_particles_cpu_equals_reference_across_chunks(
         got = CPU.score_particles(R, t, pts, lk)
         assert got.shape == (P,) and got.dtype == np.float64
         np.testing.assert_allclose(got, ref, rtol=1e-9, atol=1e-9)
-        assert (
-            np.ptp(ref) > 1.0
-        )  # the particles are told apart: a mixed-up particle index shows
+        # the particles are told apart: a mixed-up particle index shows
+        assert np.ptp(ref) > 1.0
 
 
 def test_score_particles_per_point_terms_by_definition(small_maps):
@@ -850,9 +843,8 @@ def test_morton_nn_is_exact_with_warm_starts_and_a_small_leaf(small_maps):
                 assert best_j == j and best == pytest.approx(d2[j], rel=1e-12)
             else:
                 assert best_j == -1 and best == r2
-            k = int(
-                np.argsort(d2)[1]
-            )  # warm start from the second-nearest point, at its distance
+            # warm start from the second-nearest point, at its distance
+            k = int(np.argsort(d2)[1])
             if d2[k] < r2:
                 best, best_j = cpu.morton_nn_nb(
                     *q, *args, d2[k], k, stack, leaf, cache_code, cache_k, 3

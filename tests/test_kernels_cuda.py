@@ -54,9 +54,8 @@ def test_move_particles_with_device_lut_noise_equals_reference_with_host_draws()
         R, t, [0.0, 0.01, -0.1], [0.5, 0.0, 0.0], lut._replace(step=4), SIGMA
     )
     assert not np.allclose(other[1], got[1])  # the next frame draws new noise
-    on_device = lut._replace(
-        tables=kc.tables_to_device(lut.tables)
-    )  # tables uploaded once
+    # tables uploaded once
+    on_device = lut._replace(tables=kc.tables_to_device(lut.tables))
     again = kc.move_particles(R, t, [0.0, 0.01, -0.1], [0.5, 0.0, 0.0], on_device, SIGMA)
     np.testing.assert_array_equal(again[1], got[1])
 
@@ -86,17 +85,15 @@ def test_transform_points_grid_stride():
     R, t = _particles(rng, 1)
     T = geometry.make_pose(R[0], t[0])
     pts = rng.normal(0, 20, (300, 3)).astype(np.float32)
-    got = kc.transform_points(
-        T, pts, threads=16, max_blocks=3
-    )  # 48 threads, ~6 points each
+    # 48 threads, ~6 points each
+    got = kc.transform_points(T, pts, threads=16, max_blocks=3)
     assert got.dtype == np.float32 and got.shape == pts.shape
     np.testing.assert_allclose(got, ref.transform_points(T, pts), rtol=1e-6, atol=2e-5)
     dev = kc.transform_points(T, kc.to_device(pts))
     assert kc.is_device_array(dev)
     np.testing.assert_allclose(kc.to_host(dev), got, atol=1e-5)
-    host_out = np.full_like(
-        pts, np.nan
-    )  # out= on the host, on the device, and in place on the device
+    # out= on the host, on the device, and in place on the device
+    host_out = np.full_like(pts, np.nan)
     assert kc.transform_points(T, pts, out=host_out, threads=16, max_blocks=3) is host_out
     assert np.array_equal(host_out, got)
     d = kc.to_device(pts)
@@ -185,18 +182,16 @@ def test_score_particles_uploads_the_map_once_per_version(monkeypatch, kind):
     )
     assert not np.allclose(got, first)
     uploaded.clear()
-    kc.score_particles(
-        R, t, pts, lk2._replace(version=0), threads=8
-    )  # no version: uploaded, not kept
+    # no version: uploaded, not kept
+    kc.score_particles(R, t, pts, lk2._replace(version=0), threads=8)
     kc.score_particles(R, t, pts, lk2._replace(version=0), threads=8)
     assert map_uploads(lk2) == 2 * n_arrays
 
 
 def test_inclusive_scan_multi_level():
     x = np.random.default_rng(7).random(150)
-    got = kc.inclusive_scan(
-        x, threads=8
-    ).copy_to_host()  # 19 blocks -> 3 -> 1: two levels of recursion
+    # 19 blocks -> 3 -> 1: two levels of recursion
+    got = kc.inclusive_scan(x, threads=8).copy_to_host()
     np.testing.assert_allclose(got, np.cumsum(x), rtol=1e-12)
 
 

@@ -173,9 +173,8 @@ def test_scan_stamp_more_than_a_sweep_from_its_pose_names_the_file_and_line(tiny
     drive = KittiRawDrive(tiny, SAMPLE_DATE, int(SAMPLE_DRIVE))
     stamps = drive.path / "velodyne_points" / "timestamps.txt"
     lines = stamps.read_text().splitlines()
-    late = int(drive.timestamps_ns[2]) + int(
-        2 * SWEEP_PERIOD_S * 1e9
-    )  # two sweeps after its pose
+    # two sweeps after its pose
+    late = int(drive.timestamps_ns[2]) + int(2 * SWEEP_PERIOD_S * 1e9)
     lines[2] = format_timestamp_ns(late)
     stamps.write_text("\n".join(lines) + "\n")
     drive = KittiRawDrive(tiny, SAMPLE_DATE, int(SAMPLE_DRIVE))

@@ -45,12 +45,10 @@ def test_sequence_matches_the_raw_drive_of_the_same_route(odo):
     raw = KittiRawDrive(odo / "raw", "2011_09_26", 1)
     assert len(seq) == N and seq.sequence == "07"
     G = raw.ground_truth_poses("velo")
-    G = (
-        np.linalg.inv(G[0])[None] @ G
-    )  # world = Velodyne at frame 0, as the odometry ground truth
-    assert (
-        np.abs(seq.ground_truth_poses() - G).max() < 1e-6
-    )  # 12 printed digits in poses/07.txt
+    # world = Velodyne at frame 0, as the odometry ground truth
+    G = np.linalg.inv(G[0])[None] @ G
+    # 12 printed digits in poses/07.txt
+    assert np.abs(seq.ground_truth_poses() - G).max() < 1e-6
     np.testing.assert_array_equal(seq[5].scan, raw[5].scan)
     assert seq[0].dt == 0.0 and 0.09 < seq[3].dt < 0.11
     assert seq[4].velocity is None and seq[4].angular_rate is None
@@ -147,9 +145,8 @@ def test_write_sequence_keeps_user_files_and_refuses_foreign_folders(odo, tmp_pa
     (d / "sequences/07/notes.txt").write_text("mine")
     write_sequence(d, "07", 7, frames=(0, 6), seed=2, lidar=FAST, progress=False)
     assert (d / "sequences/07/notes.txt").read_text() == "mine"
-    assert (
-        len(KittiOdometrySequence(d, 7)) == 6
-    )  # the older, longer sequence's scans were the generator's: gone
+    # the older, longer sequence's scans were the generator's: gone
+    assert len(KittiOdometrySequence(d, 7)) == 6
     (tmp_path / "other/sequences/03").mkdir(parents=True)
     (tmp_path / "other/sequences/03/data.bin").write_bytes(b"x")
     with pytest.raises(FileExistsError, match="not a slamlib synthetic drive"):
@@ -191,7 +188,7 @@ def test_without_an_imu_step_3_holds_the_filters_own_twist_checked(odo):
     frame = KittiOdometrySequence(odo, 7)[1]
     with pytest.raises(ValueError, match="no IMU values"):
         steps.read_imu(frame)
-    motion = ConstantVelocity(MotionConfig(), 100, 1.0)
+    motion = ConstantVelocity(MotionConfig(), 100)
     poses = [np.eye(4), make_pose(np.eye(3), np.array([1.0, 0.0, 0.0]))]
     v, w = motion.read(frame, poses, [0.0, 0.1])
     np.testing.assert_allclose(v, [10.0, 0.0, 0.0])
@@ -207,11 +204,12 @@ def test_constant_velocity_noise_is_wider_by_the_acceleration_terms():
     m = MotionConfig()
     dp, dt = np.array([1.0, 0.0, 0.0]), 0.1
     extra = m.sigma(dp, dt, constant_velocity=True) - m.sigma(dp, dt)
-    np.testing.assert_allclose(extra, np.r_[m.cv_accel, m.cv_angular_accel] * dt**2)
+    cv = m.constant_velocity
+    np.testing.assert_allclose(extra, np.r_[cv.accel, cv.angular_accel] * dt**2)
     with pytest.raises(ValueError, match="model must be one of"):
         MotionConfig(model="wheel")
     assert (
-        m.scaled(2.0).cv_accel == tuple(2 * a for a in m.cv_accel)
+        m.scaled(2.0).constant_velocity.accel == tuple(2 * a for a in cv.accel)
         and m.scaled(2.0).model == "imu"
     )
 
@@ -282,9 +280,9 @@ def test_cli_runs_an_odometry_sequence(odo, tmp_path):
         and not (out / "dead_reckoning_poses.txt").exists()
     )
     assert len((out / "slam_poses.txt").read_text().splitlines()) == N
-    # LIDAR-only, every frame after the first is scan-matched by default; --no-scan-match turns it off
+    # LIDAR-only, every frame after the first is scan-matched by default; --scan-match off turns it off
     assert (
-        info["config"]["filter"]["scan_match"] is None
+        info["config"]["polish"]["scan_match"] == "auto"
         and info["n_matched_frames"] == N - 1
     )
     r = _run(
@@ -296,14 +294,15 @@ def test_cli_runs_an_odometry_sequence(odo, tmp_path):
         "50",
         "--frames",
         "0:4",
-        "--no-scan-match",
+        "--scan-match",
+        "off",
         "--out",
         str(tmp_path / "off"),
     )
     assert r.returncode == 0, r.stderr
     info = json.loads((tmp_path / "off" / "metrics.json").read_text())
     assert (
-        info["config"]["filter"]["scan_match"] is False and info["n_matched_frames"] == 0
+        info["config"]["polish"]["scan_match"] is False and info["n_matched_frames"] == 0
     )
 
 
@@ -431,9 +430,8 @@ def test_own_motion_window_and_damping():
         )
         for k in range(3)
     ]
-    v1, w1 = own_motion(
-        steps_[:2], [0.0, 0.1]
-    )  # one frame known: the window shrinks to it
+    # one frame known: the window shrinks to it
+    v1, w1 = own_motion(steps_[:2], [0.0, 0.1])
     v_ref, w_ref = twist_between(steps_[0], steps_[1], 0.1)
     np.testing.assert_allclose(v1, v_ref * [1, 1, 0.5])
     np.testing.assert_allclose(w1, w_ref * [0, 0, 1])
@@ -441,10 +439,10 @@ def test_own_motion_window_and_damping():
     v_ref, w_ref = twist_between(steps_[0], steps_[2], 0.2)
     np.testing.assert_allclose(v2, v_ref * [1, 1, 0.5])
     np.testing.assert_allclose(w2, w_ref * [0, 0, 1])
-    with pytest.raises(ValueError, match="cv_damping must be 6 numbers in"):
-        SLAM3DConfig.of(cv_damping=(1, 1, 1, 1, 1, 2))
-    with pytest.raises(ValueError, match="cv_window must be in"):
-        SLAM3DConfig.of(cv_window=0)
+    with pytest.raises(ValueError, match="damping must be 6 numbers in"):
+        SLAM3DConfig.of(constant_velocity={"damping": (1, 1, 1, 1, 1, 2)})
+    with pytest.raises(ValueError, match="window must be in"):
+        SLAM3DConfig.of(**{"constant_velocity.window": 0})
 
 
 # ------------------------------------------------------------------ the reader on hand-written sequences
@@ -690,6 +688,5 @@ def test_progress_bar_only_when_asked(base, capsys):
     assert [f.index for f in KittiOdometrySequence(base, 4, progress=True)] == [0, 1, 2]
     err = capsys.readouterr().err
     assert err.startswith("\rframes:   0%|") and " 0/3 " in err and "frame/s]" in err
-    assert not err.endswith(
-        "\n"
-    )  # leave=False: the bar is cleared, not left on its own line
+    # leave=False: the bar is cleared, not left on its own line
+    assert not err.endswith("\n")

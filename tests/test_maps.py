@@ -265,9 +265,8 @@ def test_voxel_hash_evicts_the_trail_of_a_mover_and_keeps_static_surfaces():
     assert np.array_equal(transient, (last - first < 10) & (29 - last >= 10))
     wall_before = np.sort(m.points()[m.points()[:, 0] > 5.0], axis=0)
     trail = int(transient.sum())
-    assert (
-        trail == 20
-    )  # frames 0..19 of the mover: 0.6 m apart, one 0.5 m voxel each; 20..29 are too recent
+    # frames 0..19 of the mover: 0.6 m apart, one 0.5 m voxel each; 20..29 are too recent
+    assert trail == 20
     # only near a centre: the trail's first five voxels (0.6 m apart) lie within 2.9 m of its start
     near = m.transients(10, center=[1.0, -10.0, 0.5], radius=2.9)
     assert near.sum() == 5 and np.all(near <= transient)
@@ -299,9 +298,8 @@ def test_morton_map_layout_and_dedup():
     dedup = lk.codes >> 9
     assert np.all(np.diff(dedup) > 0)  # one point per 8 cm voxel
     u_all, _ = axis_indices(pts, 100.0)
-    assert set(np.unique(morton_codes(u_all) >> 9)) == set(
-        dedup
-    )  # every occupied voxel represented
+    # every occupied voxel represented
+    assert set(np.unique(morton_codes(u_all) >> 9)) == set(dedup)
     cells = lk.codes >> (3 * lk.cell_level)
     np.testing.assert_array_equal(np.unique(cells), lk.cell_codes)
     for k in range(len(lk.cell_codes)):
@@ -551,9 +549,8 @@ def test_voxel_hash_prune_keeps_exactly_the_near_voxels_with_their_statistics():
     centres = np.vstack([centres, last + [0.5, 0.5, 0.5]])
     pts = np.vstack([c + rng.uniform(-0.4, 0.4, (5, 3)) * [1, 1, 0.5] for c in centres])
     c0 = np.array([0.5, 0.5, 0.0])
-    pts = np.vstack([pts, [c0 + [0.0, 4.0, 0.0]]]).astype(
-        np.float32
-    )  # alone in its voxel: mean at distance 4.0
+    # alone in its voxel: mean at distance 4.0
+    pts = np.vstack([pts, [c0 + [0.0, 4.0, 0.0]]]).astype(np.float32)
     m = VoxelHashMap(voxel_size=1.0, capacity=64, max_load=0.7)
     m.merge(pts)
     assert m.n_dropped == 0 and len(m) == 44
@@ -685,25 +682,23 @@ def test_fresh_code_functions_follow_the_formulas():
         keys[slot] = k
     for slot, k in zip((15, 0, 1), homes):
         assert f["find_slot"](keys, np.int64(k), np.int64(log2c), np.int64(2)) == slot
-    assert (
-        f["find_slot"](keys, np.int64(homes[2]), np.int64(log2c), np.int64(1)) == -1
-    )  # beyond max_probe
+    # beyond max_probe
+    assert f["find_slot"](keys, np.int64(homes[2]), np.int64(log2c), np.int64(1)) == -1
     other = next(
         k
         for k in range(5000, 10000)
         if f["hash_slot"](np.int64(k), np.int64(log2c)) == 15
     )
-    assert (
-        f["find_slot"](keys, np.int64(other), np.int64(log2c), np.int64(5)) == -1
-    )  # stops at the empty slot 2
-    full = (
-        np.arange(16, dtype=np.int64) + 100
-    )  # a full table without the key: gives up after max_probe + 1
+    # stops at the empty slot 2
+    assert f["find_slot"](keys, np.int64(other), np.int64(log2c), np.int64(5)) == -1
+    # a full table without the key: gives up after max_probe + 1
+    full = np.arange(16, dtype=np.int64) + 100
     assert f["find_slot"](full, np.int64(7), np.int64(log2c), np.int64(15)) == -1
+    # masked to 21 bits
     assert (
         f["part1by2"](np.int64(0b1011)) == 0b1000001001
         and f["part1by2"](np.int64(2**21)) == 0
-    )  # masked to 21 bits
+    )
 
 
 def test_pack_keys_of_unsigned_or_narrow_indices():
@@ -775,9 +770,8 @@ def test_morton_parameters_defaults_and_limits():
             MortonBVHMap(**bad)
     for ok in ({"dedup_level": 0}, {"dedup_level": 20}, {"max_points": 1}):
         MortonBVHMap(**ok)
-    assert (
-        MortonBVHMap(radius=0.004, quantum=0.01).cell_level == 0
-    )  # 2 r < quantum: cells of one quantum
+    # 2 r < quantum: cells of one quantum
+    assert MortonBVHMap(radius=0.004, quantum=0.01).cell_level == 0
     assert MortonBVHMap(radius=0.01 * 2**19, quantum=0.01).cell_level == 20
     with pytest.raises(
         ValueError,
@@ -946,9 +940,8 @@ def test_voxel_in_slot_zero_is_refreshed():
     u = np.stack(np.meshgrid(r, r, r, indexing="ij"), -1).reshape(-1, 3)
     home0 = u[hash_slots(pack_keys(u + 2**20), 4) == 0][0]
     p = (home0 + [0.2, 0.3, 0.4]).astype(np.float32)[None]
-    m = VoxelHashMap(
-        voxel_size=1.0, capacity=16, min_sigma=0.05, m_max=0.5
-    )  # m_max may be below 1
+    # m_max may be below 1
+    m = VoxelHashMap(voxel_size=1.0, capacity=16, min_sigma=0.05, m_max=0.5)
     m.merge(p)
     lk = m.lookup()
     assert lk.keys[0] != -1 and lk.voxel_size == 1.0 and lk.m_max == 0.5

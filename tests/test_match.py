@@ -68,9 +68,8 @@ def test_cost_is_the_negated_map_score_of_that_pose():
             score = steps.score_particles(particles, scan, m, backend)[0]
             assert E == pytest.approx(-score, rel=1e-9, abs=1e-6), (backend, E, score)
         np.testing.assert_allclose(H, H.T)
-        assert np.linalg.eigvalsh(H).min() >= -1e-9 * np.trace(
-            H
-        )  # J^T A J with A positive definite
+        # J^T A J with A positive definite
+        assert np.linalg.eigvalsh(H).min() >= -1e-9 * np.trace(H)
 
 
 def _frozen_cost(T, scan, lookup, road=None):
@@ -163,9 +162,8 @@ def test_a_plane_alone_brings_back_height_roll_and_pitch():
     found = match_scan(start, floor, m, iterations=20)
     assert np.all(np.isfinite(found))
     assert abs(found[2, 3]) < 0.01  # height
-    assert (
-        np.abs(found[2, :3] - [0, 0, 1]).max() < 2e-3
-    )  # the body's z stands up again: roll, pitch
+    # the body's z stands up again: roll, pitch
+    assert np.abs(found[2, :3] - [0, 0, 1]).max() < 2e-3
 
 
 def _rings(rng, height=1.73, per_ring=3000):
@@ -208,16 +206,13 @@ def test_leaves_the_pose_alone_where_it_cannot_match():
     rng = np.random.default_rng(4)
     world = _room(rng, 2000)
     T = make_pose(rpy_to_matrix([0.0, 0.0, 0.1]), np.array([0.2, 0.0, 0.0]))
-    np.testing.assert_array_equal(
-        match_scan(T, world, _map(world, MortonBVHMap), 5), T
-    )  # no voxel Gaussians
+    # no voxel Gaussians
+    np.testing.assert_array_equal(match_scan(T, world, _map(world, MortonBVHMap), 5), T)
     np.testing.assert_array_equal(match_scan(T, world, VoxelHashMap(), 5), T)  # empty map
-    np.testing.assert_array_equal(
-        match_scan(T, world, _map(world), 0), T
-    )  # asked for none
-    np.testing.assert_array_equal(
-        match_scan(T, world[:0], _map(world), 5), T
-    )  # no points
+    # asked for none
+    np.testing.assert_array_equal(match_scan(T, world, _map(world), 0), T)
+    # no points
+    np.testing.assert_array_equal(match_scan(T, world[:0], _map(world), 5), T)
 
 
 def test_so3_exp_is_rodrigues():

@@ -238,13 +238,11 @@ def test_kitti_segment_ends_at_the_first_frame_strictly_beyond_the_length():
     the two differ: frames exactly 1 m apart, so ``d_f + L`` is itself a frame's distance."""
     n = 30
     gt = np.stack([make_pose(np.eye(3), [float(i), 0.0, 0.0]) for i in range(n)])
-    est = np.stack(
-        [make_pose(np.eye(3), [1.01 * i, 0.0, 0.0]) for i in range(n)]
-    )  # 1 % too long per step
+    # 1 % too long per step
+    est = np.stack([make_pose(np.eye(3), [1.01 * i, 0.0, 0.0]) for i in range(n)])
     r = kitti_odometry_error(est, gt, lengths=(5.0,), step=1)
-    np.testing.assert_array_equal(
-        r.last - r.first, 6
-    )  # d_l = d_f + 6 > d_f + 5; d_f + 5 itself is not beyond
+    # d_l = d_f + 6 > d_f + 5; d_f + 5 itself is not beyond
+    np.testing.assert_array_equal(r.last - r.first, 6)
     np.testing.assert_array_equal(r.first, np.arange(n - 6))
     # error over 6 frames (0.06 m) per 5 m: 1.2 %; the ">=" rule would give 0.05 / 5 = 1.0 %
     assert r.t_err_percent == pytest.approx(1.2, rel=1e-9)
@@ -271,9 +269,8 @@ def _drifting_pair(n=40, seed=8):
 def test_poses_as_3x4_rows_float32_and_bad_shapes():
     est, gt = _drifting_pair()
     ref = relative_pose_error(est, gt, delta=3)
-    r34 = relative_pose_error(
-        est[:, :3], gt[:, :3], delta=3
-    )  # KITTI files' (N, 3, 4) rows
+    # KITTI files' (N, 3, 4) rows
+    r34 = relative_pose_error(est[:, :3], gt[:, :3], delta=3)
     np.testing.assert_array_equal(r34.trans_errors, ref.trans_errors)
     np.testing.assert_array_equal(r34.rot_errors, ref.rot_errors)
     k34 = kitti_odometry_error(est[:, :3], gt[:, :3], lengths=(5.0,), step=1)
@@ -301,17 +298,14 @@ def test_poses_as_3x4_rows_float32_and_bad_shapes():
 
 
 def test_rotation_angle_clips_round_off_at_pi_and_computes_in_float64():
-    assert (
-        rotation_angle(np.diag([-1.0 - 1e-12, -1.0 - 1e-12, 1.0])) == np.pi
-    )  # cos just below -1
+    # cos just below -1
+    assert rotation_angle(np.diag([-1.0 - 1e-12, -1.0 - 1e-12, 1.0])) == np.pi
     assert rotation_angle(np.diag([1.0 + 1e-12, 1.0, 1.0])) == 0.0
     R = Rotation.from_rotvec([0.1, -0.2, 0.3]).as_matrix().astype(np.float32)
-    assert rotation_angle(R) == np.arccos(
-        0.5 * (np.trace(R.astype(np.float64)) - 1.0)
-    )  # float64 sums
-    assert rotation_angle(R) != np.arccos(
-        0.5 * (np.trace(R) - np.float32(1.0))
-    )  # float32 would differ
+    # float64 sums
+    assert rotation_angle(R) == np.arccos(0.5 * (np.trace(R.astype(np.float64)) - 1.0))
+    # float32 would differ
+    assert rotation_angle(R) != np.arccos(0.5 * (np.trace(R) - np.float32(1.0)))
 
 
 def test_umeyama_defaults_reflections_and_degenerate_inputs():
@@ -364,9 +358,8 @@ def test_rpe_values_defaults_units_and_errors():
     by_m = [relative_pose_error(est, gt, 2.5, u) for u in ("m", "meters", "metres")]
     for other in by_m[1:]:
         np.testing.assert_array_equal(other.last, by_m[0].last)
-    assert (
-        relative_pose_error(est, gt, 0.5, "m").first.size == n - 1
-    )  # any delta > 0 m is allowed
+    # any delta > 0 m is allowed
+    assert relative_pose_error(est, gt, 0.5, "m").first.size == n - 1
     with pytest.raises(ValueError, match=r"^delta must be >= 1 frame$"):
         relative_pose_error(est, gt, 0)
     with pytest.raises(ValueError, match=r"^delta must be > 0 metres$"):
@@ -383,9 +376,8 @@ def test_inverse_choice_matters_on_non_orthonormal_rotations():
     """General 4x4 inverses by default (the devkit's ``Matrix::inv``); ``[R^T, -R^T t]`` only when asked."""
     est, gt = _drifting_pair()
     skew = est.copy()
-    skew[:, :3, :3] *= 1.0 + 1e-3 * np.random.default_rng(0).random(
-        (len(est), 1, 1)
-    )  # not orthonormal
+    # not orthonormal
+    skew[:, :3, :3] *= 1.0 + 1e-3 * np.random.default_rng(0).random((len(est), 1, 1))
     r = relative_pose_error(skew, gt, delta=2)
     E = np.linalg.inv(np.linalg.inv(skew[:-2]) @ skew[2:]) @ (
         np.linalg.inv(gt[:-2]) @ gt[2:]
@@ -559,12 +551,10 @@ def test_trajectory_metrics_values_and_thresholds():
         return T
 
     exactly_100 = straight(np.linspace(0.0, 100.0, 201))
-    assert "kitti_t_err_percent" not in trajectory_metrics(
-        exactly_100, exactly_100
-    )  # longer than 100 m only
-    gt = straight(
-        np.r_[np.linspace(0.0, 99.5, 200), 100.5]
-    )  # d[-2] = 99.5 m, d[-1] = 100.5 m
+    # longer than 100 m only
+    assert "kitti_t_err_percent" not in trajectory_metrics(exactly_100, exactly_100)
+    # d[-2] = 99.5 m, d[-1] = 100.5 m
+    gt = straight(np.r_[np.linspace(0.0, 99.5, 200), 100.5])
     est = gt.copy()
     est[:, 0, 3] *= 1.01
     m = trajectory_metrics(est, gt)
@@ -593,9 +583,10 @@ def test_plane_residuals_are_distances_to_the_local_plane_of_the_reference():
 
     rng = np.random.default_rng(0)
     floor = np.column_stack([rng.uniform(-5, 5, (2000, 2)), np.zeros(2000)])  # z = 0
+    # x = 8
     wall = np.column_stack(
         [np.full(2000, 8.0), rng.uniform(-5, 5, 2000), rng.uniform(0.5, 4, 2000)]
-    )  # x = 8
+    )
     ref = np.vstack([floor, wall])
     q = np.array([[1.0, 1.0, 0.03], [-2.0, 0.5, -0.05], [7.9, 0.0, 2.0], [8.2, 1.0, 3.0]])
     dist, normal = plane_residuals(q, ref)

@@ -94,23 +94,23 @@ def test_components_uncorrelated(tables):
 
 
 def test_noise_changes_every_frame_and_across_threads(tables):
+    # (steps, threads)
     series = np.stack(
         [N.lut_normal(tables, 256, step=s, seed=7)[:, 0] for s in range(200)]
-    )  # (steps, threads)
+    )
     _check_uncorrelated(series, 0.05)
     one = np.array(
         [N.lut_normal(tables, 1, step=s, seed=7, start=3)[0, 3] for s in range(2000)]
     )
-    assert (
-        abs(N.lag_correlation(one, 1)) < 0.07
-    )  # one particle over 2000 frames (sd of r ~ 0.022)
+    # one particle over 2000 frames (sd of r ~ 0.022)
+    assert abs(N.lag_correlation(one, 1)) < 0.07
     wide = N.lut_normal(tables, 4096, step=1, seed=7)[:, 0]
-    assert (
-        abs(np.corrcoef(wide[:-256], wide[256:])[0, 1]) < 0.05
-    )  # no period of 256 threads
+    # no period of 256 threads
+    assert abs(np.corrcoef(wide[:-256], wide[256:])[0, 1]) < 0.05
+    # seeds differ
     assert not np.array_equal(
         N.lut_normal(tables, 64, 1, 7), N.lut_normal(tables, 64, 1, 8)
-    )  # seeds differ
+    )
 
 
 def test_particles_rarely_share_their_six_draws(tables):
@@ -128,9 +128,8 @@ def test_particles_rarely_share_their_six_draws(tables):
 def test_seed_variant_fails_the_same_check():
     t8 = N.make_tables(seed=2017, bits=N.SEED_BITS)
     series = np.stack([N.seed_lut_normal(t8, 512, step=s)[:, 0] for s in range(20)])
-    assert N.lag_correlation(series, 1, axis=0) == pytest.approx(
-        1.0
-    )  # same noise at every frame
+    # same noise at every frame
+    assert N.lag_correlation(series, 1, axis=0) == pytest.approx(1.0)
     assert np.array_equal(series[0, :256], series[0, 256:])  # repeats every 256 threads
     with pytest.raises(AssertionError, match="consecutive frames correlated"):
         _check_uncorrelated(series, 0.05)
@@ -346,17 +345,15 @@ def test_noise_statistics_and_lag_correlation_values():
     assert N.lag_correlation(y, 1, axis=1) == pytest.approx(
         np.corrcoef(a, b)[0, 1], rel=1e-12
     )
-    assert np.isnan(
-        N.lag_correlation(np.ones(5), 1)
-    )  # no variance: NaN, not a division error
+    # no variance: NaN, not a division error
+    assert np.isnan(N.lag_correlation(np.ones(5), 1))
 
 
 def test_float32_and_degenerate_inputs_of_the_helpers():
     import warnings
 
-    x32 = (1e4 + np.random.default_rng(6).normal(size=1001)).astype(
-        np.float32
-    )  # float32 sums would round
+    # float32 sums would round
+    x32 = (1e4 + np.random.default_rng(6).normal(size=1001)).astype(np.float32)
     s32, s64 = N.noise_statistics(x32), N.noise_statistics(x32.astype(np.float64))
     for key in ("mean", "var", "kurtosis"):
         assert s32[key] == pytest.approx(s64[key], rel=1e-12, abs=0)

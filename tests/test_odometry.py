@@ -193,9 +193,8 @@ def test_left_jacobian_float32_input_and_zero_without_warnings():
         J, so3_left_jacobian(phi32.astype(np.float64)), rtol=0, atol=1e-15
     )
     with warnings.catch_warnings():
-        warnings.simplefilter(
-            "error"
-        )  # the closed form is never evaluated at a = 0 (no 0/0)
+        # the closed form is never evaluated at a = 0 (no 0/0)
+        warnings.simplefilter("error")
         np.testing.assert_array_equal(
             so3_left_jacobian(np.zeros((2, 3))), np.broadcast_to(np.eye(3), (2, 3, 3))
         )

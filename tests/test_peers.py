@@ -10,9 +10,8 @@ from slamlib.geometry import make_pose, rpy_to_matrix
 from slamlib.kitti.velodyne import SWEEP_PERIOD_S
 from slamlib.peers import move_along, pose_time_fraction
 
-MOTION = make_pose(
-    rpy_to_matrix([0.01, -0.02, 0.08]), [1.2, 0.1, -0.05]
-)  # one sweep of a turning car
+# one sweep of a turning car
+MOTION = make_pose(rpy_to_matrix([0.01, -0.02, 0.08]), [1.2, 0.1, -0.05])
 
 
 @pytest.mark.parametrize("fraction", [-1.0, -0.335, 0.0, 0.25, 1.0, 1.5])
@@ -55,30 +54,27 @@ def test_kiss_icp_deskews_to_the_end_of_the_sweep():
     config = load_config(None)
     config.data.deskew = True
     rng = np.random.default_rng(0)
-    az = np.linspace(
-        np.pi - 1e-3, -np.pi + 1e-3, 400
-    )  # the sweep's order on KITTI: from behind, clockwise
+    # the sweep's order on KITTI: from behind, clockwise
+    az = np.linspace(np.pi - 1e-3, -np.pi + 1e-3, 400)
     r = rng.uniform(5.0, 40.0, az.size)
     points = np.column_stack(
         [r * np.cos(az), r * np.sin(az), rng.uniform(-1.5, 2.0, az.size)]
     )
-    stamps = 0.5 * (
-        1.0 - np.arctan2(points[:, 1], points[:, 0]) / np.pi
-    )  # KISS-ICP's KITTI rule, 0 = start
+    # KISS-ICP's KITTI rule, 0 = start
+    stamps = 0.5 * (1.0 - np.arctan2(points[:, 1], points[:, 0]) / np.pi)
     out = np.asarray(get_preprocessor(config).preprocess(points, stamps, MOTION))
-    s = (stamps - stamps.min()) / (
-        stamps.max() - stamps.min()
-    )  # KISS-ICP normalises the stamps to [0, 1]
+    # KISS-ICP normalises the stamps to [0, 1]
+    s = (stamps - stamps.min()) / (stamps.max() - stamps.min())
     expected = np.array(
         [
             (move_along(np.eye(4), MOTION, si - 1.0) @ np.append(p, 1.0))[:3]
             for p, si in zip(points, s)
         ]
     )
-    keep = (
-        np.linalg.norm(expected, axis=1) > config.data.min_range
-    )  # it drops points outside its range limits
+    # it drops points outside its range limits
+    keep = np.linalg.norm(expected, axis=1) > config.data.min_range
     np.testing.assert_allclose(out, expected[keep], atol=1e-9)
+    # the end: unmoved
     assert (
         np.abs(out[np.argmax(s[keep])] - points[keep][np.argmax(s[keep])]).max() < 1e-12
-    )  # the end: unmoved
+    )

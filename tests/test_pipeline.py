@@ -12,7 +12,7 @@ from __future__ import annotations
 import ast
 import inspect
 import textwrap
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, is_dataclass
 from types import SimpleNamespace
 
 import numpy as np
@@ -24,7 +24,13 @@ from slamlib.geometry import make_pose, rpy_to_matrix
 from slamlib.metrics import absolute_trajectory_error
 from slamlib.odometry import dead_reckon
 from slamlib.slam3d import ParticleSLAM3D, SLAM3DConfig, steps
-from slamlib.slam3d.config import FilterConfig, MapConfig, MotionConfig, ScanConfig
+from slamlib.slam3d.config import (
+    AnnealConfig,
+    ConstantVelocityConfig,
+    FilterConfig,
+    MotionConfig,
+    ScanConfig,
+)
 from slamlib.slam3d.pipeline import MIN_SCAN_POINTS
 from slamlib.slam3d.stages import (
     Annealing,
@@ -36,10 +42,16 @@ from slamlib.slam3d.stages import (
     TiltPrior,
 )
 
+
+def _cv(**changes) -> ConstantVelocityConfig:
+    """The LIDAR-only motion source's settings with ``changes``."""
+    return ConstantVelocityConfig(**changes)
+
+
 #: The design's bound: KISS-ICP's register_frame is 33 lines with its docstring; ours at most 25 of code.
 MAX_CODE_LINES = 25
 #: Settings the per-frame method may pass on as arguments (not modes): step 9's estimate.
-PASSED_ON = {"estimate"}
+PASSED_ON = {"pose_estimate"}
 #: Pipeline state whose name is also a setting's: the particle set itself.
 STATE = {"particles"}
 #: Names that may appear in a branch's condition: the data (poses so far, the scan, the map).
@@ -62,10 +74,11 @@ def method_problems(source: str) -> list[str]:
     problems = []
     if len(code) > MAX_CODE_LINES:
         problems.append(f"{len(code)} code lines, more than {MAX_CODE_LINES}")
+    config = SLAM3DConfig()
+    groups = [getattr(config, g.name) for g in fields(config)]
+    groups = [g for g in groups if is_dataclass(g)]
     settings = {
-        f.name
-        for c in (ScanConfig, MotionConfig, MapConfig, FilterConfig)
-        for f in fields(c)
+        f.name for g in groups for f in fields(g) if not is_dataclass(getattr(g, f.name))
     }
     modes = (settings - PASSED_ON - STATE) | {"lidar_only"}
     seen, branches = set(), set()
@@ -150,9 +163,8 @@ def test_stages_are_chosen_once_from_the_settings_and_the_first_frame():
     scan = _scan()
     config = SLAM3DConfig.of(particles=20, scored_points=100)
     imu = ParticleSLAM3D(config)
-    assert (
-        imu.motion is None and not imu.lidar_only
-    )  # nothing chosen before the data is seen
+    # nothing chosen before the data is seen
+    assert imu.motion is None and not imu.lidar_only
     imu.register_frame(_frame(scan))
     chosen = (imu.motion, imu.prior, imu.polish)
     assert isinstance(imu.motion, ImuMotion)
@@ -167,24 +179,27 @@ def test_stages_are_chosen_once_from_the_settings_and_the_first_frame():
     assert isinstance(lidar.prior, NoPrior)  # no accelerometer to hold the tilt to
     assert isinstance(lidar.polish, ScanMatch) and lidar.polish.road
 
-    tilted = ParticleSLAM3D(config.with_(tilt_sigma=0.003, refine=2, scan_match=True))
+    tilted = ParticleSLAM3D(
+        config.with_(tilt_sigma=0.003, anneal_rounds=2, scan_match=True)
+    )
     tilted.register_frame(_frame(scan, specific_force=np.array([0.0, 0.0, 9.81])))
     assert isinstance(tilted.prior, TiltPrior) and tilted.prior.sigma == 0.003
     assert isinstance(tilted.polish, ScanMatch) and not tilted.polish.road
     assert (
-        tilted.search.rounds == 2 and tilted.search.shrink == FilterConfig().refine_shrink
+        tilted.search.rounds == 2 and tilted.search.shrink == AnnealConfig().anneal_shrink
     )
     off = ParticleSLAM3D(config.with_(tilt_sigma=0.003, scan_match=False))
-    off.register_frame(
-        _frame(scan, v=None)
-    )  # LIDAR-only: the prior is off whatever tilt_sigma says
+    # LIDAR-only: the prior is off whatever tilt_sigma says
+    off.register_frame(_frame(scan, v=None))
     assert isinstance(off.prior, NoPrior) and isinstance(off.polish, NoPolish)
 
 
 def test_resampling_and_annealing_are_counted_apart():
     scan = _scan()
     slam = ParticleSLAM3D(
-        SLAM3DConfig.of(particles=20, scored_points=100, refine=2, ess_fraction=1.0)
+        SLAM3DConfig.of(
+            particles=20, scored_points=100, anneal_rounds=2, ess_fraction=1.0
+        )
     )
     for _ in range(3):
         slam.register_frame(_frame(scan))
@@ -210,9 +225,8 @@ def test_step_reports_a_degenerate_frame_as_unscored_and_register_frame_its_pose
     poses = [
         twin.register_frame(f) for f in (_frame(scan), _frame(scan[:0]), _frame(scan))
     ]
-    np.testing.assert_array_equal(
-        poses[-1], scored.estimate
-    )  # step() adds a report, not a change
+    # step() adds a report, not a change
+    np.testing.assert_array_equal(poses[-1], scored.estimate)
 
 
 # ------------------------------------------------------------------ step 12 over whole drives of the tiny world
@@ -339,14 +353,12 @@ def test_tilt_prior_pulls_a_tilted_start_back_to_gravity(drive):
         return np.linalg.norm(slam.poses[-1][2, :3] - gt[-1][2, :3]), slam
 
     without, plain = run()
-    with_prior, slam = run(
-        tilt_sigma=0.002, tilt_world_sigma=0.0, tilt_bias_sigma=0.0
-    )  # level world, no bias
+    # level world, no bias
+    with_prior, slam = run(tilt_sigma=0.002, tilt_world_sigma=0.0, tilt_bias_sigma=0.0)
     assert without > 0.03 and plain.prior.up is None  # the map holds the start's tilt
     assert with_prior < without / 2, (with_prior, without)
-    np.testing.assert_allclose(
-        slam.prior.up, gt[-1][2, :3], atol=0.01
-    )  # the measured up is the true one
+    # the measured up is the true one
+    np.testing.assert_allclose(slam.prior.up, gt[-1][2, :3], atol=0.01)
 
 
 # ------------------------------------------------------------------ register_frame value by value
@@ -435,23 +447,22 @@ def test_deskew_config_deskews_the_scan_with_the_frames_imu_before_merging():
     body = steps.read_scan(frame, sc, T)
     expected = steps.deskew_scan(body, (frame.velocity, frame.angular_rate), sc, T)
     np.testing.assert_array_equal(_sorted(slam.map_points()), _map_of(config, expected))
-    assert (
-        np.abs(_sorted(expected) - _sorted(body)).max() > 0.05
-    )  # de-skewing moved the points
+    # de-skewing moved the points
+    assert np.abs(_sorted(expected) - _sorted(body)).max() > 0.05
     no_t = steps.deskew_scan(body, (frame.velocity, frame.angular_rate), sc)
     assert np.abs(no_t - expected).max() > 1e-3  # the mounting matters
 
 
 def test_default_deskew_follows_the_frames_sweep():
-    """``ScanConfig.deskew`` None (the default) de-skews a frame whose ``swept`` is true, as ``deskew=True`` does,
+    """``ScanConfig.deskew`` "auto" (the default) de-skews a frame whose ``swept`` is true, as ``deskew=True`` does,
     and merges a frame with ``swept`` false (or none) as ``deskew=False``; ``n_deskewed`` counts the frames."""
     scan = _ring_scan()
     frame = _imu_frame(scan, v=(12.0, 0.5, 0.0), w=(0.0, 0.0, 0.3))
     maps = {}
     for name, deskew, swept in (
-        ("auto swept", None, True),
+        ("auto swept", "auto", True),
         ("on", True, False),
-        ("auto still", None, False),
+        ("auto still", "auto", False),
         ("off", False, True),
     ):
         config = SLAM3DConfig(
@@ -614,12 +625,12 @@ def test_imu_mode_scores_every_point_without_ground_thinning():
 
 
 def test_configured_mean_estimate_is_used_for_the_pose():
-    """``FilterConfig(estimate="mean")`` reaches step 9: the pose is ``pick_best_particle(moved, log_w, "mean")``,
+    """``FilterConfig(pose_estimate="mean")`` reaches step 9: the pose is ``pick_best_particle(moved, log_w, "mean")``,
     not the best particle's pose (checked with ``ess_fraction=0``: no resampling, ``particles`` are the moved)."""
     scan = _ring_scan()
     for estimate in ("best", "mean"):
         config = SLAM3DConfig(
-            filter=FilterConfig(particles=20, estimate=estimate, ess_fraction=0.0)
+            filter=FilterConfig(particles=20, pose_estimate=estimate, ess_fraction=0.0)
         )
         slam = ParticleSLAM3D(config)
         slam.register_frame(_imu_frame(scan))
@@ -695,16 +706,15 @@ def test_weigh_adds_tempered_scores_and_stores_them():
     assert np.ptp(scores) > 0
 
 
-def test_refine_rounds_each_resample_once():
-    """``FilterConfig(refine=3)`` with step 11 off (``ess_fraction=0``): 3 annealing rounds a frame, each
+def test_anneal_rounds_each_resample_once():
+    """``AnnealConfig(anneal_rounds=3)`` with step 11 off (``ess_fraction=0``): 3 annealing rounds a frame, each
     resampling (``ess_fraction=1``), so ``n_annealed`` is 3 after the second frame and 6 after the third, and
     ``n_resampled`` (frames whose step 11 resampled) stays 0."""
     scan = _ring_scan()
     slam = ParticleSLAM3D(
         SLAM3DConfig(
-            filter=FilterConfig(
-                particles=20, scored_points=100, refine=3, ess_fraction=0.0
-            )
+            filter=FilterConfig(particles=20, scored_points=100, ess_fraction=0.0),
+            search=AnnealConfig(anneal_rounds=3),
         )
     )
     slam.register_frame(_imu_frame(scan, v=(0.0, 0.0, 0.0), w=(0.0, 0.0, 0.0)))
@@ -714,14 +724,16 @@ def test_refine_rounds_each_resample_once():
     assert slam.n_annealed == 6 and slam.n_resampled == 0
 
 
-def test_lidar_only_start_frame_runs_cv_start_rounds_rounds():
-    """LIDAR-only, the second frame adds ``cv_start_rounds`` halving rounds (here 2, refine 0, step 11 off):
+def test_lidar_only_start_frame_runs_the_start_rounds():
+    """LIDAR-only, the second frame adds ``start_rounds`` halving rounds (here 2, no annealing, step 11 off):
     ``n_annealed`` is 2; the third frame (not a start) adds none."""
     scan = _ring_scan()
     slam = ParticleSLAM3D(
         SLAM3DConfig(
             filter=FilterConfig(particles=20, scored_points=100, ess_fraction=0.0),
-            motion=MotionConfig(model="constant_velocity", cv_start_rounds=2),
+            motion=MotionConfig(
+                model="constant_velocity", constant_velocity=_cv(start_rounds=2)
+            ),
         )
     )
     slam.register_frame(_imu_frame(scan, v=(0.0, 0.0, 0.0), w=(0.0, 0.0, 0.0)))
@@ -786,10 +798,10 @@ def test_a_skipped_frame_after_a_scored_one_clears_best_and_sample():
 
 
 def test_prune_every_zero_never_prunes():
-    """``MapConfig(prune_every=0)`` turns pruning off: frames register (no ``% 0``) and nothing is archived."""
-    from slamlib.slam3d.config import MapConfig
+    """``UpkeepConfig(prune_every=0)`` turns pruning off: frames register (no ``% 0``) and nothing is archived."""
+    from slamlib.slam3d.config import UpkeepConfig
 
-    slam = ParticleSLAM3D(_config(map=MapConfig(prune_every=0, prune_radius=1.0)))
+    slam = ParticleSLAM3D(_config(upkeep=UpkeepConfig(prune_every=0, prune_radius=1.0)))
     slam.register_frame(_imu_frame(_ring_scan()))
     slam.register_frame(_imu_frame(_ring_scan()))
     assert slam.archive == [] and len(slam.poses) == 2
@@ -799,12 +811,12 @@ def test_a_map_point_exactly_at_prune_radius_stays_live_and_is_not_archived():
     """``_prune`` archives only points strictly farther than ``prune_radius`` (the maps' own ``>`` rule): with
     returns at x = 5, 7, ..., 23 and radius 9 around the start pose, x = 5, 7, 9 stay live, x = 11..23 are archived,
     and the point at exactly 9 is not also in the archive (``map_points`` has each point once)."""
-    from slamlib.slam3d.config import MapConfig
+    from slamlib.slam3d.config import UpkeepConfig
 
     config = SLAM3DConfig(
         filter=FilterConfig(particles=20),
         scan=ScanConfig(downsample_voxel=0.0),
-        map=MapConfig(prune_every=1, prune_radius=9.0),
+        upkeep=UpkeepConfig(prune_every=1, prune_radius=9.0),
     )
     slam = ParticleSLAM3D(config)
     slam.register_frame(_imu_frame(_ten_points()))
@@ -817,16 +829,15 @@ def test_a_map_point_exactly_at_prune_radius_stays_live_and_is_not_archived():
     )
 
 
-def test_refine_does_not_resample_when_all_weights_are_equal():
+def test_annealing_does_not_resample_when_all_weights_are_equal():
     """Annealing rounds resample only when ``ESS < 1.0 * P``: a second frame 1 m off the map scores every particle
-    the same truncated value, the weights stay exactly uniform (ESS = P), so ``refine=2`` with step 11 off
+    the same truncated value, the weights stay exactly uniform (ESS = P), so ``anneal_rounds=2`` with step 11 off
     resamples 0 times (not "always", not ``ESS < 2 P``)."""
     scan = _ring_scan()
     slam = ParticleSLAM3D(
         SLAM3DConfig(
-            filter=FilterConfig(
-                particles=20, scored_points=100, refine=2, ess_fraction=0.0
-            )
+            filter=FilterConfig(particles=20, scored_points=100, ess_fraction=0.0),
+            search=AnnealConfig(anneal_rounds=2),
         )
     )
     slam.register_frame(_imu_frame(scan))
@@ -859,7 +870,8 @@ def test_the_configured_backend_runs_every_step(monkeypatch):
     monkeypatch.setattr(steps, "get_backend", no_default)
     scan = _ring_scan()
     config = SLAM3DConfig(
-        filter=FilterConfig(particles=20, scored_points=100, refine=2, ess_fraction=1.0),
+        filter=FilterConfig(particles=20, scored_points=100, ess_fraction=1.0),
+        search=AnnealConfig(anneal_rounds=2),
         backend="numpy",
     )
     started = ParticleSLAM3D(config)
@@ -897,7 +909,11 @@ def test_lidar_only_holds_the_twist_and_imu_mode_averages_two_samples(monkeypatc
     )
     scan = _ring_scan()
     cv = ParticleSLAM3D(
-        _config(motion=MotionConfig(model="constant_velocity", cv_start_rounds=0))
+        _config(
+            motion=MotionConfig(
+                model="constant_velocity", constant_velocity=_cv(start_rounds=0)
+            )
+        )
     )
     for _ in range(3):
         cv.register_frame(_imu_frame(scan))
@@ -913,7 +929,7 @@ def test_lidar_only_holds_the_twist_and_imu_mode_averages_two_samples(monkeypatc
 
 
 def test_lidar_only_scores_a_sample_with_the_road_thinned():
-    """LIDAR-only, the scored sample is drawn from ``thin_ground(points, lidar_only_ground_share)``: on a scan that
+    """LIDAR-only, the scored sample is drawn from ``thin_ground(points, ground_share)``: on a scan that
     is 80 % road, with a share of 0.2, at most a fifth of the 100 scored points are road points (drawn from all
     points, about 80 would be)."""
     rng = np.random.default_rng(3)
@@ -932,8 +948,11 @@ def test_lidar_only_scores_a_sample_with_the_road_thinned():
         [np.concatenate([road, wall]), np.zeros(n_road + n_wall)]
     ).astype(np.float32)
     config = SLAM3DConfig(
-        filter=FilterConfig(particles=20, scored_points=100, lidar_only_ground_share=0.2),
-        motion=MotionConfig(model="constant_velocity", cv_start_rounds=0),
+        filter=FilterConfig(particles=20, scored_points=100),
+        motion=MotionConfig(
+            model="constant_velocity",
+            constant_velocity=_cv(start_rounds=0, ground_share=0.2),
+        ),
         scan=ScanConfig(downsample_voxel=0.0),
     )
     slam = ParticleSLAM3D(config)
@@ -946,7 +965,7 @@ def test_lidar_only_scores_a_sample_with_the_road_thinned():
 
 def test_lidar_only_start_rounds_halve_the_spread(monkeypatch):
     """The LIDAR-only start frame's annealing rounds perturb with ``sigma / 2, sigma / 4, ...`` (``0.5**k``) after
-    step 6's ``sigma``; refine rounds then use ``refine_shrink``."""
+    step 6's ``sigma``; annealing rounds then use ``anneal_shrink``."""
     sigmas = []
     real = steps.perturb_with_noise
     monkeypatch.setattr(
@@ -959,10 +978,11 @@ def test_lidar_only_start_rounds_halve_the_spread(monkeypatch):
     scan = _ring_scan()
     slam = ParticleSLAM3D(
         SLAM3DConfig(
-            filter=FilterConfig(
-                particles=20, scored_points=100, refine=1, refine_shrink=0.3
+            filter=FilterConfig(particles=20, scored_points=100),
+            search=AnnealConfig(anneal_rounds=1, anneal_shrink=0.3),
+            motion=MotionConfig(
+                model="constant_velocity", constant_velocity=_cv(start_rounds=3)
             ),
-            motion=MotionConfig(model="constant_velocity", cv_start_rounds=3),
         )
     )
     still = dict(v=(0.0, 0.0, 0.0), w=(0.0, 0.0, 0.0))
@@ -1015,7 +1035,7 @@ def _slam(**kw):
         min_range=1.0,
         max_range=40.0,
         downsample_voxel=0.5,
-        params={"capacity": 2**12},
+        capacity=2**12,
         seed=1,
     )
     base.update(kw)
@@ -1043,9 +1063,8 @@ def test_degenerate_frame_skips_scoring_and_keeps_the_motion_prediction(scan):
     assert len(slam.map) == map_size  # nothing merged
     np.testing.assert_array_equal(slam.log_weights, weights)  # not scored
     expected = before @ np.linalg.inv(slam.dr_poses[-2]) @ slam.dr_poses[-1]
-    np.testing.assert_allclose(
-        pose, expected, atol=1e-9
-    )  # the motion prediction (the dead-reckoning increment)
+    # the motion prediction (the dead-reckoning increment)
+    np.testing.assert_allclose(pose, expected, atol=1e-9)
     for f in frames[4:]:
         slam.register_frame(f)
     assert slam.n_skipped_frames == 1

@@ -47,10 +47,11 @@ def test_compressed_scans_decompress_to_kitti_bytes_and_bad_ones_name_the_file(
     packed = tmp_path / "scan.bin.xz"
     packed.write_bytes(lzma.compress(raw.read_bytes()))
     np.testing.assert_array_equal(read_velodyne_scan(packed), read_velodyne_scan(raw))
+    # same either way
     assert (
         read_velodyne_scan(packed).flags.writeable
         and read_velodyne_scan(raw).flags.writeable
-    )  # same either way
+    )
     packed.write_bytes(packed.read_bytes()[:1000])
     with pytest.raises(DataFormatError, match=r"scan\.bin\.xz: not a readable xz file"):
         read_velodyne_scan(packed)

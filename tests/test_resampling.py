@@ -81,9 +81,8 @@ def test_systematic_matches_the_low_variance_sampler_by_hand():
                 c += w[i]
             want.append(i)
         np.testing.assert_array_equal(systematic_resample(w, u0), want)
-        np.testing.assert_array_equal(
-            systematic_resample(w * 13.0, u0), want
-        )  # scale-free
+        # scale-free
+        np.testing.assert_array_equal(systematic_resample(w * 13.0, u0), want)
 
 
 @pytest.mark.parametrize(
@@ -113,9 +112,8 @@ def test_unbiased_and_higher_weight_never_fewer_copies_in_expectation(name):
 def test_effective_sample_size_bounds(w):
     ess = effective_sample_size(w)
     assert 1.0 <= ess <= w.size
-    assert (
-        ess <= np.count_nonzero(w) + 1e-9
-    )  # never more than the particles that carry weight
+    # never more than the particles that carry weight
+    assert ess <= np.count_nonzero(w) + 1e-9
 
 
 def test_effective_sample_size_extremes():
@@ -173,9 +171,8 @@ def test_normalise_log_weights_returns_log_weights_of_the_same_distribution(lw):
     np.testing.assert_allclose(
         np.exp(out), weights_from_log_weights(lw), rtol=1e-9, atol=1e-300
     )
-    np.testing.assert_allclose(
-        out - out.max(), lw - lw.max(), rtol=0, atol=1e-6
-    )  # a shift, nothing else
+    # a shift, nothing else
+    np.testing.assert_allclose(out - out.max(), lw - lw.max(), rtol=0, atol=1e-6)
 
 
 def test_resample_indexes_follows_the_ess_rule_and_draws_only_when_due():
@@ -193,9 +190,8 @@ def test_resample_indexes_follows_the_ess_rule_and_draws_only_when_due():
     np.testing.assert_array_equal(
         idx, systematic_resample(weights_from_log_weights(peaked), u0)
     )
-    assert (
-        resample_indexes(flat, np.random.default_rng(2), ess_fraction=None) is not None
-    )  # None: always
+    # None: always
+    assert resample_indexes(flat, np.random.default_rng(2), ess_fraction=None) is not None
     calls = []
     resample_indexes(
         peaked,
@@ -265,9 +261,8 @@ def test_trailing_zero_weights_are_never_picked():
 def test_effective_sample_size_on_uneven_weights_is_one_over_sum_of_squares():
     # 1 / sum w^2 pinned on weights where it differs from 1 / max w (2.0) and from the count of non-zeros (3)
     assert effective_sample_size([0.5, 0.25, 0.25]) == pytest.approx(1 / 0.375, rel=1e-12)
-    assert effective_sample_size([2.0, 1.0, 1.0]) == pytest.approx(
-        8 / 3, rel=1e-12
-    )  # normalised first
+    # normalised first
+    assert effective_sample_size([2.0, 1.0, 1.0]) == pytest.approx(8 / 3, rel=1e-12)
     w = np.array([0.4, 0.3, 0.2, 0.1])
     assert effective_sample_size(w) == pytest.approx(1 / 0.3, rel=1e-12)
     # the resampling decision follows it: ESS = 3.33 is above 0.8 * 4 = 3.2 (1 / max w = 2.5 would be below)
@@ -305,13 +300,15 @@ def test_residual_draws_the_remainder_from_the_residual_weights():
         assert idx.dtype == np.int64
         np.testing.assert_array_equal(idx, [0, int(u >= 0.4)])
         seen.add((u >= 0.4, u >= 0.7))
+    # a draw in [0.4, 0.7) was tried: it tells the two rules apart
     assert (
         True,
         False,
-    ) in seen  # a draw in [0.4, 0.7) was tried: it tells the two rules apart
+    ) in seen
+    # no draw
     np.testing.assert_array_equal(
         residual_resample([0.5, 0.5], np.random.default_rng(0)), [0, 1]
-    )  # no draw
+    )
 
 
 def test_resample_indexes_default_threshold_is_half_the_particles():
@@ -370,18 +367,16 @@ def test_weights_are_computed_in_float64_and_extremes_raise_no_warning():
         normalise_log_weights(lw32), normalise_log_weights(lw32.astype(np.float64))
     )
     with warnings.catch_warnings():
-        warnings.simplefilter(
-            "error"
-        )  # -1e308 - 1e308 overflows to -inf: expected, silenced
+        # -1e308 - 1e308 overflows to -inf: expected, silenced
+        warnings.simplefilter("error")
         np.testing.assert_array_equal(
             weights_from_log_weights([-1e308, 1e308]), [0.0, 1.0]
         )
         np.testing.assert_array_equal(
             normalise_log_weights([-1e308, 1e308]), [-np.inf, 0.0]
         )
-        assert (
-            effective_sample_size([1e308, 1e308]) == 2.0
-        )  # their sum overflows: handled, silently
+        # their sum overflows: handled, silently
+        assert effective_sample_size([1e308, 1e308]) == 2.0
 
 
 def test_resample_indexes_threshold_is_strict_and_indexes_are_int64():

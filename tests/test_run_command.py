@@ -154,8 +154,8 @@ def test_slamlib_run_map_names_and_bad_settings(tiny_drive, tmp_path, capsys):
         info["config"]["map"]["kind"] == "morton_bvh"
         and info["config"]["filter"]["particles"] == 5
     )
-    # a still synthetic drive (no distortion): by default (deskew None) no scan is de-skewed; --deskew does all
-    assert info["config"]["scan"]["deskew"] is None and info["n_deskewed_frames"] == 0
+    # a still synthetic drive (no distortion): by default (deskew auto) no scan is de-skewed; --deskew does all
+    assert info["config"]["scan"]["deskew"] == "auto" and info["n_deskewed_frames"] == 0
     assert (
         main(
             common
@@ -245,7 +245,7 @@ def test_slamlib_run_default_drive_is_realistic_unless_still(
         ("--temperature", "inf"),
         ("--seed", "-1"),
         ("--particles", "1000000000"),
-        ("--refine", "-1"),
+        ("--anneal-rounds", "-1"),
         ("--noise", "inf"),
         ("--noise", "nan"),
         ("--tilt-sigma", "-0.01"),
@@ -311,7 +311,7 @@ def test_slamlib_run_tilt_sigma_reaches_the_filter(cli_drive, tmp_path):
     out = tmp_path / "o"
     assert main(args + ["--tilt-sigma", "0.005", "--out", str(out)]) == 0
     info = json.loads((out / "metrics.json").read_text())
-    assert info["config"]["filter"]["tilt_sigma"] == 0.005
+    assert info["config"]["prior"]["tilt_sigma"] == 0.005
     assert np.all(np.isfinite(read_kitti_poses(out / "slam_poses.txt")))
 
 
@@ -324,7 +324,9 @@ def test_slamlib_run_transient_span_reaches_the_map_and_names_itself(cli_drive, 
     out = tmp_path / "o"
     assert main(args + ["--transient-span", "2", "--out", str(out)]) == 0
     assert (
-        json.loads((out / "metrics.json").read_text())["config"]["map"]["transient_span"]
+        json.loads((out / "metrics.json").read_text())["config"]["upkeep"][
+            "transient_span"
+        ]
         == 2
     )
     with pytest.raises(
@@ -398,9 +400,8 @@ def test_slamlib_run_refuses_to_overwrite_user_files_but_replaces_its_own(
         main(args + ["--out", str(out)])
     assert (out / "map.ply").read_text() == "my own map"
     assert main(args + ["--out", str(out), "--overwrite"]) == 0
-    assert (
-        main(args + ["--out", str(out)]) == 0
-    )  # an earlier run's results are replaced without asking
+    # an earlier run's results are replaced without asking
+    assert main(args + ["--out", str(out)]) == 0
 
 
 def test_slamlib_run_again_with_another_map_format_drops_the_stale_map(
@@ -517,3 +518,63 @@ def test_slamlib_run_with_every_scan_empty_writes_an_empty_map(tmp_path, fmt):
     assert len(o3d.io.read_point_cloud(str(out / f"map.{fmt}")).points) == 0
     info = json.loads((out / "metrics.json").read_text())
     assert info["map_points_written"] == 0 and info["n_skipped_frames"] == 3
+
+
+def test_slamlib_run_help_groups_the_options_by_stage(capsys):
+    from slamlib.cli import main
+
+    with pytest.raises(SystemExit):
+        main(["run", "--help"])
+    text = capsys.readouterr().out
+    heads = [
+        line.split(" (")[0]
+        for line in text.splitlines()
+        if line.endswith(":") and "stage" in line
+    ]
+    assert heads == [
+        "scan stage",
+        "motion stage",
+        "prior stage",
+        "search stage",
+        "polish stage",
+    ]
+    for option, group in (
+        ("--deskew", "scan stage"),
+        ("--lidar-only", "motion stage"),
+        ("--tilt-sigma", "prior stage"),
+        ("--anneal-rounds", "search stage"),
+        ("--scan-match", "polish stage"),
+    ):
+        section = text.split(group, 1)[1].split("\n\n", 1)[0]
+        assert option in section, (option, group)
+    assert "--refine" not in text  # the old name works (with a note) but is not offered
+
+
+def test_slamlib_run_old_options_are_taken_with_a_note(
+    cli_drive, tmp_path, monkeypatch, capsys
+):
+    import slamlib.slam3d
+    from slamlib.cli import main
+
+    seen = {}
+
+    def fake_run(frames, config, **kw):
+        seen["config"] = config
+        raise SystemExit(0)
+
+    monkeypatch.setattr(slamlib.slam3d, "run_drive", fake_run)
+    args = cli_drive[0] + ["--refine", "3", "--no-scan-match", "--no-deskew"]
+    args += ["--out", str(tmp_path / "o")]
+    with pytest.raises(SystemExit):
+        main(args)
+    out = capsys.readouterr().out
+    assert (
+        "--refine 3 is now --anneal-rounds 3" in out
+        and "--no-scan-match is now --scan-match off" in out
+    )
+    c = seen["config"]
+    assert (c.search.anneal_rounds, c.polish.scan_match, c.scan.deskew) == (
+        3,
+        False,
+        False,
+    )

@@ -70,9 +70,8 @@ def test_ring_index_with_gaps_and_a_missing_ring():
     no_ring_5 = scan[idx0 != 5]  # a ring without any return cannot be seen
     assert ring_index(no_ring_5).max() == 62
     assert len(ring_counts(no_ring_5)) == 64 and ring_counts(no_ring_5)[63] == 0
-    assert (
-        len(ring_counts(scan, n_rings=10)) == 64
-    )  # more rings than asked: the result grows
+    # more rings than asked: the result grows
+    assert len(ring_counts(scan, n_rings=10)) == 64
 
 
 def test_real_scan_has_64_rings_top_first(real_scan):
@@ -92,9 +91,8 @@ def test_real_scan_has_64_rings_top_first(real_scan):
 
 
 def test_elevation_fractions():
-    e = np.radians(
-        [-25.0, -22.0, -17.0, -12.0, -7.0, -2.0, 1.0, 1.5, 30.0]
-    )  # 30 deg: outside the bins
+    # 30 deg: outside the bins
+    e = np.radians([-25.0, -22.0, -17.0, -12.0, -7.0, -2.0, 1.0, 1.5, 30.0])
     p = np.c_[np.cos(e), np.zeros_like(e), np.sin(e)]
     f = elevation_fractions(p)
     assert np.allclose(f, np.array([2, 1, 1, 1, 1, 2]) / 8) and np.isclose(f.sum(), 1.0)
@@ -128,13 +126,11 @@ def test_range_image_layout():
     assert np.array_equal(ring_index(p), [0, 1, 1, 1])
     img = range_image(p, (-90, 90), columns=360, n_rings=3)
     assert img.shape == (3, 180)
-    assert np.isclose(
-        img[1, 90], 9.0
-    )  # straight ahead: the middle column, the nearest point
+    # straight ahead: the middle column, the nearest point
+    assert np.isclose(img[1, 90], 9.0)
     assert np.isclose(img[1, 0], np.sqrt(26))  # +90 deg (left) is column 0
-    assert (
-        np.isfinite(img).sum() == 2
-    )  # behind (ring 0) is outside the limits; ring 2 empty
+    # behind (ring 0) is outside the limits; ring 2 empty
+    assert np.isfinite(img).sum() == 2
     with pytest.raises(ValueError):
         range_image(p, (10, -10))
 
@@ -147,9 +143,8 @@ def test_range_image_of_a_grid_scan_fills_every_pixel():
 
 @pytest.fixture(scope="module")
 def moved(real_scan):
-    T_true = make_pose(
-        rot_z(np.radians(2.0)), [0.6, -0.2, 0.05]
-    )  # the scan seen from a sensor moved by T_true
+    # the scan seen from a sensor moved by T_true
+    T_true = make_pose(rot_z(np.radians(2.0)), [0.6, -0.2, 0.05])
     source = transform_points(invert_pose(T_true), real_scan[::2, :3])
     return T_true, source
 
@@ -244,9 +239,8 @@ def test_front_view_ties_keep_input_order():
     )
     rng = np.random.default_rng(0)
     k = rng.integers(1, 4, 200)
-    pts = (dirs[rng.integers(0, len(dirs), 200)] * k[:, None]).astype(
-        float
-    )  # ranges exactly 5 k
+    # ranges exactly 5 k
+    pts = (dirs[rng.integers(0, len(dirs), 200)] * k[:, None]).astype(float)
     order = sorted(range(200), key=lambda i: -k[i])  # Python's sort is stable
     az, el, r = ss.front_view(pts)
     assert r.tolist() == [5.0 * k[i] for i in order]

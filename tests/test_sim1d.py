@@ -55,9 +55,8 @@ def test_velocity_profile_position_is_the_integral_of_velocity():
     prof = VelocityProfile(mean=1.2, components=((0.7, 9.0, 0.3), (0.2, 3.1, -1.0)))
     t = np.linspace(0.0, 20.0, 200_001)
     v = prof.velocity(t)
-    numeric = np.concatenate(
-        [[0.0], np.cumsum(0.5 * (v[1:] + v[:-1]) * np.diff(t))]
-    )  # trapezoid rule
+    # trapezoid rule
+    numeric = np.concatenate([[0.0], np.cumsum(0.5 * (v[1:] + v[:-1]) * np.diff(t))])
     np.testing.assert_allclose(prof.position(t), numeric, atol=1e-6)
     assert prof.position(0.0) == 0.0
 
@@ -203,14 +202,12 @@ def _map_from_truth(recording, frames, resolution=0.05):
 
 def test_merge_scan_adds_counts_in_place():
     grid = OccupancyGrid1D.empty(0.0, 10.0, 0.5)
-    pts = np.array(
-        [0.1, 0.2, 3.7, 9.99, -0.1, 10.0, 25.0]
-    )  # the last three are off the grid
+    # the last three are off the grid
+    pts = np.array([0.1, 0.2, 3.7, 9.99, -0.1, 10.0, 25.0])
     before = grid.copy()
     new = merge_scan(grid, 0.0, pts)
-    assert (
-        new is grid
-    )  # the map is changed in place and returned (the contract's step 10)
+    # the map is changed in place and returned (the contract's step 10)
+    assert new is grid
     assert before.total == 0  # a copy is independent
     assert new.total == 4
     assert new.counts[0] == 2 and new.counts[7] == 1 and new.counts[19] == 1
@@ -243,9 +240,8 @@ def test_merge_scan_counts_every_point_on_the_grid(pts):
 
 def test_likelihood_field_peaks_at_structure():
     grid = OccupancyGrid1D.empty(0.0, 10.0, 0.05)
-    grid = merge_scan(
-        grid, 0.0, np.r_[np.full(20, 2.0), 7.0]
-    )  # a well-observed landmark and a single hit
+    # a well-observed landmark and a single hit
+    grid = merge_scan(grid, 0.0, np.r_[np.full(20, 2.0), 7.0])
     f = likelihood_field(grid, sigma=0.1, n_sat=3.0)
     c = grid.centres
     assert f.max() <= 1.0 + 1e-12 and f.min() >= 0.0
@@ -253,16 +249,14 @@ def test_likelihood_field_peaks_at_structure():
     assert f[grid.cell_of(7.0)] == pytest.approx(1 / 3)
     assert f[grid.cell_of(4.5)] < 1e-6
     d = np.abs(c - c[grid.cell_of(2.0)])
-    near = (d > 0) & (
-        d < 0.28
-    )  # within 3 sigma of the peak the field falls like exp(-d^2 / 2 sigma^2)
+    # within 3 sigma of the peak the field falls like exp(-d^2 / 2 sigma^2)
+    near = (d > 0) & (d < 0.28)
     np.testing.assert_allclose(f[near], np.exp(-0.5 * (d[near] / 0.1) ** 2), atol=1e-9)
 
 
 def test_score_prefers_the_true_pose_over_shifted_ones(clean_recording):
-    rec = simulate(
-        make_world(seed=1), n_frames=80, seed=2
-    )  # noisy, with dropouts and clutter
+    # noisy, with dropouts and clutter
+    rec = simulate(make_world(seed=1), n_frames=80, seed=2)
     grid = _map_from_truth(rec, range(60))
     k = 70
     x = rec.true_positions[k]
@@ -301,10 +295,11 @@ def test_pick_best_particle():
     x = np.array([4.0, 5.0, 6.0])
     pose, i = pick_best_particle(x, np.log([0.1, 0.5, 0.2]))
     assert (pose, i) == (5.0, 1) and isinstance(pose, float) and isinstance(i, int)
+    # ties go to the lowest index
     assert pick_best_particle(x, np.log([0.3, 0.3, 0.1])) == (
         4.0,
         0,
-    )  # ties go to the lowest index
+    )
     with pytest.raises(ValueError):
         pick_best_particle(np.zeros(0), np.zeros(0))
     with pytest.raises(ValueError):
@@ -335,9 +330,8 @@ def test_resample_particles_keeps_count_and_favours_high_weights():
 
 def test_resample_particles_returns_normalised_log_weights():
     x = np.linspace(0.0, 1.0, 8)
-    scores = np.array(
-        [-3.0, -1.0, -2.0, -1.5, -4.0, -2.5, -1.2, -3.3]
-    )  # unnormalised log-likelihoods
+    # unnormalised log-likelihoods
+    scores = np.array([-3.0, -1.0, -2.0, -1.5, -4.0, -2.5, -1.2, -3.3])
     rng = np.random.default_rng(5)
     state = rng.bit_generator.state
     kept_x, kept_lw, done = resample_particles(x, scores, rng, ess_fraction=0.1)
@@ -359,9 +353,8 @@ def test_first_step_maps_the_scan_at_the_origin(clean_recording):
     info = slam.step(clean_recording.frames[0])
     assert info.estimate == 0.0 and np.all(info.moved == 0.0)
     assert slam.grid.total == clean_recording.frames[0].scan.size
-    assert (
-        grid.total == slam.grid.total
-    )  # the grid handed in is the map, merged into in place
+    # the grid handed in is the map, merged into in place
+    assert grid.total == slam.grid.total
     np.testing.assert_allclose(info.weights, 1 / 20)
     np.testing.assert_allclose(info.log_weights, -np.log(20))
     np.testing.assert_allclose(slam.log_weights, -np.log(20))
@@ -387,17 +380,15 @@ def test_filter_state_is_log_weights_and_map_history_is_copied(world):
         )
     r = run_slam_1d(rec, n_particles=30, seed=1)
     totals = r.map_history.sum(axis=1)
-    assert (
-        np.all(np.diff(totals) >= 0) and totals[0] < totals[-1]
-    )  # each row a snapshot, not the final grid
+    # each row a snapshot, not the final grid
+    assert np.all(np.diff(totals) >= 0) and totals[0] < totals[-1]
 
 
 def test_extract_landmarks_recovers_clusters():
     rng = np.random.default_rng(4)
     truth = np.array([1.0, 3.5, 8.2])
-    pts = np.concatenate(
-        [t + 0.04 * rng.standard_normal(30) for t in truth] + [[5.7]]
-    )  # + one stray hit
+    # + one stray hit
+    pts = np.concatenate([t + 0.04 * rng.standard_normal(30) for t in truth] + [[5.7]])
     grid = merge_scan(OccupancyGrid1D.empty(0, 10, 0.05), 0.0, pts)
     found = extract_landmarks(grid, sigma=0.1, min_count=5)
     assert found.size == 3
@@ -516,15 +507,13 @@ def test_filter_weights_are_prior_times_likelihood_between_resamplings(world):
         ess_fraction=0.0,
         likelihood_sigma=0.07,
     )
-    slam.step(
-        rec.frames[0]
-    )  # maps the first scan at the origin; all particles still equal
+    # maps the first scan at the origin; all particles still equal
+    slam.step(rec.frames[0])
     info1 = slam.step(rec.frames[1])
     info2 = slam.step(rec.frames[2])
     assert not info1.resampled and not info2.resampled
-    assert (
-        np.ptp(info1.scores) > 1.0 and np.ptp(info2.scores) > 1.0
-    )  # the two frames' scores both matter
+    # the two frames' scores both matter
+    assert np.ptp(info1.scores) > 1.0 and np.ptp(info2.scores) > 1.0
     np.testing.assert_allclose(
         info1.log_weights, normalise_log_weights(info1.scores), atol=1e-9
     )
@@ -591,9 +580,8 @@ def test_step_scores_with_step_8s_default_width_when_none_is_given(world):
 
 def test_run_slam_1d_is_the_filter_loop_with_the_documented_defaults(world):
     rec = simulate(world, n_frames=30, seed=4)
-    r = run_slam_1d(
-        rec
-    )  # 200 particles, seed 0, resolution 0.05, eps 0.05, ess_fraction 0.5, min count 5
+    # 200 particles, seed 0, resolution 0.05, eps 0.05, ess_fraction 0.5, min count 5
+    r = run_slam_1d(rec)
     s = rec.sensors
     motion = 1.5 * max(s.velocity_noise, 0.05) + abs(s.velocity_bias)
     sigma = max(float(np.hypot(s.range_noise, 0.05)), 2 * 0.05)
@@ -617,9 +605,8 @@ def test_run_slam_1d_is_the_filter_loop_with_the_documented_defaults(world):
     assert r.resampled.dtype == bool and r.resampled.tolist() == [
         i.resampled for i in infos
     ]
-    assert (
-        0 < r.resampled.sum() < len(infos)
-    )  # the ESS rule decided, not "always" or "never"
+    # the ESS rule decided, not "always" or "never"
+    assert 0 < r.resampled.sum() < len(infos)
     assert (
         r.particle_history.dtype == r.weight_history.dtype == np.float32
         and r.map_history.dtype == np.int32
@@ -653,9 +640,8 @@ def test_run_slam_1d_passes_its_settings_and_shows_no_progress_by_default(world,
     r = run_slam_1d(
         rec, n_particles=10, resolution=0.1, ess_fraction=None, keep_history=False
     )
-    assert (
-        r.grid.resolution == 0.1 and r.resampled.all()
-    )  # ess_fraction=None: every frame
+    # ess_fraction=None: every frame
+    assert r.grid.resolution == 0.1 and r.resampled.all()
     assert (
         r.particle_history is None and r.weight_history is None and r.map_history is None
     )
@@ -668,9 +654,8 @@ def test_run_slam_1d_passes_its_settings_and_shows_no_progress_by_default(world,
         keep_history=False,
         eps=0.5,
     )
-    assert not np.array_equal(
-        wide.mean_estimated, r.mean_estimated
-    )  # eps reaches the filter's scores
+    # eps reaches the filter's scores
+    assert not np.array_equal(wide.mean_estimated, r.mean_estimated)
     # (progress=True itself is not run here: a tqdm bar hangs in mutmut's forked workers; its text is cosmetic)
 
 
@@ -761,9 +746,8 @@ def test_run_slam_1d_field_work_cap_is_inclusive_and_its_message_names_the_numbe
     for sigma in (0.2, 1e6):  # blur narrower than the grid, and capped at the grid
         _, cells, kernel = _cells_and_kernel(rec, 0.1, sigma)
         assert kernel == (8.0 * sigma / 0.1 if sigma < 1 else cells)
-        monkeypatch.setattr(
-            F, "MAX_FIELD_WORK", cells * kernel
-        )  # exactly at the cap: allowed
+        # exactly at the cap: allowed
+        monkeypatch.setattr(F, "MAX_FIELD_WORK", cells * kernel)
         run_slam_1d(
             rec, n_particles=5, resolution=0.1, likelihood_sigma=sigma, keep_history=False
         )
@@ -1166,9 +1150,8 @@ def test_likelihood_field_wider_than_the_grid_keeps_the_grid_shape():
     from slamlib.sim1d.steps import _gaussian_blur
 
     c = np.arange(grid.counts.size, dtype=np.float64)
-    kernel = np.exp(
-        -0.5 * (np.arange(-8, 9) / 2.0) ** 2
-    )  # 2 cells, cut at 4 sigma: fits the 20-cell grid
+    # 2 cells, cut at 4 sigma: fits the 20-cell grid
+    kernel = np.exp(-0.5 * (np.arange(-8, 9) / 2.0) ** 2)
     np.testing.assert_allclose(
         _gaussian_blur(grid.counts, 2.0), np.convolve(grid.counts, kernel, "same")
     )

@@ -59,9 +59,8 @@ def test_ray_caster_hits_a_known_wall_and_a_known_pillar():
     assert r[3] == np.inf  # nothing behind
     r2 = cast_rays(w, (0.0, 0.0), np.array([np.pi / 2]), max_range=20.0)
     assert r2[0] == pytest.approx(2.5)  # pillar at 3 m, radius 0.5
-    assert (
-        cast_rays(w, (1.0, 0.0), np.array([0.0]), max_range=3.0)[0] == np.inf
-    )  # beyond max range
+    # beyond max range
+    assert cast_rays(w, (1.0, 0.0), np.array([0.0]), max_range=3.0)[0] == np.inf
 
 
 def test_scan_points_lie_on_the_structure(world):
@@ -146,9 +145,8 @@ def test_perturb_with_noise_has_the_requested_spread_in_the_body_frame():
     rng = np.random.default_rng(0)
     p = np.tile([0.0, 0.0, np.pi / 2], (20000, 1))  # heading +y: forward is world y
     out = perturb_with_noise(p, (0.3, 0.1, 0.02), rng)
-    assert np.std(out[:, 1]) == pytest.approx(
-        0.3, rel=0.03
-    )  # forward noise along world y
+    # forward noise along world y
+    assert np.std(out[:, 1]) == pytest.approx(0.3, rel=0.03)
     assert np.std(out[:, 0]) == pytest.approx(0.1, rel=0.03)
     assert np.std(out[:, 2]) == pytest.approx(0.02, rel=0.03)
     assert np.array_equal(perturb_with_noise(p, (0, 0, 0), rng), p)
@@ -201,9 +199,8 @@ def test_merge_scan_changes_the_map_in_place_and_raises_the_field():
     grid = OccupancyGrid2D.empty(
         (-5, -5), (5, 5), 0.1, kind="likelihood", sigma=0.1, n_sat=1
     )
-    same = merge_scan(
-        grid, np.array([1.0, 0.0, np.pi / 2]), np.array([[2.0, 0.0]])
-    )  # world point (1, 2)
+    # world point (1, 2)
+    same = merge_scan(grid, np.array([1.0, 0.0, np.pi / 2]), np.array([[2.0, 0.0]]))
     assert same is grid and grid.total == 1
     r, c, inside = grid.cells_of(np.array([1.0, 2.0]))
     assert inside and grid.counts[r, c] == 1

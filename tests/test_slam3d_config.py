@@ -14,9 +14,9 @@ def test_config_rejects_bad_values():
         (dict(kind="voxel"), "now called 'voxel_hash'"),
         (dict(particles=0), "particles"),
         (dict(temperature=0.0), "temperature"),
-        (dict(estimate="median"), "estimate"),
+        (dict(pose_estimate="median"), "pose_estimate"),
         (dict(min_range=5.0, max_range=4.0), "min_range"),
-        (dict(voxel_size=0.3), "unknown SLAM3D setting 'voxel_size'"),
+        (dict(voxel_sise=0.3), "unknown SLAM3D setting 'voxel_sise'"),
         (dict(tilt_sigma=-0.01), "tilt_sigma"),
         (dict(tilt_window=0.0), "tilt_window"),
         (dict(transient_span=-1), "transient_span must be >= 0"),
@@ -46,11 +46,15 @@ def test_config_changes_settings_by_name_and_keeps_the_other_defaults():
         1000,
         0.5,
     )
-    assert (c.filter.estimate, c.backend, c.map.prune_every) == ("best", "cpu", 20)
+    assert (c.filter.pose_estimate, c.backend, c.upkeep.prune_every) == (
+        "best",
+        "cpu",
+        20,
+    )
     d = c.as_dict()
     assert d["filter"]["particles"] == 7
     assert d["motion"]["sigma_xyz_per_m"] == [0.02, 0.02, 0.01]
-    assert d["scan"]["min_range"] == 3.0 and d["map"]["params"] == {}
+    assert d["scan"]["min_range"] == 3.0 and d["map"]["morton_bvh"]["radius"] == 0.3
     json.dumps(d)
 
 
@@ -69,12 +73,12 @@ def test_min_range_above_max_range_is_refused():
         (dict(temperature=math.inf), "temperature"),
         (dict(seed=-1), "seed"),
         (dict(particles=10**9), "particles"),
-        (dict(refine=-1), "refine"),
-        (dict(refine=10**6), "refine"),
+        (dict(anneal_rounds=-1), "anneal_rounds"),
+        (dict(anneal_rounds=10**6), "anneal_rounds"),
         (dict(ess_fraction=math.nan), "ess_fraction"),
         (dict(ess_fraction=1.5), "ess_fraction"),
-        (dict(params={"voxel_size": -1}), "voxel_size"),
-        (dict(params={"voxel_size": math.inf}), "voxel_size"),
+        (dict(voxel_size=-1), "voxel_size"),
+        (dict(voxel_hash={"voxel_size": math.inf}), "voxel_size"),
         (dict(sigma_xyz_per_m=(-0.1, 0, 0)), "sigma_xyz_per_m"),
         (dict(sigma_rpy_per_s=(math.nan, 0, 0)), "sigma_rpy_per_s"),
         (dict(sigma_xyz_per_s=(math.inf, 0, 0)), "sigma_xyz_per_s"),
@@ -91,3 +95,73 @@ def test_config_rejects_out_of_range_settings(kw, needle):
 def test_motion_noise_scaled_by_inf_is_refused():
     with pytest.raises(ValueError, match="finite"):
         SLAM3DConfig().motion.scaled(math.inf)
+
+
+def test_settings_by_stage_group_nested_group_and_dotted_name():
+    c = SLAM3DConfig.of(
+        anneal_rounds=2,
+        tilt_sigma=0.003,
+        scan_match=True,
+        constant_velocity={"window": 3},
+        **{"constant_velocity.ground_share": 0.5},
+        radius=0.2,
+    )
+    assert (c.search.anneal_rounds, c.prior.tilt_sigma, c.polish.scan_match) == (
+        2,
+        0.003,
+        True,
+    )
+    cv = c.motion.constant_velocity
+    assert (cv.window, cv.ground_share, cv.start_rounds) == (3, 0.5, 8)
+    assert c.map.morton_bvh.radius == 0.2 and c.map.params == c.map.voxel_hash.__dict__
+    # the constructor's default
+    assert SLAM3DConfig.of(kind="morton_bvh").map.make().radius == 0.3
+    with pytest.raises(ValueError, match="deskew must be True, False or 'auto'"):
+        SLAM3DConfig.of(deskew="yes")
+
+
+@pytest.mark.parametrize(
+    "old,value,new,get",
+    [
+        ("refine", 2, "anneal_rounds", lambda c: c.search.anneal_rounds),
+        ("refine_shrink", 0.3, "anneal_shrink", lambda c: c.search.anneal_shrink),
+        ("estimate", "mean", "pose_estimate", lambda c: c.filter.pose_estimate),
+        (
+            "cv_window",
+            3,
+            "constant_velocity.window",
+            lambda c: c.motion.constant_velocity.window,
+        ),
+        (
+            "cv_start_rounds",
+            0,
+            "constant_velocity.start_rounds",
+            lambda c: c.motion.constant_velocity.start_rounds,
+        ),
+        (
+            "lidar_only_ground_share",
+            1.0,
+            "constant_velocity.ground_share",
+            lambda c: c.motion.constant_velocity.ground_share,
+        ),
+        (
+            "params",
+            {"voxel_size": 0.3},
+            "voxel_hash",
+            lambda c: {"voxel_size": c.map.voxel_hash.voxel_size},
+        ),
+    ],
+)
+def test_the_names_before_the_stages_still_work_with_a_deprecation_warning(
+    old, value, new, get
+):
+    with pytest.warns(DeprecationWarning, match=new):
+        c = SLAM3DConfig.of(**{old: value})
+    assert get(c) == value
+
+
+@pytest.mark.parametrize("name", ["deskew", "scan_match"])
+def test_none_for_a_tri_state_is_auto_with_a_deprecation_warning(name):
+    with pytest.warns(DeprecationWarning, match=f"{name}='auto'"):
+        c = SLAM3DConfig.of(**{name: None})
+    assert getattr(c.scan if name == "deskew" else c.polish, name) == "auto"

@@ -68,6 +68,7 @@ def test_crop_and_downsample_equals_crop_then_downsample():
                 float(rng.choice([0, 0.05, 0.3])),
             )
         )
+    # far out
     cases.append(
         (
             np.array([[1e7, 0, 0], [1, 1, 1], [1.01, 1.01, 1.01]], np.float32),
@@ -75,7 +76,7 @@ def test_crop_and_downsample_equals_crop_then_downsample():
             np.inf,
             0.25,
         )
-    )  # far out
+    )
     for pts, lo, hi, h in cases:
         np.testing.assert_array_equal(
             crop_and_downsample(pts, lo, hi, h),

@@ -13,7 +13,7 @@ def test_refine_and_bvh_map_also_track(drive):
     frames, gt = drive
     run = run_drive(
         frames[:15],
-        tiny_config(kind="morton_bvh", params={}, refine=1, estimate="mean"),
+        tiny_config(kind="morton_bvh", anneal_rounds=1, pose_estimate="mean"),
         progress=False,
     )
     assert run.ground_truth is not None and np.allclose(run.ground_truth, gt[:15])

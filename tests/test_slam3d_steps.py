@@ -42,6 +42,7 @@ from slamlib.slam3d import (
     steps,
     transform_scan,
 )
+from slamlib.slam3d.config import ConstantVelocityConfig
 from slamlib.slam3d.preprocess import deskew, sweep_times
 
 CPU = get_backend("cpu")
@@ -69,9 +70,8 @@ def test_initialise_particles_all_at_start_pose():
 
 def test_read_scan_moves_points_into_the_body_frame():
     T_velo_imu = make_pose(rpy_to_matrix([0.01, -0.02, 0.03]), [-0.8, 0.3, -0.8])
-    scan = np.array(
-        [[5, 0, 0, 0.1], [0, 1, 0, 0.2], [0, 8, 1, 0.3]], np.float32
-    )  # 2nd point inside min_range
+    # 2nd point inside min_range
+    scan = np.array([[5, 0, 0, 0.1], [0, 1, 0, 0.2], [0, 8, 1, 0.3]], np.float32)
     pts = read_scan(
         SimFrame(scan, None, None, 0.1, None, 0, 0),
         ScanConfig(3.0, 60.0, 0.0),
@@ -100,17 +100,15 @@ def test_offset_by_motion_matches_the_dead_reckoning_increment():
     v0, w0, v1, w1 = rng.normal(0, [5, 0.3, 0.1], (4, 3))
     p = random_particles(rng, 6)
     p2 = offset_by_motion(p, (v1, w1), 0.1, (v0, w0), CPU)
-    dr = dead_reckon(
-        np.array([v0, v1]), np.array([w0, w1]), np.array([0.0, 0.1])
-    )  # from the identity
+    # from the identity
+    dr = dead_reckon(np.array([v0, v1]), np.array([w0, w1]), np.array([0.0, 0.1]))
     for i in range(6):
         expected = make_pose(p.R[i], p.t[i]) @ dr[1]
         assert np.allclose(make_pose(p2.R[i], p2.t[i]), expected, atol=1e-12)
     rpy, dp = motion_increment((v1, w1), 0.1, (v0, w0))
     assert np.allclose(make_pose(rpy_to_matrix(rpy), dp), dr[1], atol=1e-12)
-    given = offset_by_motion(
-        p, (v1, w1), 0.1, (v0, w0), CPU, increment=(rpy, dp)
-    )  # precomputed: the same move
+    # precomputed: the same move
+    given = offset_by_motion(p, (v1, w1), 0.1, (v0, w0), CPU, increment=(rpy, dp))
     assert np.array_equal(given.R, p2.R) and np.array_equal(given.t, p2.t)
     # without the previous sample, the current twist is held over dt
     held = dead_reckon(np.array([v1, v1]), np.array([w1, w1]), np.array([0.0, 0.1]))
@@ -175,9 +173,8 @@ def test_steps_5_then_6_equal_the_fused_move():
         offset_by_motion(p, imu, 0.1, imu_prev, CPU), sigma, None, noise, CPU
     )
     rpy, dp = motion_increment(imu, 0.1, imu_prev)
-    Rb, tb = CPU.move_particles(
-        p.R, p.t, rpy, rpy_to_matrix(rpy).T @ dp, noise, sigma
-    )  # the fused kernel
+    # the fused kernel
+    Rb, tb = CPU.move_particles(p.R, p.t, rpy, rpy_to_matrix(rpy).T @ dp, noise, sigma)
     assert np.allclose(a.R, Rb, atol=1e-12) and np.allclose(a.t, tb, atol=1e-12)
 
 
@@ -256,9 +253,8 @@ def test_pick_best_particle_best_and_local_mean():
     log_w = np.log([0.2, 0.3, 0.2, 0.3 - 1e-9])
     T, i = pick_best_particle(p, log_w, "best")
     assert i == 1 and np.allclose(T, make_pose(R[1], t[1]))
-    T, i = pick_best_particle(
-        p, log_w, "mean", radius=0.5
-    )  # particle 3 is 5 m away: not averaged in
+    # particle 3 is 5 m away: not averaged in
+    T, i = pick_best_particle(p, log_w, "mean", radius=0.5)
     assert (
         i == 1
         and np.allclose(T[:3, 3], [0.1, 0, 0])
@@ -298,9 +294,8 @@ def test_resample_keeps_count_and_draws_heavy_particles(log_w, seed):
         assert np.allclose(np.exp(lw2), 1.0 / P)
         idx = [int(np.flatnonzero(np.all(t == ti, axis=1))[0]) for ti in t2]
         counts = np.bincount(idx, minlength=P)
-        assert np.all(
-            np.abs(counts - P * w) < 1.0 + 1e-9
-        )  # systematic: floor or ceil of P w_i
+        # systematic: floor or ceil of P w_i
+        assert np.all(np.abs(counts - P * w) < 1.0 + 1e-9)
     else:
         assert np.allclose(w, 1.0 / P) and p2 is p and np.allclose(np.exp(lw2), w)
 
@@ -308,14 +303,14 @@ def test_resample_keeps_count_and_draws_heavy_particles(log_w, seed):
 def test_resample_only_below_the_ess_threshold():
     p, _ = initialise_particles(10)
     p = Particles3D(p.R, p.t + np.arange(10)[:, None])
-    log_w = np.log(
-        np.r_[np.full(5, 0.15), np.full(5, 0.05)]
-    )  # ESS = 1 / (5 * .0225 + 5 * .0025) = 8
+    # ESS = 1 / (5 * .0225 + 5 * .0025) = 8
+    log_w = np.log(np.r_[np.full(5, 0.15), np.full(5, 0.05)])
     assert not resample_particles(p, log_w, np.random.default_rng(0), 0.5, CPU)[2]
     assert resample_particles(p, log_w, np.random.default_rng(0), 0.9, CPU)[2]
+    # None: always
     assert resample_particles(
         p, np.log(np.full(10, 0.1)), np.random.default_rng(0), None, CPU
-    )[2]  # None: always
+    )[2]
 
 
 def test_read_specific_force_checks_its_values():
@@ -534,9 +529,11 @@ _SIMPLE_MOTION = MotionConfig(
     sigma_xyz_per_s=(0.0, 0.0, 0.0),
     sigma_rpy_per_m=(0.1, 0.2, 0.3),
     sigma_rpy_per_s=(0.0, 0.0, 0.0),
-    cv_accel=(100.0, 200.0, 300.0),
-    cv_angular_accel=(10.0, 20.0, 30.0),
-    cv_start_speed=(1.0, 2.0, 3.0, 4.0, 5.0, 6.0),
+    constant_velocity=ConstantVelocityConfig(
+        accel=(100.0, 200.0, 300.0),
+        angular_accel=(10.0, 20.0, 30.0),
+        start_speed=(1.0, 2.0, 3.0, 4.0, 5.0, 6.0),
+    ),
 )
 
 
@@ -567,7 +564,7 @@ def test_project_to_rotation_flips_the_smallest_singular_direction_of_a_reflecti
 
 
 def test_mean_estimate_averages_the_particles_within_half_a_metre_of_the_best_and_ignores_a_log_weight_shift():
-    """Step 9 ``estimate="mean"`` with the default radius 0.5 m: particles at distance 0.5 (on the sphere, kept),
+    """Step 9 ``pose_estimate="mean"`` with the default radius 0.5 m: particles at distance 0.5 (on the sphere, kept),
     0.45 (kept) and 0.75 (dropped) behind/below the best one at the origin; weights ``exp(log_w - log_w_best)``
     = (1, e^-1, e^-2) so a common shift of -500 in the log-weights changes nothing (no underflow).
     ``t = (e^-1 (0, 0, 0.5) + e^-2 (0, -0.45, 0)) / (1 + e^-1 + e^-2)``."""
@@ -585,11 +582,13 @@ def test_mean_estimate_averages_the_particles_within_half_a_metre_of_the_best_an
 
 
 def test_unknown_estimate_is_an_error_naming_it():
-    """Step 9 with ``estimate="median"``: ``estimate must be 'best' or 'mean', got 'median'``."""
+    """Step 9 with ``pose_estimate="median"``: ``pose_estimate must be 'best' or 'mean', got 'median'``."""
     particles, log_w = steps.initialise_particles(2)
     with pytest.raises(
         ValueError,
-        match="^" + re.escape("estimate must be 'best' or 'mean', got 'median'") + "$",
+        match="^"
+        + re.escape("pose_estimate must be 'best' or 'mean', got 'median'")
+        + "$",
     ):
         steps.pick_best_particle(particles, log_w, "median")
 
@@ -698,9 +697,8 @@ def test_deskew_scan_moves_a_one_point_scan_and_casts_an_empty_float64_scan():
     assert times[0] == pytest.approx(-0.025)
     got = steps.deskew_scan(pts, imu, ScanConfig(sweep_period=0.1))
     np.testing.assert_array_equal(got, deskew(pts, *imu, times))
-    np.testing.assert_allclose(
-        got, [[-0.25, 10.0, 0.5]], atol=1e-5
-    )  # 10 m/s * -0.025 s along x
+    # 10 m/s * -0.025 s along x
+    np.testing.assert_allclose(got, [[-0.25, 10.0, 0.5]], atol=1e-5)
     empty = steps.deskew_scan(np.zeros((0, 3)), imu, ScanConfig())
     assert empty.dtype == np.float32 and empty.shape == (0, 3)
 
@@ -724,9 +722,8 @@ def test_read_scan_time_offset_reads_the_frame_or_zero_and_rejects_the_impossibl
         steps.read_scan_time_offset(SimpleNamespace(scan_time_offset_s=-0.0171))
         == -0.0171
     )
-    assert (
-        steps.read_scan_time_offset(SimpleNamespace()) == 0.0
-    )  # odometry layout, simulated frames
+    # odometry layout, simulated frames
+    assert steps.read_scan_time_offset(SimpleNamespace()) == 0.0
     for bad in (float("nan"), 0.2, -0.11):
         with pytest.raises(
             ValueError,
@@ -770,9 +767,8 @@ def test_deskew_scan_times_points_by_their_azimuth_in_the_velodyne_frame():
     np.testing.assert_array_equal(got, expected)
     untilted = steps.deskew_scan(pts, TWIST, config)
     np.testing.assert_array_equal(untilted, deskew(pts, *TWIST, sweep_times(pts, 0.1)))
-    assert (
-        np.abs(got - untilted).max() > 0.1
-    )  # the mounting matters: a quarter sweep at 12 m/s is 0.3 m
+    # the mounting matters: a quarter sweep at 12 m/s is 0.3 m
+    assert np.abs(got - untilted).max() > 0.1
 
 
 def test_deskew_scan_moves_points_to_the_pose_time_given_the_scan_offset():
@@ -787,9 +783,8 @@ def test_deskew_scan_moves_points_to_the_pose_time_given_the_scan_offset():
         steps.deskew_scan(pts, TWIST, config, time_offset=0.0),
         steps.deskew_scan(pts, TWIST, config),
     )
-    ahead = np.array(
-        [[20.0, 0.0, 0.0]], np.float32
-    )  # azimuth 0: fired at the scan's stamp
+    # azimuth 0: fired at the scan's stamp
+    ahead = np.array([[20.0, 0.0, 0.0]], np.float32)
     moved = steps.deskew_scan(
         ahead, (np.array([12.0, 0.0, 0.0]), np.zeros(3)), config, time_offset=-0.02
     )

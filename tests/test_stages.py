@@ -125,9 +125,8 @@ def test_tilt_calibration_holds_an_unknown_with_prior_sigma_zero_at_zero():
     )
     assert np.array_equal(world_up, [0.0, 0.0, 1.0]) and np.all(bias == 0.0)
     info, eta, free = tilt_calibration_prior(0.05, 0.01)
-    assert np.array_equal(
-        tilt_calibration(info, eta, free)[0], [0.0, 0.0, 1.0]
-    )  # no data: the prior's mean
+    # no data: the prior's mean
+    assert np.array_equal(tilt_calibration(info, eta, free)[0], [0.0, 0.0, 1.0])
     with pytest.raises(ValueError, match="sigma_world, sigma_bias >= 0"):
         tilt_calibration_prior(-0.01, 0.01)
 
@@ -173,9 +172,8 @@ def test_balanced_bias_fit_is_not_pulled_by_a_tilted_map_on_a_long_straight():
     balanced = tilt_calibration(info0 + info, eta0 + eta, free)[1][:2]
     time_weighted = tilt_calibration(*plain, free)[1][:2]
     np.testing.assert_allclose(balanced, BIAS, atol=3e-4)
-    assert (
-        abs(time_weighted[0] - BIAS[0]) > 3e-3
-    )  # 0.8 x 5 mrad of the map's pitch taken for a bias
+    # 0.8 x 5 mrad of the map's pitch taken for a bias
+    assert abs(time_weighted[0] - BIAS[0]) > 3e-3
 
 
 def test_tilt_calibration_add_and_estimate_are_the_sectors_sums_balanced():
@@ -221,8 +219,8 @@ def test_tilt_calibration_is_the_least_squares_of_the_filters_own_frames():
     slam = ParticleSLAM3D(
         tiny_config(tilt_sigma=sigma, tilt_window=window, tilt_world_sigma=0.02)
     )
-    info0, eta0, free = tilt_calibration_prior(0.02, slam.config.filter.tilt_bias_sigma)
-    bins = slam.config.filter.tilt_heading_bins
+    info0, eta0, free = tilt_calibration_prior(0.02, slam.config.prior.tilt_bias_sigma)
+    bins = slam.config.prior.tilt_heading_bins
     infos, etas, weights = np.zeros((bins, 4, 4)), np.zeros((bins, 4)), np.zeros(bins)
     used = 0
     for f in frames:
@@ -240,9 +238,8 @@ def test_tilt_calibration_is_the_least_squares_of_the_filters_own_frames():
             used += 1
     info, eta = balance_heading_bins(infos, etas, weights)
     world_up, bias = tilt_calibration(info0 + info, eta0 + eta, free)
-    assert (
-        used == len(frames) - 12
-    )  # frames 0..11: no window yet, or one shorter than 1.05 s
+    # frames 0..11: no window yet, or one shorter than 1.05 s
+    assert used == len(frames) - 12
     assert np.count_nonzero(weights) >= 3  # the drive turns through several sectors
     np.testing.assert_allclose(slam.prior.up_bias, bias, atol=1e-12)
     np.testing.assert_allclose(slam.prior.world_up, world_up, atol=1e-12)

@@ -63,9 +63,8 @@ def test_sweep_on_a_dask_cluster_writes_one_tidy_row_per_run(cluster, tmp_path):
         tasks, tmp_path / "data", scheduler=cluster.scheduler_address, progress=False
     )
     assert len(rows) == len(tasks) == 8
-    assert (
-        len(list((tmp_path / "data").iterdir())) == 4
-    )  # one drive per (seed, layout), generated once
+    # one drive per (seed, layout), generated once
+    assert len(list((tmp_path / "data").iterdir())) == 4
     for task, row in zip(tasks, rows):
         assert tuple(row) == COLUMNS
         assert (row["seed"], row["layout"], row["method"]) == (
@@ -74,9 +73,8 @@ def test_sweep_on_a_dask_cluster_writes_one_tidy_row_per_run(cluster, tmp_path):
             task.method,
         )
         assert row["frames"] == 6 and math.isfinite(row["ate_rmse_m"]) and row["fps"] > 0
-        assert math.isnan(
-            row["kitti_t_err_percent"]
-        )  # a 6-frame drive is far shorter than 100 m
+        # a 6-frame drive is far shorter than 100 m
+        assert math.isnan(row["kitti_t_err_percent"])
         assert math.isnan(row["dead_reckoning_kitti_t_err_percent"])
         # dead reckoning: slamlib's IMU-only twin, on the raw layout (the odometry layout has no IMU)
         assert math.isfinite(row["dead_reckoning_ate_rmse_m"]) == (
@@ -112,7 +110,7 @@ def test_a_failing_task_names_itself(cluster, tmp_path):
         (["--seeds", "-1"], "--seeds must be >= 0"),
         (["--layouts", "bag"], "--layouts: bag not one of"),
         (["--particles", "0"], "--particles must be in"),
-        (["--refine", "-1"], "--refine must be in"),
+        (["--anneal-rounds", "-1"], "--anneal-rounds must be in"),
         (["--tilt-sigma", "nan"], "--tilt-sigma must be a finite number"),
         (["--workers", "0"], "--workers must be >= 1"),
         (["--routes", "07,loop", "--frames", "5:9"], "always starts at its beginning"),
@@ -260,7 +258,7 @@ def test_the_sweep_command_writes_its_table_plot_and_provenance(
                 "slamlib",
                 "--particles",
                 "20",
-                "--refine",
+                "--anneal-rounds",
                 "1",
                 "--tilt-sigma",
                 "0.01",
@@ -278,7 +276,7 @@ def test_the_sweep_command_writes_its_table_plot_and_provenance(
     ]
     assert json.loads(rows[0]["settings"]) == {
         "particles": 20,
-        "refine": 1,
+        "anneal_rounds": 1,
         "tilt_sigma": 0.01,
         "scan_match": True,
     }

@@ -18,18 +18,18 @@ LIDAR = Hdl64(columns=720, beam_stride=2)
 
 
 def test_column_times_follow_kittis_sweep():
-    off = column_time_offsets(
-        Hdl64(columns=8), period=0.1
-    )  # azimuths 0, 45, ..., 180, -135, ..., -45 deg
+    # azimuths 0, 45, ..., 180, -135, ..., -45 deg
+    off = column_time_offsets(Hdl64(columns=8), period=0.1)
     np.testing.assert_allclose(
         off, [0.0, -0.0125, -0.025, -0.0375, -0.05, 0.0375, 0.025, 0.0125]
     )
     d = ray_directions(LIDAR)
+    # slamlib's rule for a point's time = the generator's firing time
     np.testing.assert_allclose(
         sweep_times(d, SCAN_PERIOD_S),
         column_time_offsets(LIDAR)[ray_columns(LIDAR)],
         atol=1e-9,
-    )  # slamlib's rule for a point's time = the generator's firing time
+    )
 
 
 def test_deskew_is_the_se3_motion_of_the_twist():
@@ -45,9 +45,8 @@ def test_deskew_is_the_se3_motion_of_the_twist():
         *imu_increments(*(np.broadcast_to(x, (500, 3)) for x in (v, w, v, w)), t)
     )
     expected = np.einsum("nij,nj->ni", exact[:, :3, :3], p) + exact[:, :3, 3]
-    np.testing.assert_allclose(
-        deskew(p, v, w, t), expected, atol=1e-3
-    )  # J(phi) v t to second order
+    # J(phi) v t to second order
+    np.testing.assert_allclose(deskew(p, v, w, t), expected, atol=1e-3)
     # and the rotation part alone is Rodrigues' exactly
     rot = np.array([Rotation.from_rotvec(w * ti).apply(pi) for pi, ti in zip(p, t)])
     np.testing.assert_allclose(deskew(p, np.zeros(3), w, t), rot, atol=1e-4)
@@ -55,9 +54,8 @@ def test_deskew_is_the_se3_motion_of_the_twist():
 
 @pytest.fixture(scope="module")
 def town():
-    route = get_route(
-        "loop"
-    )  # 8 m/s around a 60 m circle: translation and rotation within the sweep
+    # 8 m/s around a 60 m circle: translation and rotation within the sweep
+    route = get_route("loop")
     t = np.linspace(route.t0, route.t1, 200)
     scene = build_scene(route.position(t), seed=3)
     return route, scene, scene.raycasting_scene()
@@ -86,13 +84,11 @@ def test_a_distorted_scan_deskewed_is_the_scan_at_its_timestamp(town):
     v, w = route.velocity_body(t_mid)[0], route.angular_rate_body(t_mid)[0]
     fixed = deskew(p, v, w, sweep_times(p, SCAN_PERIOD_S))
     raw_err = np.linalg.norm(p - truth, axis=1)
-    assert (
-        np.median(raw_err) > 0.1 and raw_err.max() > 0.3
-    )  # 8 m/s: up to 0.4 m at the ends of the sweep
+    # 8 m/s: up to 0.4 m at the ends of the sweep
+    assert np.median(raw_err) > 0.1 and raw_err.max() > 0.3
     assert np.abs(fixed - truth).max() < 1e-3
-    backwards = deskew(
-        p, v, w, -sweep_times(p, SCAN_PERIOD_S)
-    )  # the sweep the other way round: worse than none
+    # the sweep the other way round: worse than none
+    backwards = deskew(p, v, w, -sweep_times(p, SCAN_PERIOD_S))
     assert np.median(np.linalg.norm(backwards - truth, axis=1)) > np.median(raw_err)
 
 
@@ -170,14 +166,13 @@ def test_odometry_sequences_are_swept_only_when_written_with_distortion(tmp_path
         True,
         True,
     )
-    (
-        swept.path / SYNTH_MARKER
-    ).unlink()  # as a real odometry sequence: motion-compensated by KITTI
+    # as a real odometry sequence: motion-compensated by KITTI
+    (swept.path / SYNTH_MARKER).unlink()
     assert KittiOdometrySequence(swept.basedir, swept.sequence).swept is False
 
 
 def test_should_deskew_follows_the_frame_unless_the_config_says():
-    """``ScanConfig.deskew`` None (the default): the frame's ``swept`` (missing: cast from one pose); True / False win
+    """``ScanConfig.deskew`` "auto" (the default): the frame's ``swept`` (missing: cast from one pose); True / False win
     over it."""
     from types import SimpleNamespace
 
@@ -186,7 +181,7 @@ def test_should_deskew_follows_the_frame_unless_the_config_says():
         SimpleNamespace(swept=False),
         SimpleNamespace(),
     )
-    assert ScanConfig().deskew is None
+    assert ScanConfig().deskew == "auto"
     assert [steps.should_deskew(f) for f in (swept, still, bare)] == [True, False, False]
     assert [
         steps.should_deskew(f, ScanConfig(deskew=True)) for f in (swept, still, bare)
@@ -194,38 +189,33 @@ def test_should_deskew_follows_the_frame_unless_the_config_says():
     assert [
         steps.should_deskew(f, ScanConfig(deskew=False)) for f in (swept, still, bare)
     ] == [False] * 3
-    with pytest.raises(ValueError, match="deskew must be True, False or None"):
-        ScanConfig(deskew="auto")
+    with pytest.raises(ValueError, match="deskew must be True, False or 'auto'"):
+        ScanConfig(deskew="yes")
 
 
 def test_pose_extended_continues_the_route_at_its_end_twist():
     from slamlib.synth import get_route
 
-    loop = get_route(
-        "loop"
-    )  # a circle at constant twist: the continuation is the same circle
+    # a circle at constant twist: the continuation is the same circle
+    loop = get_route("loop")
     t = np.array(
         [loop.t0 - 0.07, loop.t0 - 0.01, loop.t0, loop.t0 + 1.0, loop.t1, loop.t1 + 0.04]
     )
     ext = loop.pose_extended(t)
-    np.testing.assert_allclose(
-        ext[2:5], loop.pose(t[2:5]), atol=1e-12
-    )  # inside: the route itself
-    yaw = (
-        8.0 / 60.0 * (t - loop.t0)
-    )  # loop_route: 8 m/s on a 60 m circle from the origin heading +x
+    # inside: the route itself
+    np.testing.assert_allclose(ext[2:5], loop.pose(t[2:5]), atol=1e-12)
+    # loop_route: 8 m/s on a 60 m circle from the origin heading +x
+    yaw = 8.0 / 60.0 * (t - loop.t0)
     np.testing.assert_allclose(ext[:, 0, 3], 60.0 * np.sin(yaw), atol=2e-3)
     np.testing.assert_allclose(ext[:, 1, 3], 60.0 * (1.0 - np.cos(yaw)), atol=2e-3)
     heading = np.arctan2(ext[:, 1, 0], ext[:, 0, 0])
-    np.testing.assert_allclose(
-        np.angle(np.exp(1j * (heading - yaw))), 0.0, atol=1e-4
-    )  # one lap: mod 2 pi
+    # one lap: mod 2 pi
+    np.testing.assert_allclose(np.angle(np.exp(1j * (heading - yaw))), 0.0, atol=1e-4)
     r07 = get_route("07", slice(760, 790))  # a piece that starts in a turn at 6.4 m/s
     before = r07.pose_extended(r07.t0 - 0.05)[0]
     step = np.linalg.solve(r07.pose(r07.t0)[0], r07.pose(r07.t0 + 0.05)[0])
-    back = np.linalg.solve(
-        before, r07.pose(r07.t0)[0]
-    )  # the 50 ms before t0 ~ the 50 ms after it
+    # the 50 ms before t0 ~ the 50 ms after it
+    back = np.linalg.solve(before, r07.pose(r07.t0)[0])
     np.testing.assert_allclose(back[:3, 3], step[:3, 3], atol=5e-3)
     assert np.linalg.norm(back[:3, 3]) > 0.25  # not held still
 
@@ -248,13 +238,13 @@ def test_the_first_and_last_scans_are_swept_all_the_way(tmp_path):
     body = ScanConfig(min_range=0.0, max_range=np.inf, downsample_voxel=0.0)
     for k in (0, len(swept) - 1):
         f = swept[k]
-        t_pose = (
-            route.t0 + f.time_s
-        )  # the frame's (OXTS) instant on the route, where the unswept scan is cast
+        # the frame's (OXTS) instant on the route, where the unswept scan is cast
+        t_pose = route.t0 + f.time_s
+        # the loop's twist is constant
         v, w = (
             route.velocity_body(t_pose)[0],
             route.angular_rate_body(t_pose)[0],
-        )  # the loop's twist is constant
+        )
         fixed = steps.deskew_scan(
             steps.read_scan(f.scan, body, T_body_velo),
             (v, w),
@@ -268,6 +258,5 @@ def test_the_first_and_last_scans_are_swept_all_the_way(tmp_path):
         # when the sweep was held at the route's first pose before its start (the bug this guards against)
         assert np.percentile(d, 90) < 0.01, (k, np.percentile(d, [50, 90, 99]))
         raw = plane_residuals(steps.read_scan(f.scan, body, T_body_velo), ref, k=8)[0]
-        assert (
-            np.percentile(raw, 95) > 0.1
-        )  # the check sees a sweep: 8 m/s moves the sensor 0.8 m in one
+        # the check sees a sweep: 8 m/s moves the sensor 0.8 m in one
+        assert np.percentile(raw, 95) > 0.1

@@ -206,9 +206,8 @@ def test_bias_walk_is_a_wiener_process_sampled_at_the_times():
     rng = np.random.default_rng(40)
     walks = np.stack([bias_walk(t, 0.2, rng) for _ in range(4000)])  # (4000, 5, 3)
     assert np.all(walks[:, 0] == 0.0)
-    var = (
-        walks.reshape(4000, 5, 3).var(axis=0).mean(axis=1)
-    )  # per time, averaged over the 3 axes
+    # per time, averaged over the 3 axes
+    var = walks.reshape(4000, 5, 3).var(axis=0).mean(axis=1)
     np.testing.assert_allclose(var[1:], 0.04 * t[1:], rtol=0.06)
     inc = np.diff(walks, axis=1)
     r = np.corrcoef(inc[:, 1, 0], inc[:, 2, 0])[0, 1]
@@ -397,9 +396,8 @@ def test_rewriting_a_synthetic_drive_keeps_the_users_files_and_drops_stale_frame
         json.loads((ddir / MARKER).read_text())["seed"] == 1
         and not (ddir / PARTIAL_MARKER).exists()
     )
-    assert (
-        len(KittiRawDrive(tmp_path, "2011_09_26", 1)) == 3
-    )  # frames 3 and 4 of the first drive are gone
+    # frames 3 and 4 of the first drive are gone
+    assert len(KittiRawDrive(tmp_path, "2011_09_26", 1)) == 3
     fresh = tmp_path / "fresh"
     _write(fresh, frames=3, seed=1)
     mine = {

@@ -85,9 +85,8 @@ def test_imu_noise_zero_gives_exact_fields(tmp_path):
     packets = pykitti.raw(str(out), "2011_09_26", "0001").oxts
     vf = np.array([p.packet.vf for p in packets])
     wu = np.array([p.packet.wu for p in packets])
-    assert np.allclose(vf, 8.0, atol=1e-6) and np.allclose(
-        wu, 8.0 / 60.0, atol=1e-6
-    )  # the 60 m, 8 m/s circle
+    # the 60 m, 8 m/s circle
+    assert np.allclose(vf, 8.0, atol=1e-6) and np.allclose(wu, 8.0 / 60.0, atol=1e-6)
 
 
 def test_imu_noise_scaled():
@@ -108,9 +107,8 @@ def test_imu_noise_scaled():
 def test_rewrites_its_own_drive_but_never_a_real_one(tmp_path, capsys):
     out = tmp_path / "o"
     assert main(["synth", "--out", str(out), "--no-scans", *TINY]) == 0
-    assert (
-        main(["synth", "--out", str(out), "--no-scans", "--seed", "1", *TINY]) == 0
-    )  # ours: replaced
+    # ours: replaced
+    assert main(["synth", "--out", str(out), "--no-scans", "--seed", "1", *TINY]) == 0
     real = drive_dir(out, "2011_09_26", 2)
     real.mkdir(parents=True)
     (real / "keep.txt").write_text("real data")

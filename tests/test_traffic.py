@@ -194,9 +194,8 @@ def test_lanes_directions_and_speeds_on_a_straight_route():
                 (speed >= PEDESTRIAN_SPEED[0] - 1e-6)
                 & (speed <= PEDESTRIAN_SPEED[1] + 1e-6)
             )
-            assert np.all(
-                np.sign(vx) == np.where(along[1:], 1, -1)
-            )  # walks the way it faces
+            # walks the way it faces
+            assert np.all(np.sign(vx) == np.where(along[1:], 1, -1))
             # on a sidewalk, keeping to its right: -y of the sidewalk's middle walking along +x, +y walking back
             middle = np.sign(c[:, 1]) * SIDEWALK
             keep = np.where(along, -KEEP_RIGHT, KEEP_RIGHT)
@@ -219,9 +218,8 @@ def test_lanes_follow_a_curved_route():
             < r.length() - tr.line.length
         )
         lateral = tr.lateral[bx["index"]]
-        keep = on_circle & (
-            np.arctan2(rel[:, 1], rel[:, 0]) > -np.pi / 2 + 0.1
-        )  # not on the straight extensions
+        # not on the straight extensions
+        keep = on_circle & (np.arctan2(rel[:, 1], rel[:, 0]) > -np.pi / 2 + 0.1)
         assert np.allclose(radius[keep], 60.0 - lateral[keep], atol=0.05)
         tangent = np.arctan2(rel[:, 1], rel[:, 0]) + np.pi / 2
         dyaw = np.angle(np.exp(1j * (bx["yaw"] - tangent)))
@@ -318,9 +316,8 @@ def test_movers_keep_away_from_the_ego_car(route):
             gap = np.abs(tr.arc_length(t)[bx["index"][lane]] - tr.line.ego_s(t))
             lane_nearest = min(lane_nearest, gap.min())
     assert 3.0 < nearest < 4.0  # cyclists ride 3.2 m from the ego lane and are passed
-    assert (
-        0.5 < gap_nearest < 2.5
-    )  # an oncoming car on a corner of 07 swings to 0.9 m of the (generous) footprint
+    # an oncoming car on a corner of 07 swings to 0.9 m of the (generous) footprint
+    assert 0.5 < gap_nearest < 2.5
     assert lane_nearest >= FOLLOW_MIN_DIST
 
 
@@ -569,9 +566,8 @@ def test_swept_scan_sees_a_mover_where_it_is_when_each_column_fires():
     import open3d as o3d
 
     model = Hdl64(columns=720, beam_stride=2, sigma_range=0.0, dropout=0.0)
-    far = (
-        o3d.t.geometry.RaycastingScene()
-    )  # the static world: one triangle far out of range
+    # the static world: one triangle far out of range
+    far = o3d.t.geometry.RaycastingScene()
     far.add_triangles(
         o3d.core.Tensor(np.array([[500, 0, 0], [500, 1, 0], [500, 0, 1]], np.float32)),
         o3d.core.Tensor(np.array([[0, 1, 2]], np.uint32)),
@@ -759,9 +755,8 @@ def test_drive_traffic_gives_the_movers_the_scans_hold(tmp_path):
         for k, f in enumerate(drive):
             T = T0 @ f.T_w_velo
             p = f.scan[:, :3].astype(np.float64) @ T[:3, :3].T + T[:3, 3]
-            above = (
-                p[:, 2] > route.pose(t_route[k])[0][2, 3] - 0.5
-            )  # above the road (the IMU is 0.93 m up)
+            # above the road (the IMU is 0.93 m up)
+            above = p[:, 2] > route.pose(t_route[k])[0][2, 3] - 0.5
             counts[name].append(int(movers.inside(p[above], t_route[k]).sum()))
     assert min(counts["on"]) > 200 and max(counts["off"]) < 0.05 * min(counts["on"]), (
         counts

@@ -40,9 +40,8 @@ def test_transform_quick_writes_kernel_copy_program_and_gpu_rows(results):
         }
     for r in d["kernel_rows"]:
         assert r["bytes_moved"] == 24 * r["n"] and 0 < r["min_s"] <= r["median_s"]
-        assert r["rounds"] == ("fresh" if r["variant"] == "alloc" else "reuse"), (
-            r
-        )  # allocating rows apart
+        # allocating rows apart
+        assert r["rounds"] == ("fresh" if r["variant"] == "alloc" else "reuse"), r
         fastest = min(r["copyto_median_s"], r["parallel_copy_median_s"])
         assert r["ratio_to_fastest_copy"] == pytest.approx(r["median_s"] / fastest)
         assert r["ratio_to_copyto"] == pytest.approx(r["median_s"] / r["copyto_median_s"])

@@ -88,7 +88,7 @@ def tiny_config(**kw) -> SLAM3DConfig:
         min_range=2.0,
         max_range=30.0,
         downsample_voxel=0.3,
-        params={"capacity": 2**14},
+        capacity=2**14,
         sigma_xyz_per_m=(0.06, 0.04, 0.02),
         sigma_rpy_per_s=(0.01, 0.01, 0.06),
         seed=3,

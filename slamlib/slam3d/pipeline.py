@@ -94,6 +94,8 @@ class ParticleSLAM3D:
     def __init__(self, config: SLAM3DConfig | None = None, T_velo_imu=None, T0=None):
         self.config = cfg = config if config is not None else SLAM3DConfig()
         self.backend = get_backend(cfg.backend)
+        # step 9's: the best particle, or a local mean
+        self.pose_estimate = cfg.filter.pose_estimate
         self.rng = np.random.default_rng(cfg.seed)
         self.T_body_velo = (
             None
@@ -171,9 +173,7 @@ class ParticleSLAM3D:
         log_w = self.weigh(moved, self.log_weights, sample)  # 7 + 8
         # 6-8 again, finer (annealing); 9: the best particle, sharpened (scan matching)
         moved, log_w = self.search(moved, log_w, sample, sigma, start_rounds)
-        pose, best = steps.pick_best_particle(
-            moved, log_w, self.config.filter.pose_estimate
-        )
+        pose, best = steps.pick_best_particle(moved, log_w, self.pose_estimate)
         pose, moved = self.polish(pose, points, moved, self.map)
         self.prior.calibrate(pose, dt)
         steps.merge_scan(self.map, pose, points, be)  # 10

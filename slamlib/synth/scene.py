@@ -99,6 +99,7 @@ def _box_template():
         dtype=np.float64,
     )
     # vertex index = 4*z + 2*y + x
+    # -x, +x
     f = np.array(
         [
             [0, 2, 1],
@@ -114,7 +115,7 @@ def _box_template():
             [1, 3, 5],
             [3, 7, 5],
         ]
-    )  # -x, +x
+    )
     return v, f
 
 

@@ -62,10 +62,11 @@ def strip_source(source: str) -> tuple[str, int]:
         for dec in node.decorator_list:
             if not is_jit_decorator(dec):
                 continue
+            # the "@" sits on the expression's first line
             first, last = (
                 dec.lineno - 1,
                 dec.end_lineno - 1,
-            )  # the "@" sits on the expression's first line
+            )
             if not lines[first].lstrip().startswith("@"):
                 raise ValueError(
                     f"line {dec.lineno}: decorator does not start its line: {lines[first]!r}"

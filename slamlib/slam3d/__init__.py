@@ -10,8 +10,9 @@ Quick start::
     print(evaluate(run)["slam"]["ate_rmse_m"], run.fps)
 
 Modules: :mod:`~slamlib.slam3d.steps` (one pure function per step, shared names),
-:mod:`~slamlib.slam3d.config` (:class:`SLAM3DConfig` and its groups, every default once),
-:mod:`~slamlib.slam3d.pipeline` (:class:`ParticleSLAM3D` with ``register_frame``),
+:mod:`~slamlib.slam3d.config` (:class:`SLAM3DConfig` and its groups, one per stage, every default once),
+:mod:`~slamlib.slam3d.stages` (motion, scan, prior, search, polish, upkeep: each one job, chosen once),
+:mod:`~slamlib.slam3d.pipeline` (:class:`ParticleSLAM3D`: ``register_frame``, the steps in order, and ``step``),
 :mod:`~slamlib.slam3d.preprocess` (range crop, voxel down-sampling, scoring sample),
 :mod:`~slamlib.slam3d.run` (whole drives, metrics). Particles are IMU/body poses ``T_world_body``; the world is
 the body pose at the first processed frame.
@@ -19,11 +20,16 @@ the body pose at the first processed frame.
 
 from slamlib.slam3d.config import (
     MAP_KINDS,
+    AnnealConfig,
+    ConstantVelocityConfig,
     FilterConfig,
     MapConfig,
     MotionConfig,
     ScanConfig,
+    ScanMatchConfig,
     SLAM3DConfig,
+    TiltConfig,
+    UpkeepConfig,
 )
 from slamlib.slam3d.pipeline import ParticleSLAM3D
 from slamlib.slam3d.preprocess import crop_range, sample_points, voxel_downsample
@@ -52,6 +58,11 @@ __all__ = [
     "MotionConfig",
     "MapConfig",
     "FilterConfig",
+    "ConstantVelocityConfig",
+    "UpkeepConfig",
+    "TiltConfig",
+    "AnnealConfig",
+    "ScanMatchConfig",
     "MAP_KINDS",
     "Particles3D",
     "SLAMRun",

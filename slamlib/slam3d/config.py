@@ -158,7 +158,7 @@ def _tri_state(name: str, value, what: str):
             f"{name}=None is now {name}={AUTO!r}", DeprecationWarning, stacklevel=4
         )
         return AUTO
-    if value == AUTO and isinstance(value, str):
+    if isinstance(value, str) and value == AUTO:
         return AUTO
     if isinstance(value, (bool, np.bool_)):
         return bool(value)

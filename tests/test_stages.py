@@ -10,11 +10,12 @@ import pytest
 from scipy.spatial.transform import Rotation
 from world3d import simulate, tiny_config
 
-from slamlib.geometry import rpy_to_matrix
+from slamlib.geometry import make_pose, rpy_to_matrix
 from slamlib.odometry import GRAVITY
 from slamlib.slam3d import Particles3D, ParticleSLAM3D
 from slamlib.slam3d.config import TiltConfig
-from slamlib.slam3d.stages import NoPrior, TiltPrior
+from slamlib.slam3d.preprocess import road_mask
+from slamlib.slam3d.stages import NoPolish, NoPrior, ScanMatch, TiltPrior
 from slamlib.slam3d.stages.prior import (
     balance_heading_bins,
     gravity_up,
@@ -373,3 +374,74 @@ def test_no_prior_measures_weighs_and_calibrates_nothing():
     assert prior.measure(_force_frame(), (np.zeros(3),), 0.1, None, [np.eye(4)]) is None
     assert prior.up is None and prior.weigh(particles, log_weights) is log_weights
     assert prior.calibrate(np.eye(4), 0.1) is None and prior.up is None
+
+
+# ------------------------------------------------------------------------------------------ polish
+def _road_scan():
+    """A flat road 1.7 m below the body and walls beside it: body-frame points (N, 3)."""
+    rng = np.random.default_rng(7)
+    road = np.c_[rng.uniform(-20, 20, (300, 2)), np.full(300, -1.7)]
+    walls = np.c_[
+        rng.uniform(-20, 20, 200), np.repeat([-6.0, 6.0], 100), rng.uniform(0, 3, 200)
+    ]
+    return np.r_[road, walls]
+
+
+def _fake_match(monkeypatch, matched):
+    """``match_scan`` replaced by one that records its arguments and answers ``matched``."""
+    calls = []
+
+    def fake(pose, points, world_map, iterations, road=None):
+        calls.append((pose, points, world_map, iterations, road))
+        return matched
+
+    monkeypatch.setattr("slamlib.slam3d.stages.polish.match_scan", fake)
+    return calls
+
+
+def test_scan_match_passes_the_road_only_when_asked(monkeypatch):
+    """``road=True`` (LIDAR-only) hands the match :func:`road_mask` of the scan; the default hands it none."""
+    points, pose = _road_scan(), make_pose(np.eye(3), [1.0, 2.0, 0.0])
+    particles = Particles3D(np.eye(3)[None], np.zeros((1, 3)))
+    calls = _fake_match(monkeypatch, pose)
+    assert ScanMatch(4).road is False
+    ScanMatch(4)(pose, points, particles, "map")
+    ScanMatch(4, road=True)(pose, points, particles, "map")
+    assert calls[0][3] == 4 and calls[0][4] is None
+    mask = road_mask(points)
+    assert mask[:300].all() and not mask[300:].all()  # the scan has a road plane and more
+    assert calls[1][3] == 4 and calls[1][2] == "map"
+    np.testing.assert_array_equal(calls[1][4], mask)
+
+
+def test_scan_match_moves_every_particle_by_the_matched_correction_and_counts_frames(
+    monkeypatch,
+):
+    """``C = T_matched T^-1`` applied in the world frame: the particle at ``T`` lands on ``T_matched``, every other
+    particle ``T_i`` on ``C T_i`` (the 4 x 4 products, by hand)."""
+    pose = make_pose(rpy_to_matrix([0.01, -0.02, 0.5]), [3.0, -1.0, 0.2])
+    matched = make_pose(rpy_to_matrix([0.015, -0.01, 0.55]), [3.4, -0.7, 0.25])
+    _fake_match(monkeypatch, matched)
+    R = np.stack(
+        [pose[:3, :3], rpy_to_matrix([0.0, 0.0, 1.0]), rpy_to_matrix([0.1, 0.0, -2.0])]
+    )
+    t = np.array([pose[:3, 3], [10.0, 0.0, 0.0], [-5.0, 7.0, 1.0]])
+    stage = ScanMatch(3)
+    assert stage.n_matched == 0
+    got, moved = stage(pose, _road_scan(), Particles3D(R, t), None)
+    assert got is matched and stage.n_matched == 1
+    C = matched @ np.linalg.inv(pose)
+    for i in range(3):
+        want = C @ make_pose(R[i], t[i])
+        np.testing.assert_allclose(moved.R[i], want[:3, :3], atol=1e-12)
+        np.testing.assert_allclose(moved.t[i], want[:3, 3], atol=1e-12)
+    np.testing.assert_allclose(make_pose(moved.R[0], moved.t[0]), matched, atol=1e-12)
+    stage(pose, _road_scan(), Particles3D(R, t), None)
+    assert stage.n_matched == 2
+
+
+def test_no_polish_keeps_the_pose_and_the_particles():
+    pose, particles = np.eye(4), Particles3D(np.eye(3)[None], np.zeros((1, 3)))
+    stage = NoPolish()
+    got_pose, got_particles = stage(pose, _road_scan(), particles, None)
+    assert got_pose is pose and got_particles is particles and stage.n_matched == 0

@@ -1,6 +1,8 @@
-"""The stages the 3D filter chooses once (:mod:`slamlib.slam3d.stages`); here the tilt prior's math
-(:mod:`slamlib.slam3d.stages.prior`): gravity's up from the IMU, the calibration of the world's up and the
-accelerometer's bias in heading sectors, and the log-prior of the particles' tilt."""
+"""The stages the 3D filter chooses once (:mod:`slamlib.slam3d.stages`), tested one at a time: the prior stage
+(:mod:`slamlib.slam3d.stages.prior`: gravity's up from the IMU, the calibration of the world's up and the
+accelerometer's bias in heading sectors, the log-prior of the particles' tilt, and the TiltPrior / NoPrior stages)
+and the polish stage (:mod:`slamlib.slam3d.stages.polish`: ScanMatch / NoPolish). How the filter chooses and
+runs them: test_pipeline.py."""
 
 import functools
 from types import SimpleNamespace

@@ -1,17 +1,23 @@
-"""The stages the 3D filter chooses once (:mod:`slamlib.slam3d.stages`); here the tilt prior's math
-(:mod:`slamlib.slam3d.stages.prior`): gravity's up from the IMU, the calibration of the world's up and the
-accelerometer's bias in heading sectors, and the log-prior of the particles' tilt."""
+"""The stages the 3D filter chooses once (:mod:`slamlib.slam3d.stages`), tested one at a time: the prior stage
+(:mod:`slamlib.slam3d.stages.prior`: gravity's up from the IMU, the calibration of the world's up and the
+accelerometer's bias in heading sectors, the log-prior of the particles' tilt, and the TiltPrior / NoPrior stages)
+and the polish stage (:mod:`slamlib.slam3d.stages.polish`: ScanMatch / NoPolish). How the filter chooses and
+runs them: test_pipeline.py."""
 
 import functools
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 from world3d import simulate, tiny_config
 
-from slamlib.geometry import rpy_to_matrix
+from slamlib.geometry import make_pose, rpy_to_matrix
 from slamlib.odometry import GRAVITY
 from slamlib.slam3d import Particles3D, ParticleSLAM3D
+from slamlib.slam3d.config import TiltConfig
+from slamlib.slam3d.preprocess import road_mask
+from slamlib.slam3d.stages import NoPolish, NoPrior, ScanMatch, TiltPrior
 from slamlib.slam3d.stages.prior import (
     balance_heading_bins,
     gravity_up,
@@ -22,6 +28,7 @@ from slamlib.slam3d.stages.prior import (
     tilt_calibration_estimate,
     tilt_calibration_prior,
     tilt_calibration_update,
+    tilt_log_prior,
 )
 
 
@@ -263,3 +270,180 @@ def test_tilt_log_prior_measures_the_tilt_from_the_worlds_up():
             Particles3D(R, np.zeros((2, 3))), [0.0, 0.0, 1.0], 0.005, [0.0, 0.0, 1.0]
         ),
     )
+
+
+# ------------------------------------------------------------------------------------------ prior: edge cases
+def test_gravity_up_of_a_window_that_spans_no_time_is_none():
+    """Two samples 0 s apart: no time to integrate over, no up (not a division by zero)."""
+    f = np.array([[0.0, 0.0, GRAVITY]] * 2)
+    assert gravity_up(np.stack([np.eye(3)] * 2), f, np.zeros((2, 3)), [0.0, 0.0]) is None
+
+
+def test_tilt_calibration_prior_is_the_inverse_variances_of_the_free_pairs():
+    info, eta, free = tilt_calibration_prior(0.0, 0.02)
+    np.testing.assert_allclose(info, np.diag([0.0, 0.0, 2500.0, 2500.0]))
+    assert np.array_equal(free, [False, False, True, True]) and not eta.any()
+
+
+def test_tilt_calibration_update_adds_the_weighted_normal_equations():
+    """A body rolled 90 degrees (rows R^T e_x = e_x, R^T e_y = -e_z, R^T e_z = e_y) measuring up (0.1, 0.2, 0.3):
+    H = [e_x, -e_z, e_x, e_y] as columns, y = u - e_y, by hand."""
+    R = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
+    info, eta = tilt_calibration_update(np.eye(4), np.ones(4), R, [0.1, 0.2, 0.3], 2.0)
+    HtH = np.array([[1, 0, 1, 0], [0, 1, 0, 0], [1, 0, 1, 0], [0, 0, 0, 1.0]])
+    np.testing.assert_allclose(info, np.eye(4) + 2.0 * HtH)
+    np.testing.assert_allclose(eta, 1.0 + 2.0 * np.array([0.1, -0.3, 0.1, -0.8]))
+
+
+# ------------------------------------------------------------------------------------------ prior: the stages
+def _force_frame(up=(0.0, 0.0, 1.0)):
+    """A frame whose accelerometer feels gravity along the body's ``up`` (at rest)."""
+    up = np.asarray(up, dtype=np.float64)
+    return SimpleNamespace(specific_force=GRAVITY * up / np.linalg.norm(up))
+
+
+def _measure_frame(prior, k, dt, up=(0.0, 0.0, 1.0)):
+    """Frame ``k`` of a still body at the origin into ``prior``, ``dt`` after the one before."""
+    still = (np.zeros(3), np.zeros(3))
+    prior.measure(_force_frame(up), still, dt, still, [np.eye(4)] * (k + 1))
+
+
+def _measure(prior, n, dt, up=(0.0, 0.0, 1.0)):
+    """``n`` frames (:func:`_measure_frame`) into ``prior``; its ``(len(samples), up_span)`` after each."""
+    seen = []
+    for k in range(n):
+        _measure_frame(prior, k, dt, up)
+        seen.append((len(prior.samples), prior.up_span))
+    return seen
+
+
+def test_tilt_prior_keeps_the_fewest_samples_that_span_the_window():
+    """Frames 0.25 s apart (exact in binary): a 0.5 s window holds three samples (two intervals; the oldest goes
+    once the others span the window exactly), a 0.25 s window two."""
+    prior = TiltPrior(TiltConfig(tilt_sigma=0.005, tilt_window=0.5))
+    assert prior.up is None and prior.up_span == 0.0 and len(prior.samples) == 0
+    assert _measure(prior, 5, 0.25) == [(1, 0.0), (2, 0.25), (3, 0.5), (3, 0.5), (3, 0.5)]
+    np.testing.assert_allclose(prior.up, [0.0, 0.0, 1.0], atol=1e-12)
+    short = TiltPrior(TiltConfig(tilt_sigma=0.005, tilt_window=0.25))
+    assert _measure(short, 4, 0.25) == [(1, 0.0), (2, 0.25), (2, 0.25), (2, 0.25)]
+
+
+def test_tilt_prior_frame_without_an_accelerometer_empties_the_window():
+    prior = TiltPrior(TiltConfig(tilt_sigma=0.005, tilt_window=0.5))
+    _measure(prior, 3, 0.25)
+    assert prior.up is not None
+    prior.measure(
+        SimpleNamespace(), (np.zeros(3), np.zeros(3)), 0.25, None, [np.eye(4)] * 4
+    )
+    assert prior.up is None and len(prior.samples) == 0
+    log_weights = np.array([-1.0, -2.0])
+    particles = Particles3D(np.stack([np.eye(3)] * 2), np.zeros((2, 3)))
+    assert prior.weigh(particles, log_weights) is log_weights
+
+
+def test_tilt_prior_calibrates_once_the_window_spans_tilt_window_with_weight_dt_over_window():
+    """Frames 0.25 s apart, window 0.5 s: the first two frames (spans 0 and 0.25 s) add nothing, the third (span
+    exactly 0.5 s) adds ``dt / window / sigma^2`` to its heading's sector; the estimate follows the sums, and
+    step 8 weighs with the measured up less the bias against the estimated world's up."""
+    sigma, up = 0.005, rpy_to_matrix([0.01, -0.02, 0.0]).T @ [0.0, 0.0, 1.0]
+    config = TiltConfig(tilt_sigma=sigma, tilt_window=0.5, tilt_world_sigma=0.02)
+    prior = TiltPrior(config)
+    for k in range(3):
+        _measure_frame(prior, k, 0.25, up)
+        prior.calibrate(np.eye(4), 0.25)
+        assert prior.bins[2].sum() == (0.0 if k < 2 else 0.25 / 0.5 / sigma**2)
+    sums = tilt_calibration_bins(config.tilt_heading_bins)
+    tilt_calibration_add(sums, np.eye(3), prior.up, 0.25 / 0.5 / sigma**2)
+    for got, want in zip(prior.bins, sums):
+        np.testing.assert_array_equal(got, want)
+    world_up, bias = tilt_calibration_estimate(prior.calibration_prior, sums)
+    np.testing.assert_array_equal(prior.world_up, world_up)
+    np.testing.assert_array_equal(prior.up_bias, bias)
+    assert np.abs(bias).max() > 1e-3 and np.abs(world_up[:2]).max() > 1e-3
+    # step 8: exactly the log-prior of the measured up less the bias, from the estimated world's up
+    R = rpy_to_matrix(np.array([[0.0, 0.0, 0.0], [0.01, -0.02, 0.3], [-0.02, 0.0, 1.0]]))
+    particles, log_weights = (
+        Particles3D(R, np.zeros((3, 3))),
+        np.array([-1.0, -2.0, -3.0]),
+    )
+    want = log_weights + tilt_log_prior(particles, prior.up - bias, sigma, world_up)
+    np.testing.assert_array_equal(prior.weigh(particles, log_weights), want)
+
+
+def test_no_prior_measures_weighs_and_calibrates_nothing():
+    prior, log_weights = NoPrior(), np.array([-1.0, -2.0])
+    particles = Particles3D(np.stack([np.eye(3)] * 2), np.zeros((2, 3)))
+    assert prior.measure(_force_frame(), (np.zeros(3),), 0.1, None, [np.eye(4)]) is None
+    assert prior.up is None and prior.weigh(particles, log_weights) is log_weights
+    assert prior.calibrate(np.eye(4), 0.1) is None and prior.up is None
+
+
+# ------------------------------------------------------------------------------------------ polish
+def _road_scan():
+    """A flat road 1.7 m below the body and walls beside it: body-frame points (N, 3)."""
+    rng = np.random.default_rng(7)
+    road = np.c_[rng.uniform(-20, 20, (300, 2)), np.full(300, -1.7)]
+    walls = np.c_[
+        rng.uniform(-20, 20, 200), np.repeat([-6.0, 6.0], 100), rng.uniform(0, 3, 200)
+    ]
+    return np.r_[road, walls]
+
+
+def _fake_match(monkeypatch, matched):
+    """``match_scan`` replaced by one that records its arguments and answers ``matched``."""
+    calls = []
+
+    def fake(pose, points, world_map, iterations, road=None):
+        calls.append((pose, points, world_map, iterations, road))
+        return matched
+
+    monkeypatch.setattr("slamlib.slam3d.stages.polish.match_scan", fake)
+    return calls
+
+
+def test_scan_match_passes_the_road_only_when_asked(monkeypatch):
+    """``road=True`` (LIDAR-only) hands the match :func:`road_mask` of the scan; the default hands it none."""
+    points, pose = _road_scan(), make_pose(np.eye(3), [1.0, 2.0, 0.0])
+    particles = Particles3D(np.eye(3)[None], np.zeros((1, 3)))
+    calls = _fake_match(monkeypatch, pose)
+    assert ScanMatch(4).road is False
+    ScanMatch(4)(pose, points, particles, "map")
+    ScanMatch(4, road=True)(pose, points, particles, "map")
+    assert calls[0][3] == 4 and calls[0][4] is None
+    mask = road_mask(points)
+    assert mask[:300].all() and not mask[300:].all()  # the scan has a road plane and more
+    assert calls[1][3] == 4 and calls[1][2] == "map"
+    np.testing.assert_array_equal(calls[1][4], mask)
+
+
+def test_scan_match_moves_every_particle_by_the_matched_correction_and_counts_frames(
+    monkeypatch,
+):
+    """``C = T_matched T^-1`` applied in the world frame: the particle at ``T`` lands on ``T_matched``, every other
+    particle ``T_i`` on ``C T_i`` (the 4 x 4 products, by hand)."""
+    pose = make_pose(rpy_to_matrix([0.01, -0.02, 0.5]), [3.0, -1.0, 0.2])
+    matched = make_pose(rpy_to_matrix([0.015, -0.01, 0.55]), [3.4, -0.7, 0.25])
+    _fake_match(monkeypatch, matched)
+    R = np.stack(
+        [pose[:3, :3], rpy_to_matrix([0.0, 0.0, 1.0]), rpy_to_matrix([0.1, 0.0, -2.0])]
+    )
+    t = np.array([pose[:3, 3], [10.0, 0.0, 0.0], [-5.0, 7.0, 1.0]])
+    stage = ScanMatch(3)
+    assert stage.n_matched == 0
+    got, moved = stage(pose, _road_scan(), Particles3D(R, t), None)
+    assert got is matched and stage.n_matched == 1
+    C = matched @ np.linalg.inv(pose)
+    for i in range(3):
+        want = C @ make_pose(R[i], t[i])
+        np.testing.assert_allclose(moved.R[i], want[:3, :3], atol=1e-12)
+        np.testing.assert_allclose(moved.t[i], want[:3, 3], atol=1e-12)
+    np.testing.assert_allclose(make_pose(moved.R[0], moved.t[0]), matched, atol=1e-12)
+    stage(pose, _road_scan(), Particles3D(R, t), None)
+    assert stage.n_matched == 2
+
+
+def test_no_polish_keeps_the_pose_and_the_particles():
+    pose, particles = np.eye(4), Particles3D(np.eye(3)[None], np.zeros((1, 3)))
+    stage = NoPolish()
+    got_pose, got_particles = stage(pose, _road_scan(), particles, None)
+    assert got_pose is pose and got_particles is particles and stage.n_matched == 0

@@ -486,3 +486,317 @@ def test_the_1d_filter_still_takes_its_map_as_grid(recording_1d):
     assert slam.world_map is grid and slam.grid is grid
     with pytest.raises(TypeError, match="got the map twice"):
         ParticleSLAM1D(5, grid, grid=grid, motion_noise=0.4, rng=np.random.default_rng(0))
+
+
+# ------------------------------------------------------------------------------- the checkers' own helpers
+def test_type_name_gives_builtins_bare_and_others_with_their_module():
+    from slamlib.contract import _type_name
+
+    assert _type_name(True) == "bool" and _type_name(1.0) == "float"
+    assert (
+        _type_name(np.True_) == "numpy.bool" and _type_name(np.int64(1)) == "numpy.int64"
+    )
+
+
+def test_close_reads_both_sides_as_float64_and_holds_to_one_part_in_a_billion():
+    from slamlib.contract import _close
+
+    assert _close(["0.5", "1"], [0.5, 1.0]) and _close([0.5, 1.0], ["0.5", "1"])
+    assert not _close([1.0, 2.0], [1.0, 2.0, 3.0])
+    assert _close(0.0, 5e-10) and not _close(0.0, 5e-9)  # absolute 1e-9
+    assert _close(1e6, 1e6 + 1e-4) and not _close(1e6, 1e6 + 1.0)  # relative 1e-9
+
+
+def test_log_weights_problem_says_exactly_what_is_wrong():
+    from slamlib.contract import _log_weights_problem as problem
+
+    assert problem(np.full(3, -np.log(3)), 3) is None
+    assert problem(np.zeros(3, np.float32), 3) == (
+        "log_weights ndarray float32 (3,), not (3,) float64"
+    )
+    assert problem(np.zeros(2), 3) == "log_weights ndarray float64 (2,), not (3,) float64"
+    assert problem([0.0], 1) == "log_weights list  None, not (1,) float64"
+    assert problem(np.array([0.0, np.nan]), 2) == "log_weights hold NaN or +inf"
+    assert problem(np.array([0.0, np.inf]), 2) == "log_weights hold NaN or +inf"
+    assert problem(np.array([1e-9]), 1) == (
+        "log_weights are not normalised: logsumexp = 1e-09, not 0"
+    )
+    assert problem(np.array([5e-10]), 1) is None
+
+
+def _raise(*args):
+    raise ValueError("boom")
+
+
+def _shifted_pose(m, ex):
+    def pick_best_particle(p, lw):
+        pose, i = m.pick_best_particle(p, lw)
+        return pose + 1.0, i
+
+    return pick_best_particle
+
+
+def _peak_at_3(m, ex):
+    def score_particles(p, pts, world_map):
+        return np.where(np.arange(len(p)) == 3, 5.0, 0.0)
+
+    return score_particles
+
+
+def _in_place_noise(m, ex):
+    def perturb_with_noise(p, sigma, rng):
+        out = m.perturb_with_noise(p, sigma, rng)
+        p[...] = out
+        return out.copy()
+
+    return perturb_with_noise
+
+
+def _merge_then_copy(m, ex):
+    def merge_scan(world_map, pose, pts):
+        return m.merge_scan(world_map, pose, pts).copy()
+
+    return merge_scan
+
+
+def _score_and_merge(m, ex):
+    def score_particles(p, pts, world_map):
+        m.merge_scan(world_map, 0.0, pts)
+        return m.score_particles(p, pts, world_map)
+
+    return score_particles
+
+
+def _resample_in_place(m, ex):
+    def resample_particles(p, lw, rng):
+        out, out_lw, resampled = m.resample_particles(p, lw, rng)
+        p[...] = out[::-1]
+        return out, out_lw, resampled
+
+    return resample_particles
+
+
+def _resample_keeps_particles(m, ex):
+    def resample_particles(p, lw, rng):
+        out, out_lw, resampled = m.resample_particles(p, lw, rng)
+        return p.copy(), out_lw, resampled
+
+    return resample_particles
+
+
+def _keep_reversed(m, ex):
+    def resample_particles(p, lw, rng):
+        out, out_lw, resampled = m.resample_particles(p, lw, rng)
+        return (out if resampled else p[::-1].copy()), out_lw, resampled
+
+    return resample_particles
+
+
+#: Breaks planted into a copy of the 1D steps module, and every problem the checker must report for each,
+#: word for word (``{m}`` stands for the planted module's name).
+EXACT_BREAKS_1D = {
+    "3 raises": ("read_imu", lambda m, ex: _raise, []),
+    "9 returns one value": ("pick_best_particle", lambda m, ex: lambda p, lw: 0, []),
+    "9 pose not of the index": ("pick_best_particle", _shifted_pose, []),
+    "9 always index 0": (
+        "pick_best_particle",
+        lambda m, ex: lambda p, lw: (m.pick_best_particle(p, lw)[0], 0),
+        [],
+    ),
+    "9 pose no pose": (
+        "pick_best_particle",
+        lambda m, ex: lambda p, lw: (object(), 0),
+        [],
+    ),
+    "8 peak at 3, 9 always index 0": ("score_particles", _peak_at_3, []),
+    "1 drops a particle": (
+        "initialise_particles",
+        lambda m, ex: (
+            lambda n, pose0=None: (
+                m.initialise_particles(n - 1)[0],
+                m.initialise_particles(n)[1],
+            )
+        ),
+        [],
+    ),
+    "1 not uniform": (
+        "initialise_particles",
+        lambda m, ex: (
+            lambda n, pose0=None: (
+                m.initialise_particles(n, *([] if pose0 is None else [pose0]))[0],
+                normalise_log_weights(np.arange(n, dtype=float)),
+            )
+        ),
+        [],
+    ),
+    "1 default not the origin": (
+        "initialise_particles",
+        lambda m, ex: (
+            lambda n, pose0=None: m.initialise_particles(
+                n, 1.0 if pose0 is None else pose0
+            )
+        ),
+        [],
+    ),
+    "2 empty": ("read_scan", lambda m, ex: lambda frame: np.zeros(0), []),
+    "2 one NaN": (
+        "read_scan",
+        lambda m, ex: lambda frame: np.r_[m.read_scan(frame), np.nan],
+        [],
+    ),
+    "2 one point": ("read_scan", lambda m, ex: lambda frame: m.read_scan(frame)[:1], []),
+    "3 text": ("read_imu", lambda m, ex: lambda frame: "fast", []),
+    "4 int": ("read_timing", lambda m, ex: lambda frame: 1, []),
+    "4 negative": ("read_timing", lambda m, ex: lambda frame: -0.1, []),
+    "4 zero": ("read_timing", lambda m, ex: lambda frame: 0.0, []),
+    "7 NaN": (
+        "transform_scan",
+        lambda m, ex: lambda p, pts: np.full(np.shape(m.transform_scan(p, pts)), np.nan),
+        [],
+    ),
+    "5 drops a particle": (
+        "offset_by_motion",
+        lambda m, ex: lambda p, imu, dt: m.offset_by_motion(p, imu, dt)[:-1],
+        [],
+    ),
+    "5 returns None": ("offset_by_motion", lambda m, ex: lambda p, imu, dt: None, []),
+    "6 drops a particle": (
+        "perturb_with_noise",
+        lambda m, ex: lambda p, sigma, rng: m.perturb_with_noise(p, sigma, rng)[:-1],
+        [],
+    ),
+    "6 changes its input": ("perturb_with_noise", _in_place_noise, []),
+    "6 does not move": (
+        "perturb_with_noise",
+        lambda m, ex: lambda p, s, rng: p.copy(),
+        [],
+    ),
+    "10 returns a copy": ("merge_scan", _merge_then_copy, []),
+    "8 changes the map": ("score_particles", _score_and_merge, []),
+    "11 drops a particle": (
+        "resample_particles",
+        lambda m, ex: (
+            lambda p, lw, rng: (
+                m.resample_particles(p, lw, rng)[0][:-1],
+                *m.resample_particles(p, lw, rng)[1:],
+            )
+        ),
+        [],
+    ),
+    "11 changes its input": ("resample_particles", _resample_in_place, []),
+    "11 linear weights": (
+        "resample_particles",
+        lambda m, ex: (
+            lambda p, lw, rng: (
+                m.resample_particles(p, lw, rng)[0],
+                np.exp(m.resample_particles(p, lw, rng)[1]),
+                m.resample_particles(p, lw, rng)[2],
+            )
+        ),
+        [],
+    ),
+    "11 keeps the particles": ("resample_particles", _resample_keeps_particles, []),
+    "11 reverses a kept set": ("resample_particles", _keep_reversed, []),
+}
+
+
+#: What check_steps_run says for each of EXACT_BREAKS_1D, word for word.
+EXACT_MESSAGES_1D = {
+    "3 raises": ["{m}.read_imu (step 3): raised ValueError: boom"],
+    "9 returns one value": [
+        "{m}.pick_best_particle (step 9): returns int, the contract says (pose, index)"
+    ],
+    "9 pose not of the index": [
+        "{m}.initialise_particles (step 1): particles do not start at pose0",
+        "{m}.pick_best_particle (step 9): pose does not place the scan as particle 0 does (step 7)",
+        "{m}.initialise_particles (step 1): the default start pose is not the origin (step 7 moves the scan)",
+        "{m}.pick_best_particle (step 9): pose does not place the scan as particle 4 does (step 7)",
+    ],
+    "9 always index 0": ["{m}.pick_best_particle (step 9): index 0 is not the argmax 4"],
+    "9 pose no pose": [
+        "{m}: the check stopped, TypeError: float() argument must be a string or a real number, not 'object'"
+    ],
+    "8 peak at 3, 9 always index 0": [
+        "{m}.pick_best_particle (step 9): index 0 is not the argmax 3"
+    ],
+    "1 drops a particle": [
+        "{m}.initialise_particles (step 1): returns ndarray, not 6 particles"
+    ],
+    "1 not uniform": [
+        "{m}.initialise_particles (step 1): log-weights are not uniform (-log P)"
+    ],
+    "1 default not the origin": [
+        "{m}.initialise_particles (step 1): the default start pose is not the origin (step 7 moves the scan)"
+    ],
+    "2 empty": [
+        "{m}.read_scan (step 2): points are not a non-empty finite array: array([], dtype=float64)"
+    ],
+    "2 one NaN": [
+        "{m}.read_scan (step 2): points are not a non-empty finite array: "
+        "array([-6.59493873, -5.44902106, -0.32019322,  1.76871635,  "
+    ],
+    "2 one point": [],
+    "3 text": [
+        "{m}.read_imu (step 3): imu is not finite numbers: 'fast'",
+        "{m}.offset_by_motion (step 5): raised ValueError: could not convert string to float: 'fast'",
+    ],
+    "4 int": ["{m}.read_timing (step 4): dt is 1 (int), not a float >= 0"],
+    "4 negative": ["{m}.read_timing (step 4): dt is -0.1 (float), not a float >= 0"],
+    "4 zero": ["{m}.offset_by_motion (step 5): did not move the particles"],
+    "7 NaN": ["{m}.transform_scan (step 7): world points (6, 6), not (6, 6, ...)"],
+    "5 drops a particle": [
+        "{m}.offset_by_motion (step 5): returns ndarray of 5 particles, not 6 ndarray"
+    ],
+    "5 returns None": [
+        "{m}.offset_by_motion (step 5): returns NoneType of None particles, not 6 ndarray"
+    ],
+    "6 drops a particle": [
+        "{m}.perturb_with_noise (step 6): returns ndarray of 5 particles, not 6 ndarray"
+    ],
+    "6 changes its input": [
+        "{m}.perturb_with_noise (step 6): changed its input particles"
+    ],
+    "6 does not move": ["{m}.perturb_with_noise (step 6): did not move the particles"],
+    "10 returns a copy": [
+        "{m}.merge_scan (step 10): returns OccupancyGrid1D, not the map it was given"
+    ],
+    "8 changes the map": ["{m}.score_particles (step 8): changed the map"],
+    "11 drops a particle": [
+        "{m}.resample_particles (step 11): returns ndarray of 5 particles, not 6 ndarray"
+    ],
+    "11 changes its input": [
+        "{m}.resample_particles (step 11): changed its input particles",
+        "{m}.resample_particles (step 11): changed its input particles",
+        "{m}.resample_particles (step 11): a set that needs no resampling changed",
+    ],
+    "11 linear weights": [
+        "{m}.resample_particles (step 11): log_weights are not normalised: logsumexp = 1.9584261358947217, not 0",
+        "{m}.resample_particles (step 11): log_weights are not normalised: logsumexp = 1.9584261358947217, not 0",
+    ],
+    "11 keeps the particles": [
+        "{m}.resample_particles (step 11): "
+        "a resampled degenerate set is not P copies of its heaviest particle at -log P"
+    ],
+    "11 reverses a kept set": [
+        "{m}.resample_particles (step 11): a set that needs no resampling changed"
+    ],
+}
+
+
+@pytest.mark.parametrize("which", list(EXACT_BREAKS_1D))
+def test_the_returns_checker_says_word_for_word_what_each_planted_break_is(
+    which, recording_1d, recording_2d
+):
+    example = _example(steps1d, recording_1d, recording_2d)
+    name, make, _ = EXACT_BREAKS_1D[which]
+    messages = EXACT_MESSAGES_1D[which]
+    replaced = {name: make(steps1d, example)}
+    if which.startswith("8 peak at 3"):
+        replaced["pick_best_particle"] = lambda p, lw: (
+            steps1d.pick_best_particle(p, lw)[0],
+            0,
+        )
+    planted = _copy_of(steps1d, **replaced)
+    assert check_steps_run(planted, example) == [
+        m.replace("{m}", planted.__name__) for m in messages
+    ]

@@ -800,3 +800,100 @@ def test_the_returns_checker_says_word_for_word_what_each_planted_break_is(
     assert check_steps_run(planted, example) == [
         m.replace("{m}", planted.__name__) for m in messages
     ]
+
+
+class _PlantedAfter(_Planted):
+    """A _Planted filter whose state read after its step is replaced (``after``: name -> function of the real
+    value)."""
+
+    def __init__(self, slam, after, **change):
+        super().__init__(slam, **change)
+        self.after, self.stepped = after, False
+
+    particles = property(
+        lambda self: (
+            self.after.get("particles", lambda v: v)(self.slam.particles)
+            if self.stepped
+            else self.slam.particles
+        )
+    )
+    log_weights = property(
+        lambda self: (
+            self.after.get("log_weights", lambda v: v)(self.slam.log_weights)
+            if self.stepped
+            else self.slam.log_weights
+        )
+    )
+
+    def step(self, frame):
+        self.stepped = True
+        return super().step(frame)
+
+
+def test_the_filter_step_checker_says_word_for_word_what_is_broken(
+    recording_1d, recording_2d
+):
+    def run(after=None, estimate_is_best=True, **change):
+        slam, frames, module, _ = _filter_1d(recording_1d, recording_2d, 0.0)
+        slam.step(frames[0])
+        filt = _PlantedAfter(slam, after or {}, **change)
+        return check_filter_step(filt, frames[1], module, estimate_is_best)
+
+    n = 12
+    assert run() == []
+
+    class _Dict(_Planted):
+        def step(self, frame):
+            return vars(self.slam.step(frame))
+
+    slam, frames, module, _ = _filter_1d(recording_1d, recording_2d, 0.0)
+    assert check_filter_step(_Dict(slam), frames[0], module) == [
+        "_Dict.step returns dict, not StepInfo"
+    ]
+    problems = run(estimate=lambda i: object())
+    assert len(problems) == 1 and problems[0].startswith(
+        "_PlantedAfter.step: estimate is not a pose (TypeError: float() argument"
+    ), problems
+    # 3D may refine the estimate: then it need not be moved[best]
+    assert run(estimate=lambda i: i.estimate + 1.0, estimate_is_best=False) == []
+    # a best that is no int is reported as such, not looked up in moved
+    assert run(best=lambda i: np.int64(i.best), estimate=lambda i: i.estimate + 1.0) == [
+        "_PlantedAfter.step: best np.int64(10) is not the argmax of log_weights (an int)"
+    ]
+    assert run(best=lambda i: 0, estimate=lambda i: i.moved[0] + 1.0) == [
+        "_PlantedAfter.step: best 0 is not the argmax of log_weights (an int)",
+        "_PlantedAfter.step: estimate is not the pose of moved[best]",
+    ]
+    assert "_PlantedAfter.step: estimate is not the pose of moved[best]" not in run(
+        best=lambda i: 0, estimate=lambda i: i.moved[0]
+    )
+    assert run(best=lambda i: n, estimate=lambda i: i.moved[0]) == [
+        f"_PlantedAfter.step: best {n} is not the argmax of log_weights (an int)"
+    ]
+    problems = run(ess=lambda i: i.ess * (1 + 1e-7))
+    assert len(problems) == 1 and problems[0].startswith("_PlantedAfter.step: ess ")
+    assert problems[0].endswith(" is not 1 / sum(weights^2)")
+    assert run(after={"particles": lambda p: p[1:]}) == [
+        f"_PlantedAfter: holds {n - 1} particles after step, not {n}"
+    ]
+    assert run(after={"log_weights": lambda lw: lw + 1.0}) == [
+        "_PlantedAfter: after step, log_weights are not normalised: "
+        "logsumexp = 0.9999999999999998, not 0"
+    ]
+    assert run(
+        after={"log_weights": lambda lw: normalise_log_weights(lw + np.arange(n))}
+    ) == ["_PlantedAfter: not resampled, but its log-weights are not info.log_weights"]
+
+
+def test_the_shared_constructor_reads_motion_noise_as_float64():
+    """Any numbers are taken (ints, fractions); what float64 reads as NaN (None) is refused with a ValueError."""
+    from fractions import Fraction
+
+    class Filter1D(StepsFilter):
+        steps = steps1d
+
+    for noise in ([1, 2, 0], Fraction(1, 10)):
+        assert Filter1D(3, None, noise, np.random.default_rng(0)).motion_noise is noise
+    for noise in (None, [0.1, -1]):
+        with pytest.raises(ValueError, match="motion_noise must be finite and >= 0"):
+            Filter1D(3, None, noise, np.random.default_rng(0))

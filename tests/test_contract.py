@@ -5,6 +5,7 @@ import importlib
 import inspect
 import types
 from dataclasses import replace
+from fractions import Fraction
 from types import SimpleNamespace
 
 import numpy as np
@@ -645,6 +646,11 @@ EXACT_BREAKS_1D = {
         [],
     ),
     "2 one point": ("read_scan", lambda m, ex: lambda frame: m.read_scan(frame)[:1], []),
+    "3 a fraction": (
+        "read_imu",
+        lambda m, ex: lambda frame: Fraction(m.read_imu(frame)).limit_denominator(1000),
+        [],
+    ),
     "3 text": ("read_imu", lambda m, ex: lambda frame: "fast", []),
     "4 int": ("read_timing", lambda m, ex: lambda frame: 1, []),
     "4 negative": ("read_timing", lambda m, ex: lambda frame: -0.1, []),
@@ -702,6 +708,7 @@ EXACT_BREAKS_1D = {
 
 #: What check_steps_run says for each of EXACT_BREAKS_1D, word for word.
 EXACT_MESSAGES_1D = {
+    "3 a fraction": [],  # numbers float64 reads as finite are finite numbers
     "3 raises": ["{m}.read_imu (step 3): raised ValueError: boom"],
     "9 returns one value": [
         "{m}.pick_best_particle (step 9): returns int, the contract says (pose, index)"
@@ -887,7 +894,6 @@ def test_the_filter_step_checker_says_word_for_word_what_is_broken(
 
 def test_the_shared_constructor_reads_motion_noise_as_float64():
     """Any numbers are taken (ints, fractions); what float64 reads as NaN (None) is refused with a ValueError."""
-    from fractions import Fraction
 
     class Filter1D(StepsFilter):
         steps = steps1d

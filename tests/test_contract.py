@@ -5,6 +5,7 @@ import importlib
 import inspect
 import types
 from dataclasses import replace
+from fractions import Fraction
 from types import SimpleNamespace
 
 import numpy as np
@@ -486,3 +487,419 @@ def test_the_1d_filter_still_takes_its_map_as_grid(recording_1d):
     assert slam.world_map is grid and slam.grid is grid
     with pytest.raises(TypeError, match="got the map twice"):
         ParticleSLAM1D(5, grid, grid=grid, motion_noise=0.4, rng=np.random.default_rng(0))
+
+
+# ------------------------------------------------------------------------------- the checkers' own helpers
+def test_type_name_gives_builtins_bare_and_others_with_their_module():
+    from slamlib.contract import _type_name
+
+    assert _type_name(True) == "bool" and _type_name(1.0) == "float"
+    assert (
+        _type_name(np.True_) == "numpy.bool" and _type_name(np.int64(1)) == "numpy.int64"
+    )
+
+
+def test_close_reads_both_sides_as_float64_and_holds_to_one_part_in_a_billion():
+    from slamlib.contract import _close
+
+    assert _close(["0.5", "1"], [0.5, 1.0]) and _close([0.5, 1.0], ["0.5", "1"])
+    assert not _close([1.0, 2.0], [1.0, 2.0, 3.0])
+    assert _close(0.0, 5e-10) and not _close(0.0, 5e-9)  # absolute 1e-9
+    assert _close(1e6, 1e6 + 1e-4) and not _close(1e6, 1e6 + 1.0)  # relative 1e-9
+
+
+def test_log_weights_problem_says_exactly_what_is_wrong():
+    from slamlib.contract import _log_weights_problem as problem
+
+    assert problem(np.full(3, -np.log(3)), 3) is None
+    assert problem(np.zeros(3, np.float32), 3) == (
+        "log_weights ndarray float32 (3,), not (3,) float64"
+    )
+    assert problem(np.zeros(2), 3) == "log_weights ndarray float64 (2,), not (3,) float64"
+    assert problem([0.0], 1) == "log_weights list  None, not (1,) float64"
+    assert problem(np.array([0.0, np.nan]), 2) == "log_weights hold NaN or +inf"
+    assert problem(np.array([0.0, np.inf]), 2) == "log_weights hold NaN or +inf"
+    assert problem(np.array([1e-9]), 1) == (
+        "log_weights are not normalised: logsumexp = 1e-09, not 0"
+    )
+    assert problem(np.array([5e-10]), 1) is None
+
+
+def _raise(*args):
+    raise ValueError("boom")
+
+
+def _shifted_pose(m, ex):
+    def pick_best_particle(p, lw):
+        pose, i = m.pick_best_particle(p, lw)
+        return pose + 1.0, i
+
+    return pick_best_particle
+
+
+def _peak_at_3(m, ex):
+    def score_particles(p, pts, world_map):
+        return np.where(np.arange(len(p)) == 3, 5.0, 0.0)
+
+    return score_particles
+
+
+def _in_place_noise(m, ex):
+    def perturb_with_noise(p, sigma, rng):
+        out = m.perturb_with_noise(p, sigma, rng)
+        p[...] = out
+        return out.copy()
+
+    return perturb_with_noise
+
+
+def _merge_then_copy(m, ex):
+    def merge_scan(world_map, pose, pts):
+        return m.merge_scan(world_map, pose, pts).copy()
+
+    return merge_scan
+
+
+def _score_and_merge(m, ex):
+    def score_particles(p, pts, world_map):
+        m.merge_scan(world_map, 0.0, pts)
+        return m.score_particles(p, pts, world_map)
+
+    return score_particles
+
+
+def _resample_in_place(m, ex):
+    def resample_particles(p, lw, rng):
+        out, out_lw, resampled = m.resample_particles(p, lw, rng)
+        p[...] = out[::-1]
+        return out, out_lw, resampled
+
+    return resample_particles
+
+
+def _resample_keeps_particles(m, ex):
+    def resample_particles(p, lw, rng):
+        out, out_lw, resampled = m.resample_particles(p, lw, rng)
+        return p.copy(), out_lw, resampled
+
+    return resample_particles
+
+
+def _keep_reversed(m, ex):
+    def resample_particles(p, lw, rng):
+        out, out_lw, resampled = m.resample_particles(p, lw, rng)
+        return (out if resampled else p[::-1].copy()), out_lw, resampled
+
+    return resample_particles
+
+
+#: Breaks planted into a copy of the 1D steps module, and every problem the checker must report for each,
+#: word for word (``{m}`` stands for the planted module's name).
+EXACT_BREAKS_1D = {
+    "3 raises": ("read_imu", lambda m, ex: _raise, []),
+    "9 returns one value": ("pick_best_particle", lambda m, ex: lambda p, lw: 0, []),
+    "9 pose not of the index": ("pick_best_particle", _shifted_pose, []),
+    "9 always index 0": (
+        "pick_best_particle",
+        lambda m, ex: lambda p, lw: (m.pick_best_particle(p, lw)[0], 0),
+        [],
+    ),
+    "9 pose no pose": (
+        "pick_best_particle",
+        lambda m, ex: lambda p, lw: (object(), 0),
+        [],
+    ),
+    "8 peak at 3, 9 always index 0": ("score_particles", _peak_at_3, []),
+    "1 drops a particle": (
+        "initialise_particles",
+        lambda m, ex: (
+            lambda n, pose0=None: (
+                m.initialise_particles(n - 1)[0],
+                m.initialise_particles(n)[1],
+            )
+        ),
+        [],
+    ),
+    "1 not uniform": (
+        "initialise_particles",
+        lambda m, ex: (
+            lambda n, pose0=None: (
+                m.initialise_particles(n, *([] if pose0 is None else [pose0]))[0],
+                normalise_log_weights(np.arange(n, dtype=float)),
+            )
+        ),
+        [],
+    ),
+    "1 default not the origin": (
+        "initialise_particles",
+        lambda m, ex: (
+            lambda n, pose0=None: m.initialise_particles(
+                n, 1.0 if pose0 is None else pose0
+            )
+        ),
+        [],
+    ),
+    "2 empty": ("read_scan", lambda m, ex: lambda frame: np.zeros(0), []),
+    "2 one NaN": (
+        "read_scan",
+        lambda m, ex: lambda frame: np.r_[m.read_scan(frame), np.nan],
+        [],
+    ),
+    "2 one point": ("read_scan", lambda m, ex: lambda frame: m.read_scan(frame)[:1], []),
+    "3 a fraction": (
+        "read_imu",
+        lambda m, ex: lambda frame: Fraction(m.read_imu(frame)).limit_denominator(1000),
+        [],
+    ),
+    "3 text": ("read_imu", lambda m, ex: lambda frame: "fast", []),
+    "4 int": ("read_timing", lambda m, ex: lambda frame: 1, []),
+    "4 negative": ("read_timing", lambda m, ex: lambda frame: -0.1, []),
+    "4 zero": ("read_timing", lambda m, ex: lambda frame: 0.0, []),
+    "7 NaN": (
+        "transform_scan",
+        lambda m, ex: lambda p, pts: np.full(np.shape(m.transform_scan(p, pts)), np.nan),
+        [],
+    ),
+    "5 drops a particle": (
+        "offset_by_motion",
+        lambda m, ex: lambda p, imu, dt: m.offset_by_motion(p, imu, dt)[:-1],
+        [],
+    ),
+    "5 returns None": ("offset_by_motion", lambda m, ex: lambda p, imu, dt: None, []),
+    "6 drops a particle": (
+        "perturb_with_noise",
+        lambda m, ex: lambda p, sigma, rng: m.perturb_with_noise(p, sigma, rng)[:-1],
+        [],
+    ),
+    "6 changes its input": ("perturb_with_noise", _in_place_noise, []),
+    "6 does not move": (
+        "perturb_with_noise",
+        lambda m, ex: lambda p, s, rng: p.copy(),
+        [],
+    ),
+    "10 returns a copy": ("merge_scan", _merge_then_copy, []),
+    "8 changes the map": ("score_particles", _score_and_merge, []),
+    "11 drops a particle": (
+        "resample_particles",
+        lambda m, ex: (
+            lambda p, lw, rng: (
+                m.resample_particles(p, lw, rng)[0][:-1],
+                *m.resample_particles(p, lw, rng)[1:],
+            )
+        ),
+        [],
+    ),
+    "11 changes its input": ("resample_particles", _resample_in_place, []),
+    "11 linear weights": (
+        "resample_particles",
+        lambda m, ex: (
+            lambda p, lw, rng: (
+                m.resample_particles(p, lw, rng)[0],
+                np.exp(m.resample_particles(p, lw, rng)[1]),
+                m.resample_particles(p, lw, rng)[2],
+            )
+        ),
+        [],
+    ),
+    "11 keeps the particles": ("resample_particles", _resample_keeps_particles, []),
+    "11 reverses a kept set": ("resample_particles", _keep_reversed, []),
+}
+
+
+#: What check_steps_run says for each of EXACT_BREAKS_1D, word for word.
+EXACT_MESSAGES_1D = {
+    "3 a fraction": [],  # numbers float64 reads as finite are finite numbers
+    "3 raises": ["{m}.read_imu (step 3): raised ValueError: boom"],
+    "9 returns one value": [
+        "{m}.pick_best_particle (step 9): returns int, the contract says (pose, index)"
+    ],
+    "9 pose not of the index": [
+        "{m}.initialise_particles (step 1): particles do not start at pose0",
+        "{m}.pick_best_particle (step 9): pose does not place the scan as particle 0 does (step 7)",
+        "{m}.initialise_particles (step 1): the default start pose is not the origin (step 7 moves the scan)",
+        "{m}.pick_best_particle (step 9): pose does not place the scan as particle 4 does (step 7)",
+    ],
+    "9 always index 0": ["{m}.pick_best_particle (step 9): index 0 is not the argmax 4"],
+    "9 pose no pose": [
+        "{m}: the check stopped, TypeError: float() argument must be a string or a real number, not 'object'"
+    ],
+    "8 peak at 3, 9 always index 0": [
+        "{m}.pick_best_particle (step 9): index 0 is not the argmax 3"
+    ],
+    "1 drops a particle": [
+        "{m}.initialise_particles (step 1): returns ndarray, not 6 particles"
+    ],
+    "1 not uniform": [
+        "{m}.initialise_particles (step 1): log-weights are not uniform (-log P)"
+    ],
+    "1 default not the origin": [
+        "{m}.initialise_particles (step 1): the default start pose is not the origin (step 7 moves the scan)"
+    ],
+    "2 empty": [
+        "{m}.read_scan (step 2): points are not a non-empty finite array: array([], dtype=float64)"
+    ],
+    "2 one NaN": [
+        "{m}.read_scan (step 2): points are not a non-empty finite array: "
+        "array([-6.59493873, -5.44902106, -0.32019322,  1.76871635,  "
+    ],
+    "2 one point": [],
+    "3 text": [
+        "{m}.read_imu (step 3): imu is not finite numbers: 'fast'",
+        "{m}.offset_by_motion (step 5): raised ValueError: could not convert string to float: 'fast'",
+    ],
+    "4 int": ["{m}.read_timing (step 4): dt is 1 (int), not a float >= 0"],
+    "4 negative": ["{m}.read_timing (step 4): dt is -0.1 (float), not a float >= 0"],
+    "4 zero": ["{m}.offset_by_motion (step 5): did not move the particles"],
+    "7 NaN": ["{m}.transform_scan (step 7): world points (6, 6), not (6, 6, ...)"],
+    "5 drops a particle": [
+        "{m}.offset_by_motion (step 5): returns ndarray of 5 particles, not 6 ndarray"
+    ],
+    "5 returns None": [
+        "{m}.offset_by_motion (step 5): returns NoneType of None particles, not 6 ndarray"
+    ],
+    "6 drops a particle": [
+        "{m}.perturb_with_noise (step 6): returns ndarray of 5 particles, not 6 ndarray"
+    ],
+    "6 changes its input": [
+        "{m}.perturb_with_noise (step 6): changed its input particles"
+    ],
+    "6 does not move": ["{m}.perturb_with_noise (step 6): did not move the particles"],
+    "10 returns a copy": [
+        "{m}.merge_scan (step 10): returns OccupancyGrid1D, not the map it was given"
+    ],
+    "8 changes the map": ["{m}.score_particles (step 8): changed the map"],
+    "11 drops a particle": [
+        "{m}.resample_particles (step 11): returns ndarray of 5 particles, not 6 ndarray"
+    ],
+    "11 changes its input": [
+        "{m}.resample_particles (step 11): changed its input particles",
+        "{m}.resample_particles (step 11): changed its input particles",
+        "{m}.resample_particles (step 11): a set that needs no resampling changed",
+    ],
+    "11 linear weights": [
+        "{m}.resample_particles (step 11): log_weights are not normalised: logsumexp = 1.9584261358947217, not 0",
+        "{m}.resample_particles (step 11): log_weights are not normalised: logsumexp = 1.9584261358947217, not 0",
+    ],
+    "11 keeps the particles": [
+        "{m}.resample_particles (step 11): "
+        "a resampled degenerate set is not P copies of its heaviest particle at -log P"
+    ],
+    "11 reverses a kept set": [
+        "{m}.resample_particles (step 11): a set that needs no resampling changed"
+    ],
+}
+
+
+@pytest.mark.parametrize("which", list(EXACT_BREAKS_1D))
+def test_the_returns_checker_says_word_for_word_what_each_planted_break_is(
+    which, recording_1d, recording_2d
+):
+    example = _example(steps1d, recording_1d, recording_2d)
+    name, make, _ = EXACT_BREAKS_1D[which]
+    messages = EXACT_MESSAGES_1D[which]
+    replaced = {name: make(steps1d, example)}
+    if which.startswith("8 peak at 3"):
+        replaced["pick_best_particle"] = lambda p, lw: (
+            steps1d.pick_best_particle(p, lw)[0],
+            0,
+        )
+    planted = _copy_of(steps1d, **replaced)
+    assert check_steps_run(planted, example) == [
+        m.replace("{m}", planted.__name__) for m in messages
+    ]
+
+
+class _PlantedAfter(_Planted):
+    """A _Planted filter whose state read after its step is replaced (``after``: name -> function of the real
+    value)."""
+
+    def __init__(self, slam, after, **change):
+        super().__init__(slam, **change)
+        self.after, self.stepped = after, False
+
+    particles = property(
+        lambda self: (
+            self.after.get("particles", lambda v: v)(self.slam.particles)
+            if self.stepped
+            else self.slam.particles
+        )
+    )
+    log_weights = property(
+        lambda self: (
+            self.after.get("log_weights", lambda v: v)(self.slam.log_weights)
+            if self.stepped
+            else self.slam.log_weights
+        )
+    )
+
+    def step(self, frame):
+        self.stepped = True
+        return super().step(frame)
+
+
+def test_the_filter_step_checker_says_word_for_word_what_is_broken(
+    recording_1d, recording_2d
+):
+    def run(after=None, estimate_is_best=True, **change):
+        slam, frames, module, _ = _filter_1d(recording_1d, recording_2d, 0.0)
+        slam.step(frames[0])
+        filt = _PlantedAfter(slam, after or {}, **change)
+        return check_filter_step(filt, frames[1], module, estimate_is_best)
+
+    n = 12
+    assert run() == []
+
+    class _Dict(_Planted):
+        def step(self, frame):
+            return vars(self.slam.step(frame))
+
+    slam, frames, module, _ = _filter_1d(recording_1d, recording_2d, 0.0)
+    assert check_filter_step(_Dict(slam), frames[0], module) == [
+        "_Dict.step returns dict, not StepInfo"
+    ]
+    problems = run(estimate=lambda i: object())
+    assert len(problems) == 1 and problems[0].startswith(
+        "_PlantedAfter.step: estimate is not a pose (TypeError: float() argument"
+    ), problems
+    # 3D may refine the estimate: then it need not be moved[best]
+    assert run(estimate=lambda i: i.estimate + 1.0, estimate_is_best=False) == []
+    # a best that is no int is reported as such, not looked up in moved
+    assert run(best=lambda i: np.int64(i.best), estimate=lambda i: i.estimate + 1.0) == [
+        "_PlantedAfter.step: best np.int64(10) is not the argmax of log_weights (an int)"
+    ]
+    assert run(best=lambda i: 0, estimate=lambda i: i.moved[0] + 1.0) == [
+        "_PlantedAfter.step: best 0 is not the argmax of log_weights (an int)",
+        "_PlantedAfter.step: estimate is not the pose of moved[best]",
+    ]
+    assert "_PlantedAfter.step: estimate is not the pose of moved[best]" not in run(
+        best=lambda i: 0, estimate=lambda i: i.moved[0]
+    )
+    assert run(best=lambda i: n, estimate=lambda i: i.moved[0]) == [
+        f"_PlantedAfter.step: best {n} is not the argmax of log_weights (an int)"
+    ]
+    problems = run(ess=lambda i: i.ess * (1 + 1e-7))
+    assert len(problems) == 1 and problems[0].startswith("_PlantedAfter.step: ess ")
+    assert problems[0].endswith(" is not 1 / sum(weights^2)")
+    assert run(after={"particles": lambda p: p[1:]}) == [
+        f"_PlantedAfter: holds {n - 1} particles after step, not {n}"
+    ]
+    assert run(after={"log_weights": lambda lw: lw + 1.0}) == [
+        "_PlantedAfter: after step, log_weights are not normalised: "
+        "logsumexp = 0.9999999999999998, not 0"
+    ]
+    assert run(
+        after={"log_weights": lambda lw: normalise_log_weights(lw + np.arange(n))}
+    ) == ["_PlantedAfter: not resampled, but its log-weights are not info.log_weights"]
+
+
+def test_the_shared_constructor_reads_motion_noise_as_float64():
+    """Any numbers are taken (ints, fractions); what float64 reads as NaN (None) is refused with a ValueError."""
+
+    class Filter1D(StepsFilter):
+        steps = steps1d
+
+    for noise in ([1, 2, 0], Fraction(1, 10)):
+        assert Filter1D(3, None, noise, np.random.default_rng(0)).motion_noise is noise
+    for noise in (None, [0.1, -1]):
+        with pytest.raises(ValueError, match="motion_noise must be finite and >= 0"):
+            Filter1D(3, None, noise, np.random.default_rng(0))

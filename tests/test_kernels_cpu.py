@@ -233,6 +233,10 @@ def test_transform_points_streams_large_outputs_with_the_plain_results(monkeypat
 @pytest.mark.skipif(
     __import__("platform").machine() not in ("x86_64", "AMD64"), reason="x86-64 mnemonics"
 )
+@pytest.mark.skipif(
+    numba.config.DISABLE_JIT,
+    reason="reads compiled machine code (make mutate runs the kernels as Python)",
+)
 def test_streaming_kernels_carry_their_memory_hints():
     """The hints survive compilation: non-temporal stores and a fence in the streaming kernel, prefetches in
     it and in the in-place kernel (LLVM would drop ``!nontemporal`` silently, e.g. on a misaligned store)."""

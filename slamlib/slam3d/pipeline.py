@@ -209,39 +209,32 @@ class ParticleSLAM3D:
 
     def _start(self, points, imu, dt) -> np.ndarray:
         """The first frame: step 10 at the start pose, which is also the first pose of both trajectories."""
-        if len(points) >= MIN_SCAN_POINTS:
-            steps.merge_scan(self.map, self.T0, points, self.backend)
-        else:
-            self.n_skipped_frames += 1
-        self._record(self.T0, imu, None, points, dt)
-        self._unscored()
-        self.upkeep(self.map, self.poses)
+        self._unscored(self.T0, imu, None, points, dt)
         return self.poses[-1]
 
     def _skip(self, moved, imu, increment, points, dt, sigma) -> np.ndarray:
-        """A frame not scored: keep the moved particles and their weights; the pose is the motion prediction.
-        With enough points but no map yet (the earlier frames were degenerate) the scan starts the map there."""
+        """A frame not scored: keep the moved particles and their weights; the pose is the motion prediction."""
         self.particles = moved
         pose = self.poses[-1] @ increment_matrix(*increment)
-        if (
-            len(points) >= MIN_SCAN_POINTS
-        ):  # the map is empty: start it, like the first frame
+        self._unscored(
+            pose, imu, increment, points, dt, sample=points[:0], sigma=sigma, best=None
+        )
+        return pose
+
+    def _unscored(self, pose, imu, increment, points, dt, **last) -> None:
+        """A frame not scored (the first, a degenerate one) at ``pose``: its scan starts the map there when it has
+        enough points (the map is still empty), else it counts as skipped; then the bookkeeping and upkeep. What
+        :meth:`step` reports of it: the particles as they are, their weights unchanged, zero scores, no
+        resampling."""
+        if len(points) >= MIN_SCAN_POINTS:
             steps.merge_scan(self.map, pose, points, self.backend)
         else:
             self.n_skipped_frames += 1
-        self._record(
-            pose, imu, increment, points, dt, sample=points[:0], sigma=sigma, best=None
-        )
-        self._unscored()
-        self.upkeep(self.map, self.poses)
-        return pose
-
-    def _unscored(self) -> None:
-        """What :meth:`step` reports of a frame not scored (the first, a degenerate one): the particles as they
-        are, their weights unchanged, zero scores, no resampling."""
+        self._record(pose, imu, increment, points, dt, **last)
         P = len(self.particles)
         self.last.update(moved=self.particles, log_weights=self.log_weights)
         self.last.update(scores=np.zeros(P), resampled=False)
+        self.upkeep(self.map, self.poses)
 
     def _record(self, pose, imu, increment, points, dt, **last) -> None:
         """Bookkeeping after step 10: the SLAM pose and its ``dt``, the motion stage's record of the frame (the

@@ -1356,3 +1356,36 @@ def test_systematic_resample_normalises_float32_weights_in_float64():
     np.testing.assert_array_equal(
         cpu.systematic_resample(w32, u0), reference.systematic_resample(w64, u0)
     )
+
+
+def test_move_kernels_built_afresh_equal_the_reference(monkeypatch):
+    """``_make_move_kernels`` (the factory that runs at import) rebuilt here and put in place of ``_MOVE``: both
+    layouts, drawn noise and LUT noise with and without the cos/sin table, over three particle blocks (the last
+    partial), equal the numpy reference. A test on the import-time build alone could not see a change to the
+    factory made after import (as in ``make mutate``, whose mutants switch on after the import)."""
+    from slamlib.kernels.cpu import move_particles_soa
+    from slamlib.noise import LutNoise, make_tables
+
+    fresh = {soa: cpu._make_move_kernels(soa) for soa in (False, True)}
+    assert all(len(kernels) == 3 for kernels in fresh.values())
+    monkeypatch.setattr(cpu, "_MOVE", fresh)
+    monkeypatch.setattr(cpu, "PARTICLE_BLOCK", 4)
+    P = 10
+    rng = np.random.default_rng(29)
+    R, t = _near_particles(rng, P, spread=0.3, shift=3.0)
+    sigma = rng.uniform(0.05, 0.3, 6)
+    args = ([0.02, -0.01, 0.3], [1.1, 0.2, -0.1])
+    noise = rng.normal(size=(P, 6))
+    Rs, ts = np.ascontiguousarray(R.transpose(1, 2, 0)), np.ascontiguousarray(t.T)
+    for nz, nz_soa in (
+        (noise, np.ascontiguousarray(noise.T)),
+        (LutNoise(make_tables(5, bits=2), 3, 4),) * 2,  # P > table: the trig table
+        (LutNoise(make_tables(5, bits=6), 3, 4),) * 2,  # P < table: cos/sin per call
+    ):
+        R_r, t_r = REF.move_particles(R, t, *args, nz, sigma)
+        R_c, t_c = CPU.move_particles(R, t, *args, nz, sigma)
+        np.testing.assert_allclose(R_c, R_r, atol=1e-12)
+        np.testing.assert_allclose(t_c, t_r, atol=1e-12)
+        R_s, t_s = move_particles_soa(Rs, ts, *args, nz_soa, sigma)
+        np.testing.assert_allclose(R_s.transpose(2, 0, 1), R_r, atol=1e-12)
+        np.testing.assert_allclose(t_s.T, t_r, atol=1e-12)

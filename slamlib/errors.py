@@ -28,3 +28,13 @@ class DataFormatError(ValueError):
 
 class BackendUnavailableError(RuntimeError):
     """A compute backend was asked for that this machine cannot run (e.g. ``backend="cuda"`` without a GPU)."""
+
+
+class FolderBusyError(RuntimeError):
+    """A folder another process is writing (:mod:`slamlib.atomic`): ``str(err)`` reads ``path: message``, the
+    message naming the writing process."""
+
+    def __init__(self, path: str | os.PathLike, message: str):
+        self.path = os.fspath(path)
+        self.message = message
+        super().__init__(message)

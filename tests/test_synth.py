@@ -442,7 +442,16 @@ def test_an_interrupted_drive_is_redone_by_the_next_synth(tmp_path, monkeypatch)
         with pytest.raises(_Interrupt):
             main(args)
     ddir = drive_dir(tmp_path / "o", "2011_09_26", 1)
-    assert (ddir / PARTIAL_MARKER).is_file() and not (ddir / MARKER).exists()
+    # nothing of the interrupted drive: no folder, no temporary, no lock
+    assert sorted(p.name for p in ddir.parent.iterdir()) == [
+        "calib_cam_to_cam.txt",
+        "calib_imu_to_velo.txt",
+        "calib_velo_to_cam.txt",
+    ]
+    assert main(args) == 0
+    # a drive left half written by an older slamlib: its partial marker makes it the generator's
+    (ddir / MARKER).rename(ddir / PARTIAL_MARKER)
+    (ddir / "velodyne_points" / "data" / "0000000003.bin").unlink()
     (ddir / "notes.txt").write_text("my notes")
     assert main(args) == 0  # before: "not a slamlib synthetic drive"
     assert (ddir / MARKER).is_file() and not (ddir / PARTIAL_MARKER).exists()

@@ -41,7 +41,12 @@ from slamlib.kitti.oxts import (
     read_oxts_packet,
 )
 from slamlib.kitti.timestamps import check_timestamps_for_pykitti, read_timestamps_ns
-from slamlib.kitti.velodyne import SWEEP_PERIOD_S, read_velodyne_scan, scans_swept
+from slamlib.kitti.velodyne import (
+    SWEEP_PERIOD_S,
+    check_complete,
+    read_velodyne_scan,
+    scans_swept,
+)
 
 __all__ = ["Frame", "ImuArrays", "KittiRawDrive", "drive_folder_name"]
 
@@ -155,6 +160,29 @@ def check_numbered_files(
         )
 
 
+def check_no_extra_files(
+    folder: Path, ext: str, n: int, what: str, times: Path, digits: int = 10
+) -> None:
+    """DataFormatError naming ``times`` when ``folder`` holds numbered ``ext`` files beyond the ``n`` it times: a
+    frame without a time would be dropped without a word (``allow_incomplete`` in the readers reads the first
+    ``n``)."""
+    extra = sorted(
+        e.name
+        for e in os.scandir(folder)
+        if e.name.endswith(ext)
+        and len(e.name) == digits + len(ext)
+        and e.name[:digits].isdigit()
+        and int(e.name[:digits]) >= n
+    )
+    if extra:
+        raise DataFormatError(
+            times,
+            f"times {n} frames, but {folder} holds {n + len(extra)} {what} ({extra[0]} onwards have no "
+            "time): one line is missing, or pass --allow-incomplete to read the first "
+            f"{n}",
+        )
+
+
 def _normalise_frames(frames, n: int) -> np.ndarray:
     if frames is None:
         return np.arange(n, dtype=np.int64)
@@ -237,6 +265,7 @@ class KittiRawDrive:
         frames=None,
         dataset: str = "sync",
         progress: bool = False,
+        allow_incomplete: bool = False,
     ):
         self.basedir = Path(basedir)
         self.date = str(date)
@@ -251,6 +280,7 @@ class KittiRawDrive:
                 f"KITTI raw drive folder not found (expected basedir/DATE/DATE_drive_XXXX_{dataset} with "
                 f"basedir={str(self.basedir)!r}, date={self.date!r}, drive={self.drive!r})",
             )
+        check_complete(self.path, allow_incomplete)
         check_calibration(self.calib_dir)
         self.T_velo_imu = load_T_velo_imu(self.calib_dir)
         # general inverse, as T_w_velo = T_w_imu @ inv(T_velo_imu)
@@ -266,6 +296,14 @@ class KittiRawDrive:
             self.oxts_dir, ".txt", n, "OXTS packets", "timestamps in oxts/timestamps.txt"
         )
         self._check_files(self.velo_dir, ".bin", n, "Velodyne scans", "OXTS packets")
+        if not allow_incomplete:
+            check_no_extra_files(
+                self.velo_dir,
+                ".bin",
+                n,
+                "Velodyne scans",
+                self.path / "oxts" / "timestamps.txt",
+            )
 
         velo_ts = self.path / "velodyne_points" / "timestamps.txt"
         # Scan times are informational (dt comes from the OXTS times): format checked, order not required.

@@ -35,7 +35,13 @@ import numpy as np
 from slamlib.errors import DataFormatError
 from slamlib.kitti.calib import read_calib_file, rigid_transform
 from slamlib.kitti.trajectory_io import read_kitti_poses, read_times
-from slamlib.kitti.velodyne import read_velodyne_scan, scans_swept
+from slamlib.kitti.velodyne import (
+    SYNTH_MARKER,
+    check_complete,
+    read_synth_marker,
+    read_velodyne_scan,
+    scans_swept,
+)
 
 __all__ = [
     "OdometryFrame",
@@ -49,6 +55,22 @@ __all__ = [
 CALIB_KEYS = {"P0": 12, "P1": 12, "P2": 12, "P3": 12, "Tr": 12}
 #: Digits of the odometry scan file names (``000000.bin``), against 10 in the raw layout.
 SCAN_DIGITS = 6
+
+
+def _check_synth_poses(sdir: Path, poses_path: Path, found: bool) -> None:
+    """DataFormatError when ``poses_path`` (``found`` beside the sequence, not given by the user) is not the ground
+    truth a :mod:`slamlib.synth` sequence was written with (its marker's ``poses_sha1``): a synth run into the same
+    folder was cut short between the two, or the file was replaced."""
+    import hashlib
+
+    marker = read_synth_marker(sdir)
+    expected = marker.get("poses_sha1") if found and isinstance(marker, dict) else None
+    if expected and hashlib.sha1(poses_path.read_bytes()).hexdigest() != expected:
+        raise DataFormatError(
+            poses_path,
+            f"is not the ground truth {sdir} was written with (its {SYNTH_MARKER} records another "
+            "SHA-1): write the sequence again with slamlib synth",
+        )
 
 
 def sequence_name(sequence: str | int) -> str:
@@ -140,8 +162,13 @@ class KittiOdometrySequence:
         frames=None,
         poses=None,
         progress: bool = False,
+        allow_incomplete: bool = False,
     ):
-        from slamlib.kitti.raw import _normalise_frames, check_numbered_files
+        from slamlib.kitti.raw import (
+            _normalise_frames,
+            check_no_extra_files,
+            check_numbered_files,
+        )
 
         self.basedir = Path(basedir)
         self.sequence = sequence_name(sequence)
@@ -162,6 +189,7 @@ class KittiOdometrySequence:
                 "KITTI odometry sequence folder not found (expected "
                 f"basedir/sequences/NN); sequences there: {', '.join(found) or 'none'}",
             )
+        check_complete(self.path, allow_incomplete)
         calib = read_calib_file(self.path / "calib.txt", {"Tr": CALIB_KEYS["Tr"]})
         self.calib = calib
         Tr = calib["Tr"].reshape(3, 4)
@@ -188,6 +216,10 @@ class KittiOdometrySequence:
         check_numbered_files(
             self.velo_dir, ".bin", n, "Velodyne scans", "times in times.txt", SCAN_DIGITS
         )
+        if not allow_incomplete:
+            check_no_extra_files(
+                self.velo_dir, ".bin", n, "Velodyne scans", times_path, SCAN_DIGITS
+            )
         self.poses_path = (
             Path(poses)
             if poses is not None
@@ -204,6 +236,7 @@ class KittiOdometrySequence:
                     f"{n} frames: pose {len(P)} (this line) is missing",
                     len(P) + 1,
                 )
+            _check_synth_poses(self.path, self.poses_path, poses is None)
             Tr_inv = np.linalg.inv(self.Tr)
             self.ground_truth = Tr_inv[None] @ P[:n] @ self.Tr[None]
         self.frames = _normalise_frames(frames, n)

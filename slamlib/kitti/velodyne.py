@@ -19,6 +19,8 @@ __all__ = [
     "POINT_BYTES",
     "SWEEP_PERIOD_S",
     "SYNTH_MARKER",
+    "SYNTH_PARTIAL_MARKER",
+    "check_complete",
     "read_velodyne_scan",
     "write_velodyne_scan",
     "scans_swept",
@@ -34,6 +36,21 @@ SWEEP_PERIOD_S = 0.10315
 #: The file a complete :mod:`slamlib.synth` drive or sequence folder holds: the generator's parameters (JSON),
 #: among them ``"distortion": true`` when its scans were cast over a sweep (:func:`scans_swept`).
 SYNTH_MARKER = ".slamlib_synth.json"
+#: The file a :mod:`slamlib.synth` folder held while being written by slamlib before writes became atomic: a
+#: folder that still holds it was left half written.
+SYNTH_PARTIAL_MARKER = ".slamlib_synth.partial.json"
+
+
+def check_complete(folder: str | os.PathLike, allow_incomplete: bool = False) -> None:
+    """DataFormatError naming :data:`SYNTH_PARTIAL_MARKER` when ``folder`` was left half written by an interrupted
+    ``slamlib synth`` (unless ``allow_incomplete``: then its frames are read as they are)."""
+    partial = Path(folder) / SYNTH_PARTIAL_MARKER
+    if partial.is_file() and not allow_incomplete:
+        raise DataFormatError(
+            partial,
+            "this folder was left half written by an interrupted slamlib synth (it holds this marker); "
+            "write it again with slamlib synth, or read the frames it has with --allow-incomplete",
+        )
 
 
 def scans_swept(folder: str | os.PathLike, unmarked: bool = True) -> bool:

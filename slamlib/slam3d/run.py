@@ -283,47 +283,24 @@ def save_run(
       is written ``null`` (:func:`slamlib.metrics.json_safe`);
     * ``trajectory.png`` (with and without SLAM vs ground truth) and ``map_topdown.png`` (coloured by height).
 
-    The files are written into a temporary folder beside ``out_dir`` first (``.NAME.XXXX.partial``): a new
-    ``out_dir`` is that folder renamed into place at the end, an existing one gets each finished file by an atomic
-    ``os.replace``; a run that fails while writing leaves ``out_dir`` as it was. When ``out_dir`` holds an earlier
-    run's results, its files of :data:`RUN_FILES` that this run does not write (another map format, plots, dead
-    reckoning) are removed, so that no stale result stands beside the new ones.
+    The results appear whole or not at all (:func:`slamlib.atomic.atomic_folder`): they are written into a
+    temporary folder beside ``out_dir`` (``.NAME.PID.partial``) under an exclusive lock (a second writer of the same
+    folder gets :class:`~slamlib.errors.FolderBusyError` naming the first), and the finished folder is renamed into
+    place; an existing ``out_dir`` is swapped for it by renames, its other files (not :data:`RUN_FILES`) moved
+    across. An earlier run's result files that this run does not write (another map format, plots, dead
+    reckoning) are therefore gone, so that no stale result stands beside the new ones; a run that fails or is
+    interrupted while writing leaves ``out_dir`` as it was.
     """
-    import os
-    import shutil
-    import tempfile
     from pathlib import Path
 
+    from slamlib.atomic import atomic_folder
+
     final = Path(out_dir)
-    # then its result files not rewritten now are stale: removed
-    earlier = final.is_dir() and _is_earlier_run(final)
-    final.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(
-        tempfile.mkdtemp(prefix=f".{final.name}.", suffix=".partial", dir=final.parent)
-    )
-    umask = os.umask(0)
-    os.umask(umask)
-    # mkdtemp makes it private (0700); the results folder gets the usual mode
-    os.chmod(tmp, 0o777 & ~umask)
-    try:
+    if not isinstance(run, SLAMRun):
+        raise TypeError(f"run must be the SLAMRun that run_drive returns, got {type(run).__name__}")
+    with atomic_folder(final, lambda path: path not in RUN_FILES, what="--out") as tmp:
         files = _write_results(run, tmp, map_format, plots, extra)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
-    if not final.exists():  # a new folder: the complete results appear at once
-        os.rename(tmp, final)
-    else:  # an existing folder: each file replaced whole (os.replace), never half written
-        for path in sorted(tmp.iterdir()):
-            os.replace(path, final / path.name)
-        tmp.rmdir()
-    files = {key: final / Path(path).name for key, path in files.items()}
-    # e.g. an earlier map.ply beside this run's map.pcd, or dead-reckoning files beside a LIDAR-only run
-    if earlier:
-        written = {path.name for path in files.values()}
-        for name in RUN_FILES:
-            if name not in written and (final / name).is_file():
-                (final / name).unlink()
-    return files
+    return {key: final / Path(path).name for key, path in files.items()}
 
 
 def _write_results(

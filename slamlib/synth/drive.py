@@ -11,10 +11,12 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 from pathlib import Path
 
 import numpy as np
 
+from slamlib.atomic import atomic_folder, folder_lock
 from slamlib.geometry import invert_pose
 from slamlib.paths import cache_dir
 from slamlib.synth.lidar import Hdl64, ray_directions, simulate_scan
@@ -25,14 +27,12 @@ from slamlib.synth.traffic import KITTI_CITY, TrafficConfig, build_traffic
 from slamlib.synth.writer import (
     _SAMPLE,
     MARKER,
-    PARTIAL_MARKER,
     SCAN_PERIOD,
     check_calib,
     drive_dir,
     frame_timestamps_ns,
+    generator_file,
     is_own_drive,
-    own_files,
-    own_sequence_files,
     read_marker,
     write_calib,
     write_marker,
@@ -104,6 +104,8 @@ def write_drive(
     progress: bool = True,
     distortion: bool = False,
     traffic: TrafficConfig | None = None,
+    wait: bool = False,
+    _locked: bool = False,
 ) -> tuple[Path, str, int]:
     """Write a synthetic drive under ``basedir`` in the KITTI raw layout (see :mod:`slamlib.synth.writer`).
 
@@ -127,12 +129,17 @@ def write_drive(
         fifth random stream; ``None``: a static town, the same bytes as without the argument. With traffic the
         town has no parked cars on the left (``TrafficConfig.clear_left_parking``).
 
+    wait : when another process writes the same drive folder, wait for it (``False``: raise
+        :class:`~slamlib.errors.FolderBusyError` naming that process).
+
     Returns ``(Path(basedir), date, drive)``.
 
-    An existing drive folder is rewritten only if it is this generator's (complete or interrupted, see
-    :func:`slamlib.synth.writer.is_own_drive`) or empty: then only the generator's files are replaced
-    (:func:`slamlib.synth.writer.own_files`); the user's files in it stay. Raises ``FileExistsError``, before
-    writing anything, for another non-empty folder or for differing calibration files in ``basedir/DATE``.
+    The drive appears whole or not at all (:func:`slamlib.atomic.atomic_folder`): it is written into a temporary
+    sibling folder under an exclusive lock and renamed into place. An existing drive folder is rewritten only if it
+    is this generator's (complete or interrupted, see :func:`slamlib.synth.writer.is_own_drive`) or empty: then the
+    generator's part (markers, ``oxts/``, ``velodyne_points/``) is replaced and the user's other files in it stay.
+    Raises ``FileExistsError``, before writing anything, for another non-empty folder or for differing calibration
+    files in ``basedir/DATE``.
     """
     from slamlib.kitti.calib import load_T_velo_imu
 
@@ -151,33 +158,37 @@ def write_drive(
         "scans": scans,
         **_realism(distortion, traffic),
     }
-    _begin(ddir, params, own_files(ddir))
-    date_dir = write_calib(basedir, date)
-    ts, t_route = _frame_times(r, n, date, rng_time)
-    packets = oxts_packets(r, t_route, noise, seed=int(rng_imu.integers(2**63)))
-    write_oxts(ddir, packets, ts["oxts"])
-    write_velodyne_timestamps(ddir, ts)
-    if scans:
-        T_imu_velo = invert_pose(load_T_velo_imu(date_dir))
-        T_w_velo = r.pose(t_route) @ T_imu_velo
-        t_sweep = _route_time(r, ts, "velo") if distortion else None
-        for k, scan in _cast_scans(
-            r,
-            t_route,
-            T_w_velo,
-            rng_scene,
-            rng_lidar,
-            lidar,
-            progress,
-            f"synth drive {drive:04d}",
-            t_sweep,
-            T_imu_velo,
-            traffic,
-            rng_traffic,
-        ):
-            write_scan(ddir, k, scan)
-    write_marker(ddir, params)
-    (ddir / PARTIAL_MARKER).unlink()
+    with atomic_folder(
+        ddir, _user_entry(False), wait, "--out, --date or --drive", _locked
+    ) as tmp:
+        _check_own_folder(
+            ddir, "basedir, date or drive"
+        )  # as it is now that we hold the lock
+        date_dir = write_calib(basedir, date)
+        ts, t_route = _frame_times(r, n, date, rng_time)
+        packets = oxts_packets(r, t_route, noise, seed=int(rng_imu.integers(2**63)))
+        write_oxts(tmp, packets, ts["oxts"])
+        write_velodyne_timestamps(tmp, ts)
+        if scans:
+            T_imu_velo = invert_pose(load_T_velo_imu(date_dir))
+            T_w_velo = r.pose(t_route) @ T_imu_velo
+            t_sweep = _route_time(r, ts, "velo") if distortion else None
+            for k, scan in _cast_scans(
+                r,
+                t_route,
+                T_w_velo,
+                rng_scene,
+                rng_lidar,
+                lidar,
+                progress,
+                f"synth drive {drive:04d}",
+                t_sweep,
+                T_imu_velo,
+                traffic,
+                rng_traffic,
+            ):
+                write_scan(tmp, k, scan)
+        write_marker(tmp, params)
     return Path(basedir), date, drive
 
 
@@ -252,16 +263,10 @@ def _check_own_folder(folder: Path, what: str) -> None:
         )
 
 
-def _begin(folder: Path, params: dict, previous: list) -> None:
-    """Mark ``folder`` as being written (:data:`PARTIAL_MARKER`) and remove the previous run's ``previous`` files
-    (the generator's own, complete or interrupted; the user's files stay)."""
-    folder.mkdir(parents=True, exist_ok=True)
-    (folder / PARTIAL_MARKER).write_text(
-        json.dumps(params, indent=1, sort_keys=True), encoding="ascii"
-    )
-    for path in previous:
-        if path.name != PARTIAL_MARKER:
-            path.unlink()
+def _user_entry(sequence: bool):
+    """``keep(path)`` for :func:`slamlib.atomic.atomic_folder`: a file or folder of a drive (``sequence``: of an
+    odometry sequence) that the generator did not write, which a rewrite keeps."""
+    return lambda path: not generator_file(path, sequence)
 
 
 def _cast_scans(
@@ -345,6 +350,7 @@ def write_sequence(
     progress: bool = True,
     distortion: bool = False,
     traffic: TrafficConfig | None = None,
+    wait: bool = False,
 ) -> tuple[Path, str]:
     """Write a synthetic drive in the KITTI **odometry** layout (:mod:`slamlib.kitti.sequence`): scans, ``calib.txt``,
     ``times.txt`` and the ground truth ``poses/NN.txt`` -- no IMU, as the benchmark has none.
@@ -356,8 +362,10 @@ def write_sequence(
     the real 2011_09_26 Velodyne -> rectified left camera calibration (:func:`slamlib.synth.writer.odometry_calib`).
 
     Returns ``(Path(basedir), "NN")``; the sequence folder is ``basedir/sequences/NN``. Rewrites only a folder of
-    this generator's (or an empty one), like :func:`write_drive`; ``basedir/poses/NN.txt`` is written only if
-    absent or written by the generator before (its sequence folder carries the marker).
+    this generator's (or an empty one), like :func:`write_drive`, and appears whole or not at all as there;
+    ``basedir/poses/NN.txt`` is written (whole, by a rename) only if absent or written by the generator before
+    (its sequence folder carries the marker), and the marker records its SHA-1 (``poses_sha1``), so that the
+    reader can tell ground truth that is not the sequence's (:class:`slamlib.kitti.sequence.KittiOdometrySequence`).
     """
     from slamlib.kitti.calib import load_T_velo_imu
     from slamlib.kitti.sequence import sequence_name
@@ -383,42 +391,42 @@ def write_sequence(
         "lidar": lidar.as_dict(),
         **_realism(distortion, traffic),
     }
-    _begin(
-        sdir,
-        params,
-        own_sequence_files(sdir) + ([poses_path] if poses_path.is_file() else []),
-    )
-    ts, t_route = _frame_times(r, n, "2011_09_26", rng_time)
-    T_imu_velo = invert_pose(load_T_velo_imu(_SAMPLE))
-    T_w_velo = r.pose(t_route) @ T_imu_velo
-    t_sweep = _route_time(r, ts, "velo") if distortion else None
-    # the odometry ground truth is the scan's pose: its mid-sweep instant, not the OXTS one
-    if distortion:
-        T_w_velo = r.pose_extended(t_sweep) @ T_imu_velo
-    Tr = write_odometry_calib(sdir)
-    write_times(sdir / "times.txt", (ts["velo"] - ts["velo"][0]) * 1e-9)
-    poses_path.parent.mkdir(parents=True, exist_ok=True)
-    write_kitti_poses(
-        poses_path, Tr @ (invert_pose(T_w_velo[0])[None] @ T_w_velo) @ invert_pose(Tr)
-    )
-    (sdir / "velodyne").mkdir(exist_ok=True)
-    for k, scan in _cast_scans(
-        r,
-        t_route,
-        T_w_velo,
-        rng_scene,
-        rng_lidar,
-        lidar,
-        progress,
-        f"synth sequence {name}",
-        t_sweep,
-        T_imu_velo,
-        traffic,
-        rng_traffic,
-    ):
-        write_odometry_scan(sdir, k, scan)
-    write_marker(sdir, params)
-    (sdir / PARTIAL_MARKER).unlink()
+    with atomic_folder(sdir, _user_entry(True), wait, "--out or --sequence") as tmp:
+        _check_own_folder(sdir, "basedir or sequence")
+        ts, t_route = _frame_times(r, n, "2011_09_26", rng_time)
+        T_imu_velo = invert_pose(load_T_velo_imu(_SAMPLE))
+        T_w_velo = r.pose(t_route) @ T_imu_velo
+        t_sweep = _route_time(r, ts, "velo") if distortion else None
+        # the odometry ground truth is the scan's pose: its mid-sweep instant, not the OXTS one
+        if distortion:
+            T_w_velo = r.pose_extended(t_sweep) @ T_imu_velo
+        Tr = write_odometry_calib(tmp)
+        write_times(tmp / "times.txt", (ts["velo"] - ts["velo"][0]) * 1e-9)
+        poses_tmp = tmp / ".poses.txt"
+        write_kitti_poses(
+            poses_tmp, Tr @ (invert_pose(T_w_velo[0])[None] @ T_w_velo) @ invert_pose(Tr)
+        )
+        params["poses_sha1"] = hashlib.sha1(poses_tmp.read_bytes()).hexdigest()
+        (tmp / "velodyne").mkdir()
+        for k, scan in _cast_scans(
+            r,
+            t_route,
+            T_w_velo,
+            rng_scene,
+            rng_lidar,
+            lidar,
+            progress,
+            f"synth sequence {name}",
+            t_sweep,
+            T_imu_velo,
+            traffic,
+            rng_traffic,
+        ):
+            write_odometry_scan(tmp, k, scan)
+        write_marker(tmp, params)
+        # the ground truth beside the sequence, whole: a reader checks it against the marker's SHA-1
+        poses_path.parent.mkdir(parents=True, exist_ok=True)
+        os.replace(poses_tmp, poses_path)
     return Path(basedir), name
 
 
@@ -463,13 +471,23 @@ def default_drive(
     key = hashlib.sha1(json.dumps(params, sort_keys=True).encode()).hexdigest()[:12]
     basedir = cache_dir() / "synth" / key
     date, drive = "2011_09_26", 1
-    marker = read_marker(drive_dir(basedir, date, drive))
+    ddir = drive_dir(basedir, date, drive)
     _, n = resolve_route(route, frames)
-    if (
-        marker is None
-        or marker.get("version") != GENERATOR_VERSION
-        or marker.get("frames") != n
-    ):
+
+    def stale() -> bool:
+        marker = read_marker(ddir)
+        return (
+            marker is None
+            or marker.get("version") != GENERATOR_VERSION
+            or marker.get("frames") != n
+        )
+
+    if not stale():
+        return basedir, date, drive
+    # two first runs at once: the second waits for the first's drive instead of writing it again
+    with folder_lock(ddir, wait=True, what="cache entry"):
+        if not stale():
+            return basedir, date, drive
         write_drive(
             basedir,
             route,
@@ -483,5 +501,6 @@ def default_drive(
             progress=progress,
             distortion=realism,
             traffic=traffic,
+            _locked=True,
         )
     return basedir, date, drive

@@ -23,9 +23,10 @@ The exponential tail of ``theta_k`` reproduces the real drive's occasional later
 
 The vehicle state of frame ``k`` (OXTS packet and the scan's sensor pose) is the route at
 ``t_oxts[k] - t_oxts[0] + route_t0`` (so ``pykitti``'s ``T_w_velo`` is exactly the pose the scan was cast
-from). A drive being written holds ``.slamlib_synth.partial.json`` (written first, removed last); a completed
-drive gets a ``.slamlib_synth.json`` marker (parameters + generator version) written last. Either marker makes
-the folder the generator's own: rewriting it replaces only the files the generator writes (:func:`own_files`)
+from). A drive is written into a temporary sibling folder and renamed into place when complete
+(:mod:`slamlib.atomic`); it holds a ``.slamlib_synth.json`` marker (parameters + generator version). That marker,
+or the ``.slamlib_synth.partial.json`` an older slamlib left in a drive it was writing when interrupted, makes the
+folder the generator's own: rewriting it replaces only the files the generator writes (:func:`generator_file`)
 and keeps everything else (notes, a ``slamlib run --out DRIVE/out`` folder).
 """
 
@@ -41,7 +42,12 @@ import numpy as np
 
 from slamlib.kitti.oxts import format_oxts_packet
 from slamlib.kitti.timestamps import write_timestamps_ns
-from slamlib.kitti.velodyne import SWEEP_PERIOD_S, SYNTH_MARKER, read_synth_marker
+from slamlib.kitti.velodyne import (
+    SWEEP_PERIOD_S,
+    SYNTH_MARKER,
+    SYNTH_PARTIAL_MARKER,
+    read_synth_marker,
+)
 from slamlib.paths import kitti_sample_dir
 
 __all__ = [
@@ -50,6 +56,7 @@ __all__ = [
     "PARTIAL_MARKER",
     "drive_dir",
     "is_own_drive",
+    "generator_file",
     "own_files",
     "check_calib",
     "write_calib",
@@ -66,8 +73,8 @@ __all__ = [
 
 CALIB_FILES = ("calib_imu_to_velo.txt", "calib_velo_to_cam.txt", "calib_cam_to_cam.txt")
 MARKER = SYNTH_MARKER
-#: Written before anything else of a drive and removed after :data:`MARKER`: an interrupted drive keeps it.
-PARTIAL_MARKER = ".slamlib_synth.partial.json"
+#: Held by a drive an older slamlib was writing when interrupted (readers refuse it: ``check_complete``).
+PARTIAL_MARKER = SYNTH_PARTIAL_MARKER
 #: The files the generator writes in a drive folder (besides the frame files matched by :data:`_FRAME_FILES`).
 _FIXED_FILES = (
     "oxts/dataformat.txt",
@@ -102,6 +109,15 @@ def is_own_drive(ddir) -> bool:
     """Whether ``ddir`` holds a drive of this generator, complete (:data:`MARKER`) or interrupted
     (:data:`PARTIAL_MARKER`)."""
     return (Path(ddir) / MARKER).is_file() or (Path(ddir) / PARTIAL_MARKER).is_file()
+
+
+def generator_file(path: str, sequence: bool = False) -> bool:
+    """Whether ``path`` (relative to a drive folder, ``/``-separated; ``sequence``: to an odometry sequence folder)
+    is a file the generator writes (:func:`own_files`, :func:`own_sequence_files`)."""
+    fixed = (MARKER, PARTIAL_MARKER) + (_SEQUENCE_FILES if sequence else _FIXED_FILES)
+    frames = (("velodyne", _SEQUENCE_SCAN),) if sequence else _FRAME_FILES
+    parent, _, name = path.rpartition("/")
+    return path in fixed or any(parent == sub and p.fullmatch(name) for sub, p in frames)
 
 
 def own_files(ddir) -> list[Path]:

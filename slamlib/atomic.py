@@ -40,6 +40,9 @@ __all__ = [
     "publish_folder",
     "clean_stale",
     "lock_path",
+    "free_bytes",
+    "write_error",
+    "describe_os_error",
 ]
 
 #: Seconds between two tries of a waiting writer.
@@ -223,3 +226,46 @@ def atomic_file(path, data: bytes) -> None:
     finally:
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
+
+
+def free_bytes(path) -> int | None:
+    """Free bytes on the file system of ``path`` (its nearest existing folder), or None when it cannot be told."""
+    path = Path(path)
+    for folder in (path, *path.parents):
+        if folder.is_dir():
+            try:
+                return shutil.disk_usage(folder).free
+            except OSError:
+                return None
+    return None
+
+
+def _size(n: int | None) -> str:
+    if n is None:
+        return "an unknown amount"
+    for unit, scale in (("GB", 1e9), ("MB", 1e6), ("kB", 1e3)):
+        if n >= scale:
+            return f"{n / scale:.1f} {unit}"
+    return f"{n} bytes"
+
+
+def write_error(path, exc: OSError) -> OSError:
+    """``exc`` (raised while writing ``path``) as one ``OSError`` that names ``path`` and, when the disk is full
+    (``ENOSPC``, or the short write numpy's ``tofile`` reports as "N requested and M written"), says so with the
+    free space left. Raise it ``from None``."""
+    short = "requested and" in str(exc) and "written" in str(exc)
+    if exc.errno == errno.ENOSPC or short:
+        return OSError(
+            errno.ENOSPC,
+            f"no space left on the disk ({_size(free_bytes(path))} free there)",
+            os.fspath(path),
+        )
+    if getattr(exc, "filename", None):
+        return exc
+    return OSError(exc.errno, exc.strerror or str(exc), os.fspath(path))
+
+
+def describe_os_error(exc: OSError) -> str:
+    """One line for ``exc``: its message and the file it names, without Python's ``[Errno N]`` prefix."""
+    what = exc.strerror or str(exc)
+    return f"{exc.filename}: {what}" if exc.filename else what

@@ -3,8 +3,11 @@
 from __future__ import annotations
 
 import argparse
+import errno
 import importlib
+import signal
 import sys
+import threading
 
 from slamlib import __version__
 from slamlib.commands import COMMANDS
@@ -44,6 +47,59 @@ def _check_single_values(
             )
 
 
+#: Exit codes of a command ended by a signal, as a shell reports them: 128 + SIGINT (Ctrl-C), 128 + SIGTERM.
+EXIT_SIGINT = 128 + signal.SIGINT
+EXIT_SIGTERM = 128 + signal.SIGTERM
+#: Exit code of a command that stopped on an error it reported in one line.
+EXIT_ERROR = 1
+
+
+class Terminated(BaseException):
+    """Raised in the main thread on SIGTERM, so that a command unwinds as on Ctrl-C: its ``finally`` blocks remove
+    its temporary files and release its locks (:mod:`slamlib.atomic`)."""
+
+
+def _raise_terminated(signum, frame):
+    raise Terminated
+
+
+def _run_command(args) -> int:
+    """``args._main(args)`` with signals and the errors every command shares as one line on stderr and an exit
+    code: Ctrl-C 130, SIGTERM 143, a folder another process writes or a full disk 1."""
+    from slamlib.atomic import describe_os_error
+    from slamlib.errors import FolderBusyError
+
+    name = f"slamlib {args.command}"
+    if threading.current_thread() is threading.main_thread():
+        previous = signal.signal(signal.SIGTERM, _raise_terminated)
+    else:  # signals reach the main thread only
+        previous = None
+    try:
+        return int(args._main(args) or 0)
+    except KeyboardInterrupt:
+        print(
+            f"\n{name}: interrupted (Ctrl-C); nothing half written is left",
+            file=sys.stderr,
+        )
+        return EXIT_SIGINT
+    except Terminated:
+        print(
+            f"{name}: terminated (SIGTERM); nothing half written is left", file=sys.stderr
+        )
+        return EXIT_SIGTERM
+    except FolderBusyError as exc:
+        print(f"{name}: {exc}", file=sys.stderr)
+        return EXIT_ERROR
+    except OSError as exc:
+        if exc.errno != errno.ENOSPC:
+            raise
+        print(f"{name}: {describe_os_error(exc)}", file=sys.stderr)
+        return EXIT_ERROR
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -53,7 +109,7 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help()
         return 0
     _check_single_values(parser.commands[args.command], args)
-    return int(args._main(args) or 0)
+    return _run_command(args)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -303,6 +303,7 @@ def main(args) -> int:
     import json
     from dataclasses import replace
 
+    from slamlib.atomic import describe_os_error
     from slamlib.errors import BackendUnavailableError, DataFormatError
     from slamlib.kitti import KittiRawDrive
     from slamlib.slam3d import SLAM3DConfig, parse_frames, run_drive, save_run
@@ -472,8 +473,9 @@ def main(args) -> int:
         )
     # a non-finite pose refused by the writers, a full disk, ...
     except (ValueError, OSError) as exc:
+        why = describe_os_error(exc) if isinstance(exc, OSError) else exc
         raise SystemExit(
-            f"slamlib run: could not write the results into {args.out}: {exc}"
+            f"slamlib run: could not write the results into {args.out}: {why}"
         ) from None
     print(f"{len(run.poses)} frames in {run.seconds:.1f} s: {run.fps:.1f} frames/s")
     info = json.loads(Path(files["metrics"]).read_text())

@@ -12,6 +12,9 @@ is evaluated from frame 100 on.
 
 from __future__ import annotations
 
+import contextlib
+import os
+import sys
 import time
 from dataclasses import dataclass, field
 
@@ -178,6 +181,8 @@ def evaluate(run: SLAMRun) -> dict:
     return out
 
 
+#: Bytes a point takes in the map file at most (open3d writes x, y, z as float64, in binary PLY and PCD).
+MAP_BYTES_PER_POINT = 24
 #: Map file formats :func:`save_run` writes (open3d), and the one it writes when none is named (``slamlib run``'s
 #: ``--map-format`` reads both from here).
 MAP_FORMATS = ("ply", "pcd")
@@ -297,10 +302,26 @@ def save_run(
 
     final = Path(out_dir)
     if not isinstance(run, SLAMRun):
-        raise TypeError(f"run must be the SLAMRun that run_drive returns, got {type(run).__name__}")
+        raise TypeError(
+            f"run must be the SLAMRun that run_drive returns, got {type(run).__name__}"
+        )
     with atomic_folder(final, lambda path: path not in RUN_FILES, what="--out") as tmp:
         files = _write_results(run, tmp, map_format, plots, extra)
     return {key: final / Path(path).name for key, path in files.items()}
+
+
+@contextlib.contextmanager
+def _quiet_stderr():
+    """The process's stderr (file descriptor 2, where C libraries print) sent to ``/dev/null`` for the block."""
+    sys.stderr.flush()
+    saved = os.dup(2)
+    try:
+        with open(os.devnull, "wb") as null:
+            os.dup2(null.fileno(), 2)
+        yield
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
 
 
 def _write_results(
@@ -341,8 +362,20 @@ def _write_results(
         pcd = o3d.geometry.PointCloud(
             o3d.utility.Vector3dVector(np.asarray(pts, dtype=np.float64))
         )
-        if not o3d.io.write_point_cloud(str(files["map"]), pcd):
-            raise OSError(f"open3d could not write {files['map']}")
+        with (
+            _quiet_stderr()
+        ):  # open3d's writer prints a line per failed block ("RPly: Failed writing")
+            written = o3d.io.write_point_cloud(str(files["map"]), pcd)
+        if not written:
+            import errno
+
+            from slamlib.atomic import free_bytes, write_error
+
+            # open3d says only that it failed: a full disk is the usual reason
+            full = OSError(errno.ENOSPC, "no space left")
+            if (free_bytes(files["map"]) or 0) < MAP_BYTES_PER_POINT * len(pts):
+                raise write_error(files["map"], full) from None
+            raise OSError(errno.EIO, "open3d could not write it", str(files["map"]))
 
     info = {
         "frames": int(len(run.poses)),

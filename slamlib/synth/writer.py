@@ -207,9 +207,7 @@ def write_velodyne_timestamps(ddir: Path, ts: dict) -> None:
 
 def write_scan(ddir: Path, index: int, scan: np.ndarray) -> None:
     """``velodyne_points/data/NNNNNNNNNN.bin``: ``scan (N, 4)`` as little-endian float32."""
-    np.ascontiguousarray(scan, dtype="<f4").tofile(
-        Path(ddir) / "velodyne_points" / "data" / f"{index:010d}.bin"
-    )
+    _tofile(scan, Path(ddir) / "velodyne_points" / "data" / f"{index:010d}.bin")
 
 
 def write_marker(ddir: Path, params: dict) -> None:
@@ -274,6 +272,15 @@ def write_odometry_calib(sdir) -> np.ndarray:
 
 def write_odometry_scan(sdir, index: int, scan: np.ndarray) -> None:
     """``sdir/velodyne/NNNNNN.bin``: ``scan (N, 4)`` as little-endian float32."""
-    np.ascontiguousarray(scan, dtype="<f4").tofile(
-        Path(sdir) / "velodyne" / f"{index:06d}.bin"
-    )
+    _tofile(scan, Path(sdir) / "velodyne" / f"{index:06d}.bin")
+
+
+def _tofile(scan: np.ndarray, path: Path) -> None:
+    """``scan`` as little-endian float32 into ``path``; a failed write is one ``OSError`` naming ``path`` (and a
+    full disk, with the free space: :func:`slamlib.atomic.write_error`)."""
+    from slamlib.atomic import write_error
+
+    try:
+        np.ascontiguousarray(scan, dtype="<f4").tofile(path)
+    except OSError as exc:
+        raise write_error(path, exc) from None

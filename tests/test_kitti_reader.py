@@ -575,3 +575,31 @@ def test_drive_calib_of_a_clean_drive_still_matches_pykitti(tmp_path):
     theirs = pykitti.raw(str(tmp_path / "k"), SAMPLE_DATE, SAMPLE_DRIVE).calib
     for name, value in theirs._asdict().items():
         np.testing.assert_array_equal(getattr(mine, name), value)
+
+
+def test_raw_reader_refuses_incomplete_data_unless_allowed(
+    drive_dir, open_drive, tiny_drive_frames
+):
+    """A drive with synth's in-progress marker or a scan beyond its OXTS timestamps: an error naming the file,
+    unless ``allow_incomplete``."""
+    import shutil
+
+    from slamlib.kitti.velodyne import SYNTH_PARTIAL_MARKER
+
+    n = tiny_drive_frames
+    (drive_dir / SYNTH_PARTIAL_MARKER).write_text("{}")
+    with pytest.raises(
+        DataFormatError, match="left half written by an interrupted slamlib synth"
+    ):
+        open_drive()
+    assert len(open_drive(allow_incomplete=True)) == n
+    (drive_dir / SYNTH_PARTIAL_MARKER).unlink()
+    velo = drive_dir / "velodyne_points" / "data"
+    shutil.copyfile(velo / f"{0:010d}.bin", velo / f"{n:010d}.bin")
+    with pytest.raises(DataFormatError) as err:
+        open_drive()
+    assert str(err.value).startswith(
+        f"{drive_dir / 'oxts' / 'timestamps.txt'}: times {n} frames, but {velo} holds {n + 1} Velodyne "
+        f"scans ({n:010d}.bin onwards have no time)"
+    )
+    assert len(open_drive(allow_incomplete=True)) == n

@@ -690,3 +690,44 @@ def test_progress_bar_only_when_asked(base, capsys):
     assert err.startswith("\rframes:   0%|") and " 0/3 " in err and "frame/s]" in err
     # leave=False: the bar is cleared, not left on its own line
     assert not err.endswith("\n")
+
+
+def test_readers_refuse_incomplete_data_unless_allowed(odo, tmp_path):
+    """A sequence with synth's in-progress marker, with a scan beyond its times (``times.txt`` one line short),
+    or beside ground truth that is not the one it was written with: an error naming the file, unless
+    ``allow_incomplete`` (not for the ground truth)."""
+    from slamlib.kitti.velodyne import SYNTH_PARTIAL_MARKER
+
+    d = _copy(odo, tmp_path)
+    sdir = d / "sequences/07"
+    (sdir / SYNTH_PARTIAL_MARKER).write_text("{}")
+    with pytest.raises(DataFormatError) as err:
+        KittiOdometrySequence(d, 7)
+    assert str(err.value) == (
+        f"{sdir / SYNTH_PARTIAL_MARKER}: this folder was left half written by an interrupted slamlib synth "
+        "(it holds this marker); write it again with slamlib synth, or read the frames it has with "
+        "--allow-incomplete"
+    )
+    assert len(KittiOdometrySequence(d, 7, allow_incomplete=True)) == N
+    (sdir / SYNTH_PARTIAL_MARKER).unlink()
+    times = (sdir / "times.txt").read_text().splitlines()
+    (sdir / "times.txt").write_text("\n".join(times[:-1]) + "\n")
+    with pytest.raises(DataFormatError) as err:
+        KittiOdometrySequence(d, 7)
+    assert str(err.value) == (
+        f"{sdir / 'times.txt'}: times {N - 1} frames, but {sdir / 'velodyne'} holds {N} Velodyne scans "
+        f"({N - 1:06d}.bin onwards have no time): one line is missing, or pass --allow-incomplete to read "
+        f"the first {N - 1}"
+    )
+    assert len(KittiOdometrySequence(d, 7, allow_incomplete=True)) == N - 1
+    (sdir / "times.txt").write_text("\n".join(times) + "\n")
+    poses = d / "poses/07.txt"
+    rows = poses.read_text().splitlines()
+    rows[2] = rows[1]  # still a valid pose file, but not this sequence's
+    poses.write_text("\n".join(rows) + "\n")
+    with pytest.raises(
+        DataFormatError, match=r"07\.txt: is not the ground truth .* SHA-1"
+    ):
+        KittiOdometrySequence(d, 7)
+    # a ground truth the user names is theirs to choose
+    assert KittiOdometrySequence(d, 7, poses=poses).ground_truth.shape == (N, 4, 4)

@@ -66,6 +66,12 @@ def add_arguments(parser) -> None:
         metavar="A:B",
         help="frame range A:B (drive frame numbers, B exclusive; A:, :B or B also work); default all",
     )
+    g.add_argument(
+        "--allow-incomplete",
+        action="store_true",
+        help="read a drive left half written by an interrupted slamlib synth, or with more scans than "
+        "times, as far as it goes (refused by default)",
+    )
     from slamlib.kernels import BACKENDS
     from slamlib.slam3d.config import (
         AUTO,
@@ -404,20 +410,22 @@ def main(args) -> int:
             + (" (full)" if args.full_default else "")
             + (" (still)" if args.still_default else "")
         )
+    allow = {"allow_incomplete": args.allow_incomplete}
     try:
         if odometry:
             from slamlib.kitti import KittiOdometrySequence
 
-            probe = KittiOdometrySequence(basedir, drive_id)
+            probe = KittiOdometrySequence(basedir, drive_id, **allow)
             drive = KittiOdometrySequence(
                 basedir,
                 drive_id,
                 frames=parse_frames(args.frames, probe.n_sequence_frames),
+                **allow,
             )
         else:
-            probe = KittiRawDrive(basedir, date, drive_id)
+            probe = KittiRawDrive(basedir, date, drive_id, **allow)
             sl = parse_frames(args.frames, probe.n_drive_frames)
-            drive = KittiRawDrive(basedir, date, drive_id, frames=sl)
+            drive = KittiRawDrive(basedir, date, drive_id, frames=sl, **allow)
     except DataFormatError as exc:
         hint = _drive_hint(Path(basedir), date, drive_id) if all(given) else ""
         raise SystemExit(

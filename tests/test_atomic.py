@@ -1,0 +1,327 @@
+"""Outputs whole or not at all, one writer at a time (``slamlib.atomic``), and the commands built on it under
+interruption, concurrency and a full disk."""
+
+import errno
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import pytest
+
+from slamlib.atomic import (
+    atomic_file,
+    atomic_folder,
+    clean_stale,
+    folder_lock,
+    lock_path,
+    write_error,
+)
+from slamlib.errors import FolderBusyError
+
+SYNTH_SMALL = ["--route", "loop", "--frames", "4", "--columns", "100", "--no-progress"]
+
+
+def _tree(folder: Path) -> dict:
+    return {
+        str(p.relative_to(folder)): p.read_bytes()
+        for p in sorted(folder.rglob("*"))
+        if p.is_file()
+    }
+
+
+def _hidden(parent: Path) -> list[str]:
+    """Temporaries and lock files a writer may leave beside its folder."""
+    return sorted(p.name for p in parent.iterdir() if p.name.startswith("."))
+
+
+def test_a_new_folder_appears_whole_and_a_failed_write_leaves_nothing(tmp_path):
+    out = tmp_path / "out"
+    with atomic_folder(out) as tmp:
+        assert tmp.parent == tmp_path and tmp.name.endswith(".partial")
+        (tmp / "a.txt").write_text("a")
+        assert not out.exists()  # nothing visible until the block ends
+        assert lock_path(out).is_file()
+    assert _tree(out) == {"a.txt": b"a"}
+    assert _hidden(tmp_path) == []  # no temporary, no lock file
+    with pytest.raises(KeyboardInterrupt):
+        with atomic_folder(tmp_path / "other") as tmp:
+            (tmp / "b.txt").write_text("b")
+            raise KeyboardInterrupt
+    assert not (tmp_path / "other").exists() and _hidden(tmp_path) == []
+
+
+def test_an_existing_folder_is_swapped_keeping_the_users_entries(tmp_path):
+    out = tmp_path / "out"
+    (out / "sub").mkdir(parents=True)
+    (out / "mine.txt").write_text("user")
+    (out / "sub" / "notes.txt").write_text("user")
+    (out / "sub" / "old.bin").write_text("stale")
+    (out / "result.txt").write_text("old result")
+    (out / "stale.txt").write_text("old result not rewritten")
+    own = {"result.txt", "stale.txt", "sub/old.bin", "sub/new.bin"}
+    with atomic_folder(out, keep=lambda path: path not in own) as tmp:
+        (tmp / "sub").mkdir()
+        (tmp / "sub" / "new.bin").write_text("new")
+        (tmp / "result.txt").write_text("new result")
+    assert _tree(out) == {
+        "mine.txt": b"user",
+        "result.txt": b"new result",
+        "sub/new.bin": b"new",
+        "sub/notes.txt": b"user",
+    }
+    assert _hidden(tmp_path) == []
+
+
+def test_a_dead_writers_temporaries_are_cleaned_by_the_next(tmp_path):
+    """A SIGKILL between the swap's two renames leaves ``.out.PID.old`` and no ``out``; one mid-write leaves
+    ``.out.PID.partial``. The next writer (holding the lock, so no live writer made them) puts the old folder back
+    and removes the partial one."""
+    out = tmp_path / "out"
+    old = tmp_path / ".out.999.old"
+    old.mkdir()
+    (old / "mine.txt").write_text("user")
+    (tmp_path / ".out.998.partial").mkdir()
+    (tmp_path / ".out.998.partial" / "half.bin").write_bytes(b"\0")
+    with folder_lock(out):
+        removed = clean_stale(out)
+    assert [p.name for p in removed] == [".out.998.partial"]
+    assert _tree(out) == {"mine.txt": b"user"} and _hidden(tmp_path) == []
+    # the old folder cut short after the second rename: its user entries move into the new one
+    old.mkdir()
+    (old / "more.txt").write_text("user 2")
+    (old / "result.txt").write_text("old result")
+    with atomic_folder(out, keep=lambda path: path != "result.txt") as tmp:
+        (tmp / "result.txt").write_text("new")
+    assert _tree(out) == {
+        "mine.txt": b"user",
+        "more.txt": b"user 2",
+        "result.txt": b"new",
+    }
+    assert _hidden(tmp_path) == []
+
+
+def _hold_lock(folder: Path, seconds: float) -> subprocess.Popen:
+    """A second process holding ``folder``'s lock for ``seconds``; returns once it holds it."""
+    code = textwrap.dedent(
+        f"""
+        import sys, time
+        from slamlib.atomic import folder_lock
+        with folder_lock({str(folder)!r}):
+            print("held", flush=True)
+            time.sleep({seconds})
+        """
+    )
+    proc = subprocess.Popen(
+        [sys.executable, "-c", code], stdout=subprocess.PIPE, text=True
+    )
+    assert proc.stdout.readline().strip() == "held"
+    return proc
+
+
+def test_a_second_writer_is_told_which_process_writes_or_waits(tmp_path, capsys):
+    out = tmp_path / "out"
+    proc = _hold_lock(out, 1.5)
+    try:
+        with pytest.raises(FolderBusyError) as err:
+            with atomic_folder(out, what="--out"):
+                pass
+        assert str(err.value) == (
+            f"{out} is being written by process {proc.pid}; wait for it to finish or choose "
+            "another --out"
+        )
+        t0 = time.monotonic()
+        with atomic_folder(out, wait=True) as tmp:
+            (tmp / "x").write_text("x")
+        assert time.monotonic() - t0 > 0.5  # it waited for the other process
+        assert (
+            f"{out} is being written by process {proc.pid}: waiting"
+            in capsys.readouterr().err
+        )
+    finally:
+        proc.wait(10)
+    assert _tree(out) == {"x": b"x"} and _hidden(tmp_path) == []
+
+
+def test_atomic_file_replaces_whole(tmp_path):
+    path = tmp_path / "f.txt"
+    path.write_text("old")
+    atomic_file(path, b"new")
+    assert path.read_bytes() == b"new" and _hidden(tmp_path) == []
+
+
+def test_a_short_write_is_a_full_disk_naming_the_file_and_the_free_space(tmp_path):
+    exc = write_error(tmp_path / "a.bin", OSError("415636 requested and 340992 written"))
+    assert exc.errno == errno.ENOSPC and exc.filename == str(tmp_path / "a.bin")
+    assert (
+        exc.strerror.startswith("no space left on the disk (")
+        and "free there)" in exc.strerror
+    )
+    other = write_error(tmp_path / "b.bin", OSError(errno.EACCES, "Permission denied"))
+    assert other.errno == errno.EACCES and other.filename == str(tmp_path / "b.bin")
+
+
+# ----------------------------------------------------------------------------------------- the commands
+
+
+def _slamlib(*args, cwd=None, env=None, **kw) -> subprocess.Popen:
+    env = {**os.environ, **(env or {})}
+    return subprocess.Popen(
+        [sys.executable, "-m", "slamlib.cli", *args],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        cwd=cwd,
+        env=env,
+        **kw,
+    )
+
+
+def _wait_for(predicate, timeout=120.0):
+    t0 = time.monotonic()
+    while not predicate():
+        assert time.monotonic() - t0 < timeout, "timed out"
+        time.sleep(0.02)
+
+
+@pytest.mark.parametrize("sig, code", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
+def test_synth_stopped_by_a_signal_says_so_in_one_line_and_leaves_nothing(
+    tmp_path, sig, code
+):
+    out = tmp_path / "o"
+    ddir_parent = out / "2011_09_26"
+    proc = _slamlib(
+        "synth",
+        "--out",
+        str(out),
+        "--route",
+        "loop",
+        "--frames",
+        "40",
+        "--columns",
+        "400",
+    )
+    # stop it while it writes its scans into the temporary folder
+    _wait_for(
+        lambda: (
+            ddir_parent.is_dir()
+            and any(
+                (p / "velodyne_points" / "data").is_dir()
+                and any((p / "velodyne_points" / "data").iterdir())
+                for p in ddir_parent.glob(".*.partial")
+            )
+        )
+    )
+    proc.send_signal(sig)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == code
+    lines = [line for line in err.splitlines() if line.strip() and "it/s" not in line]
+    word = "interrupted (Ctrl-C)" if sig == signal.SIGINT else "terminated (SIGTERM)"
+    assert lines[-1] == f"slamlib synth: {word}; nothing half written is left"
+    assert "Traceback" not in err
+    assert not (ddir_parent / "2011_09_26_drive_0001_sync").exists()
+    assert _hidden(ddir_parent) == []
+
+
+def test_two_synths_into_one_folder_never_mix(tmp_path):
+    """Seeds 0 and 1 started together into the same --out: one writes the drive, the other stops at once with one
+    line naming the first's process; the drive is the winner's, byte for byte."""
+    out = tmp_path / "o"
+    procs = [
+        _slamlib("synth", "--out", str(out), *SYNTH_SMALL, "--seed", str(seed))
+        for seed in (0, 1)
+    ]
+    outputs = [p.communicate(timeout=300) for p in procs]
+    results = [(p.returncode, o, e) for p, (o, e) in zip(procs, outputs)]
+    codes = sorted(r[0] for r in results)
+    if codes == [
+        0,
+        0,
+    ]:  # the first finished before the second began: sequential, each whole
+        pytest.skip("the two runs did not overlap on this machine")
+    assert codes == [0, 1]
+    winner = next(i for i, r in enumerate(results) if r[0] == 0)
+    loser = results[1 - winner]
+    assert "is being written by process " in loser[2] and "Traceback" not in loser[2]
+    ref = tmp_path / "ref"
+    assert (
+        _slamlib("synth", "--out", str(ref), *SYNTH_SMALL, "--seed", str(winner)).wait()
+        == 0
+    )
+    drive = "2011_09_26/2011_09_26_drive_0001_sync"
+    assert _tree(out / drive) == _tree(ref / drive)
+    assert _hidden(out / "2011_09_26") == []
+
+
+def test_synth_on_a_full_disk_is_one_line_naming_the_file(tmp_path, monkeypatch):
+    """A full disk while writing a scan: one line with the file and "no space left", and no half-written drive.
+    A real full disk (a 1 MB tmpfs) when the test runs as root and may mount; a patched write otherwise."""
+    from slamlib.cli import main
+
+    small = tmp_path / "small"
+    small.mkdir()
+    mounted = False
+    if hasattr(os, "geteuid") and os.geteuid() == 0:
+        mounted = (
+            subprocess.run(
+                ["mount", "-t", "tmpfs", "-o", "size=1m", "tmpfs", str(small)],
+                capture_output=True,
+            ).returncode
+            == 0
+        )
+    try:
+        if not mounted:
+            import slamlib.synth.writer as writer
+
+            calls = []
+
+            def fill_up(scan, path):
+                calls.append(path)
+                if len(calls) == 3:
+                    raise OSError("415636 requested and 340992 written")
+                return real(scan, path)
+
+            real = writer._tofile
+            monkeypatch.setattr(writer, "_tofile", fill_up)
+        proc = (
+            _slamlib(
+                "synth",
+                "--out",
+                str(small / "o"),
+                "--route",
+                "loop",
+                "--frames",
+                "40",
+                "--columns",
+                "2000",
+                "--no-progress",
+            )
+            if mounted
+            else None
+        )
+        if mounted:
+            _, err = proc.communicate(timeout=300)
+            code = proc.returncode
+        else:
+            import contextlib
+            import io
+
+            buf = io.StringIO()
+            with contextlib.redirect_stderr(buf):
+                code = main(["synth", "--out", str(small / "o"), *SYNTH_SMALL])
+            err = buf.getvalue()
+        assert code == 1
+        (line,) = [x for x in err.splitlines() if x.strip()]
+        assert (
+            line.startswith("slamlib synth: ")
+            and ".partial/velodyne_points/data/" in line
+        )
+        assert "no space left on the disk (" in line and "free there)" in line
+        assert not (small / "o" / "2011_09_26" / "2011_09_26_drive_0001_sync").exists()
+        assert _hidden(small / "o" / "2011_09_26") == []
+    finally:
+        if mounted:
+            subprocess.run(["umount", str(small)], check=True)

@@ -66,11 +66,13 @@ def _holder(path: Path) -> str:
 
 
 @contextlib.contextmanager
-def folder_lock(folder, wait: bool = False, what: str = "it") -> Iterator[Path]:
+def folder_lock(
+    folder, wait: bool = False, what: str = "it", timeout: float | None = None
+) -> Iterator[Path]:
     """Hold the exclusive lock of ``folder`` (:func:`lock_path`) for the ``with`` block.
 
     Another holder makes it raise :class:`~slamlib.errors.FolderBusyError` ("FOLDER is being written by process
-    N"), or with ``wait`` print that once to stderr and wait. ``what`` names the option that chose the folder, for
+    N"), or with ``wait`` print that once to stderr and wait (at most ``timeout`` seconds when given, quietly). ``what`` names the option that chose the folder, for
     the message. The lock file is removed on release; a waiter that then finds it gone (or replaced) tries again
     on the new file, so two holders never overlap.
     """
@@ -80,6 +82,7 @@ def folder_lock(folder, wait: bool = False, what: str = "it") -> Iterator[Path]:
     path = lock_path(folder)
     path.parent.mkdir(parents=True, exist_ok=True)
     told = False
+    give_up = None if timeout is None else time.monotonic() + timeout
     while True:
         fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
         try:
@@ -87,11 +90,11 @@ def folder_lock(folder, wait: bool = False, what: str = "it") -> Iterator[Path]:
         except BlockingIOError:
             os.close(fd)
             message = f"{folder} is being written by {_holder(path)}"
-            if not wait:
+            if not wait or (give_up is not None and time.monotonic() > give_up):
                 raise FolderBusyError(
                     folder, f"{message}; wait for it to finish or choose another {what}"
                 ) from None
-            if not told:
+            if not told and give_up is None:
                 print(f"{message}: waiting for it to finish", file=sys.stderr, flush=True)
                 told = True
             time.sleep(LOCK_POLL_S)

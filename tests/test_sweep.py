@@ -96,10 +96,38 @@ def test_sweep_on_a_dask_cluster_writes_one_tidy_row_per_run(cluster, tmp_path):
     )
 
 
-def test_a_failing_task_names_itself(cluster, tmp_path):
-    bad = [SweepTask("07", (0, 1), 0, "raw", "slamlib", {"particles": 0})]
-    with pytest.raises(RuntimeError, match=r"sweep task SweepTask\(route='07'.*failed"):
-        run_sweep(bad, tmp_path, scheduler=cluster.scheduler_address, progress=False)
+def test_a_failing_task_names_itself_in_one_line_and_the_others_rows_are_kept(
+    cluster, tmp_path
+):
+    """One bad task among good ones: the good ones finish and reach the journal, the error is one line naming the
+    bad task, and a re-run with the journal runs nothing again (no cluster is even started)."""
+    from slamlib.experiments.sweep import SweepTaskError, append_journal, read_journal
+
+    good = SweepTask("loop", (0, 6), 0, "raw", "slamlib", {"particles": 20})
+    bad = SweepTask("loop", (0, 6), 0, "raw", "slamlib", {"particles": 0})
+    journal = tmp_path / "j.jsonl"
+    with pytest.raises(SweepTaskError) as err:
+        run_sweep(
+            [bad, good],
+            tmp_path,
+            scheduler=cluster.scheduler_address,
+            progress=False,
+            on_row=lambda task, row: append_journal(journal, task, row),
+        )
+    message = str(err.value)
+    assert "\n" not in message and err.value.task == bad
+    assert message.startswith(
+        'sweep task failed (route loop, frames 0:6, seed 0, raw, slamlib {"particles": 0}): ValueError: '
+    )
+    done = read_journal(journal)
+    assert len(done) == 1
+    with open(journal, "a") as f:
+        f.write('{"task": "cut sho')  # a kill in the middle of an append
+    assert read_journal(journal) == done
+    rows = run_sweep(
+        [good], tmp_path / "unused", scheduler="tcp://127.0.0.1:1", done=done
+    )
+    assert rows == list(done.values())
 
 
 @pytest.mark.parametrize(
@@ -293,3 +321,62 @@ def test_the_sweep_command_writes_its_table_plot_and_provenance(
     assert (
         out / "sweep.png"
     ).stat().st_size > 0 and "sweep.json" in capsys.readouterr().out
+
+
+def test_sweep_command_keeps_finished_rows_and_resumes_after_a_failed_task(
+    tmp_path, monkeypatch, capsys
+):
+    """``slamlib sweep``: a task failing after another finished is one line naming it, the finished row is kept
+    in ``sweep.resume.jsonl``; the same command again runs only the rest and writes the table (whole, no journal
+    or temporary left)."""
+    import slamlib.experiments.sweep as sweep_module
+    from slamlib.cli import main
+    from slamlib.commands.sweep import JOURNAL
+    from slamlib.experiments.sweep import COLUMNS, SweepTaskError
+
+    calls = []
+
+    def fake_run_sweep(tasks, data, done=None, on_row=None, **kw):
+        calls.append((len(tasks), dict(done or {})))
+        rows = [
+            dict(
+                {k: 0.5 for k in COLUMNS},
+                route=t.route,
+                frames=4,
+                seed=t.seed,
+                layout=t.layout,
+                drive="",
+                method=t.method,
+                settings="",
+            )
+            for t in tasks
+        ]
+        if len(calls) == 1:
+            on_row(tasks[0], rows[0])
+            raise SweepTaskError(tasks[1], ValueError("particles must be >= 1\nmore"))
+        assert len(done) == 1  # the row kept from the first run
+        return rows
+
+    monkeypatch.setattr(sweep_module, "run_sweep", fake_run_sweep)
+    out = tmp_path / "o"
+    argv = ["sweep", "--out", str(out), "--methods", "slamlib", "--no-progress"]
+    with pytest.raises(SystemExit) as exc:
+        main(argv)
+    message = str(exc.value.code)
+    assert "\n" not in message
+    assert message.startswith(
+        "slamlib sweep: sweep task failed (route 07, frames 0:150, seed 1, "
+    )
+    assert message.endswith(
+        f"ValueError: particles must be >= 1; the 1 runs finished are kept in {out / JOURNAL}: "
+        "the same command runs only the rest"
+    )
+    assert sorted(p.name for p in out.iterdir()) == [JOURNAL]
+    assert main(argv) == 0
+    assert "resuming: 1 runs already done" in capsys.readouterr().out
+    assert sorted(p.name for p in out.iterdir()) == [
+        "sweep.csv",
+        "sweep.json",
+        "sweep.png",
+    ]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["o"]

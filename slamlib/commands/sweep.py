@@ -30,6 +30,9 @@ NAME = "sweep"
 HELP = "Run SLAM (and KISS-ICP) over routes x seeds x settings as Dask tasks; write one table (CSV) and a plot."
 
 OUT_FILES = ("sweep.csv", "sweep.json", "sweep.png")
+#: The rows finished so far (``slamlib.experiments.sweep.append_journal``): kept when a sweep is interrupted or a
+#: task fails, so that the same command run again runs only the rest; removed once the table is written.
+JOURNAL = "sweep.resume.jsonl"
 
 
 def add_arguments(parser) -> None:
@@ -291,28 +294,52 @@ def main(args) -> int:
         "kiss_icp_version": _version("kiss-icp"),
         "slamlib_version": _version("slamlib"),
     }
-    try:
-        rows = run_sweep(
-            tasks,
-            data,
-            scheduler=args.scheduler,
-            workers=args.workers,
-            progress=not args.no_progress,
-        )
-    except (OSError, TimeoutError) as exc:
-        _fail(f"could not reach or run the Dask cluster: {exc}")
+    from slamlib.atomic import atomic_folder, folder_lock
+    from slamlib.experiments.sweep import SweepTaskError, append_journal, read_journal
+
     out.mkdir(parents=True, exist_ok=True)
-    write_table(rows, out / "sweep.csv")
-    info["seconds"] = time.perf_counter() - started  # the machine's "utc" is the start
-    (out / "sweep.json").write_text(json.dumps(info, indent=1) + "\n", encoding="utf-8")
-    import matplotlib
+    journal = out / JOURNAL
+    with folder_lock(out, what="--out"):
+        done = read_journal(journal)
+        if done:
+            print(f"resuming: {len(done)} runs already done in {journal}")
+        try:
+            rows = run_sweep(
+                tasks,
+                data,
+                scheduler=args.scheduler,
+                workers=args.workers,
+                progress=not args.no_progress,
+                done=done,
+                on_row=lambda task, row: append_journal(journal, task, row),
+            )
+        except SweepTaskError as exc:
+            n = len(read_journal(journal))
+            _fail(
+                f"{exc}; the {n} runs finished are kept in {journal}: the same command runs only "
+                "the rest"
+            )
+        except (OSError, TimeoutError) as exc:
+            _fail(f"could not reach or run the Dask cluster: {exc}")
+        info["seconds"] = (
+            time.perf_counter() - started
+        )  # the machine's "utc" is the start
+        with atomic_folder(
+            out, lambda path: path not in OUT_FILES, what="--out", locked=True
+        ) as tmp:
+            write_table(rows, tmp / "sweep.csv")
+            (tmp / "sweep.json").write_text(
+                json.dumps(info, indent=1) + "\n", encoding="utf-8"
+            )
+            import matplotlib
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+            matplotlib.use("Agg")
+            import matplotlib.pyplot as plt
 
-    fig = plot_sweep(rows)
-    fig.savefig(out / "sweep.png", dpi=100, bbox_inches="tight")
-    plt.close(fig)
+            fig = plot_sweep(rows)
+            fig.savefig(tmp / "sweep.png", dpi=100, bbox_inches="tight")
+            plt.close(fig)
+        journal.unlink(missing_ok=True)
     print(
         f"{'route':>8s} {'seed':>4s} {'layout':>8s} {'method':>9s} {'settings':>18s} {'t_err %':>8s} {'ATE m':>7s}"
     )

@@ -30,6 +30,7 @@ from __future__ import annotations
 import csv
 import hashlib
 import json
+import logging
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -43,6 +44,10 @@ __all__ = [
     "drive_task",
     "run_task",
     "run_sweep",
+    "SweepTaskError",
+    "task_key",
+    "append_journal",
+    "read_journal",
     "write_table",
     "read_table",
     "plot_sweep",
@@ -183,34 +188,35 @@ def drive_task(task: SweepTask, data_dir) -> str:
     """Generate ``task``'s synthetic drive into ``data_dir`` unless a complete one is there; returns its folder.
 
     Raw layout: :func:`slamlib.synth.write_drive`; odometry layout: :func:`slamlib.synth.write_sequence`; both with
-    the task's :class:`DriveOptions`.
+    the task's :class:`DriveOptions`. Another process writing the same drive (a second sweep sharing ``--data``)
+    is waited for, and its drive used.
     """
+    from slamlib.atomic import folder_lock
     from slamlib.synth import GENERATOR_VERSION, write_drive, write_sequence
     from slamlib.synth.writer import drive_dir, read_marker
 
     base = Path(data_dir) / task.drive_key()
-    if task.layout == "raw":
-        marker = read_marker(drive_dir(base, "2011_09_26", 1))
-        if marker is None or marker.get("version") != GENERATOR_VERSION:
-            write_drive(
+    raw = task.layout == "raw"
+    folder = drive_dir(base, "2011_09_26", 1) if raw else base / "sequences" / "00"
+
+    def missing() -> bool:
+        marker = read_marker(folder)
+        return marker is None or marker.get("version") != GENERATOR_VERSION
+
+    if not missing():
+        return str(base)
+    with folder_lock(folder, wait=True, what="--data"):
+        if missing():
+            write = write_drive if raw else write_sequence
+            write(
                 base,
                 task.route,
+                *(() if raw else (0,)),
                 frames=task.frames,
                 seed=task.seed,
                 progress=False,
-                **task.drive.write_kwargs("raw"),
-            )
-    else:
-        marker = read_marker(base / "sequences" / "00")
-        if marker is None or marker.get("version") != GENERATOR_VERSION:
-            write_sequence(
-                base,
-                task.route,
-                0,
-                frames=task.frames,
-                seed=task.seed,
-                progress=False,
-                **task.drive.write_kwargs("odometry"),
+                _locked=True,
+                **task.drive.write_kwargs(task.layout),
             )
     return str(base)
 
@@ -275,61 +281,193 @@ def run_task(task: SweepTask, base: str) -> dict:
     return {k: row[k] for k in COLUMNS}
 
 
+class SweepTaskError(RuntimeError):
+    """A sweep task failed: ``str(err)`` is one line naming the task and the error (``err.task``, ``err.cause``)."""
+
+    def __init__(self, task: SweepTask, cause: BaseException, n_more: int = 0):
+        self.task, self.cause, self.n_more = task, cause, n_more
+        why = (str(cause).strip().splitlines() or [""])[0]
+        super().__init__(
+            f"sweep task failed (route {task.route}, frames {_frames_text(task.frames)}, seed "
+            f"{task.seed}, {task.layout}, {task.method}"
+            + (f" {json.dumps(task.settings, sort_keys=True)}" if task.settings else "")
+            + f"): {type(cause).__name__}: {why}"
+            + (f" (and {n_more} more failed)" if n_more else "")
+        )
+
+
+def _frames_text(frames) -> str:
+    a, b = frames
+    return f"{a}:{'' if b is None else b}"
+
+
+def task_key(task: SweepTask) -> str:
+    """A task's identity in a journal of finished rows (:func:`append_journal`): every field, as JSON."""
+    from dataclasses import asdict
+
+    return json.dumps(
+        [
+            task.route,
+            list(task.frames),
+            task.seed,
+            task.layout,
+            task.method,
+            task.settings,
+            asdict(task.drive),
+        ],
+        sort_keys=True,
+    )
+
+
+def append_journal(path, task: SweepTask, row: dict) -> None:
+    """Append ``task``'s finished ``row`` to the journal ``path`` (one JSON line, flushed to the disk), so that an
+    interrupted or failed sweep keeps it and a re-run does not run it again (:func:`read_journal`)."""
+    import os
+
+    line = json.dumps({"task": task_key(task), "row": row}) + "\n"
+    with open(path, "a", encoding="utf-8") as f:
+        f.write(line)
+        f.flush()
+        os.fsync(f.fileno())
+
+
+def read_journal(path) -> dict[str, dict]:
+    """``{task_key: row}`` of a journal written by :func:`append_journal`; a line cut short by a kill, or one of
+    another format, is skipped (its task runs again)."""
+    done = {}
+    if not Path(path).is_file():
+        return done
+    for line in Path(path).read_text(encoding="utf-8").splitlines():
+        try:
+            entry = json.loads(line)
+            row = entry["row"]
+            if set(row) == set(COLUMNS):
+                done[entry["task"]] = row
+        except (ValueError, KeyError, TypeError):
+            continue
+    return done
+
+
 def run_sweep(
     tasks,
     data_dir,
     scheduler: str | None = None,
     workers: int | None = None,
     progress: bool = True,
+    done: dict | None = None,
+    on_row=None,
 ) -> list[dict]:
     """Run ``tasks`` on Dask: one :func:`drive_task` per distinct drive, then every :func:`run_task` after its drive.
 
     ``scheduler``: the address of an existing Dask scheduler; default a ``distributed.LocalCluster`` of
-    ``workers`` single-threaded worker processes (default: the machine's cores), closed at the end. Returns the
-    rows in the order of ``tasks``. A failing task raises its exception here, naming the task.
+    ``workers`` single-threaded worker processes (default: the machine's cores), closed at the end. ``done``:
+    rows already computed, ``{task_key(task): row}`` (:func:`read_journal`), not run again; ``on_row(task, row)``
+    is called as each task finishes (:func:`append_journal`). Returns the rows in the order of ``tasks``. A failing
+    task does not stop the others; at the end the first one (in ``tasks``' order) raises :class:`SweepTaskError`
+    naming it, every finished row having reached ``on_row``.
     """
     from distributed import Client, LocalCluster, as_completed
     from tqdm.auto import tqdm
 
     data_dir = str(Path(data_dir).resolve())
+    done = done or {}
+    rows: list = [done.get(task_key(t)) for t in tasks]
+    todo = [i for i, row in enumerate(rows) if row is None]
+    if not todo:
+        return rows
     cluster = None
     if scheduler is None:
         import os
+        import signal
+        import sys
+        import threading
 
-        cluster = LocalCluster(
-            n_workers=workers or os.cpu_count() or 1,
-            threads_per_worker=1,
-            processes=True,
-            dashboard_address=None,
-        )
+        # Ctrl-C goes to the whole process group: the workers ignore it (a disposition their processes inherit), and
+        # this process closes them in order instead of each printing its own traceback
+        # workers stopped mid-task leave semaphores that multiprocessing's tracker process warns about as this
+        # process exits, after the command's last line; the tracker takes its warning filters from these options
+        quiet = "ignore:resource_tracker:UserWarning"
+        if quiet not in sys.warnoptions:
+            sys.warnoptions.append(quiet)
+        main = threading.current_thread() is threading.main_thread()
+        previous = signal.signal(signal.SIGINT, signal.SIG_IGN) if main else None
+        try:
+            cluster = LocalCluster(
+                n_workers=workers or os.cpu_count() or 1,
+                threads_per_worker=1,
+                processes=True,
+                dashboard_address=None,
+                # its warnings (a task cancelled, a worker killed on Ctrl-C) would break the one-line messages
+                silence_logs=logging.ERROR,
+            )
+        finally:
+            if previous is not None:
+                signal.signal(signal.SIGINT, previous)
     client = Client(scheduler if scheduler is not None else cluster)
     try:
         drives = {}
-        for t in tasks:
-            key = t.drive_key()
+        for i in todo:
+            key = tasks[i].drive_key()
             if key not in drives:
                 drives[key] = client.submit(
-                    drive_task, t, data_dir, key=f"drive-{key}", pure=False
+                    drive_task, tasks[i], data_dir, key=f"drive-{key}", pure=False
                 )
         runs = {
-            client.submit(run_task, t, drives[t.drive_key()], pure=False): i
-            for i, t in enumerate(tasks)
+            client.submit(run_task, tasks[i], drives[tasks[i].drive_key()], pure=False): i
+            for i in todo
         }
-        rows: list = [None] * len(tasks)
-        bar = tqdm(total=len(tasks), desc="sweep", unit="run", disable=not progress)
-        for fut in as_completed(list(runs)):
-            i = runs[fut]
-            try:
-                rows[i] = fut.result()
-            except Exception as exc:
-                raise RuntimeError(f"sweep task {tasks[i]} failed: {exc}") from exc
-            bar.update(1)
-        bar.close()
+        failed = []
+        with tqdm(
+            total=len(tasks),
+            initial=len(tasks) - len(todo),
+            desc="sweep",
+            unit="run",
+            disable=not progress,
+        ) as bar:
+            for fut in as_completed(list(runs)):
+                i = runs[fut]
+                try:
+                    rows[i] = fut.result()
+                except Exception as exc:  # the other tasks go on: their rows are kept
+                    failed.append((i, exc))
+                    continue
+                if on_row is not None:
+                    on_row(tasks[i], rows[i])
+                bar.update(1)
+        if failed:
+            i, exc = min(failed, key=lambda f: f[0])
+            raise SweepTaskError(tasks[i], exc, len(failed) - 1)
         return rows
     finally:
         client.close()
         if cluster is not None:
             cluster.close()
+            # workers stopped mid-write (Ctrl-C, a failure) leave temporaries: cleaned now their processes are gone
+            _clean_drives(data_dir, [tasks[i] for i in todo])
+
+
+#: Seconds a stopped worker is given to exit (and free its drive's lock) before its temporaries are left to the
+#: next writer of that drive.
+WORKER_EXIT_S = 15.0
+
+
+def _clean_drives(data_dir: str, tasks) -> None:
+    """Remove what stopped writers left beside the drives of ``tasks`` (:func:`slamlib.atomic.clean_stale`), except
+    where another process holds a drive's lock (a second sweep sharing ``--data``)."""
+    from slamlib.atomic import clean_stale, folder_lock
+    from slamlib.errors import FolderBusyError
+    from slamlib.synth.writer import drive_dir
+
+    for key in dict.fromkeys(t.drive_key() for t in tasks):
+        base = Path(data_dir) / key
+        for folder in (drive_dir(base, "2011_09_26", 1), base / "sequences" / "00"):
+            if folder.parent.is_dir():
+                try:
+                    # a worker the cluster stopped may take a moment to exit and free its lock
+                    with folder_lock(folder, wait=True, timeout=WORKER_EXIT_S):
+                        clean_stale(folder)
+                except FolderBusyError:
+                    pass
 
 
 def write_table(rows, path) -> Path:

@@ -351,6 +351,7 @@ def write_sequence(
     distortion: bool = False,
     traffic: TrafficConfig | None = None,
     wait: bool = False,
+    _locked: bool = False,
 ) -> tuple[Path, str]:
     """Write a synthetic drive in the KITTI **odometry** layout (:mod:`slamlib.kitti.sequence`): scans, ``calib.txt``,
     ``times.txt`` and the ground truth ``poses/NN.txt`` -- no IMU, as the benchmark has none.
@@ -391,7 +392,9 @@ def write_sequence(
         "lidar": lidar.as_dict(),
         **_realism(distortion, traffic),
     }
-    with atomic_folder(sdir, _user_entry(True), wait, "--out or --sequence") as tmp:
+    with atomic_folder(
+        sdir, _user_entry(True), wait, "--out or --sequence", _locked
+    ) as tmp:
         _check_own_folder(sdir, "basedir or sequence")
         ts, t_route = _frame_times(r, n, "2011_09_26", rng_time)
         T_imu_velo = invert_pose(load_T_velo_imu(_SAMPLE))

@@ -72,9 +72,9 @@ def folder_lock(
     """Hold the exclusive lock of ``folder`` (:func:`lock_path`) for the ``with`` block.
 
     Another holder makes it raise :class:`~slamlib.errors.FolderBusyError` ("FOLDER is being written by process
-    N"), or with ``wait`` print that once to stderr and wait (at most ``timeout`` seconds when given, quietly). ``what`` names the option that chose the folder, for
-    the message. The lock file is removed on release; a waiter that then finds it gone (or replaced) tries again
-    on the new file, so two holders never overlap.
+    N"), or with ``wait`` print that once to stderr and wait (at most ``timeout`` seconds when given, quietly).
+    ``what`` names the option that chose the folder, for the message. The lock file is removed on release; a
+    waiter that then finds it gone (or replaced) tries again on the new file, so two holders never overlap.
     """
     import fcntl
 

@@ -305,6 +305,34 @@ def _option_error(exc: ValueError) -> str:
     return f"{', '.join(options)}: {text}" if options else text
 
 
+def _run(drive, cfg, args):
+    """``run_drive`` with the command's options; its warnings (a gap in time) printed after it as one line each
+    (``warning: ...``), not amid the progress bar."""
+    import warnings
+
+    from slamlib.slam3d import run_drive
+
+    with warnings.catch_warnings(record=True) as seen:
+        warnings.simplefilter("always", UserWarning)
+        if args.video is not None:
+            from slamlib.experiments.video import snapshot_every_for
+
+            run = run_drive(
+                drive,
+                cfg,
+                progress=not args.no_progress,
+                snapshot_every=snapshot_every_for(len(drive)),
+            )
+        else:
+            run = run_drive(drive, cfg, progress=not args.no_progress)
+    for w in seen:
+        if issubclass(w.category, UserWarning):
+            print(f"warning: {w.message}")
+        else:  # as it would have been shown
+            warnings.showwarning(w.message, w.category, w.filename, w.lineno)
+    return run
+
+
 def main(args) -> int:
     import json
     from dataclasses import replace
@@ -312,7 +340,7 @@ def main(args) -> int:
     from slamlib.atomic import describe_os_error
     from slamlib.errors import BackendUnavailableError, DataFormatError
     from slamlib.kitti import KittiRawDrive
-    from slamlib.slam3d import SLAM3DConfig, parse_frames, run_drive, save_run
+    from slamlib.slam3d import SLAM3DConfig, parse_frames, save_run
     from slamlib.slam3d.config import OLD_MAP_NAMES
 
     given = [x is not None for x in (args.basedir, args.date, args.drive)]
@@ -450,17 +478,7 @@ def main(args) -> int:
         + (", LIDAR-only (constant velocity)" if cfg.motion.model != "imu" else "")
     )
     try:
-        if args.video is not None:
-            from slamlib.experiments.video import snapshot_every_for
-
-            run = run_drive(
-                drive,
-                cfg,
-                progress=not args.no_progress,
-                snapshot_every=snapshot_every_for(len(drive)),
-            )
-        else:
-            run = run_drive(drive, cfg, progress=not args.no_progress)
+        run = _run(drive, cfg, args)
     except BackendUnavailableError as exc:
         raise SystemExit(f"slamlib run: {exc}") from None
     # bad frame data (e.g. IMU values beyond physical limits)
@@ -503,7 +521,11 @@ def main(args) -> int:
             if key not in m:  # LIDAR-only: no dead reckoning
                 continue
             k = num(m[key].get("kitti_t_err_percent"))
-            print(f"{label:22s}{num(m[key]['ate_rmse_m']):14.3f}{k:17.3f}")
+            # the KITTI metric needs 100 m segments
+            kitti = f"{k:17.3f}" if math.isfinite(k) else f"{'n/a (path < 100 m)':>20s}"
+            print(f"{label:22s}{num(m[key]['ate_rmse_m']):14.3f}{kitti}")
+        if "segments" in m:
+            print(f"{len(m['segments'])} segments (gaps in time): {m['evaluated']}")
     if info.get("n_skipped_frames"):
         print(f"warning: {info['warnings'][0]}")
     if args.video is not None:

@@ -182,6 +182,16 @@ class ParticleSLAM3D:
         self._resample(moved, log_w)  # 11
         return pose
 
+    def predicted_pose(self, frame) -> np.ndarray:
+        """Steps 3-5 without noise, the filter left as it was: the last pose moved by the motion stage's increment
+        over ``frame.dt`` (where a new segment starts after a gap in time, :mod:`slamlib.slam3d.segments`).
+        ``T_world_body`` (4, 4); the start pose before any frame."""
+        if not self.poses:
+            return self.T0.copy()
+        imu = self.motion.read(frame, self.poses, self.dts)
+        increment, _, _ = self.motion.predict(imu, steps.read_timing(frame), self.poses)
+        return self.poses[-1] @ increment_matrix(*increment)
+
     # ----------------------------------------------------------------------------------------- helpers
     def _choose_stages(self, frame) -> None:
         """The motion source, prior and polish for the data whose first frame is ``frame``

@@ -53,6 +53,8 @@ class SLAMRun:
     slam : the filter (its ``map``, ``config``, particles).
     snapshots : list of ``(frame position, map points (M, 3), pose (4, 4))`` taken every ``snapshot_every`` frames.
     frame_seconds : (F,) wall-clock seconds of each ``register_frame`` call (reading the frame not included).
+    segment_starts : (S,) frame positions where a segment starts (``[0]`` without a gap in time,
+        :mod:`slamlib.slam3d.segments`); ``segments`` the filter of each (``slam`` is the last).
     """
 
     poses: np.ndarray
@@ -64,6 +66,17 @@ class SLAMRun:
     slam: ParticleSLAM3D = field(repr=False)
     snapshots: list = field(default_factory=list, repr=False)
     frame_seconds: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
+    segment_starts: np.ndarray = field(default_factory=lambda: np.zeros(1, np.int64))
+    segments: list = field(default_factory=list, repr=False)
+
+    def filters(self) -> list:
+        """The filter of every segment, in order (one without a gap in time)."""
+        return self.segments or [self.slam]
+
+    def map_points(self) -> np.ndarray:
+        """The map points (M, 3) of every segment's filter (:meth:`ParticleSLAM3D.map_points`), world frame."""
+        parts = [f.map_points() for f in self.filters()]
+        return np.concatenate(parts) if len(parts) > 1 else parts[0]
 
     @property
     def fps(self) -> float:
@@ -115,13 +128,21 @@ def run_drive(
     progress : show a tqdm bar with frames/s.
     snapshot_every : keep a copy of the map points every that many frames (0: none), for animations.
 
-    Returns a :class:`SLAMRun`.
+    A gap in time (a frame interval over :data:`~slamlib.slam3d.segments.GAP_PERIODS` typical ones) starts a new
+    segment with a fresh filter, its start pose predicted across the gap, and warns naming the frames
+    (:mod:`slamlib.slam3d.segments`). Returns a :class:`SLAMRun`.
     """
+    import warnings
+
     from tqdm.auto import tqdm
 
+    from slamlib.slam3d.segments import gap_warning, is_gap
+
+    _check_frames(frames)
     if T_velo_imu is None:
         T_velo_imu = getattr(frames, "T_velo_imu", None)
     slam = ParticleSLAM3D(config, T_velo_imu=T_velo_imu)
+    filters, starts, intervals = [slam], [0], []
     gt, times, idx, snaps, frame_seconds = [], [], [], [], []
     total = len(frames) if hasattr(frames, "__len__") else None
     bar = tqdm(
@@ -129,6 +150,19 @@ def run_drive(
     )
     t0 = time.perf_counter()
     for k, frame in enumerate(bar):
+        dt = float(getattr(frame, "dt", 0.0))
+        if k > 0 and is_gap(dt, intervals):
+            before, after = idx[-1], int(getattr(frame, "index", k))
+            warnings.warn(
+                gap_warning(before, after, dt, float(np.median(intervals))), stacklevel=2
+            )
+            slam = ParticleSLAM3D(
+                config, T_velo_imu=T_velo_imu, T0=slam.predicted_pose(frame)
+            )
+            filters.append(slam)
+            starts.append(k)
+        elif k > 0:
+            intervals.append(dt)
         tf = time.perf_counter()
         pose = slam.register_frame(frame)
         frame_seconds.append(time.perf_counter() - tf)
@@ -145,9 +179,10 @@ def run_drive(
         G = np.asarray(gt, dtype=np.float64)
         ground_truth = invert_pose(G[0])[None] @ G
     times = np.asarray(times)
+    lidar_only = any(f.dead_reckoning is None for f in filters)
     return SLAMRun(
-        slam.trajectory,
-        slam.dead_reckoning,
+        np.concatenate([f.trajectory for f in filters]),
+        None if lidar_only else np.concatenate([f.dead_reckoning for f in filters]),
         ground_truth,
         times - (times[0] if len(times) else 0.0),
         np.asarray(idx, dtype=np.int64),
@@ -155,7 +190,27 @@ def run_drive(
         slam,
         snaps,
         np.asarray(frame_seconds),
+        np.asarray(starts, dtype=np.int64),
+        filters,
     )
+
+
+def _check_frames(frames) -> None:
+    """TypeError / ValueError saying what ``run_drive`` needs when ``frames`` is not a sequence of frames."""
+    from os import PathLike
+
+    if isinstance(frames, (str, bytes, PathLike)):
+        raise TypeError(
+            f"run_drive takes frames, not a path ({frames!r}): open the drive first, e.g. "
+            "KittiRawDrive(basedir, date, drive) or KittiOdometrySequence(basedir, sequence)"
+        )
+    if frames is None or not hasattr(frames, "__iter__"):
+        raise TypeError(
+            "run_drive takes an iterable of frames (a KittiRawDrive, a KittiOdometrySequence or a list "
+            f"of their frames), got {type(frames).__name__}"
+        )
+    if hasattr(frames, "__len__") and len(frames) == 0:
+        raise ValueError("run_drive got no frames: there is nothing to run")
 
 
 def evaluate(run: SLAMRun) -> dict:
@@ -167,17 +222,29 @@ def evaluate(run: SLAMRun) -> dict:
     without ground truth.
     """
     from slamlib.metrics import trajectory_distances, trajectory_metrics
+    from slamlib.slam3d.segments import stitch_segments
 
     if run.ground_truth is None:
         raise ValueError("this run has no ground truth (frames without T_w_imu)")
+    G, starts = run.ground_truth, run.segment_starts
     out = {
         "frames": int(len(run.poses)),
-        "path_length_m": float(trajectory_distances(run.ground_truth)[-1]),
+        "path_length_m": float(trajectory_distances(G)[-1]),
         "fps": float(run.fps),
-        "slam": trajectory_metrics(run.poses, run.ground_truth),
+        "slam": trajectory_metrics(stitch_segments(run.poses, G, starts), G),
     }
     if run.dead_reckoning is not None:
-        out["dead_reckoning"] = trajectory_metrics(run.dead_reckoning, run.ground_truth)
+        dr = stitch_segments(run.dead_reckoning, G, starts)
+        out["dead_reckoning"] = trajectory_metrics(dr, G)
+    if len(starts) > 1:
+        ends = list(starts[1:]) + [len(run.poses)]
+        out["segments"] = [
+            {"frames": [int(run.frame_indices[a]), int(run.frame_indices[b - 1])]}
+            for a, b in zip(starts, ends)
+        ]
+        out["evaluated"] = (
+            "each segment from its own first pose (a gap in time before it)"
+        )
     return out
 
 
@@ -353,7 +420,7 @@ def _write_results(
         raise ValueError(f"map_format must be 'ply' or 'pcd', got {map_format!r}")
     import open3d as o3d
 
-    pts = run.slam.map_points()
+    pts = run.map_points()
     files["map"] = out / f"map.{map_format}"
     # every scan degenerate: open3d writes no empty cloud, so an empty file in the same format
     if len(pts) == 0:
@@ -384,23 +451,36 @@ def _write_results(
         "frame_indices": [int(run.frame_indices[0]), int(run.frame_indices[-1])]
         if len(run.poses)
         else [],
-        "map_elements": int(len(run.slam.map)),
+        "map_elements": int(sum(len(f.map) for f in run.filters())),
         "map_points_written": int(len(pts)),
         "config": run.slam.config.as_dict(),
     }
-    skipped = int(getattr(run.slam, "n_skipped_frames", 0))
+    skipped = int(sum(getattr(f, "n_skipped_frames", 0) for f in run.filters()))
     info["n_skipped_frames"] = skipped
     # ScanConfig.deskew auto: the frames whose scans were swept
-    info["n_deskewed_frames"] = int(run.slam.n_deskewed)
+    info["n_deskewed_frames"] = int(sum(f.n_deskewed for f in run.filters()))
     # ScanMatchConfig.scan_match auto: every LIDAR-only frame
-    info["n_matched_frames"] = int(run.slam.n_matched)
+    info["n_matched_frames"] = int(sum(f.n_matched for f in run.filters()))
+    info["segment_starts"] = [int(run.frame_indices[k]) for k in run.segment_starts]
+    warnings = []
     if skipped:
         from slamlib.slam3d.pipeline import MIN_SCAN_POINTS
 
-        info["warnings"] = [
+        warnings.append(
             f"{skipped} of {len(run.poses)} frames had fewer than {MIN_SCAN_POINTS} scan points "
             f"after cropping: scoring skipped, the motion prediction stands"
-        ]
+        )
+    if len(run.segment_starts) > 1:
+        gaps = ", ".join(
+            f"{run.frame_indices[k - 1]}-{run.frame_indices[k]}"
+            for k in run.segment_starts[1:]
+        )
+        warnings.append(
+            f"{len(run.segment_starts) - 1} gap(s) in time (between frames {gaps}): "
+            f"{len(run.segment_starts)} segments, each evaluated from its own first pose"
+        )
+    if warnings:
+        info["warnings"] = warnings
     if extra:
         info.update(extra)
     if run.ground_truth is not None:

@@ -26,6 +26,16 @@ class DataFormatError(ValueError):
         super().__init__(f"{where}: {message}")
 
 
+def bom_error(path: str | os.PathLike) -> DataFormatError:
+    """The error for a text file that starts with a UTF-8 byte-order mark, which KITTI's files never have."""
+    return DataFormatError(
+        path,
+        "starts with a UTF-8 byte-order mark (BOM, bytes EF BB BF), which KITTI's text files do not have "
+        "(an editor added it?): save the file without a BOM",
+        1,
+    )
+
+
 class BackendUnavailableError(RuntimeError):
     """A compute backend was asked for that this machine cannot run (e.g. ``backend="cuda"`` without a GPU)."""
 

@@ -177,3 +177,18 @@ def test_timestamps_at_the_int64_limits_still_parse():
     for ns in (-(2**63) + 10**9, 2**63 - 1):
         text = format_timestamp_ns(ns)
         assert parse_timestamp_ns(text) == ns
+
+
+def test_a_byte_order_mark_is_named_as_such(tmp_path):
+    from slamlib.kitti.timestamps import read_timestamps_ns
+
+    path = tmp_path / "timestamps.txt"
+    path.write_bytes(
+        b"\xef\xbb\xbf2011-09-26 13:02:25.964389445\n2011-09-26 13:02:26.067702383\n"
+    )
+    with pytest.raises(DataFormatError) as err:
+        read_timestamps_ns(path)
+    assert str(err.value) == (
+        f"{path}:1: starts with a UTF-8 byte-order mark (BOM, bytes EF BB BF), which KITTI's text files "
+        "do not have (an editor added it?): save the file without a BOM"
+    )

@@ -93,3 +93,34 @@ def test_save_run_writes_through_a_temporary_folder_and_keeps_other_files(
     assert not (out / "map.ply").exists() and oct(out.stat().st_mode & 0o777) != oct(
         0o700
     )
+
+
+def test_run_drive_and_save_run_say_what_was_wrong_with_their_arguments(tmp_path):
+    from slamlib.slam3d import SLAM3DConfig, run_drive, save_run
+
+    with pytest.raises(
+        TypeError, match=r"run_drive takes an iterable of frames .* got NoneType"
+    ):
+        run_drive(None)
+    with pytest.raises(
+        TypeError, match=r"run_drive takes frames, not a path \('/a/folder'\): open"
+    ):
+        run_drive("/a/folder")
+    with pytest.raises(TypeError, match=r"run_drive takes frames, not a path"):
+        run_drive(tmp_path)
+    with pytest.raises(
+        TypeError,
+        match=r"config must be a SLAM3DConfig, got dict: SLAM3DConfig\.of\(\*\*\{'particles': 10\}\)",
+    ):
+        run_drive([object()], {"particles": 10})
+    with pytest.raises(ValueError, match="run_drive got no frames"):
+        run_drive([])
+    with pytest.raises(
+        TypeError, match="run must be the SLAMRun that run_drive returns, got list"
+    ):
+        save_run([], tmp_path / "o")
+    assert not (tmp_path / "o").exists()
+    with pytest.raises(
+        ValueError, match=r"backend must be one of 'numpy', 'cpu', 'cuda', got 'gpu'"
+    ):
+        SLAM3DConfig.of(backend="gpu")

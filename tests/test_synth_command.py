@@ -299,3 +299,18 @@ def test_synth_frames_beyond_the_route_names_frames(tmp_path):
         "slamlib synth: --frames '583': route 'straight' spans at most"
     ), str(exc.value)
     assert not (tmp_path / "s").exists()
+
+
+def test_the_printed_run_command_quotes_a_path_with_spaces(tmp_path, capsys):
+    """The "read it with" line runs as printed, even from a folder whose name has spaces."""
+    import shlex
+
+    out = tmp_path / "my drives"
+    assert main(["synth", "--out", str(out), *TINY]) == 0
+    line = next(
+        x.strip()
+        for x in capsys.readouterr().out.splitlines()
+        if "slamlib run --basedir" in x
+    )
+    argv = shlex.split(line)
+    assert argv[argv.index("--basedir") + 1] == str(out)

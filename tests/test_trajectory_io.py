@@ -467,3 +467,20 @@ def test_trajectory_writers_refuse_nan(tmp_path, writer):
             "times": lambda: write_times(path, [0.0, np.nan, 1.0]),
         }[writer]()
     assert not path.exists()
+
+
+def test_a_byte_order_mark_in_times_or_poses_is_named_as_such(tmp_path):
+    from slamlib.kitti.trajectory_io import read_kitti_poses, read_times
+
+    times = tmp_path / "times.txt"
+    times.write_bytes("\ufeff0.0\n0.1\n".encode())
+    with pytest.raises(
+        DataFormatError, match=r"times\.txt:1: starts with a UTF-8 byte-order mark \(BOM"
+    ):
+        read_times(times)
+    poses = tmp_path / "poses.txt"
+    poses.write_bytes("\ufeff1 0 0 0 0 1 0 0 0 0 1 0\n".encode())
+    with pytest.raises(
+        DataFormatError, match=r"poses\.txt:1: starts with a UTF-8 byte-order mark"
+    ):
+        read_kitti_poses(poses)

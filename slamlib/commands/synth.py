@@ -19,6 +19,7 @@ calibration files that differ from the ones written, are never overwritten.
 from __future__ import annotations
 
 import re
+import shlex
 from pathlib import Path
 
 NAME = "synth"
@@ -317,7 +318,10 @@ def main(args) -> int:
             "scans)"
         )
     else:
-        print(f"  slamlib run --basedir {basedir} --date {args.date} --drive {drive}")
+        print(
+            f"  slamlib run --basedir {shlex.quote(str(basedir))} --date {shlex.quote(args.date)} "
+            f"--drive {drive}"
+        )
     return 0
 
 
@@ -383,5 +387,5 @@ def _write_sequence(args, basedir: Path, frames, n: int, traffic=None) -> int:
     )
     print("read it with:")
     print(f"  pykitti.odometry({str(basedir)!r}, {f'{sequence:02d}'!r})")
-    print(f"  slamlib run --odometry-dir {basedir} --sequence {sequence:02d}")
+    print(f"  slamlib run --odometry-dir {shlex.quote(str(basedir))} --sequence {sequence:02d}")
     return 0

@@ -15,6 +15,7 @@ becomes an ``int`` number of nanoseconds since 1970-01-01 00:00:00, treating the
 
 from __future__ import annotations
 
+import codecs
 import datetime as _dt
 import os
 import re
@@ -22,7 +23,7 @@ from collections.abc import Iterable
 
 import numpy as np
 
-from slamlib.errors import DataFormatError
+from slamlib.errors import DataFormatError, bom_error
 
 __all__ = [
     "parse_timestamp_ns",
@@ -103,8 +104,11 @@ def read_timestamps_ns(
     path = os.fspath(path)
     if not os.path.isfile(path):
         raise DataFormatError(path, "timestamps file not found")
-    with open(path, encoding="ascii", errors="replace") as f:
-        lines = f.read().splitlines()
+    with open(path, "rb") as f:
+        raw = f.read()
+    if raw.startswith(codecs.BOM_UTF8):
+        raise bom_error(path)
+    lines = raw.decode("ascii", errors="replace").splitlines()
     while lines and not lines[-1].strip():
         lines.pop()
     if not lines:

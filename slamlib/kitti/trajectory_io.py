@@ -23,7 +23,7 @@ import os
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from slamlib.errors import DataFormatError
+from slamlib.errors import DataFormatError, bom_error
 
 __all__ = [
     "read_kitti_poses",
@@ -63,6 +63,8 @@ def _data_lines(path, comments: bool):
         raise DataFormatError(path, "trajectory file not found")
     with open(path, encoding="utf-8", errors="replace") as f:
         for i, text in enumerate(f, start=1):
+            if i == 1 and text.startswith("\ufeff"):
+                raise bom_error(path)
             s = text.strip()
             if not s or (comments and s.startswith("#")):
                 continue

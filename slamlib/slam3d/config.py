@@ -43,7 +43,7 @@ from dataclasses import (
 
 import numpy as np
 
-from slamlib.kernels import DEFAULT_BACKEND
+from slamlib.kernels import BACKENDS, DEFAULT_BACKEND
 from slamlib.kitti.velodyne import SWEEP_PERIOD_S
 from slamlib.maps import DEFAULT_MAP_KIND, MAP_TYPES, make_map
 from slamlib.resampling import DEFAULT_ESS_FRACTION
@@ -700,6 +700,10 @@ class SLAM3DConfig:
 
     def __post_init__(self):
         _integer("seed", self.seed, 0)
+        if self.backend not in BACKENDS:
+            raise ValueError(
+                f"backend must be one of {', '.join(map(repr, BACKENDS))}, got {self.backend!r}"
+            )
         for g, cls in _GROUPS.items():
             if not isinstance(getattr(self, g), cls):
                 raise ValueError(

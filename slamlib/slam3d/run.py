@@ -139,6 +139,13 @@ def run_drive(
     from slamlib.slam3d.segments import gap_warning, is_gap
 
     _check_frames(frames)
+    if config is not None and not isinstance(config, SLAM3DConfig):
+        hint = (
+            f": SLAM3DConfig.of(**{config!r}) builds one from a dict of settings"
+            if isinstance(config, dict)
+            else ""
+        )
+        raise TypeError(f"config must be a SLAM3DConfig, got {type(config).__name__}{hint}")
     if T_velo_imu is None:
         T_velo_imu = getattr(frames, "T_velo_imu", None)
     slam = ParticleSLAM3D(config, T_velo_imu=T_velo_imu)

@@ -59,58 +59,83 @@ class Terminated(BaseException):
     its temporary files and release its locks (:mod:`slamlib.atomic`)."""
 
 
-def _raise_terminated(signum, frame):
-    raise Terminated
+def _run_command(argv: list[str] | None) -> int:
+    """Parse ``argv`` and run its command, with signals and the errors every command shares as one line on stderr
+    and an exit code: Ctrl-C 130, SIGTERM 143, a folder another process writes or a full disk 1. The signal
+    handlers are in place before the commands' modules load, so a signal during the imports ends the same way.
 
-
-def _run_command(args) -> int:
-    """``args._main(args)`` with signals and the errors every command shares as one line on stderr and an exit
-    code: Ctrl-C 130, SIGTERM 143, a folder another process writes or a full disk 1."""
+    A signal is remembered as it arrives: the exception its handler raises may surface as another one (a C
+    extension being imported turns it into ``ImportError``), and the command still ends as the signal asks.
+    """
     from slamlib.atomic import describe_os_error
     from slamlib.errors import FolderBusyError
 
-    name = f"slamlib {args.command}"
-    if threading.current_thread() is threading.main_thread():
-        previous = signal.signal(signal.SIGTERM, _raise_terminated)
-    else:  # signals reach the main thread only
-        previous = None
+    name = "slamlib"
+    received = []
+
+    def on_signal(signum, frame):
+        received.append(signum)
+        raise Terminated if signum == signal.SIGTERM else KeyboardInterrupt
+
+    previous = {}
+    if threading.current_thread() is threading.main_thread():  # signals reach it only
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            if signal.getsignal(sig) is not signal.SIG_IGN:
+                previous[sig] = signal.signal(sig, on_signal)
     try:
+        parser = build_parser()
+        args = parser.parse_args(argv)
+        # as typed, for results that record their command
+        args.argv = list(sys.argv[1:] if argv is None else argv)
+        if args.command is None:
+            parser.print_help()
+            return 0
+        name = f"slamlib {args.command}"
+        _check_single_values(parser.commands[args.command], args)
         return int(args._main(args) or 0)
-    except KeyboardInterrupt:
-        print(
-            f"\n{name}: interrupted (Ctrl-C); nothing half written is left",
-            file=sys.stderr,
-        )
-        return EXIT_SIGINT
-    except Terminated:
-        print(
-            f"{name}: terminated (SIGTERM); nothing half written is left", file=sys.stderr
-        )
-        return EXIT_SIGTERM
-    except FolderBusyError as exc:
-        print(f"{name}: {exc}", file=sys.stderr)
-        return EXIT_ERROR
-    except OSError as exc:
-        if exc.errno != errno.ENOSPC:
-            raise
-        print(f"{name}: {describe_os_error(exc)}", file=sys.stderr)
-        return EXIT_ERROR
+    except BaseException as exc:
+        if isinstance(exc, KeyboardInterrupt) or signal.SIGINT in received[:1]:
+            print(
+                f"\n{name}: interrupted (Ctrl-C); nothing half written is left",
+                file=sys.stderr,
+            )
+            return EXIT_SIGINT
+        if isinstance(exc, Terminated) or signal.SIGTERM in received[:1]:
+            print(
+                f"{name}: terminated (SIGTERM); nothing half written is left",
+                file=sys.stderr,
+            )
+            return EXIT_SIGTERM
+        if isinstance(exc, FolderBusyError) or (
+            isinstance(exc, OSError) and exc.errno == errno.ENOSPC
+        ):
+            what = describe_os_error(exc) if isinstance(exc, OSError) else exc
+            print(f"{name}: {what}", file=sys.stderr)
+            return EXIT_ERROR
+        raise
     finally:
-        if previous is not None:
-            signal.signal(signal.SIGTERM, previous)
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    # as typed, for results that record their command
-    args.argv = list(sys.argv[1:] if argv is None else argv)
-    if args.command is None:
-        parser.print_help()
-        return 0
-    _check_single_values(parser.commands[args.command], args)
-    return _run_command(args)
+    """Run ``slamlib`` with the arguments ``argv`` (default ``sys.argv[1:]``); returns the exit code."""
+    return _run_command(argv)
+
+
+def console() -> None:
+    """The ``slamlib`` console script: :func:`main`, then exit with its code. A command ended by a signal exits at
+    once (``os._exit``) after flushing its output, as a process killed by it would: a C extension interrupted in
+    its initialisation (open3d's) would otherwise end the interpreter's teardown with its own exit code 1."""
+    import os
+
+    code = main()
+    if code in (EXIT_SIGINT, EXIT_SIGTERM):
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(code)
+    sys.exit(code)
 
 
 if __name__ == "__main__":  # pragma: no cover
-    sys.exit(main())
+    console()

@@ -168,6 +168,62 @@ def _version(distribution: str) -> str | None:
         return None
 
 
+def _run_resumable(tasks, data, args, journal: Path) -> list:
+    """The sweep's rows: those in ``journal`` from an earlier, interrupted run of the same command, the others
+    run now and appended to it as they finish; a failed task is one line naming it."""
+    from slamlib.experiments.sweep import (
+        SweepTaskError,
+        append_journal,
+        read_journal,
+        run_sweep,
+    )
+
+    done = read_journal(journal)
+    if done:
+        print(f"resuming: {len(done)} runs already done in {journal}")
+    try:
+        return run_sweep(
+            tasks,
+            data,
+            scheduler=args.scheduler,
+            workers=args.workers,
+            progress=not args.no_progress,
+            done=done,
+            on_row=lambda task, row: append_journal(journal, task, row),
+        )
+    except SweepTaskError as exc:
+        n = len(read_journal(journal))
+        _fail(
+            f"{exc}; the {n} runs finished are kept in {journal}: the same command runs only the rest"
+        )
+    except (OSError, TimeoutError) as exc:
+        _fail(f"could not reach or run the Dask cluster: {exc}")
+
+
+def _write_outputs(out: Path, rows: list, info: dict) -> None:
+    """``sweep.csv``, ``sweep.json`` and ``sweep.png`` into ``out``, whole (:func:`slamlib.atomic.atomic_folder`;
+    the caller holds the lock), then the journal of finished rows removed."""
+    import matplotlib
+
+    from slamlib.atomic import atomic_folder
+    from slamlib.experiments.sweep import plot_sweep, write_table
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    with atomic_folder(
+        out, lambda path: path not in OUT_FILES, what="--out", locked=True
+    ) as tmp:
+        write_table(rows, tmp / "sweep.csv")
+        (tmp / "sweep.json").write_text(
+            json.dumps(info, indent=1) + "\n", encoding="utf-8"
+        )
+        fig = plot_sweep(rows)
+        fig.savefig(tmp / "sweep.png", dpi=100, bbox_inches="tight")
+        plt.close(fig)
+    (out / JOURNAL).unlink(missing_ok=True)
+
+
 def _fail(message: str):
     raise SystemExit(f"slamlib sweep: {message}")
 
@@ -266,10 +322,7 @@ def main(args) -> int:
 
     from slamlib.experiments.sweep import (
         DriveOptions,
-        plot_sweep,
-        run_sweep,
         sweep_tasks,
-        write_table,
     )
     from slamlib.paths import cache_dir
     from slamlib.synth import GENERATOR_VERSION
@@ -294,52 +347,20 @@ def main(args) -> int:
         "kiss_icp_version": _version("kiss-icp"),
         "slamlib_version": _version("slamlib"),
     }
-    from slamlib.atomic import atomic_folder, folder_lock
-    from slamlib.experiments.sweep import SweepTaskError, append_journal, read_journal
+    from slamlib.atomic import folder_lock
 
+    created = not out.exists()
     out.mkdir(parents=True, exist_ok=True)
-    journal = out / JOURNAL
-    with folder_lock(out, what="--out"):
-        done = read_journal(journal)
-        if done:
-            print(f"resuming: {len(done)} runs already done in {journal}")
-        try:
-            rows = run_sweep(
-                tasks,
-                data,
-                scheduler=args.scheduler,
-                workers=args.workers,
-                progress=not args.no_progress,
-                done=done,
-                on_row=lambda task, row: append_journal(journal, task, row),
-            )
-        except SweepTaskError as exc:
-            n = len(read_journal(journal))
-            _fail(
-                f"{exc}; the {n} runs finished are kept in {journal}: the same command runs only "
-                "the rest"
-            )
-        except (OSError, TimeoutError) as exc:
-            _fail(f"could not reach or run the Dask cluster: {exc}")
-        info["seconds"] = (
-            time.perf_counter() - started
-        )  # the machine's "utc" is the start
-        with atomic_folder(
-            out, lambda path: path not in OUT_FILES, what="--out", locked=True
-        ) as tmp:
-            write_table(rows, tmp / "sweep.csv")
-            (tmp / "sweep.json").write_text(
-                json.dumps(info, indent=1) + "\n", encoding="utf-8"
-            )
-            import matplotlib
-
-            matplotlib.use("Agg")
-            import matplotlib.pyplot as plt
-
-            fig = plot_sweep(rows)
-            fig.savefig(tmp / "sweep.png", dpi=100, bbox_inches="tight")
-            plt.close(fig)
-        journal.unlink(missing_ok=True)
+    try:
+        with folder_lock(out, what="--out"):
+            rows = _run_resumable(tasks, data, args, out / JOURNAL)
+            info["seconds"] = (
+                time.perf_counter() - started
+            )  # the machine's "utc" is the start
+            _write_outputs(out, rows, info)
+    finally:  # an interrupted or failed first sweep into a new folder leaves no empty folder
+        if created and out.is_dir() and not any(out.iterdir()):
+            out.rmdir()
     print(
         f"{'route':>8s} {'seed':>4s} {'layout':>8s} {'method':>9s} {'settings':>18s} {'t_err %':>8s} {'ATE m':>7s}"
     )

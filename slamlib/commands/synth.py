@@ -387,5 +387,7 @@ def _write_sequence(args, basedir: Path, frames, n: int, traffic=None) -> int:
     )
     print("read it with:")
     print(f"  pykitti.odometry({str(basedir)!r}, {f'{sequence:02d}'!r})")
-    print(f"  slamlib run --odometry-dir {shlex.quote(str(basedir))} --sequence {sequence:02d}")
+    print(
+        f"  slamlib run --odometry-dir {shlex.quote(str(basedir))} --sequence {sequence:02d}"
+    )
     return 0

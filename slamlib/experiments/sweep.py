@@ -366,7 +366,7 @@ def run_sweep(
     task does not stop the others; at the end the first one (in ``tasks``' order) raises :class:`SweepTaskError`
     naming it, every finished row having reached ``on_row``.
     """
-    from distributed import Client, LocalCluster, as_completed
+    from distributed import Client, as_completed
     from tqdm.auto import tqdm
 
     data_dir = str(Path(data_dir).resolve())
@@ -377,32 +377,7 @@ def run_sweep(
         return rows
     cluster = None
     if scheduler is None:
-        import os
-        import signal
-        import sys
-        import threading
-
-        # Ctrl-C goes to the whole process group: the workers ignore it (a disposition their processes inherit), and
-        # this process closes them in order instead of each printing its own traceback
-        # workers stopped mid-task leave semaphores that multiprocessing's tracker process warns about as this
-        # process exits, after the command's last line; the tracker takes its warning filters from these options
-        quiet = "ignore:resource_tracker:UserWarning"
-        if quiet not in sys.warnoptions:
-            sys.warnoptions.append(quiet)
-        main = threading.current_thread() is threading.main_thread()
-        previous = signal.signal(signal.SIGINT, signal.SIG_IGN) if main else None
-        try:
-            cluster = LocalCluster(
-                n_workers=workers or os.cpu_count() or 1,
-                threads_per_worker=1,
-                processes=True,
-                dashboard_address=None,
-                # its warnings (a task cancelled, a worker killed on Ctrl-C) would break the one-line messages
-                silence_logs=logging.ERROR,
-            )
-        finally:
-            if previous is not None:
-                signal.signal(signal.SIGINT, previous)
+        cluster = _local_cluster(workers)
     client = Client(scheduler if scheduler is not None else cluster)
     try:
         drives = {}
@@ -444,6 +419,46 @@ def run_sweep(
             cluster.close()
             # workers stopped mid-write (Ctrl-C, a failure) leave temporaries: cleaned now their processes are gone
             _clean_drives(data_dir, [tasks[i] for i in todo])
+
+
+def _local_cluster(workers: int | None):
+    """A ``distributed.LocalCluster`` of ``workers`` single-threaded worker processes (default: the machine's
+    cores) that leave Ctrl-C to this process.
+
+    Ctrl-C goes to the whole process group. The workers start with SIGINT ignored (a disposition their processes
+    inherit), so this process alone stops the sweep and closes them in order, instead of each printing its own
+    traceback. While they start, SIGINT is blocked here as well: one pressed then stays pending (Linux keeps a
+    blocked signal even when its action is to ignore it) and arrives once the handler is back.
+    """
+    import os
+    import signal
+    import sys
+    import threading
+
+    from distributed import LocalCluster
+
+    # workers stopped mid-task leave semaphores that multiprocessing's tracker process warns about as this process
+    # exits, after the command's last line; the tracker takes its warning filters from these options
+    quiet = "ignore:resource_tracker:UserWarning"
+    if quiet not in sys.warnoptions:
+        sys.warnoptions.append(quiet)
+    main = threading.current_thread() is threading.main_thread()
+    if main:
+        signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+        previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        return LocalCluster(
+            n_workers=workers or os.cpu_count() or 1,
+            threads_per_worker=1,
+            processes=True,
+            dashboard_address=None,
+            # its warnings (a task cancelled, a worker killed on Ctrl-C) would break the one-line messages
+            silence_logs=logging.ERROR,
+        )
+    finally:
+        if main:
+            signal.signal(signal.SIGINT, previous)
+            signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
 
 
 #: Seconds a stopped worker is given to exit (and free its drive's lock) before its temporaries are left to the

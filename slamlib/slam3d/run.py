@@ -145,7 +145,9 @@ def run_drive(
             if isinstance(config, dict)
             else ""
         )
-        raise TypeError(f"config must be a SLAM3DConfig, got {type(config).__name__}{hint}")
+        raise TypeError(
+            f"config must be a SLAM3DConfig, got {type(config).__name__}{hint}"
+        )
     if T_velo_imu is None:
         T_velo_imu = getattr(frames, "T_velo_imu", None)
     slam = ParticleSLAM3D(config, T_velo_imu=T_velo_imu)

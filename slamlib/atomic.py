@@ -268,7 +268,12 @@ def write_error(path, exc: OSError) -> OSError:
     return OSError(exc.errno, exc.strerror or str(exc), os.fspath(path))
 
 
-def describe_os_error(exc: OSError) -> str:
-    """One line for ``exc``: its message and the file it names, without Python's ``[Errno N]`` prefix."""
+def describe_os_error(exc: OSError, where=None) -> str:
+    """One line for ``exc``: its message and the file it names, without Python's ``[Errno N]`` prefix. An error
+    that names no file (a failed ``write`` or ``close``) is told as :func:`write_error` tells it for the folder
+    ``where`` (given by the caller, who names it already)."""
+    if not exc.filename and where is not None:
+        exc = write_error(where, exc)
+        return exc.strerror
     what = exc.strerror or str(exc)
     return f"{exc.filename}: {what}" if exc.filename else what

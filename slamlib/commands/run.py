@@ -499,7 +499,7 @@ def main(args) -> int:
         )
     # a non-finite pose refused by the writers, a full disk, ...
     except (ValueError, OSError) as exc:
-        why = describe_os_error(exc) if isinstance(exc, OSError) else exc
+        why = describe_os_error(exc, args.out) if isinstance(exc, OSError) else exc
         raise SystemExit(
             f"slamlib run: could not write the results into {args.out}: {why}"
         ) from None

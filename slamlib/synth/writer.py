@@ -281,6 +281,11 @@ def _tofile(scan: np.ndarray, path: Path) -> None:
     from slamlib.atomic import write_error
 
     try:
-        np.ascontiguousarray(scan, dtype="<f4").tofile(path)
+        _write_array(np.ascontiguousarray(scan, dtype="<f4"), path)
     except OSError as exc:
         raise write_error(path, exc) from None
+
+
+def _write_array(array: np.ndarray, path: Path) -> None:
+    """``array.tofile(path)``: the one place a scan's bytes reach the disk."""
+    array.tofile(path)

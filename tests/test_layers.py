@@ -33,6 +33,7 @@ LAYERS = {
     "resampling": 1,
     "contract": 1,
     "errors": 1,
+    "atomic": 1,
     "paths": 1,
     "data": 1,
     "plotstyle": 1,

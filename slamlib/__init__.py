@@ -12,6 +12,19 @@ The pipeline is the same twelve steps at every dimension (see ``book/intro.md``)
 
 __version__ = "0.1.0"
 
+import os as _os
+import sys as _sys
+
+#: The threading layers Numba tries, in order, unless the user names them (``NUMBA_THREADING_LAYER`` or
+#: ``NUMBA_THREADING_LAYER_PRIORITY``). Numba's own order starts with TBB; a TBB older than Numba supports (as
+#: Debian's 2021.5 with Numba 0.68) is refused with a ``NumbaWarning`` printed amid the progress bars, and OpenMP,
+#: its next choice, is taken anyway. Asking for OpenMP first gives the same layer without the warning.
+THREADING_LAYER_PRIORITY = ("omp", "tbb", "workqueue")
+if not {"NUMBA_THREADING_LAYER", "NUMBA_THREADING_LAYER_PRIORITY"} & _os.environ.keys():
+    _os.environ["NUMBA_THREADING_LAYER_PRIORITY"] = " ".join(THREADING_LAYER_PRIORITY)
+    if "numba" in _sys.modules:  # imported before slamlib: its configuration is read already
+        _sys.modules["numba"].config.THREADING_LAYER_PRIORITY = list(THREADING_LAYER_PRIORITY)
+
 from slamlib.errors import DataFormatError  # noqa: E402
 
 __all__ = ["__version__", "DataFormatError"]

@@ -578,3 +578,25 @@ def test_slamlib_run_old_options_are_taken_with_a_note(
         False,
         False,
     )
+
+
+def test_a_run_prints_no_library_warning(cli_drive, tmp_path):
+    """No library warning reaches the user of ``slamlib run`` (Numba's about an old TBB was one: slamlib asks
+    for OpenMP first, ``slamlib.THREADING_LAYER_PRIORITY``), unless they chose the layers themselves."""
+    import os
+    import subprocess
+    import sys
+
+    args, _ = cli_drive
+    env = {
+        k: v for k, v in os.environ.items() if not k.startswith("NUMBA_THREADING_LAYER")
+    }
+    result = subprocess.run(
+        [sys.executable, "-m", "slamlib.cli", *args, "--out", str(tmp_path / "o")],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=300,
+    )
+    assert result.returncode == 0, result.stderr
+    assert "Warning" not in result.stderr and "warnings.warn" not in result.stderr

@@ -22,8 +22,12 @@ import sys as _sys
 THREADING_LAYER_PRIORITY = ("omp", "tbb", "workqueue")
 if not {"NUMBA_THREADING_LAYER", "NUMBA_THREADING_LAYER_PRIORITY"} & _os.environ.keys():
     _os.environ["NUMBA_THREADING_LAYER_PRIORITY"] = " ".join(THREADING_LAYER_PRIORITY)
-    if "numba" in _sys.modules:  # imported before slamlib: its configuration is read already
-        _sys.modules["numba"].config.THREADING_LAYER_PRIORITY = list(THREADING_LAYER_PRIORITY)
+    if (
+        "numba" in _sys.modules
+    ):  # imported before slamlib: its configuration is read already
+        _sys.modules["numba"].config.THREADING_LAYER_PRIORITY = list(
+            THREADING_LAYER_PRIORITY
+        )
 
 from slamlib.errors import DataFormatError  # noqa: E402
 

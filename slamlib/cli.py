@@ -8,6 +8,7 @@ import importlib
 import signal
 import sys
 import threading
+import time
 
 from slamlib import __version__
 from slamlib.commands import COMMANDS
@@ -70,6 +71,7 @@ def _run_command(argv: list[str] | None) -> int:
     from slamlib.atomic import describe_os_error
     from slamlib.errors import FolderBusyError
 
+    started = time.perf_counter()
     name = "slamlib"
     received = []
 
@@ -87,6 +89,7 @@ def _run_command(argv: list[str] | None) -> int:
         args = parser.parse_args(argv)
         # as typed, for results that record their command
         args.argv = list(sys.argv[1:] if argv is None else argv)
+        args.started = started  # for the start-up time a command reports
         if args.command is None:
             parser.print_help()
             return 0

@@ -600,3 +600,45 @@ def test_a_run_prints_no_library_warning(cli_drive, tmp_path):
     )
     assert result.returncode == 0, result.stderr
     assert "Warning" not in result.stderr and "warnings.warn" not in result.stderr
+
+
+def test_run_reports_steady_frames_per_second_apart_from_the_start_up(
+    cli_drive, tmp_path, capsys
+):
+    """The rate after the first ``STARTUP_FRAMES`` frames, and the start-up (imports, kernels, those frames) on
+    its own: a new user's first number is not the compile time. The numbers come from the run's own clocks."""
+    import re
+
+    from slamlib.cli import main
+    from slamlib.slam3d.run import STARTUP_FRAMES
+
+    args, _ = cli_drive
+    assert main(args + ["--out", str(tmp_path / "o")]) == 0
+    out = capsys.readouterr().out
+    m = re.search(
+        r"(\d+) frames in ([\d.]+) s: ([\d.]+|nan) frames/s after a start-up of ([\d.]+) s \(imports, "
+        rf"kernels compiled or loaded, the first {STARTUP_FRAMES} frames\)",
+        out,
+    )
+    assert m, out
+    assert float(m.group(4)) > 0
+
+
+def test_steady_frames_per_second_leaves_out_the_start_up_frames():
+    from slamlib.slam3d.run import STARTUP_FRAMES, SLAMRun
+
+    def run(n, seconds, warm_after):
+        return SLAMRun(
+            np.zeros((n, 4, 4)),
+            None,
+            None,
+            np.zeros(n),
+            np.arange(n),
+            seconds,
+            None,
+            warm_at=100.0 + warm_after,
+            started_at=100.0,
+        )
+
+    assert run(12, 3.0, 1.0).steady_fps == pytest.approx((12 - STARTUP_FRAMES) / 2.0)
+    assert np.isnan(run(STARTUP_FRAMES, 3.0, 3.0).steady_fps)

@@ -342,6 +342,7 @@ def main(args) -> int:
     from slamlib.kitti import KittiRawDrive
     from slamlib.slam3d import SLAM3DConfig, parse_frames, save_run
     from slamlib.slam3d.config import OLD_MAP_NAMES
+    from slamlib.slam3d.run import STARTUP_FRAMES
 
     given = [x is not None for x in (args.basedir, args.date, args.drive)]
     odometry = args.odometry_dir is not None or args.sequence is not None
@@ -477,6 +478,14 @@ def main(args) -> int:
         f"backend {cfg.backend}"
         + (", LIDAR-only (constant velocity)" if cfg.motion.model != "imu" else "")
     )
+    if cfg.backend == "cpu":
+        from slamlib.kernels.cpu import kernels_cached
+
+        if kernels_cached() is False:
+            print(
+                "compiling kernels (first run only: later runs load them from the cache)",
+                flush=True,
+            )
     try:
         run = _run(drive, cfg, args)
     except BackendUnavailableError as exc:
@@ -503,7 +512,11 @@ def main(args) -> int:
         raise SystemExit(
             f"slamlib run: could not write the results into {args.out}: {why}"
         ) from None
-    print(f"{len(run.poses)} frames in {run.seconds:.1f} s: {run.fps:.1f} frames/s")
+    startup = run.warm_at - getattr(args, "started", run.started_at)
+    print(
+        f"{len(run.poses)} frames in {run.seconds:.1f} s: {run.steady_fps:.1f} frames/s after a start-up "
+        f"of {startup:.1f} s (imports, kernels compiled or loaded, the first {STARTUP_FRAMES} frames)"
+    )
     info = json.loads(Path(files["metrics"]).read_text())
     if "metrics" in info:
         m = info["metrics"]

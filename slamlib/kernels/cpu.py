@@ -254,6 +254,19 @@ def _make_move_kernels(soa: bool):
 _MOVE = {soa: _make_move_kernels(soa) for soa in (False, True)}
 
 
+def kernels_cached() -> bool | None:
+    """Whether Numba's on-disk cache holds compiled scoring kernels for this source (an index whose stamp matches
+    this file), so that a run loads its kernels instead of compiling them (seconds); None when this Numba cannot
+    tell. Numba writes the whole cache of a run at once, so one scoring kernel stands for the rest."""
+    try:
+        return any(
+            bool(kernel._cache._cache_file._load_index())  # {} when missing or stale
+            for kernel in (_score_voxel_nb, _score_morton_nb)
+        )
+    except AttributeError:  # another Numba's cache layout, or caching off
+        return None
+
+
 def _launch(kernel, n, chunk, *args):
     """``kernel(*args, chunk)``, a ``prange`` over ``ceil(n / chunk)`` tasks of ``chunk`` items, on one thread
     when that is a single task: waking the pool's other threads would cost more than the work (and on a busy

@@ -53,6 +53,9 @@ class SLAMRun:
     slam : the filter (its ``map``, ``config``, particles).
     snapshots : list of ``(frame position, map points (M, 3), pose (4, 4))`` taken every ``snapshot_every`` frames.
     frame_seconds : (F,) wall-clock seconds of each ``register_frame`` call (reading the frame not included).
+    started_at, warm_at : ``time.perf_counter()`` when the loop over the frames began, and when the first
+        :data:`STARTUP_FRAMES` frames were done (the kernels compiled or loaded from Numba's cache, the map
+        begun); ``steady_fps`` is the rate after them.
     segment_starts : (S,) frame positions where a segment starts (``[0]`` without a gap in time,
         :mod:`slamlib.slam3d.segments`); ``segments`` the filter of each (``slam`` is the last).
     """
@@ -68,6 +71,16 @@ class SLAMRun:
     frame_seconds: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
     segment_starts: np.ndarray = field(default_factory=lambda: np.zeros(1, np.int64))
     segments: list = field(default_factory=list, repr=False)
+    warm_at: float = float("nan")
+    started_at: float = float("nan")
+
+    @property
+    def steady_fps(self) -> float:
+        """Frames per second after the first :data:`STARTUP_FRAMES` (frame reading included): the rate a longer
+        drive runs at, without the one-off cost of compiling or loading the kernels; NaN for a run that short."""
+        n = len(self.poses) - STARTUP_FRAMES
+        spent = self.seconds - (self.warm_at - self.started_at)
+        return n / spent if n > 0 and spent > 0 else float("nan")
 
     def filters(self) -> list:
         """The filter of every segment, in order (one without a gap in time)."""
@@ -82,6 +95,11 @@ class SLAMRun:
     def fps(self) -> float:
         """Frames per second of the SLAM loop."""
         return len(self.poses) / self.seconds if self.seconds > 0 else float("nan")
+
+
+#: Frames a run takes to reach its steady pace: the first builds the map only, the second is the first scored one
+#: (the move and score kernels run, compiled or loaded from Numba's cache, for the first time).
+STARTUP_FRAMES = 2
 
 
 def parse_frames(text: str | None, n: int | None = None) -> slice | None:
@@ -157,7 +175,7 @@ def run_drive(
     bar = tqdm(
         frames, total=total, desc=desc, unit="frame", disable=not progress, smoothing=0.1
     )
-    t0 = time.perf_counter()
+    t0 = warm_at = time.perf_counter()
     for k, frame in enumerate(bar):
         dt = float(getattr(frame, "dt", 0.0))
         if k > 0 and is_gap(dt, intervals):
@@ -181,6 +199,8 @@ def run_drive(
         idx.append(int(getattr(frame, "index", k)))
         if snapshot_every and k % snapshot_every == 0:
             snaps.append((k, slam.map_points(), pose.copy()))
+        if k == STARTUP_FRAMES - 1:
+            warm_at = time.perf_counter()
     seconds = time.perf_counter() - t0
     bar.close()
     ground_truth = None
@@ -201,6 +221,8 @@ def run_drive(
         np.asarray(frame_seconds),
         np.asarray(starts, dtype=np.int64),
         filters,
+        warm_at,
+        t0,
     )
 
 

@@ -452,8 +452,9 @@ def _local_cluster(workers: int | None):
             threads_per_worker=1,
             processes=True,
             dashboard_address=None,
-            # its warnings (a task cancelled, a worker killed on Ctrl-C) would break the one-line messages
-            silence_logs=logging.ERROR,
+            # its log (a task cancelled, a worker killed on Ctrl-C, a heartbeat cut at shutdown) would break the
+            # one-line messages; task errors reach us through their futures
+            silence_logs=logging.CRITICAL,
         )
     finally:
         if main:

@@ -78,7 +78,7 @@ MUTANTS             ?=
 MUTATE_TESTS        ?=
 MUTATE_JIT          ?= 0
 MUTATE_PURE         := slamlib.resampling.* slamlib.metrics.* slamlib.geometry.* slamlib.odometry.* \
-                       slamlib.sim1d.* slamlib.slam3d.* slamlib.kitti.* slamlib.contract.*
+                       slamlib.sim1d.* slamlib.slam3d.* slamlib.kitti.* slamlib.contract.* slamlib.atomic.*
 MUTATE_JITTED       := slamlib.noise.* slamlib.maps.* slamlib.kernels.*
 MUTATE_JITTED_TESTS := tests/test_noise.py tests/test_maps.py tests/test_kernels_cpu.py
 mutate: setup

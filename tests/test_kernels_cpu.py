@@ -1361,7 +1361,7 @@ def test_systematic_resample_normalises_float32_weights_in_float64():
 def test_move_kernels_built_afresh_equal_the_reference(monkeypatch):
     """``_make_move_kernels`` (the factory that runs at import) rebuilt here and put in place of ``_MOVE``: both
     layouts, drawn noise and LUT noise with and without the cos/sin table, over three particle blocks (the last
-    partial), equal the numpy reference. A test on the import-time build alone could not see a change to the
+    partial), equal the numpy reference, in place too. A test on the import-time build alone could not see a change to the
     factory made after import (as in ``make mutate``, whose mutants switch on after the import)."""
     from slamlib.kernels.cpu import move_particles_soa
     from slamlib.noise import LutNoise, make_tables
@@ -1389,3 +1389,12 @@ def test_move_kernels_built_afresh_equal_the_reference(monkeypatch):
         R_s, t_s = move_particles_soa(Rs, ts, *args, nz_soa, sigma)
         np.testing.assert_allclose(R_s.transpose(2, 0, 1), R_r, atol=1e-12)
         np.testing.assert_allclose(t_s.T, t_r, atol=1e-12)
+        # in place, each particle moved exactly once: blocks that overlapped would move some twice
+        R_i, t_i = R.copy(), t.copy()
+        CPU.move_particles(R_i, t_i, *args, nz, sigma, out=(R_i, t_i))
+        np.testing.assert_array_equal(R_i, R_c)
+        np.testing.assert_array_equal(t_i, t_c)
+        R_j, t_j = Rs.copy(), ts.copy()
+        move_particles_soa(R_j, t_j, *args, nz_soa, sigma, out=(R_j, t_j))
+        np.testing.assert_array_equal(R_j, R_s)
+        np.testing.assert_array_equal(t_j, t_s)

@@ -10,10 +10,13 @@ Examples::
 
 The drive goes to ``OUT/DATE/DATE_drive_NNNN_sync`` beside the real 2011_09_26 calibration files (copied into
 ``OUT/DATE``) and reads unmodified with ``pykitti.raw(OUT, DATE, "NNNN")`` or ``slamlib run --basedir OUT
---date DATE --drive NNNN``. A drive folder that already holds a synthetic drive (complete, or interrupted: its
-``.slamlib_synth.partial.json``) has the generator's files replaced and keeps every other file (notes, a ``slamlib
-run --out DRIVE/out`` folder); a non-empty folder that is not synthetic (no ``.slamlib_synth.json`` marker), or
-calibration files that differ from the ones written, are never overwritten.
+--date DATE --drive NNNN``. The drive appears whole or not at all: it is written into a hidden temporary folder
+beside it under a lock (a second ``slamlib synth`` into the same folder is told which process writes it) and renamed
+into place; Ctrl-C or a full disk leaves nothing half written. A drive folder that already holds a synthetic drive
+(complete, or left interrupted by an older slamlib: its ``.slamlib_synth.partial.json``) has the generator's files
+replaced and keeps every other file (notes, a ``slamlib run --out DRIVE/out`` folder); a non-empty folder that is
+not synthetic (no ``.slamlib_synth.json`` marker), or calibration files that differ from the ones written, are never
+overwritten.
 """
 
 from __future__ import annotations

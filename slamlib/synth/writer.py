@@ -147,11 +147,13 @@ def write_calib(basedir, date: str) -> Path:
     """Copy the three real 2011_09_26 calibration files into ``basedir/DATE``; returns that folder.
 
     Raises ``FileExistsError`` (before writing anything) if one is already there and differs."""
+    from slamlib.atomic import atomic_file
+
     check_calib(basedir, date)
     d = Path(basedir) / date
     d.mkdir(parents=True, exist_ok=True)
-    for name in CALIB_FILES:
-        shutil.copyfile(_SAMPLE / name, d / name)
+    for name in CALIB_FILES:  # whole, by a rename: another drive of the date may be read meanwhile
+        atomic_file(d / name, (_SAMPLE / name).read_bytes())
     return d
 
 

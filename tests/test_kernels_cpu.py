@@ -1361,8 +1361,8 @@ def test_systematic_resample_normalises_float32_weights_in_float64():
 def test_move_kernels_built_afresh_equal_the_reference(monkeypatch):
     """``_make_move_kernels`` (the factory that runs at import) rebuilt here and put in place of ``_MOVE``: both
     layouts, drawn noise and LUT noise with and without the cos/sin table, over three particle blocks (the last
-    partial), equal the numpy reference, in place too. A test on the import-time build alone could not see a change to the
-    factory made after import (as in ``make mutate``, whose mutants switch on after the import)."""
+    partial), equal the numpy reference, in place too. A test on the import-time build alone could not see a
+    change to the factory made after import (as in ``make mutate``, whose mutants switch on after the import)."""
     from slamlib.kernels.cpu import move_particles_soa
     from slamlib.noise import LutNoise, make_tables
 

@@ -67,6 +67,11 @@ def leftovers(parent: Path, keep: set) -> list:
     return sorted(p.name for p in parent.iterdir() if p.name not in keep)
 
 
+def visible(folder: Path) -> set:
+    """The names in ``folder`` that are not hidden: temporaries and locks are, outputs are not."""
+    return {p.name for p in folder.iterdir() if not p.name.startswith(".")}
+
+
 def finish(*args) -> None:
     proc = slamlib(*args)
     _, err = proc.communicate()
@@ -166,9 +171,7 @@ class Run(Case):
         return None
 
     def beside(self):
-        return self.root, {
-            p.name for p in self.root.iterdir() if not p.name.startswith(".")
-        }
+        return self.root, visible(self.root)
 
     def rerun(self):
         finish("run", *self.args, "--seed", 1, "--out", self.out)
@@ -227,10 +230,8 @@ class Sweep(Case):
         return None
 
     def beside(self):
-        # temporaries and locks are hidden; the output folder itself is check()'s (a resume journal may stay)
-        return self.root, {
-            p.name for p in self.root.iterdir() if not p.name.startswith(".")
-        }
+        # the output folder itself is check()'s (a resume journal may stay)
+        return self.root, visible(self.root)
 
     def rerun(self):
         finish(

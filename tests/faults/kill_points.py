@@ -2,7 +2,8 @@
 leave: never a mixed output, and no temporary once the process (or, after ``SIGKILL``, the next writer) is done.
 
 Each kill point: the command writes over an earlier complete output of another setting (seed); a signal (SIGKILL,
-SIGTERM or SIGINT, drawn) arrives after a random delay within the command's measured duration. Then the output must
+SIGTERM or SIGINT, drawn) arrives after a random delay within the command's measured duration, from the end of the
+interpreter's own start-up on (a signal before any slamlib code runs ends Python the way Python does). Then the output must
 be exactly the earlier one, or exactly the new one (synth: every file; run: the poses and the set of files of the new
 run; sweep: no table, or the whole table), the user's file in it untouched; after SIGTERM / SIGINT nothing but the
 output may be left beside it, and after SIGKILL the same command run again must finish and clean up.
@@ -260,11 +261,14 @@ def main() -> int:
         cases = [Synth(root), Run(root), Sweep(root)]
         for case in cases:
             case.prepare()
+        t0 = time.perf_counter()
+        subprocess.run([sys.executable, "-c", "import slamlib.cli"], check=True)
+        startup = time.perf_counter() - t0
         for n in range(args.count):
             case = cases[n % len(cases)]
             sig = rng.choice(SIGNALS)
             case.reset()
-            delay = rng.uniform(0.0, 1.1 * case.duration)
+            delay = rng.uniform(startup, 1.1 * case.duration)
             proc = case.start()
             time.sleep(delay)
             proc.send_signal(sig)

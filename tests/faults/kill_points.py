@@ -3,10 +3,10 @@ leave: never a mixed output, and no temporary once the process (or, after ``SIGK
 
 Each kill point: the command writes over an earlier complete output of another setting (seed); a signal (SIGKILL,
 SIGTERM or SIGINT, drawn) arrives after a random delay within the command's measured duration, from the end of the
-interpreter's own start-up on (a signal before any slamlib code runs ends Python the way Python does). Then the output must
-be exactly the earlier one, or exactly the new one (synth: every file; run: the poses and the set of files of the new
-run; sweep: no table, or the whole table), the user's file in it untouched; after SIGTERM / SIGINT nothing but the
-output may be left beside it, and after SIGKILL the same command run again must finish and clean up.
+interpreter's own start-up on (a signal before any slamlib code runs ends Python the way Python does). Then the
+output must be exactly the earlier one, or exactly the new one (synth: every file; run: the poses and the set of files
+of the new run; sweep: no table, or the whole table), the user's file in it untouched; after SIGTERM / SIGINT nothing
+but the output may be left beside it, and after SIGKILL the same command run again must finish and clean up.
 
     python tests/faults/kill_points.py --count 200            # the local run of issue 34 (~20 min on 2 cores)
     python tests/faults/kill_points.py --count 6 --seed 1     # a few, as tests/test_atomic.py runs it

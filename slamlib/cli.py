@@ -68,7 +68,7 @@ def _run_command(argv: list[str] | None) -> int:
     A signal is remembered as it arrives: the exception its handler raises may surface as another one (a C
     extension being imported turns it into ``ImportError``), and the command still ends as the signal asks.
     """
-    from slamlib.atomic import describe_os_error
+    from slamlib.atomic import describe_os_error, write_error
     from slamlib.errors import FolderBusyError
 
     started = time.perf_counter()
@@ -112,6 +112,8 @@ def _run_command(argv: list[str] | None) -> int:
         if isinstance(exc, FolderBusyError) or (
             isinstance(exc, OSError) and exc.errno == errno.ENOSPC
         ):
+            if isinstance(exc, OSError) and exc.filename:  # with the free space left there
+                exc = write_error(exc.filename, exc)
             what = describe_os_error(exc) if isinstance(exc, OSError) else exc
             print(f"{name}: {what}", file=sys.stderr)
             return EXIT_ERROR

@@ -57,3 +57,24 @@ def test_option_equals_double_dash_is_a_one_line_error(tmp_path, capsys, command
     with pytest.raises(SystemExit) as exc:
         main(argv)
     assert exc.value.code == 2 and option in capsys.readouterr().err
+
+
+def test_a_full_disk_anywhere_is_one_line_with_the_file_and_the_free_space(
+    monkeypatch, capsys
+):
+    """An ``ENOSPC`` from any command (here a plotting write of ``sim1d``) ends it with one line naming the file
+    and the free space, exit 1, no traceback."""
+    import errno
+
+    import slamlib.commands.sim1d as sim1d
+
+    def full(args):
+        raise OSError(errno.ENOSPC, "No space left on device", "/tmp/x/plot.png")
+
+    monkeypatch.setattr(sim1d, "main", full)
+    from slamlib.cli import main
+
+    assert main(["sim1d"]) == 1
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert line.startswith("slamlib sim1d: /tmp/x/plot.png: no space left on the disk (")
+    assert line.endswith(" free there)")

@@ -642,3 +642,19 @@ def test_steady_frames_per_second_leaves_out_the_start_up_frames():
 
     assert run(12, 3.0, 1.0).steady_fps == pytest.approx((12 - STARTUP_FRAMES) / 2.0)
     assert np.isnan(run(STARTUP_FRAMES, 3.0, 3.0).steady_fps)
+
+
+def test_a_path_under_100_m_has_no_kitti_error_and_says_so(cli_drive, tmp_path, capsys):
+    """The KITTI metric needs 100 m segments: a shorter drive prints "n/a (path < 100 m)", not nan."""
+    from slamlib.cli import main
+
+    args, _ = cli_drive
+    assert main(args + ["--out", str(tmp_path / "o")]) == 0
+    out = capsys.readouterr().out
+    rows = [
+        line
+        for line in out.splitlines()
+        if line.startswith(("particle SLAM", "dead reckoning"))
+    ]
+    assert len(rows) == 2 and all(row.endswith("n/a (path < 100 m)") for row in rows)
+    assert "nan" not in out

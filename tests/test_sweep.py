@@ -380,3 +380,42 @@ def test_sweep_command_keeps_finished_rows_and_resumes_after_a_failed_task(
         "sweep.png",
     ]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["o"]
+
+
+def test_a_drive_another_process_is_writing_is_waited_for(tmp_path, capsys):
+    """Two sweeps sharing ``--data``: ``drive_task`` waits while another process holds the drive's lock, then
+    uses the drive (here: writes it, the other having written nothing) instead of failing."""
+    import subprocess
+    import sys
+    import textwrap
+    import time
+
+    from slamlib.experiments.sweep import drive_task
+    from slamlib.synth.writer import drive_dir, read_marker
+
+    task = SweepTask("loop", (0, 4), 0, "raw", "slamlib")
+    folder = drive_dir(tmp_path / task.drive_key(), "2011_09_26", 1)
+    holder = subprocess.Popen(
+        [
+            sys.executable,
+            "-c",
+            textwrap.dedent(
+                f"""
+                import time
+                from slamlib.atomic import folder_lock
+                with folder_lock({str(folder)!r}):
+                    print("held", flush=True)
+                    time.sleep(1.5)
+                """
+            ),
+        ],
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    assert holder.stdout.readline().strip() == "held"
+    t0 = time.monotonic()
+    base = drive_task(task, tmp_path)
+    assert time.monotonic() - t0 > 0.5
+    holder.wait(10)
+    assert read_marker(folder)["frames"] == 4 and base == str(tmp_path / task.drive_key())
+    assert "is being written by process" in capsys.readouterr().err

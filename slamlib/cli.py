@@ -112,7 +112,8 @@ def _run_command(argv: list[str] | None) -> int:
         if isinstance(exc, FolderBusyError) or (
             isinstance(exc, OSError) and exc.errno == errno.ENOSPC
         ):
-            if isinstance(exc, OSError) and exc.filename:  # with the free space left there
+            # with the free space left there
+            if isinstance(exc, OSError) and exc.filename:
                 exc = write_error(exc.filename, exc)
             what = describe_os_error(exc) if isinstance(exc, OSError) else exc
             print(f"{name}: {what}", file=sys.stderr)

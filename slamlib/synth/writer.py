@@ -152,7 +152,8 @@ def write_calib(basedir, date: str) -> Path:
     check_calib(basedir, date)
     d = Path(basedir) / date
     d.mkdir(parents=True, exist_ok=True)
-    for name in CALIB_FILES:  # whole, by a rename: another drive of the date may be read meanwhile
+    # whole, by a rename: another drive of the date may be read meanwhile
+    for name in CALIB_FILES:
         atomic_file(d / name, (_SAMPLE / name).read_bytes())
     return d
 

@@ -60,68 +60,101 @@ class Terminated(BaseException):
     its temporary files and release its locks (:mod:`slamlib.atomic`)."""
 
 
+class _SignalsAsExceptions:
+    """For the ``with`` block, in the main thread: SIGINT raises ``KeyboardInterrupt`` and SIGTERM
+    :class:`Terminated`, and each signal is remembered as it arrives (``received``), because the exception may
+    not reach the command as itself: a C extension being imported turns it into ``ImportError``, and one raised in
+    a destructor is swallowed (Python reports it as unraisable; that report is left out here, the command then
+    ending as the signal asks once it returns)."""
+
+    def __enter__(self):
+        self.received, self.previous = [], {}
+        self.hook = sys.unraisablehook
+        if threading.current_thread() is threading.main_thread():  # signals reach it only
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                if signal.getsignal(sig) is not signal.SIG_IGN:
+                    self.previous[sig] = signal.signal(sig, self._raise)
+            sys.unraisablehook = self._unraisable
+        return self
+
+    def _raise(self, signum, frame):
+        self.received.append(signum)
+        raise Terminated if signum == signal.SIGTERM else KeyboardInterrupt
+
+    def _unraisable(self, unraisable):
+        if not (
+            self.received
+            and isinstance(unraisable.exc_value, (Terminated, KeyboardInterrupt))
+        ):
+            self.hook(unraisable)
+
+    def __exit__(self, *exc):
+        for sig, handler in self.previous.items():
+            signal.signal(sig, handler)
+        sys.unraisablehook = self.hook
+        return False
+
+    def ended_by(self, exc: BaseException | None):
+        """The signal that ends the command: the first received, or the one ``exc`` stands for."""
+        if self.received:
+            return self.received[0]
+        if isinstance(exc, KeyboardInterrupt):
+            return signal.SIGINT
+        return signal.SIGTERM if isinstance(exc, Terminated) else None
+
+
+def _signal_exit(name: str, sig) -> int:
+    """The one line and the exit code of a command ended by ``sig``."""
+    if sig == signal.SIGINT:
+        print(
+            f"\n{name}: interrupted (Ctrl-C); nothing half written is left",
+            file=sys.stderr,
+        )
+        return EXIT_SIGINT
+    print(f"{name}: terminated (SIGTERM); nothing half written is left", file=sys.stderr)
+    return EXIT_SIGTERM
+
+
 def _run_command(argv: list[str] | None) -> int:
     """Parse ``argv`` and run its command, with signals and the errors every command shares as one line on stderr
     and an exit code: Ctrl-C 130, SIGTERM 143, a folder another process writes or a full disk 1. The signal
-    handlers are in place before the commands' modules load, so a signal during the imports ends the same way.
-
-    A signal is remembered as it arrives: the exception its handler raises may surface as another one (a C
-    extension being imported turns it into ``ImportError``), and the command still ends as the signal asks.
+    handlers are in place before the commands' modules load (:class:`_SignalsAsExceptions`), so a signal during
+    the imports ends the same way.
     """
     from slamlib.atomic import describe_os_error, write_error
     from slamlib.errors import FolderBusyError
 
     started = time.perf_counter()
     name = "slamlib"
-    received = []
-
-    def on_signal(signum, frame):
-        received.append(signum)
-        raise Terminated if signum == signal.SIGTERM else KeyboardInterrupt
-
-    previous = {}
-    if threading.current_thread() is threading.main_thread():  # signals reach it only
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            if signal.getsignal(sig) is not signal.SIG_IGN:
-                previous[sig] = signal.signal(sig, on_signal)
-    try:
-        parser = build_parser()
-        args = parser.parse_args(argv)
-        # as typed, for results that record their command
-        args.argv = list(sys.argv[1:] if argv is None else argv)
-        args.started = started  # for the start-up time a command reports
-        if args.command is None:
-            parser.print_help()
-            return 0
-        name = f"slamlib {args.command}"
-        _check_single_values(parser.commands[args.command], args)
-        return int(args._main(args) or 0)
-    except BaseException as exc:
-        if isinstance(exc, KeyboardInterrupt) or signal.SIGINT in received[:1]:
-            print(
-                f"\n{name}: interrupted (Ctrl-C); nothing half written is left",
-                file=sys.stderr,
-            )
-            return EXIT_SIGINT
-        if isinstance(exc, Terminated) or signal.SIGTERM in received[:1]:
-            print(
-                f"{name}: terminated (SIGTERM); nothing half written is left",
-                file=sys.stderr,
-            )
-            return EXIT_SIGTERM
-        if isinstance(exc, FolderBusyError) or (
-            isinstance(exc, OSError) and exc.errno == errno.ENOSPC
-        ):
-            # with the free space left there
-            if isinstance(exc, OSError) and exc.filename:
-                exc = write_error(exc.filename, exc)
-            what = describe_os_error(exc) if isinstance(exc, OSError) else exc
-            print(f"{name}: {what}", file=sys.stderr)
-            return EXIT_ERROR
-        raise
-    finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
+    with _SignalsAsExceptions() as signals:
+        try:
+            parser = build_parser()
+            args = parser.parse_args(argv)
+            # as typed, for results that record their command
+            args.argv = list(sys.argv[1:] if argv is None else argv)
+            args.started = started  # for the start-up time a command reports
+            if args.command is None:
+                parser.print_help()
+                return 0
+            name = f"slamlib {args.command}"
+            _check_single_values(parser.commands[args.command], args)
+            code = int(args._main(args) or 0)
+        except BaseException as exc:
+            sig = signals.ended_by(exc)
+            if sig is not None:
+                return _signal_exit(name, sig)
+            if isinstance(exc, OSError) and exc.errno == errno.ENOSPC:
+                # with the free space left there
+                exc = write_error(exc.filename, exc) if exc.filename else exc
+                print(f"{name}: {describe_os_error(exc)}", file=sys.stderr)
+                return EXIT_ERROR
+            if isinstance(exc, FolderBusyError):
+                print(f"{name}: {exc}", file=sys.stderr)
+                return EXIT_ERROR
+            raise
+        # a signal swallowed on the way (in a destructor): the command finished, and says how it was asked to end
+        sig = signals.ended_by(None)
+        return code if sig is None else _signal_exit(name, sig)
 
 
 def main(argv: list[str] | None = None) -> int:

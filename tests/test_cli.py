@@ -78,3 +78,31 @@ def test_a_full_disk_anywhere_is_one_line_with_the_file_and_the_free_space(
     (line,) = capsys.readouterr().err.strip().splitlines()
     assert line.startswith("slamlib sim1d: /tmp/x/plot.png: no space left on the disk (")
     assert line.endswith(" free there)")
+
+
+def test_a_signal_swallowed_in_a_destructor_still_ends_the_command_as_it_asks(
+    monkeypatch, capsys
+):
+    """SIGTERM arriving while a destructor runs: Python cannot raise there and would print "Exception ignored";
+    the command finishes, prints no such report, and ends with the one line and exit 143."""
+    import os
+    import signal
+
+    import slamlib.commands.sim1d as sim1d
+
+    class Dying:
+        def __del__(self):
+            os.kill(os.getpid(), signal.SIGTERM)
+            for _ in range(1000):  # bytecodes for the handler to run in
+                pass
+
+    def command(args):
+        Dying()  # collected at once, its destructor signalling
+        return 0
+
+    monkeypatch.setattr(sim1d, "main", command)
+    assert main(["sim1d"]) == 143
+    err = capsys.readouterr().err
+    assert (
+        err.strip() == "slamlib sim1d: terminated (SIGTERM); nothing half written is left"
+    )

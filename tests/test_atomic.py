@@ -3,6 +3,7 @@ interruption, concurrency and a full disk."""
 
 import errno
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -412,3 +413,72 @@ def test_kill_points_leave_no_mixed_output(tmp_path):
     )
     assert result.returncode == 0, result.stdout[-2000:] + result.stderr[-2000:]
     assert "3 kill points, no mixed output and nothing left behind" in result.stdout
+
+
+def test_sizes_and_holders_in_words(tmp_path):
+    from slamlib.atomic import _holder, _size
+
+    assert [_size(n) for n in (None, 5, 999, 1500, 2_500_000, 3_000_000_000)] == [
+        "an unknown amount",
+        "5 bytes",
+        "999 bytes",
+        "1.5 kB",
+        "2.5 MB",
+        "3.0 GB",
+    ]
+    assert [_size(10**k) for k in (3, 6, 9)] == ["1.0 kB", "1.0 MB", "1.0 GB"]
+    lock = tmp_path / ".x.lock"
+    assert _holder(lock) == "another process"  # no lock file
+    lock.write_text("4242\n")
+    assert _holder(lock) == "process 4242"
+    lock.write_text("garbage")
+    assert _holder(lock) == "another process"
+
+
+def test_write_errors_and_their_one_line(tmp_path):
+    from slamlib.atomic import describe_os_error
+
+    full = write_error(tmp_path / "a", OSError(errno.ENOSPC, "No space left on device"))
+    assert re.fullmatch(
+        r"no space left on the disk \(\d+(\.\d)? (GB|MB|kB|bytes) free there\)",
+        full.strerror,
+    )
+    # a message that only mentions writing is not a full disk
+    other = write_error(tmp_path / "b", OSError(errno.EIO, "block could not be written"))
+    assert other.errno == errno.EIO and other.filename == str(tmp_path / "b")
+    named = OSError(errno.EACCES, "Permission denied", "/x/f")
+    assert write_error(tmp_path / "c", named) is named  # it names its file already
+    assert describe_os_error(named, "/x") == "/x/f: Permission denied"
+    assert describe_os_error(OSError(errno.EIO, "I/O error")) == "I/O error"
+    assert describe_os_error(OSError("plain message")) == "plain message"
+    unnamed_full = OSError(errno.ENOSPC, "No space left on device")
+    assert describe_os_error(unnamed_full, tmp_path).startswith(
+        "no space left on the disk ("
+    )
+
+
+def test_stale_old_folders_are_all_put_back_or_merged(tmp_path):
+    out = tmp_path / "out"
+    for pid, name in ((1, "a.txt"), (2, "b.txt")):
+        old = tmp_path / f".out.{pid}.old"
+        old.mkdir()
+        (old / name).write_text(name)
+    with folder_lock(out):
+        removed = clean_stale(out)
+    # the first goes back as the folder, the second's entries join it
+    assert _tree(out) == {"a.txt": b"a.txt", "b.txt": b"b.txt"}
+    assert removed == [tmp_path / ".out.2.old"] and _hidden(tmp_path) == []
+
+
+def test_publishing_onto_a_file_is_refused(tmp_path):
+    from slamlib.atomic import publish_folder
+
+    target = tmp_path / "out"
+    target.write_text("a file")
+    tmp = tmp_path / "new"
+    tmp.mkdir()
+    with pytest.raises(
+        FileExistsError, match=f"^{re.escape(str(target))} exists and is not a folder$"
+    ):
+        publish_folder(tmp, target)
+    assert target.read_text() == "a file" and tmp.is_dir()

@@ -18,8 +18,11 @@ def test_a_gap_is_an_interval_over_a_few_typical_ones():
     assert is_gap(10.3, seen)
     # a stride of 10 frames is the typical interval of its own drive, not a gap
     assert not is_gap(1.03, [1.03, 1.04])
-    # too few intervals to tell what is typical
+    # too few intervals to tell what is typical; two are enough
     assert not is_gap(10.3, [period])
+    assert is_gap(10.3, [period, period])
+    # exactly five typical intervals is not yet a gap
+    assert not is_gap(GAP_PERIODS * 0.125, [0.125, 0.125, 0.125])
 
 
 def test_stitching_moves_each_segment_onto_the_ground_truth_at_its_start():
@@ -41,6 +44,13 @@ def test_stitching_moves_each_segment_onto_the_ground_truth_at_its_start():
     np.testing.assert_allclose(S[[4, 5, 7, 8]], G[[4, 5, 7, 8]], atol=1e-9)
     np.testing.assert_allclose(np.linalg.norm(S[6, :3, 3] - G[6, :3, 3]), 0.1, rtol=1e-9)
     np.testing.assert_allclose(stitch_segments(P, G, [0]), P)
+    # the first segment is never moved, even when it does not start at the ground truth's first pose
+    P0 = P.copy()
+    P0[:4] = make_pose(rpy_to_matrix([0.1, 0, 0]), [1.0, 0, 0]) @ P[:4]
+    np.testing.assert_allclose(stitch_segments(P0, G, [0, 4])[:4], P0[:4])
+    # a segment from the second frame on; integer poses are computed in float64
+    S1 = stitch_segments(np.broadcast_to(np.eye(4, dtype=int), (9, 4, 4)), G, [0, 1])
+    np.testing.assert_allclose(S1[1:], np.broadcast_to(G[1], (8, 4, 4)), atol=1e-12)
 
 
 @pytest.fixture(scope="module")

@@ -402,17 +402,26 @@ def test_two_first_runs_share_the_default_drive_being_generated(tmp_path):
 
 
 def test_kill_points_leave_no_mixed_output(tmp_path):
-    """A few of ``tests/faults/kill_points.py``'s random kill points (the full 200 are a local run, in the
-    issue's note): synth, run and sweep each killed once."""
+    """A few of ``tests/faults/kill_points.py``'s random kill points (the full 200, sweep included, are a local
+    run, in the issue's note): synth and run, each killed twice."""
     script = Path(__file__).parent / "faults" / "kill_points.py"
     result = subprocess.run(
-        [sys.executable, str(script), "--count", "3", "--seed", "7"],
+        [
+            sys.executable,
+            str(script),
+            "--count",
+            "4",
+            "--seed",
+            "7",
+            "--commands",
+            "synth,run",
+        ],
         capture_output=True,
         text=True,
         timeout=600,
     )
     assert result.returncode == 0, result.stdout[-2000:] + result.stderr[-2000:]
-    assert "3 kill points, no mixed output and nothing left behind" in result.stdout
+    assert "4 kill points, no mixed output and nothing left behind" in result.stdout
 
 
 def test_sizes_and_holders_in_words(tmp_path):

@@ -515,7 +515,7 @@ def main(args) -> int:
     startup = run.warm_at - getattr(args, "started", run.started_at)
     print(
         f"{len(run.poses)} frames in {run.seconds:.1f} s: {run.steady_fps:.1f} frames/s after a start-up "
-        f"of {startup:.1f} s (imports, kernels compiled or loaded, the first {STARTUP_FRAMES} frames)"
+        f"of {startup:.2f} s (imports, kernels compiled or loaded, the first {STARTUP_FRAMES} frames)"
     )
     info = json.loads(Path(files["metrics"]).read_text())
     if "metrics" in info:

@@ -253,12 +253,18 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--count", type=int, default=200)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument(
+        "--commands",
+        default="synth,run,sweep",
+        help="which to kill, in turn (default all three)",
+    )
     args = parser.parse_args()
     rng = random.Random(args.seed)
     counts = {}
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(tmp)
-        cases = [Synth(root), Run(root), Sweep(root)]
+        chosen = args.commands.split(",")
+        cases = [c(root) for c in (Synth, Run, Sweep) if c.name in chosen]
         for case in cases:
             case.prepare()
         t0 = time.perf_counter()

@@ -55,6 +55,11 @@ EXIT_SIGTERM = 128 + signal.SIGTERM
 EXIT_ERROR = 1
 
 
+#: Times a signal swallowed in a destructor is sent again, and the pause before each time (s).
+SIGNAL_REDELIVERIES = 5
+REDELIVERY_DELAY_S = 0.01
+
+
 class Terminated(BaseException):
     """Raised in the main thread on SIGTERM, so that a command unwinds as on Ctrl-C: its ``finally`` blocks remove
     its temporary files and release its locks (:mod:`slamlib.atomic`)."""
@@ -64,11 +69,13 @@ class _SignalsAsExceptions:
     """For the ``with`` block, in the main thread: SIGINT raises ``KeyboardInterrupt`` and SIGTERM
     :class:`Terminated`, and each signal is remembered as it arrives (``received``), because the exception may
     not reach the command as itself: a C extension being imported turns it into ``ImportError``, and one raised in
-    a destructor is swallowed (Python reports it as unraisable; that report is left out here, the command then
-    ending as the signal asks once it returns)."""
+    a destructor (llvmlite's and open3d's objects are collected at any moment) is swallowed. Python would report
+    that as unraisable; here the report is left out and the signal sent again a moment later, up to
+    :data:`SIGNAL_REDELIVERIES` times, so that it lands in the command's own code. A command that still finishes
+    ends as the signal asked."""
 
     def __enter__(self):
-        self.received, self.previous = [], {}
+        self.received, self.previous, self.timers, self.closing = [], {}, [], False
         self.hook = sys.unraisablehook
         if threading.current_thread() is threading.main_thread():  # signals reach it only
             for sig in (signal.SIGINT, signal.SIGTERM):
@@ -79,7 +86,8 @@ class _SignalsAsExceptions:
 
     def _raise(self, signum, frame):
         self.received.append(signum)
-        raise Terminated if signum == signal.SIGTERM else KeyboardInterrupt
+        if not self.closing:  # once the command is over, a late one is only counted
+            raise Terminated if signum == signal.SIGTERM else KeyboardInterrupt
 
     def _unraisable(self, unraisable):
         if not (
@@ -87,8 +95,20 @@ class _SignalsAsExceptions:
             and isinstance(unraisable.exc_value, (Terminated, KeyboardInterrupt))
         ):
             self.hook(unraisable)
+        elif len(self.received) <= SIGNAL_REDELIVERIES:
+            again = threading.Timer(
+                REDELIVERY_DELAY_S, signal.raise_signal, (self.received[-1],)
+            )
+            again.daemon = True
+            again.start()
+            self.timers.append(again)
 
     def __exit__(self, *exc):
+        # a redelivery still on its way arrives now, while the handler only counts it
+        self.closing = True
+        for timer in self.timers:
+            timer.cancel()
+            timer.join()
         for sig, handler in self.previous.items():
             signal.signal(sig, handler)
         sys.unraisablehook = self.hook

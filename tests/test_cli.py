@@ -106,3 +106,37 @@ def test_a_signal_swallowed_in_a_destructor_still_ends_the_command_as_it_asks(
     assert (
         err.strip() == "slamlib sim1d: terminated (SIGTERM); nothing half written is left"
     )
+
+
+def test_a_swallowed_signal_is_sent_again_and_stops_a_long_command(monkeypatch, capsys):
+    """The signal swallowed in a destructor is sent again a moment later and stops the command where it runs:
+    Ctrl-C is not put off to the end of a long run."""
+    import os
+    import signal
+    import time
+
+    import slamlib.commands.sim1d as sim1d
+
+    finished = []
+
+    class Dying:
+        def __del__(self):
+            os.kill(os.getpid(), signal.SIGINT)
+            for _ in range(1000):
+                pass
+
+    def command(args):
+        Dying()
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < 5.0:  # a long command
+            pass
+        finished.append(True)
+        return 0
+
+    monkeypatch.setattr(sim1d, "main", command)
+    t0 = time.monotonic()
+    assert main(["sim1d"]) == 130
+    assert not finished and time.monotonic() - t0 < 2.0
+    assert capsys.readouterr().err.strip() == (
+        "slamlib sim1d: interrupted (Ctrl-C); nothing half written is left"
+    )

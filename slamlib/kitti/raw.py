@@ -142,10 +142,20 @@ class ImuArrays:
 
 
 def check_numbered_files(
-    folder: Path, ext: str, n: int, what: str, against: str, digits: int = 10
+    folder: Path,
+    ext: str,
+    n: int,
+    what: str,
+    against: str,
+    digits: int = 10,
+    times: Path | None = None,
 ) -> None:
     """DataFormatError naming ``folder`` unless it holds ``0..n-1`` as zero-padded ``digits``-digit names ending in
-    ``ext`` (KITTI raw: 10 digits; odometry scans: 6). ``what`` names the files, ``against`` what counts them."""
+    ``ext`` (KITTI raw: 10 digits; odometry scans: 6). ``what`` names the files, ``against`` what counts them.
+
+    With ``times`` (the file that times the ``n`` frames), numbered files beyond ``n - 1`` are an error naming it
+    too: a frame without a time would be dropped without a word (the readers' ``allow_incomplete`` passes no
+    ``times`` and reads the first ``n``). One listing of ``folder`` serves both checks."""
     if not folder.is_dir():
         raise DataFormatError(
             folder, f"folder of {what} not found (needed for {n} frames)"
@@ -158,23 +168,14 @@ def check_numbered_files(
             f"fewer {what} than the {n} {against}: {len(missing)} of {n} missing "
             f"(first: {missing[0]:0{digits}d}{ext}; files are numbered {0:0{digits}d}{ext} upwards)",
         )
-
-
-def check_no_extra_files(
-    folder: Path, ext: str, n: int, what: str, times: Path, digits: int = 10
-) -> None:
-    """DataFormatError naming ``times`` when ``folder`` holds numbered ``ext`` files beyond the ``n`` it times: a
-    frame without a time would be dropped without a word (``allow_incomplete`` in the readers reads the first
-    ``n``)."""
     extra = sorted(
-        e.name
-        for e in os.scandir(folder)
-        if e.name.endswith(ext)
-        and len(e.name) == digits + len(ext)
-        and e.name[:digits].isdigit()
-        and int(e.name[:digits]) >= n
+        name
+        for name in names
+        if len(name) == digits + len(ext)
+        and name[:digits].isdigit()
+        and int(name[:digits]) >= n
     )
-    if extra:
+    if times is not None and extra:
         raise DataFormatError(
             times,
             f"times {n} frames, but {folder} holds {n + len(extra)} {what} ({extra[0]} onwards have no "
@@ -295,15 +296,14 @@ class KittiRawDrive:
         self._check_files(
             self.oxts_dir, ".txt", n, "OXTS packets", "timestamps in oxts/timestamps.txt"
         )
-        self._check_files(self.velo_dir, ".bin", n, "Velodyne scans", "OXTS packets")
-        if not allow_incomplete:
-            check_no_extra_files(
-                self.velo_dir,
-                ".bin",
-                n,
-                "Velodyne scans",
-                self.path / "oxts" / "timestamps.txt",
-            )
+        self._check_files(
+            self.velo_dir,
+            ".bin",
+            n,
+            "Velodyne scans",
+            "OXTS packets",
+            None if allow_incomplete else self.path / "oxts" / "timestamps.txt",
+        )
 
         velo_ts = self.path / "velodyne_points" / "timestamps.txt"
         # Scan times are informational (dt comes from the OXTS times): format checked, order not required.
@@ -336,8 +336,10 @@ class KittiRawDrive:
 
     # ------------------------------------------------------------------ files
     @staticmethod
-    def _check_files(folder: Path, ext: str, n: int, what: str, against: str) -> None:
-        check_numbered_files(folder, ext, n, what, against)
+    def _check_files(
+        folder: Path, ext: str, n: int, what: str, against: str, times: Path | None = None
+    ) -> None:
+        check_numbered_files(folder, ext, n, what, against, times=times)
 
     def oxts_path(self, index: int) -> Path:
         """``oxts/data/NNNNNNNNNN.txt`` of drive frame ``index``."""

@@ -166,7 +166,6 @@ class KittiOdometrySequence:
     ):
         from slamlib.kitti.raw import (
             _normalise_frames,
-            check_no_extra_files,
             check_numbered_files,
         )
 
@@ -214,12 +213,14 @@ class KittiOdometrySequence:
             )
         self.velo_dir = self.path / "velodyne"
         check_numbered_files(
-            self.velo_dir, ".bin", n, "Velodyne scans", "times in times.txt", SCAN_DIGITS
+            self.velo_dir,
+            ".bin",
+            n,
+            "Velodyne scans",
+            "times in times.txt",
+            SCAN_DIGITS,
+            None if allow_incomplete else times_path,
         )
-        if not allow_incomplete:
-            check_no_extra_files(
-                self.velo_dir, ".bin", n, "Velodyne scans", times_path, SCAN_DIGITS
-            )
         self.poses_path = (
             Path(poses)
             if poses is not None

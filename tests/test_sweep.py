@@ -177,15 +177,20 @@ def test_drive_options_name_their_drives_and_reach_the_generator(monkeypatch, tm
         DriveOptions(traffic=2.0),
         DriveOptions(bias_walk=True),
         DriveOptions(True, 1.0, True),
+        DriveOptions(True, 1.0, True, 2.0),
+        DriveOptions(imu_noise=0.5),
     ]
     keys = {
         sweep_tasks(["07"], [0], ["raw"], ["slamlib"], [{}], (0, 5), o)[0].drive_key()
         for o in options
     }
-    assert len(keys) == 4 and plain.drive_key() not in keys
+    assert len(keys) == 6 and plain.drive_key() not in keys
     assert DriveOptions(True, 2.0, True).label() == "distortion, traffic x2, bias walk"
+    assert DriveOptions(bias_walk=True, imu_noise=2).label() == "bias walk, IMU noise x2"
     with pytest.raises(ValueError, match="traffic must be a finite number >= 0"):
         DriveOptions(traffic=-1.0)
+    with pytest.raises(ValueError, match="imu_noise must be a finite number >= 0"):
+        DriveOptions(imu_noise=float("nan"))
     calls = []
     monkeypatch.setattr(synth, "write_drive", lambda *a, **kw: calls.append(("raw", kw)))
     monkeypatch.setattr(
@@ -204,9 +209,24 @@ def test_drive_options_name_their_drives_and_reach_the_generator(monkeypatch, tm
             )[0],
             tmp_path,
         )
-    (raw, kw_raw), (odo, kw_odo) = calls
+    for layout in ("raw", "odometry"):
+        drive_task(
+            sweep_tasks(
+                ["07"],
+                [1],
+                [layout],
+                ["slamlib"],
+                [{}],
+                (0, 5),
+                DriveOptions(imu_noise=2),
+            )[0],
+            tmp_path,
+        )
+    (raw, kw_raw), (odo, kw_odo), (_, kw_x2), (_, kw_odo_x2) = calls
     assert kw_raw["distortion"] is True and kw_raw["traffic"] == KITTI_CITY.scaled(2.0)
     assert kw_raw["noise"] == synth.WANDERING_BIASES and "noise" not in kw_odo
+    assert kw_x2["noise"] == synth.ImuNoise().scaled(2) != synth.ImuNoise()
+    assert "noise" not in kw_odo_x2
     assert kw_odo["distortion"] is True and kw_odo["traffic"] == KITTI_CITY.scaled(2.0)
 
 
@@ -216,6 +236,14 @@ def test_drive_options_name_their_drives_and_reach_the_generator(monkeypatch, tm
         (["--traffic", "0"], r"--traffic must be a density scale in \(0, 10\], got "),
         (["--traffic", "11"], r"--traffic must be a density scale in \(0, 10\], got "),
         (["--traffic", "nan"], r"--traffic must be a density scale in \(0, 10\], got "),
+        (
+            ["--imu-noise", "-1"],
+            r"--imu-noise must be a finite number in \[0, 100\], got -1",
+        ),
+        (
+            ["--imu-noise", "inf"],
+            r"--imu-noise must be a finite number in \[0, 100\], got inf",
+        ),
     ],
 )
 def test_sweep_drive_options_are_checked(tmp_path, argv, message):

@@ -136,6 +136,13 @@ def add_arguments(parser) -> None:
         action="store_true",
         help="the IMU biases wander as random walks (slamlib.synth.WANDERING_BIASES; raw layout)",
     )
+    real.add_argument(
+        "--imu-noise",
+        type=float,
+        default=1.0,
+        metavar="SCALE",
+        help="multiply every IMU noise, bias, scale error and bias walk by SCALE (raw layout; default 1)",
+    )
     parser.add_argument(
         "--data",
         type=Path,
@@ -269,6 +276,12 @@ def main(args) -> int:
             check_traffic_scale(args.traffic)
         except ValueError as exc:
             _fail(str(exc))
+    from slamlib.commands.synth import MAX_IMU_NOISE
+
+    if not (math.isfinite(args.imu_noise) and 0 <= args.imu_noise <= MAX_IMU_NOISE):
+        _fail(
+            f"--imu-noise must be a finite number in [0, {MAX_IMU_NOISE:g}], got {args.imu_noise}"
+        )
     if args.anneal_rounds is not None:
         from slamlib.slam3d.config import MAX_ANNEAL_ROUNDS
 
@@ -327,7 +340,9 @@ def main(args) -> int:
     from slamlib.paths import cache_dir
     from slamlib.synth import GENERATOR_VERSION
 
-    drive = DriveOptions(args.distortion, args.traffic or 0.0, args.bias_walk)
+    drive = DriveOptions(
+        args.distortion, args.traffic or 0.0, args.bias_walk, args.imu_noise
+    )
     tasks = sweep_tasks(routes, seeds, layouts, methods, settings, frames, drive)
     data = args.data if args.data is not None else cache_dir() / "sweep"
     print(

@@ -86,16 +86,23 @@ class DriveOptions:
     ``distortion``: each scan swept column by column as a real HDL-64E (:mod:`slamlib.synth.lidar`); ``traffic``:
     moving cars, cyclists and pedestrians at that multiple of a KITTI city drive's density
     (:data:`slamlib.synth.traffic.KITTI_CITY`; 0 = none); ``bias_walk``: the IMU biases wander
-    (:data:`slamlib.synth.WANDERING_BIASES`; raw layout only, the odometry layout has no IMU).
+    (:data:`slamlib.synth.WANDERING_BIASES`); ``imu_noise``: every IMU noise, bias, scale error and bias walk
+    multiplied by this (:meth:`slamlib.synth.ImuNoise.scaled`; 1 = the generator's). The last two: raw layout
+    only, the odometry layout has no IMU.
     """
 
     distortion: bool = False
     traffic: float = 0.0
     bias_walk: bool = False
+    imu_noise: float = 1.0
 
     def __post_init__(self):
         if not (np.isfinite(self.traffic) and self.traffic >= 0):
             raise ValueError(f"traffic must be a finite number >= 0, got {self.traffic}")
+        if not (np.isfinite(self.imu_noise) and self.imu_noise >= 0):
+            raise ValueError(
+                f"imu_noise must be a finite number >= 0, got {self.imu_noise}"
+            )
 
     def label(self) -> str:
         """``"distortion, traffic x2, bias walk"`` (the options that are on), ``""`` for none."""
@@ -103,20 +110,22 @@ class DriveOptions:
             (["distortion"] if self.distortion else [])
             + ([f"traffic x{self.traffic:g}"] if self.traffic else [])
             + (["bias walk"] if self.bias_walk else [])
+            + ([f"IMU noise x{self.imu_noise:g}"] if self.imu_noise != 1 else [])
         )
         return ", ".join(on)
 
     def write_kwargs(self, layout: str) -> dict:
         """The keyword arguments of the generator that give these options."""
-        from slamlib.synth import WANDERING_BIASES
+        from slamlib.synth import WANDERING_BIASES, ImuNoise
         from slamlib.synth.traffic import KITTI_CITY
 
         kw = {
             "distortion": bool(self.distortion),
             "traffic": KITTI_CITY.scaled(self.traffic) if self.traffic else None,
         }
-        if layout == "raw" and self.bias_walk:
-            kw["noise"] = WANDERING_BIASES
+        if layout == "raw" and (self.bias_walk or self.imu_noise != 1):
+            noise = WANDERING_BIASES if self.bias_walk else ImuNoise()
+            kw["noise"] = noise.scaled(self.imu_noise) if self.imu_noise != 1 else noise
         return kw
 
 
@@ -140,7 +149,11 @@ class SweepTask:
         key = [GENERATOR_VERSION, self.route, list(self.frames), self.seed, self.layout]
         # drives without options keep the names they always had
         if self.drive != DriveOptions():
-            key.append([self.drive.distortion, self.drive.traffic, self.drive.bias_walk])
+            options = [self.drive.distortion, self.drive.traffic, self.drive.bias_walk]
+            # drives at the generator's IMU noise keep the names they had before the option
+            if self.drive.imu_noise != 1:
+                options.append(self.drive.imu_noise)
+            key.append(options)
         text = json.dumps(key)
         return f"{self.layout}-{self.route}-s{self.seed}-{hashlib.sha1(text.encode()).hexdigest()[:10]}"
 

@@ -342,12 +342,14 @@ def test_transient_voxels_are_evicted_every_span_frames(drive):
 def test_tilt_prior_pulls_a_tilted_start_back_to_gravity(drive):
     """Started with a 40 mrad pitch error (the map is built tilted), the map alone keeps the filter tilted; the
     accelerometer's up (step 3) in step 8 pulls it back toward level against that map (2 mrad: a strong prior;
-    40 -> 4-13 mrad in 30 frames on seeds 0 and 1). A pose's up in its body is its rotation's third row."""
+    40 -> 4-13 mrad in 30 frames on seeds 0 and 1). A pose's up in its body is its rotation's third row. The
+    spread is held fixed: how fast the pull acts depends on step 6's spread in pitch, which self-tuning would
+    narrow to the drive's own small pitch innovations (the pull per frame is at most about that spread)."""
     frames, gt = drive
     T0 = make_pose(rpy_to_matrix([0.0, 0.04, 0.0]), [0.0, 0.0, 0.0])
 
     def run(**kw):
-        slam = ParticleSLAM3D(tiny_config(**kw), T0=T0)
+        slam = ParticleSLAM3D(tiny_config(self_tuning=False, **kw), T0=T0)
         for f in frames:
             slam.register_frame(f)
         return np.linalg.norm(slam.poses[-1][2, :3] - gt[-1][2, :3]), slam

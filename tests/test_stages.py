@@ -272,6 +272,53 @@ def test_tilt_log_prior_measures_the_tilt_from_the_worlds_up():
     )
 
 
+def test_up_scatter_estimates_the_measured_ups_variance_per_axis():
+    """Residuals of two independent windows, N(0, sigma^2) on each tilt axis: the mean of up_scatter is sigma^2."""
+    from slamlib.slam3d.stages.prior import up_scatter
+
+    rng = np.random.default_rng(0)
+    sigma = 0.004
+    r = rng.normal(0, sigma, (4000, 2, 3)) * [1.0, 1.0, 0.0]
+    samples = [up_scatter(a, b) for a, b in r]
+    assert np.mean(samples) == pytest.approx(sigma**2, rel=0.05)
+    assert up_scatter([0.001, 0.0, 0.0], [0.0, 0.0, 0.0]) == pytest.approx(0.25e-6)
+
+
+@pytest.mark.parametrize("noise", [0.02, 0.3])
+def test_auto_tilt_sigma_follows_the_accelerometers_consistency(noise):
+    """``tilt_sigma="auto"``: sigma starts at AUTO_TILT_SIGMA_START and, once windows have turned over, is the
+    measured up's scatter (:func:`slamlib.slam3d.stages.prior.gravity_up`'s errors over a window of ``T = 1`` s,
+    per tilt axis): the velocity noise at its two ends, ``sqrt(2) sigma_v / (g T)``, and the accelerometer's white
+    noise integrated by the trapezoid rule over 10 samples, ``sigma_f dt sqrt(9.5) / (g T)``; larger for the
+    noisier accelerometer, within the bounds."""
+    from slamlib.slam3d.stages.prior import (
+        AUTO_TILT_SIGMA_MAX,
+        AUTO_TILT_SIGMA_MIN,
+        AUTO_TILT_SIGMA_START,
+    )
+
+    frames, _ = simulate(70, yaw_rate=0.3)
+    rng = np.random.default_rng(5)
+    for f in frames:
+        f.specific_force = f.specific_force + rng.normal(0, noise, 3)
+    slam = ParticleSLAM3D(tiny_config(tilt_sigma="auto", tilt_window=1.0))
+    for f in frames[:5]:
+        slam.register_frame(f)
+    assert slam.prior.sigma == AUTO_TILT_SIGMA_START and slam.prior.auto
+    for f in frames[5:]:
+        slam.register_frame(f)
+    assert AUTO_TILT_SIGMA_MIN <= slam.prior.sigma <= AUTO_TILT_SIGMA_MAX
+    assert (
+        slam.prior.scatter_weight > 30
+    )  # frames 21-69 each compared with one a window before
+    # simulate's IMU: velocity noise 0.02 m/s, accelerometer noise 0.05 m/s^2 (plus this test's)
+    sigma_v, sigma_f = 0.02, np.hypot(0.05, noise)
+    expected = np.hypot(np.sqrt(2) * sigma_v, sigma_f * 0.1 * np.sqrt(9.5)) / GRAVITY
+    assert slam.prior.sigma == pytest.approx(
+        np.clip(expected, AUTO_TILT_SIGMA_MIN, AUTO_TILT_SIGMA_MAX), rel=0.3
+    )
+
+
 # ------------------------------------------------------------------------------------------ prior: edge cases
 def test_gravity_up_of_a_window_that_spans_no_time_is_none():
     """Two samples 0 s apart: no time to integrate over, no up (not a division by zero)."""

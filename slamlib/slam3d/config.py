@@ -319,6 +319,12 @@ class MotionConfig:
     constant_velocity: ConstantVelocityConfig = field(
         default_factory=ConstantVelocityConfig
     )
+    self_tuning: bool = True
+    tuning_gain: float = 2.0
+    tuning_memory: float = 30.0
+    tuning_noise_memory: float = 5.0
+    tuning_floor: tuple = (0.005, 0.005, 0.005, 0.0003, 0.0003, 0.0005)
+    tuning_warmup: int = 20
 
     def __post_init__(self):
         if self.model not in MOTION_MODELS:
@@ -543,15 +549,16 @@ class TiltConfig:
         so that a long straight does not pass its share of the map's tilt to the bias; 1 = every frame alike.
     """
 
-    tilt_sigma: float = 0.0
+    tilt_sigma: float | str = 0.0
     tilt_window: float = 2.0
     tilt_bias_sigma: float = 0.01
     tilt_world_sigma: float = 0.0
     tilt_heading_bins: int = 8
 
     def __post_init__(self):
+        auto = isinstance(self.tilt_sigma, str) and self.tilt_sigma == AUTO
         if (
-            not _finite("tilt_sigma", self.tilt_sigma) >= 0
+            not (auto or _finite("tilt_sigma", self.tilt_sigma) >= 0)
             or not _finite("tilt_window", self.tilt_window) > 0
         ):
             raise ValueError(
@@ -581,9 +588,14 @@ class AnnealConfig:
 
     anneal_rounds: int = 0
     anneal_shrink: float = 0.4
+    collapse_ess: float = 0.0
+    collapse_rounds: int = 3
 
     def __post_init__(self):
         _integer("anneal_rounds", self.anneal_rounds, 0, MAX_ANNEAL_ROUNDS)
+        _integer("collapse_rounds", self.collapse_rounds, 0, MAX_ANNEAL_ROUNDS)
+        if not 0 <= _finite("collapse_ess", self.collapse_ess) <= 1:
+            raise ValueError(f"collapse_ess must be in [0, 1], got {self.collapse_ess}")
         if not 0 < _finite("anneal_shrink", self.anneal_shrink) <= 1:
             raise ValueError(f"anneal_shrink must be in (0, 1], got {self.anneal_shrink}")
 

@@ -116,7 +116,13 @@ class ParticleSLAM3D:
         f = cfg.search
         self.scan = ScanPreparation(cfg.scan, self.T_body_velo)
         self.search = Annealing(
-            f.anneal_rounds, f.anneal_shrink, self.weigh, self.rng, self.backend
+            f.anneal_rounds,
+            f.anneal_shrink,
+            self.weigh,
+            self.rng,
+            self.backend,
+            f.collapse_ess,
+            f.collapse_rounds,
         )
         self.upkeep = MapUpkeep(cfg.upkeep)
         self.motion = self.prior = self.polish = None
@@ -175,7 +181,7 @@ class ParticleSLAM3D:
         moved, log_w = self.search(moved, log_w, sample, sigma, start_rounds)
         pose, best = steps.pick_best_particle(moved, log_w, self.pose_estimate)
         pose, moved = self.polish(pose, points, moved, self.map)
-        self.prior.calibrate(pose, dt)
+        self._learn(pose, dt)  # what 9 found tunes 5, 6 and 8's prior
         steps.merge_scan(self.map, pose, points, be)  # 10
         self._record(pose, imu, dT, points, dt, sample=sample, sigma=sigma, best=best)
         self.upkeep(self.map, poses)
@@ -197,6 +203,13 @@ class ParticleSLAM3D:
         """The motion source, prior and polish for the data whose first frame is ``frame``
         (:func:`slamlib.slam3d.stages.choose_stages`)."""
         self.motion, self.prior, self.polish = choose_stages(self.config, frame, self.T0)
+
+    def _learn(self, pose, dt: float) -> None:
+        """After step 9, the stages learn from the frame's pose: the prior calibrates the accelerometer's bias (and
+        in ``"auto"`` its own weight), the motion stage the source's errors from the innovation against the last
+        pose (:mod:`slamlib.slam3d.stages.tuning`)."""
+        self.prior.calibrate(pose, dt)
+        self.motion.learn(self.poses[-1], pose, dt)
 
     def _resample(self, particles, log_weights) -> None:
         """Step 11 when the effective sample size is below ``FilterConfig.ess_fraction`` of the particles;

@@ -30,10 +30,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from slamlib.geometry import matrix_to_rpy
 from slamlib.odometry import increment_matrix, twist_between
 from slamlib.slam3d import steps
 from slamlib.slam3d.config import MotionConfig
 from slamlib.slam3d.preprocess import sample_points, thin_ground
+from slamlib.slam3d.stages.tuning import FixedSpread, SelfTuning
 
 __all__ = ["ConstantVelocity", "ImuMotion", "has_imu", "held_twist"]
 
@@ -41,6 +43,28 @@ __all__ = ["ConstantVelocity", "ImuMotion", "has_imu", "held_twist"]
 def has_imu(frame) -> bool:
     """Whether ``frame`` carries IMU values (``frame.velocity``); the KITTI odometry layout's frames do not."""
     return getattr(frame, "velocity", None) is not None
+
+
+def make_tuning(config: MotionConfig, correct_bias: bool):
+    """The motion stage's learner of its source's errors: :class:`~slamlib.slam3d.stages.tuning.SelfTuning` with
+    the settings of ``config`` when ``config.self_tuning``, else :class:`~slamlib.slam3d.stages.tuning.FixedSpread`."""
+    if not config.self_tuning:
+        return FixedSpread()
+    return SelfTuning(
+        config.tuning_memory,
+        config.tuning_noise_memory,
+        config.tuning_gain,
+        config.tuning_floor,
+        config.tuning_warmup,
+        correct_bias=correct_bias,
+    )
+
+
+def measured_increment(previous_pose, pose):
+    """The body-frame increment ``(rpy (3,), dp (3,))`` that took ``previous_pose`` to ``pose`` (both
+    ``T_world_body`` (4, 4)): what the filter measured the vehicle to move in the frame."""
+    D = np.linalg.inv(previous_pose) @ pose
+    return matrix_to_rpy(D[:3, :3]), D[:3, 3].copy()
 
 
 def held_twist(
@@ -73,6 +97,8 @@ class ImuMotion:
         self.config, self.scored_points, self.T0 = config, scored_points, T0
         self.previous = None
         self.dr_poses: list[np.ndarray] = []
+        self.tuning = make_tuning(config, correct_bias=True)
+        self.predicted = None
 
     def read(self, frame, poses, dts):
         """Step 3: the frame's IMU sample (:func:`slamlib.slam3d.steps.read_imu`)."""
@@ -80,9 +106,16 @@ class ImuMotion:
 
     def predict(self, imu, dt: float, poses):
         """``(increment, sigma, start_rounds)``: the body-frame increment over ``dt`` from the previous and this
-        sample, step 6's spread ``(6,)`` for it, and no start search (0 rounds)."""
-        increment = steps.motion_increment(imu, dt, self.previous)
-        return increment, self.config.sigma(increment[1], dt), 0
+        sample, corrected by the learnt scale errors and biases, step 6's spread ``(6,)`` for it (the learnt
+        scatter; :mod:`slamlib.slam3d.stages.tuning`), and no start search (0 rounds)."""
+        self.predicted = steps.motion_increment(imu, dt, self.previous)
+        increment = self.tuning.correct(self.predicted, dt)
+        return increment, self.tuning.spread(self.config.sigma(increment[1], dt)), 0
+
+    def learn(self, previous_pose, pose, dt: float) -> None:
+        """After step 9: the frame's innovation, ``pose`` against the IMU's own increment from ``previous_pose``,
+        into the self-tuning (:mod:`slamlib.slam3d.stages.tuning`)."""
+        self.tuning.learn(self.predicted, measured_increment(previous_pose, pose), dt)
 
     def scoring_sample(self, points, rng):
         """Step 8's points: ``scored_points`` of the scan drawn at random."""
@@ -110,6 +143,9 @@ class ConstantVelocity:
         self.config, self.scored_points = config, scored_points
         self.held = config.constant_velocity  # ConstantVelocityConfig
         self.previous = None
+        # the held twist has no bias to correct: only its scatter (the accelerations) is learnt
+        self.tuning = make_tuning(config, correct_bias=False)
+        self.predicted, self.searched = None, False
 
     def read(self, frame, poses, dts):
         """Step 3: :func:`held_twist` of the poses so far, checked as an IMU sample would be
@@ -123,10 +159,18 @@ class ConstantVelocity:
         """``(increment, sigma, start_rounds)``: the held twist over ``dt``; the spread widened by the
         accelerations the model cannot know, and at the second frame (one pose: no motion known yet) by the
         speeds a car may have, with ``start_rounds`` annealing rounds to narrow it."""
-        increment = steps.motion_increment(imu, dt)
-        start = len(poses) == 1
+        increment = self.predicted = steps.motion_increment(imu, dt)
+        start = self.searched = len(poses) == 1
         sigma = self.config.sigma(increment[1], dt, constant_velocity=True, start=start)
-        return increment, sigma, self.held.start_rounds if start else 0
+        if start:
+            return increment, sigma, self.held.start_rounds
+        return increment, self.tuning.spread(sigma), 0
+
+    def learn(self, previous_pose, pose, dt: float) -> None:
+        """After step 9: the frame's innovation against the held twist (the accelerations it did not know) into
+        the self-tuning, from the third frame on (the second's motion was not held but searched for)."""
+        if not self.searched:
+            self.tuning.learn(self.predicted, measured_increment(previous_pose, pose), dt)
 
     def scoring_sample(self, points, rng):
         """Step 8's points: the road thinned to ``ground_share`` of them, then ``scored_points`` drawn."""

@@ -16,6 +16,18 @@ compares each particle's ``R_i^T g_w`` with the measured up less the bias. ``g_w
 (the first body pose taken as level) unless ``TiltConfig.tilt_world_sigma > 0`` lets the fit move it.
 
 :class:`NoPrior` (``TiltConfig.tilt_sigma = 0``, or LIDAR-only: no accelerometer) adds nothing.
+
+How much to trust the accelerometer (``tilt_sigma = "auto"``)
+-------------------------------------------------------------
+The prior's ``sigma`` is the measured up's error, which depends on the IMU (its velocity noise ``dv`` tilts a window
+of ``T`` seconds by ``dv / (g T)``) and the drive (a bumpy road, hard braking). With ``tilt_sigma = "auto"`` the
+stage measures it from the accelerometer's own consistency (:func:`up_scatter`): the residual
+``r = u - beta - R^T g_w`` of each frame (measured up less the bias against the filter's own up) and the residual
+one window earlier, from non-overlapping windows, differ by the two windows' independent errors plus the change of
+the filter's tilt error over a window, which random-walks slowly. So ``E |r_k - r_{k-W}|^2 = 4 sigma^2`` (two
+windows, two tilt components), and ``sigma`` is the square root of a quarter of the running mean of that (memory
+:data:`UP_SCATTER_MEMORY_S`), within [:data:`AUTO_TILT_SIGMA_MIN`, :data:`AUTO_TILT_SIGMA_MAX`]
+(:data:`AUTO_TILT_SIGMA_START` until the first window has turned over).
 """
 
 from __future__ import annotations
@@ -26,9 +38,14 @@ import numpy as np
 
 from slamlib.odometry import increment_matrix
 from slamlib.slam3d import steps
-from slamlib.slam3d.config import TiltConfig
+from slamlib.slam3d.config import AUTO, TiltConfig
 
 __all__ = [
+    "AUTO_TILT_SIGMA_MAX",
+    "AUTO_TILT_SIGMA_MIN",
+    "AUTO_TILT_SIGMA_START",
+    "UP_SCATTER_MEMORY_S",
+    "up_scatter",
     "NoPrior",
     "TiltPrior",
     "TILT_CALIBRATION_UNKNOWNS",
@@ -45,7 +62,28 @@ __all__ = [
 ]
 
 
+#: ``tilt_sigma = "auto"``: the least and most ``sigma`` (rad): 1 mrad, the accelerometer's bias stability of a
+#: good MEMS unit; 20 mrad, past which the prior holds nothing the map does not.
+AUTO_TILT_SIGMA_MIN = 0.001
+AUTO_TILT_SIGMA_MAX = 0.02
+#: ... and ``sigma`` before the first window has turned over (rad): a weak hold.
+AUTO_TILT_SIGMA_START = 0.01
+#: Seconds the running mean square of :func:`up_scatter` remembers.
+UP_SCATTER_MEMORY_S = 30.0
+
 # ------------------------------------------------------------------------------------------------ the math
+
+
+def up_scatter(residual, residual_before) -> float:
+    """One sample of the measured up's variance per tilt axis (rad^2): ``|r - r_before|^2 / 4`` for the residuals
+    ``r = u - beta - R^T g_w`` (3,) of a frame and of the frame one window earlier (module docstring, "How much to
+    trust the accelerometer"); the mean of such samples estimates ``sigma^2``."""
+    d = np.asarray(residual, dtype=np.float64) - np.asarray(
+        residual_before, dtype=np.float64
+    )
+    return float(d @ d) / 4.0
+
+
 def gravity_up(rotations, specific_force, velocity, dts) -> np.ndarray | None:
     """Which way is up, in the body frame of the last of ``K + 1`` frames, from the accelerometer over them.
 
@@ -248,7 +286,12 @@ class TiltPrior:
     """
 
     def __init__(self, config: TiltConfig):
-        self.sigma, self.window = config.tilt_sigma, config.tilt_window
+        self.auto = config.tilt_sigma == AUTO
+        self.sigma = AUTO_TILT_SIGMA_START if self.auto else config.tilt_sigma
+        self.window = config.tilt_window
+        # "auto": (time, residual) of the frames of the last window, and the running mean of up_scatter
+        self.residuals: deque = deque()
+        self.time, self.scatter, self.scatter_weight = 0.0, 0.0, 0.0
         self.samples: deque = deque()
         self.up, self.up_span = None, 0.0
         self.calibration_prior = tilt_calibration_prior(
@@ -294,8 +337,31 @@ class TiltPrior:
         (:func:`balance_heading_bins`)."""
         if self.up is None or self.up_span < self.window:
             return
+        if self.auto:
+            self._weigh_by_consistency(pose, dt)
         weight = dt / self.window / self.sigma**2
         tilt_calibration_add(self.bins, pose[:3, :3], self.up, weight)
         self.world_up, self.up_bias = tilt_calibration_estimate(
             self.calibration_prior, self.bins
+        )
+
+    def _weigh_by_consistency(self, pose, dt: float) -> None:
+        """``tilt_sigma = "auto"``: this frame's residual against the one a window earlier into the running mean of
+        :func:`up_scatter`, and ``sigma`` from it (module docstring)."""
+        self.time += dt
+        own = pose[:3, :3].T @ self.world_up
+        residual = self.up - self.up_bias - own
+        self.residuals.append((self.time, residual))
+        earlier = None
+        while self.residuals and self.time - self.residuals[0][0] >= self.window:
+            earlier = self.residuals.popleft()[1]
+        if earlier is None:
+            return
+        a = np.exp(-dt / UP_SCATTER_MEMORY_S)
+        self.scatter_weight = a * self.scatter_weight + 1.0
+        self.scatter += (
+            up_scatter(residual, earlier) - self.scatter
+        ) / self.scatter_weight
+        self.sigma = float(
+            np.clip(np.sqrt(self.scatter), AUTO_TILT_SIGMA_MIN, AUTO_TILT_SIGMA_MAX)
         )

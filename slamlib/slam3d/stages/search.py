@@ -9,10 +9,20 @@ shrink the spread by ``anneal_shrink`` each; the motion stage may ask for more a
 where no motion is known yet: ``start_rounds`` rounds first, the ``k``-th shrinking the (wide) spread by
 ``START_SHRINK**k``.
 No rounds: the particles and weights pass through unchanged.
+
+Rounds when the weights collapse
+--------------------------------
+A fixed count is tuned to one drive: a frame whose likelihood is much narrower than step 6's spread (a sharp scan, a
+wide spread after a jolt) leaves few particles near its peak, which the effective sample size
+``ESS = 1 / sum w_i^2`` (Kong, Liu & Wong 1994) shows as a collapse, while on an easy frame extra rounds only cost
+time. With ``AnnealConfig.collapse_ess > 0`` the stage runs further rounds, each shrinking the spread by
+``anneal_shrink`` once more, while ``ESS < collapse_ess * P``, at most ``collapse_rounds`` of them: the
+adaptive annealing of Deutscher & Reid (IJCV 2005), which sets each round by the survival rate of the weights.
 """
 
 from __future__ import annotations
 
+from slamlib.resampling import effective_sample_size, weights_from_log_weights
 from slamlib.slam3d import steps
 
 __all__ = ["START_SHRINK", "Annealing"]
@@ -30,10 +40,24 @@ class Annealing:
     ``rng`` and ``backend`` are the filter's. ``n_rounds`` counts the rounds run.
     """
 
-    def __init__(self, rounds: int, shrink: float, weigh, rng, backend):
+    def __init__(
+        self,
+        rounds: int,
+        shrink: float,
+        weigh,
+        rng,
+        backend,
+        collapse_ess: float = 0.0,
+        collapse_rounds: int = 0,
+    ):
         self.rounds, self.shrink = int(rounds), float(shrink)
         self.weigh, self.rng, self.backend = weigh, rng, backend
+        self.collapse_ess, self.collapse_rounds = (
+            float(collapse_ess),
+            int(collapse_rounds),
+        )
         self.n_rounds = 0
+        self.n_collapse_rounds = 0
 
     def __call__(self, particles, log_weights, sample, sigma, start_rounds: int = 0):
         """The particles and log-weights after ``start_rounds`` start rounds and then ``rounds`` rounds."""
@@ -41,12 +65,29 @@ class Annealing:
             self.shrink
         ] * self.rounds
         for shrink in shrinks:
-            particles, log_weights, _ = steps.resample_particles(
-                particles, log_weights, self.rng, ROUND_ESS_FRACTION, self.backend
+            particles, log_weights = self._round(
+                particles, log_weights, sample, sigma * shrink
             )
-            particles = steps.perturb_with_noise(
-                particles, sigma * shrink, self.rng, backend=self.backend
+        shrink = self.shrink ** (self.rounds + 1)
+        for _ in range(self.collapse_rounds):
+            if effective_sample_size(weights_from_log_weights(log_weights)) >= (
+                self.collapse_ess * len(log_weights)
+            ):
+                break
+            particles, log_weights = self._round(
+                particles, log_weights, sample, sigma * shrink
             )
-            log_weights = self.weigh(particles, log_weights, sample)
-            self.n_rounds += 1
+            self.n_collapse_rounds += 1
+            shrink *= self.shrink
         return particles, log_weights
+
+    def _round(self, particles, log_weights, sample, sigma):
+        """One round: resample, perturb with ``sigma``, weigh."""
+        particles, log_weights, _ = steps.resample_particles(
+            particles, log_weights, self.rng, ROUND_ESS_FRACTION, self.backend
+        )
+        particles = steps.perturb_with_noise(
+            particles, sigma, self.rng, backend=self.backend
+        )
+        self.n_rounds += 1
+        return particles, self.weigh(particles, log_weights, sample)

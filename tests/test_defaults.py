@@ -392,7 +392,7 @@ def test_the_defaults_have_their_values():
         0,
     )
     assert (c.prior.tilt_sigma, c.polish.scan_match, c.polish.scan_match_iterations) == (
-        0.0,
+        AUTO,
         AUTO,
         15,
     )

@@ -168,7 +168,12 @@ def test_stages_are_chosen_once_from_the_settings_and_the_first_frame():
     imu.register_frame(_frame(scan))
     chosen = (imu.motion, imu.prior, imu.polish)
     assert isinstance(imu.motion, ImuMotion)
-    assert isinstance(imu.prior, NoPrior) and isinstance(imu.polish, NoPolish)
+    # the tilt prior weighs itself ("auto"); a frame without an accelerometer leaves it nothing to hold to
+    assert isinstance(imu.prior, TiltPrior) and imu.prior.auto and imu.prior.up is None
+    assert isinstance(imu.polish, NoPolish)
+    off = ParticleSLAM3D(config.with_(tilt_sigma=0.0))
+    off.register_frame(_frame(scan))
+    assert isinstance(off.prior, NoPrior)
     imu.register_frame(_frame(scan))
     assert (imu.motion, imu.prior, imu.polish) == chosen  # the same objects: chosen once
     assert isinstance(imu.search, Annealing) and imu.search.rounds == 0
@@ -354,7 +359,7 @@ def test_tilt_prior_pulls_a_tilted_start_back_to_gravity(drive):
             slam.register_frame(f)
         return np.linalg.norm(slam.poses[-1][2, :3] - gt[-1][2, :3]), slam
 
-    without, plain = run()
+    without, plain = run(tilt_sigma=0.0)
     # level world, no bias
     with_prior, slam = run(tilt_sigma=0.002, tilt_world_sigma=0.0, tilt_bias_sigma=0.0)
     assert without > 0.03 and plain.prior.up is None  # the map holds the start's tilt

@@ -315,6 +315,79 @@ def test_slamlib_run_tilt_sigma_reaches_the_filter(cli_drive, tmp_path):
     assert np.all(np.isfinite(read_kitti_poses(out / "slam_poses.txt")))
 
 
+def test_slamlib_run_tilt_sigma_auto_and_self_tuning_reach_the_filter(
+    cli_drive, tmp_path
+):
+    """``--tilt-sigma auto`` (the default) and ``--self-tuning off`` are recorded; a word other than auto is an
+    option error naming it."""
+    from slamlib.cli import main
+
+    args, _ = cli_drive
+    out = tmp_path / "o"
+    assert (
+        main(args + ["--tilt-sigma", "auto", "--self-tuning", "off", "--out", str(out)])
+        == 0
+    )
+    config = json.loads((out / "metrics.json").read_text())["config"]
+    assert (
+        config["prior"]["tilt_sigma"] == "auto"
+        and config["motion"]["self_tuning"] is False
+    )
+    with pytest.raises(SystemExit) as exc:
+        main(args + ["--tilt-sigma", "strong", "--out", str(tmp_path / "p")])
+    assert exc.value.code == 2
+
+
+#: ``slamlib run`` options that tune the filter: the run examples of the README and the book carry none (the
+#: defaults tune themselves; issue "one default for every drive").
+TUNING_OPTIONS = {
+    "--noise",
+    "--self-tuning",
+    "--tilt-sigma",
+    "--anneal-rounds",
+    "--refine",
+    "--transient-span",
+    "--particles",
+    "--points",
+    "--temperature",
+    "--scan-match",
+    "--deskew",
+}
+
+
+def _run_examples():
+    """Every ``slamlib run`` command line in the fenced code blocks of the README, the book's pages and the
+    notebooks' text, with its continuation lines joined: ``(file, line)``. (Prose may name an override, as
+    "``slamlib run --deskew off`` switches it off"; an example to copy may not.)"""
+    import re
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    files = [root / "README.md", *sorted((root / "book").glob("*.md"))]
+    files += sorted((root / "notebooks").glob("*.ipynb"))
+    found = []
+    for path in files:
+        text = path.read_text(encoding="utf-8")
+        if path.suffix == ".ipynb":
+            cells = json.loads(text)["cells"]
+            text = "\n".join("".join(c["source"]) for c in cells)
+        for block in re.findall(r"```[^\n]*\n(.*?)```", text, flags=re.S):
+            block = re.sub(r"\\\n\s*", " ", block)
+            found += [(path.name, m) for m in re.findall(r"slamlib run\b[^\n]*", block)]
+    return found
+
+
+def test_the_run_examples_carry_data_paths_only():
+    examples = _run_examples()
+    assert len(examples) >= 8  # the README's alone has eight
+    tuned = [
+        (name, line)
+        for name, line in examples
+        if TUNING_OPTIONS & set(line.split("#")[0].split())
+    ]
+    assert tuned == []
+
+
 def test_slamlib_run_transient_span_reaches_the_map_and_names_itself(cli_drive, tmp_path):
     """``--transient-span`` turns on the eviction of movers' trails (recorded in metrics.json); with the Morton
     map, which keeps no hit times, the error names both options."""

@@ -21,3 +21,11 @@ def parameter_default(function, name: str):
     import inspect
 
     return inspect.signature(function).parameters[name].default
+
+
+def tilt_sigma(text: str):
+    """``--tilt-sigma``'s value: ``auto`` (:data:`slamlib.slam3d.config.AUTO`: the prior weighs the accelerometer by
+    its own consistency) or a number of radians (0 = off), checked by the configuration."""
+    if text.strip().lower() == "auto":
+        return "auto"
+    return float(text)

@@ -72,6 +72,7 @@ def add_arguments(parser) -> None:
         help="read a drive left half written by an interrupted slamlib synth, or with more scans than "
         "times, as far as it goes (refused by default)",
     )
+    from slamlib.commands import tilt_sigma
     from slamlib.kernels import BACKENDS
     from slamlib.slam3d.config import (
         AUTO,
@@ -80,6 +81,7 @@ def add_arguments(parser) -> None:
         AnnealConfig,
         FilterConfig,
         MapConfig,
+        MotionConfig,
         SLAM3DConfig,
         TiltConfig,
         UpkeepConfig,
@@ -117,7 +119,18 @@ def add_arguments(parser) -> None:
         type=float,
         default=1.0,
         metavar="SCALE",
-        help="scale of step 6's motion noise (all six sigmas; default 1.0 = the defaults)",
+        help="scale of step 6's configured motion noise (all six sigmas; default 1.0 = the defaults); with "
+        "self-tuning, the spread of the first frames only",
+    )
+    mo.add_argument(
+        "--self-tuning",
+        type=tri_state,
+        choices=[True, False],
+        metavar="{on,off}",
+        default=MotionConfig.self_tuning,
+        help="learn the motion source's scale errors, biases and scatter from the filter's innovations and "
+        "spread step 6 by them (MotionConfig.self_tuning; default "
+        f"{'on' if MotionConfig.self_tuning else 'off'}); off: the configured spread every frame",
     )
     mp = parser.add_argument_group("map (steps 8 and 10) and its upkeep (after step 10)")
     mp.add_argument(
@@ -172,11 +185,12 @@ def add_arguments(parser) -> None:
     pr = parser.add_argument_group("prior stage (step 8's second term)")
     pr.add_argument(
         "--tilt-sigma",
-        type=float,
+        type=tilt_sigma,
         default=TiltConfig.tilt_sigma,
-        metavar="RAD",
+        metavar="RAD|auto",
         help="hold roll and pitch to the accelerometer's gravity with this uncertainty (TiltConfig."
-        f"tilt_sigma, radians; 0 = off, the default {TiltConfig.tilt_sigma:g}; needs an IMU)",
+        "tilt_sigma, radians; auto: weighed by the accelerometer's own consistency; 0 = off; default "
+        f"{TiltConfig.tilt_sigma}; needs an IMU)",
     )
     se = parser.add_argument_group("search stage (steps 6-8 again inside a frame)")
     se.add_argument(
@@ -405,6 +419,7 @@ def main(args) -> int:
             scan_match=args.scan_match,
             tilt_sigma=args.tilt_sigma,
             transient_span=args.transient_span,
+            self_tuning=args.self_tuning,
         )
         cfg = replace(
             cfg,

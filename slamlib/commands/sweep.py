@@ -24,6 +24,7 @@ import shlex
 import time
 from pathlib import Path
 
+from slamlib.commands import tilt_sigma
 from slamlib.commands.synth import ROUTES  # the routes `slamlib synth` writes
 
 NAME = "sweep"
@@ -92,11 +93,12 @@ def add_arguments(parser) -> None:
     )
     parser.add_argument(
         "--tilt-sigma",
-        type=float,
+        type=tilt_sigma,
         default=None,
-        metavar="RAD",
+        metavar="RAD|auto",
         help="slamlib holds roll and pitch to the accelerometer's gravity with this uncertainty "
-        "(TiltConfig.tilt_sigma, radians; 0 = off, the default)",
+        "(TiltConfig.tilt_sigma, radians; auto: weighed by the accelerometer's own consistency; 0 = off; "
+        "default: the filter's default)",
     )
     parser.add_argument(
         "--deskew",
@@ -289,7 +291,7 @@ def main(args) -> int:
         if not 0 <= rounds <= MAX_ANNEAL_ROUNDS:
             _fail(f"--anneal-rounds must be in [0, {MAX_ANNEAL_ROUNDS}], got {rounds}")
         settings = [dict(s, anneal_rounds=rounds) for s in settings]
-    if args.tilt_sigma is not None:
+    if args.tilt_sigma is not None and args.tilt_sigma != "auto":
         if not (math.isfinite(args.tilt_sigma) and args.tilt_sigma >= 0):
             _fail(
                 f"--tilt-sigma must be a finite number >= 0 (radians), got {args.tilt_sigma}"

@@ -549,7 +549,7 @@ class TiltConfig:
         so that a long straight does not pass its share of the map's tilt to the bias; 1 = every frame alike.
     """
 
-    tilt_sigma: float | str = 0.0
+    tilt_sigma: float | str = AUTO
     tilt_window: float = 2.0
     tilt_bias_sigma: float = 0.01
     tilt_world_sigma: float = 0.0

@@ -41,6 +41,8 @@ def _check_single_values(
         if (
             action.option_strings
             and action.nargs is None
+            # an option given again and again collects a list by design (action="append")
+            and not isinstance(action.default, list)
             and isinstance(getattr(args, action.dest, None), list)
         ):
             parser.error(

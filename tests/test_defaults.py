@@ -408,6 +408,14 @@ def test_the_defaults_have_their_values():
         "min_sigma": 0.05,
         "m_max": 16.0,
     }
+    assert (c.motion.self_tuning, c.motion.tuning_gain, c.motion.tuning_warmup) == (
+        True,
+        2.0,
+        20,
+    )
+    assert (c.motion.tuning_memory, c.motion.tuning_noise_memory) == (30.0, 5.0)
+    assert c.motion.tuning_floor == (0.005, 0.005, 0.005, 0.0003, 0.0003, 0.0005)
+    assert (c.search.collapse_ess, c.search.collapse_rounds) == (0.0, 3)
     cv = c.motion.constant_velocity
     assert c.motion.sigma_xyz_per_m == (0.02, 0.02, 0.01) and (
         cv.window,

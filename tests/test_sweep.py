@@ -142,6 +142,10 @@ def test_a_failing_task_names_itself_in_one_line_and_the_others_rows_are_kept(
         (["--tilt-sigma", "nan"], "--tilt-sigma must be a finite number"),
         (["--workers", "0"], "--workers must be >= 1"),
         (["--routes", "07,loop", "--frames", "5:9"], "always starts at its beginning"),
+        (["--set", "bogus=1"], "--set: unknown SLAM3D setting 'bogus'"),
+        (["--set", "tuning_gain=0"], "--set: tuning_gain must be finite and > 0"),
+        (["--set", "self_tuning"], "--set: expected NAME=VALUE, got 'self_tuning'"),
+        (["--set", "tuning_floor=[1, 2]"], "--set: tuning_floor must be 6 finite"),
     ],
 )
 def test_sweep_options_are_checked_before_any_work(tmp_path, argv, message):
@@ -150,6 +154,25 @@ def test_sweep_options_are_checked_before_any_work(tmp_path, argv, message):
     with pytest.raises(SystemExit, match=message):
         main(["sweep", "--out", str(tmp_path / "o")] + argv)
     assert not (tmp_path / "o").exists()
+
+
+def test_sweep_set_gives_any_setting_to_every_slamlib_run():
+    """``--set NAME=VALUE`` (repeatable): VALUE read as JSON, else a word; added to every setting."""
+    from slamlib.commands.sweep import parse_settings
+
+    assert parse_settings(
+        [
+            "self_tuning=false",
+            "tilt_sigma=auto",
+            "collapse_ess=0.05",
+            "tuning_floor=[0,0,0,0,0,0]",
+        ]
+    ) == {
+        "self_tuning": False,
+        "tilt_sigma": "auto",
+        "collapse_ess": 0.05,
+        "tuning_floor": [0, 0, 0, 0, 0, 0],
+    }
 
 
 def test_sweep_refuses_to_overwrite_its_table(tmp_path):

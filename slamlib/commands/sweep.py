@@ -36,6 +36,25 @@ OUT_FILES = ("sweep.csv", "sweep.json", "sweep.png")
 JOURNAL = "sweep.resume.jsonl"
 
 
+def parse_settings(items) -> dict:
+    """``{name: value}`` of ``--set NAME=VALUE`` items: VALUE read as JSON, else kept as the word; each checked by
+    building the configuration (ValueError naming the item)."""
+    from slamlib.slam3d.config import SLAM3DConfig
+
+    out = {}
+    for item in items:
+        name, sep, text = item.partition("=")
+        if not sep or not name.strip():
+            raise ValueError(f"expected NAME=VALUE, got {item!r}")
+        try:
+            value = json.loads(text)
+        except ValueError:
+            value = text
+        out[name.strip()] = value
+    SLAM3DConfig.of(**out)  # unknown names and bad values fail here, before any work
+    return out
+
+
 def add_arguments(parser) -> None:
     parser.add_argument(
         "--out",
@@ -114,6 +133,15 @@ def add_arguments(parser) -> None:
         default=None,
         help="slamlib scan-matches its best pose after step 9, or never (ScanMatchConfig.scan_match; "
         "default: LIDAR-only runs)",
+    )
+    parser.add_argument(
+        "--set",
+        dest="set_",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="any slamlib setting by name (SLAM3DConfig.setting_names), VALUE as JSON (true, 0.05, "
+        '"auto", [1, 2, 3]) or else a word; repeatable, in every setting, e.g. --set self_tuning=false',
     )
     real = parser.add_argument_group(
         "drive realism (default: a still town, unswept scans, constant IMU biases)"
@@ -301,6 +329,12 @@ def main(args) -> int:
         settings = [dict(s, deskew=args.deskew) for s in settings]
     if args.scan_match is not None:
         settings = [dict(s, scan_match=args.scan_match) for s in settings]
+    if args.set_:
+        try:
+            extra = parse_settings(args.set_)
+        except ValueError as exc:
+            _fail(f"--set: {exc}")
+        settings = [dict(s, **extra) for s in settings]
     if args.workers is not None and args.workers < 1:
         _fail(f"--workers must be >= 1, got {args.workers}")
     frames = set()

@@ -309,6 +309,13 @@ class MotionConfig:
     ``model``: ``"imu"`` (the IMU's velocities and rates; LIDAR-only on data without them) or
     ``"constant_velocity"`` (LIDAR-only whatever the data). LIDAR-only, ``constant_velocity``
     (:class:`ConstantVelocityConfig`) sets the held twist and what step 6 adds for it.
+
+    Self-tuning (:mod:`slamlib.slam3d.stages.tuning`): with ``self_tuning`` (default True) the stage fits its
+    source's scale errors and biases to the filter's innovations, corrects step 5's increment by them and spreads
+    step 6 by ``sqrt((tuning_gain q)^2 + tuning_floor^2)``, ``q`` the innovations' scatter per axis; the spreads
+    above then serve only the first ``tuning_warmup`` frames. ``tuning_memory`` and ``tuning_noise_memory`` are the
+    seconds the fit and the scatter remember; ``tuning_floor`` (6,) is in m, m, m, rad, rad, rad. Why these values:
+    "Why these defaults" (``book/defaults.md``).
     """
 
     sigma_xyz_per_m: tuple = (0.02, 0.02, 0.01)
@@ -331,7 +338,17 @@ class MotionConfig:
             raise ValueError(
                 f"model must be one of {', '.join(MOTION_MODELS)}, got {self.model!r}"
             )
-        _spreads(self, [(name, 3) for name in _MOTION_SPREADS])
+        _spreads(self, [(name, 3) for name in _MOTION_SPREADS] + [("tuning_floor", 6)])
+        if not isinstance(self.self_tuning, (bool, np.bool_)):
+            raise ValueError(
+                f"self_tuning must be True or False, got {self.self_tuning!r}"
+            )
+        for name in ("tuning_gain", "tuning_memory", "tuning_noise_memory"):
+            if not _finite(name, getattr(self, name)) > 0:
+                raise ValueError(
+                    f"{name} must be finite and > 0, got {getattr(self, name)!r}"
+                )
+        _integer("tuning_warmup", self.tuning_warmup, 1)
         if not isinstance(self.constant_velocity, ConstantVelocityConfig):
             raise ValueError(
                 f"constant_velocity must be a ConstantVelocityConfig, got {self.constant_velocity!r}"
@@ -584,6 +601,10 @@ class AnnealConfig:
         particle filter.
     anneal_shrink : float
         Spread factor per round, in ``(0, 1]``.
+    collapse_ess, collapse_rounds : float, int
+        Further rounds, at most ``collapse_rounds``, while the effective sample size is below ``collapse_ess`` times
+        the particles (the weights collapsed: the likelihood is much narrower than the spread); 0 = off, the
+        default. Why: "Why these defaults".
     """
 
     anneal_rounds: int = 0

@@ -25,9 +25,12 @@ stage measures it from the accelerometer's own consistency (:func:`up_scatter`):
 ``r = u - beta - R^T g_w`` of each frame (measured up less the bias against the filter's own up) and the residual
 one window earlier, from non-overlapping windows, differ by the two windows' independent errors plus the change of
 the filter's tilt error over a window, which random-walks slowly. So ``E |r_k - r_{k-W}|^2 = 4 sigma^2`` (two
-windows, two tilt components), and ``sigma`` is the square root of a quarter of the running mean of that (memory
-:data:`UP_SCATTER_MEMORY_S`), within [:data:`AUTO_TILT_SIGMA_MIN`, :data:`AUTO_TILT_SIGMA_MAX`]
-(:data:`AUTO_TILT_SIGMA_START` until the first window has turned over).
+windows, two tilt components): the up's noise is the square root of a quarter of the running mean of that
+(memory :data:`UP_SCATTER_MEMORY_S`; :data:`AUTO_TILT_SIGMA_START` until the first window has turned over). The
+difference cannot see the bias, which is the same in both windows: the prior holds the up *less the fitted bias*,
+whose error is the fit's own (:func:`tilt_calibration_bias_variance`), large before the drive has turned and
+shrinking as it does. So ``sigma^2`` = the noise's variance + the bias's, within [:data:`AUTO_TILT_SIGMA_MIN`,
+:data:`AUTO_TILT_SIGMA_MAX`]: a weak hold until the bias is known, a firm one after.
 """
 
 from __future__ import annotations
@@ -59,6 +62,7 @@ __all__ = [
     "tilt_calibration_bins",
     "tilt_calibration_add",
     "tilt_calibration_estimate",
+    "tilt_calibration_bias_variance",
 ]
 
 
@@ -233,6 +237,20 @@ def tilt_calibration_estimate(prior, sums) -> tuple[np.ndarray, np.ndarray]:
     return tilt_calibration(info0 + info, eta0 + eta, free)
 
 
+def tilt_calibration_bias_variance(prior, sums) -> float:
+    """The variance (rad^2, per axis: the mean of the two) of the accelerometer bias that
+    :func:`tilt_calibration_estimate` returns: the bias block of the inverse of the balanced information plus the
+    prior's, over the free unknowns; 0 when the bias is held at 0 (prior sigma 0)."""
+    info0, _, free = prior
+    free = np.asarray(free, dtype=bool)
+    if not free[2:].any():
+        return 0.0
+    info, _ = balance_heading_bins(*sums)
+    cov = np.linalg.inv((info0 + info)[np.ix_(free, free)])
+    bias = np.flatnonzero(free) >= 2  # which of the free unknowns are the bias's
+    return float(np.mean(np.diag(cov)[bias]))
+
+
 def tilt_log_prior(particles, up, sigma: float, world_up=None) -> np.ndarray:
     """Step 8's second term: log-prior ``(P,)`` of each particle's roll and pitch given the measured up direction.
 
@@ -287,7 +305,9 @@ class TiltPrior:
 
     def __init__(self, config: TiltConfig):
         self.auto = config.tilt_sigma == AUTO
-        self.sigma = AUTO_TILT_SIGMA_START if self.auto else config.tilt_sigma
+        # "auto": the measured up's own scatter, and the prior's sigma with the bias's uncertainty added
+        self.noise_sigma = AUTO_TILT_SIGMA_START if self.auto else config.tilt_sigma
+        self.sigma = self.noise_sigma
         self.window = config.tilt_window
         # "auto": (time, residual) of the frames of the last window, and the running mean of up_scatter
         self.residuals: deque = deque()
@@ -339,11 +359,19 @@ class TiltPrior:
             return
         if self.auto:
             self._weigh_by_consistency(pose, dt)
-        weight = dt / self.window / self.sigma**2
+        weight = dt / self.window / self.noise_sigma**2
         tilt_calibration_add(self.bins, pose[:3, :3], self.up, weight)
         self.world_up, self.up_bias = tilt_calibration_estimate(
             self.calibration_prior, self.bins
         )
+        if self.auto:
+            # the up less the fitted bias is off by the window's noise and by the fit's own error
+            variance = self.noise_sigma**2 + tilt_calibration_bias_variance(
+                self.calibration_prior, self.bins
+            )
+            self.sigma = float(
+                np.clip(np.sqrt(variance), AUTO_TILT_SIGMA_MIN, AUTO_TILT_SIGMA_MAX)
+            )
 
     def _weigh_by_consistency(self, pose, dt: float) -> None:
         """``tilt_sigma = "auto"``: this frame's residual against the one a window earlier into the running mean of
@@ -362,6 +390,6 @@ class TiltPrior:
         self.scatter += (
             up_scatter(residual, earlier) - self.scatter
         ) / self.scatter_weight
-        self.sigma = float(
+        self.noise_sigma = float(
             np.clip(np.sqrt(self.scatter), AUTO_TILT_SIGMA_MIN, AUTO_TILT_SIGMA_MAX)
         )

@@ -20,8 +20,12 @@ fit with exponential forgetting (memory ``memory`` seconds: the factor ``lambda 
 Ljung & Soederstroem, "Theory and Practice of Recursive Identification", 1983, ch. 2), regularised toward zero
 by a weak prior so that an axis that never moves (the lateral one's ``u``) has a defined scale. Then:
 
-* step 5 moves by the **corrected** increment ``u_a + s_a u_a + b_a dt`` (:meth:`SelfTuning.correct`), so the
-  cloud is centred where the vehicle is likely to be, not where the biased source says;
+* step 5 moves by the **corrected** increment ``u_a + s_a u_a + b_a dt`` (:meth:`SelfTuning.correct`) on the
+  axes of :data:`CORRECTED_AXES`, forward, left and yaw, so the cloud is centred where the vehicle is likely to
+  be, not where the biased source says. Not in height, roll and pitch: there the innovation also holds the map's
+  own slow drift (the map is built from the filter's estimates, and its tilt random-walks), which the fit would
+  take for a bias and then follow, giving up the IMU's hold on exactly the drift the filter most needs held;
+  the tilt prior (:mod:`slamlib.slam3d.stages.prior`) corrects those axes against gravity instead;
 * step 6's spread is the innovation's own scatter, ``sigma_a = sqrt((gain q_a)^2 + floor_a^2)`` with ``q_a^2``
   the running mean square of the *predictive* residuals ``e_a - s_a u_a - b_a dt`` (each computed before the frame
   enters the fit, so an over-fitted model cannot shrink it; :meth:`SelfTuning.spread`). ``gain`` > 1 keeps the
@@ -33,6 +37,15 @@ does not collapse onto itself; and it grows with the truth's distance from the p
 after a sudden change (a slip, a turn the held twist did not know), as KISS-ICP's adaptive threshold does for its
 correspondences (Vizzo et al., "KISS-ICP", RA-L 2023, sec. III-C). LIDAR-only the same fit learns the constant
 velocity model's error, the accelerations it cannot know.
+
+Stability
+---------
+The innovation holds the source's error and the filter's own jitter, and the jitter grows with the spread: roughly
+``q^2 = q_src^2 + c sigma^2`` for some ``c < 1`` that depends on the scan. With ``sigma = gain q`` that settles at
+``q^2 = q_src^2 / (1 - c gain^2)``, which runs away once ``c gain^2 >= 1``: on the development drives a gain of 3
+did (errors of metres), a gain of 2 widened the forward spread to two or three times the source's error. A gain of
+1, the default, is the prior predictive itself (the spread of where the vehicle went around where the source said)
+and settles at ``q_src / sqrt(1 - c)``; :data:`MAX_SPREAD_FACTOR` bounds what is left.
 """
 
 from __future__ import annotations
@@ -48,10 +61,16 @@ __all__ = [
     "innovation_update",
     "innovation_model",
     "AXES",
+    "CORRECTED_AXES",
 ]
 
 #: Step 6's axes, in the order of its spread and of an innovation: body x, y, z (m), roll, pitch, yaw (rad).
 AXES = ("x", "y", "z", "roll", "pitch", "yaw")
+#: The axes whose fitted errors step 5 corrects (module docstring): forward, left, yaw.
+CORRECTED_AXES = np.array([True, True, False, False, False, True])
+#: The most the learnt spread may exceed the configured one: a bound on the loop in which a wider spread lets the
+#: chosen pose jitter more, which widens the innovations' scatter (module docstring, "Stability").
+MAX_SPREAD_FACTOR = 4.0
 #: Unknowns per axis: the scale error ``s`` and the bias ``b`` (per second).
 UNKNOWNS = 2
 #: Prior standard deviations of ``(s, b)`` for the translation axes (a scale error of 10 %, a velocity bias of 1 m/s)
@@ -162,14 +181,17 @@ class SelfTuning:
         if not (self.ready and self.correct_bias):
             return increment
         u = _as_vector(increment)
-        c = u + self.scale * u + self.bias * float(dt)
+        c = u + np.where(CORRECTED_AXES, self.scale * u + self.bias * float(dt), 0.0)
         return c[3:], c[:3]
 
     def spread(self, configured) -> np.ndarray:
-        """Step 6's spread ``(6,)``: ``sqrt((gain q)^2 + floor^2)`` once warmed up, ``configured`` before."""
+        """Step 6's spread ``(6,)``: ``sqrt((gain q)^2 + floor^2)`` once warmed up, at most
+        :data:`MAX_SPREAD_FACTOR` times ``configured``; ``configured`` before."""
+        configured = np.asarray(configured, dtype=np.float64)
         if not self.ready:
-            return np.asarray(configured, dtype=np.float64)
-        return np.sqrt(self.gain**2 * self.mean_square + self.floor**2)
+            return configured
+        learnt = np.sqrt(self.gain**2 * self.mean_square + self.floor**2)
+        return np.minimum(learnt, MAX_SPREAD_FACTOR * np.maximum(configured, self.floor))
 
     def learn(self, predicted, measured, dt: float) -> None:
         """One frame: the residual of ``measured`` against ``predicted`` (both increments, the source's own

@@ -392,7 +392,7 @@ def test_the_defaults_have_their_values():
         0,
     )
     assert (c.prior.tilt_sigma, c.polish.scan_match, c.polish.scan_match_iterations) == (
-        AUTO,
+        0.0,
         AUTO,
         15,
     )
@@ -410,7 +410,7 @@ def test_the_defaults_have_their_values():
     }
     assert (c.motion.self_tuning, c.motion.tuning_gain, c.motion.tuning_warmup) == (
         True,
-        2.0,
+        1.5,
         20,
     )
     assert (c.motion.tuning_memory, c.motion.tuning_noise_memory) == (30.0, 5.0)

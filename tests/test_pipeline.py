@@ -168,12 +168,11 @@ def test_stages_are_chosen_once_from_the_settings_and_the_first_frame():
     imu.register_frame(_frame(scan))
     chosen = (imu.motion, imu.prior, imu.polish)
     assert isinstance(imu.motion, ImuMotion)
-    # the tilt prior weighs itself ("auto"); a frame without an accelerometer leaves it nothing to hold to
-    assert isinstance(imu.prior, TiltPrior) and imu.prior.auto and imu.prior.up is None
-    assert isinstance(imu.polish, NoPolish)
-    off = ParticleSLAM3D(config.with_(tilt_sigma=0.0))
-    off.register_frame(_frame(scan))
-    assert isinstance(off.prior, NoPrior)
+    assert isinstance(imu.prior, NoPrior) and isinstance(imu.polish, NoPolish)
+    # the tilt prior that weighs itself; a frame without an accelerometer leaves it nothing to hold to
+    auto = ParticleSLAM3D(config.with_(tilt_sigma="auto"))
+    auto.register_frame(_frame(scan))
+    assert isinstance(auto.prior, TiltPrior) and auto.prior.auto and auto.prior.up is None
     imu.register_frame(_frame(scan))
     assert (imu.motion, imu.prior, imu.polish) == chosen  # the same objects: chosen once
     assert isinstance(imu.search, Annealing) and imu.search.rounds == 0

@@ -130,9 +130,9 @@ def test_fixed_spread_is_the_null_form():
 
 def test_the_filter_learns_its_imus_scale_error_and_yaw_rate_bias():
     """The small test drive's IMU reads the speed 6 % high and the yaw rate 0.06 rad/s high: after 80 frames the
-    motion stage's fit corrects the forward increment by the scale error and the yaw-rate bias has the right sign
-    and size, and the filter with self-tuning off learns nothing. The drive keeps one speed, so the fit cannot
-    tell a scale error from a bias (``s u + b dt`` with ``u`` constant): only their sum at that speed is fixed."""
+    motion stage's fit corrects the forward and the yaw increments by those errors, and the filter with
+    self-tuning off learns nothing. The drive keeps one speed and one yaw rate, so the fit cannot tell a scale
+    error from a bias (``s u + b dt`` with ``u`` constant): only their sum at that speed is fixed."""
     import sys
     from pathlib import Path
 
@@ -149,11 +149,14 @@ def test_the_filter_learns_its_imus_scale_error_and_yaw_rate_bias():
     assert (
         tuning.frames == len(frames) - 1
     )  # every frame but the first, which only starts the map
-    # -0.06 / 1.06 of the measured 5.3 m/s over 0.1 s: -0.028 m per frame; -0.06 rad/s
-    u = 5.0 * 1.06 * 0.1
+    # -0.06 / 1.06 of the measured 5.3 m/s over 0.1 s: -0.028 m per frame; -0.06 rad/s of the measured 0.36
+    # rad/s: -0.006 rad per frame
+    u, w = 5.0 * 1.06 * 0.1, (0.3 + 0.06) * 0.1
     assert -0.04 < tuning.scale[0] * u + tuning.bias[0] * 0.1 < -0.02
-    assert -0.075 < tuning.bias[5] < -0.035
+    assert -0.0075 < tuning.scale[5] * w + tuning.bias[5] * 0.1 < -0.0045
     fixed = ParticleSLAM3D(tiny_config(self_tuning=False))
-    for f in frames[:5]:
+    for f in frames:
         fixed.register_frame(f)
     assert isinstance(fixed.motion.tuning, FixedSpread)
+    # dead reckoning stays the IMU's own: the corrections are the filter's, not the baseline's
+    np.testing.assert_array_equal(slam.dead_reckoning, fixed.dead_reckoning)

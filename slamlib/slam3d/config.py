@@ -327,7 +327,7 @@ class MotionConfig:
         default_factory=ConstantVelocityConfig
     )
     self_tuning: bool = True
-    tuning_gain: float = 2.0
+    tuning_gain: float = 1.5
     tuning_memory: float = 30.0
     tuning_noise_memory: float = 5.0
     tuning_floor: tuple = (0.005, 0.005, 0.005, 0.0003, 0.0003, 0.0005)
@@ -566,7 +566,7 @@ class TiltConfig:
         so that a long straight does not pass its share of the map's tilt to the bias; 1 = every frame alike.
     """
 
-    tilt_sigma: float | str = AUTO
+    tilt_sigma: float | str = 0.0
     tilt_window: float = 2.0
     tilt_bias_sigma: float = 0.01
     tilt_world_sigma: float = 0.0

@@ -122,12 +122,13 @@ class ImuMotion:
         return sample_points(points, self.scored_points, rng)
 
     def record(self, imu, increment) -> None:
-        """After a frame: the twin moved by its increment (the start pose on the first frame, ``increment``
-        None), and this sample kept for the next frame's midpoint twist."""
+        """After a frame: the twin moved by the IMU's own increment of this frame (the start pose on the first
+        frame, ``increment`` None), and this sample kept for the next frame's midpoint twist."""
+        # the twin moves by the IMU's own increment, not the one self-tuning corrected: dead reckoning is the baseline
         T = (
             self.T0
             if increment is None
-            else self.dr_poses[-1] @ increment_matrix(*increment)
+            else self.dr_poses[-1] @ increment_matrix(*self.predicted)
         )
         self.dr_poses.append(np.asarray(T, dtype=np.float64))
         self.previous = imu

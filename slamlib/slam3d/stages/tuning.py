@@ -44,8 +44,9 @@ The innovation holds the source's error and the filter's own jitter, and the jit
 ``q^2 = q_src^2 + c sigma^2`` for some ``c < 1`` that depends on the scan. With ``sigma = gain q`` that settles at
 ``q^2 = q_src^2 / (1 - c gain^2)``, which runs away once ``c gain^2 >= 1``: on the development drives a gain of 3
 did (errors of metres), a gain of 2 widened the forward spread to two or three times the source's error. A gain of
-1, the default, is the prior predictive itself (the spread of where the vehicle went around where the source said)
-and settles at ``q_src / sqrt(1 - c)``; :data:`MAX_SPREAD_FACTOR` bounds what is left.
+1 is the prior predictive itself (the spread of where the vehicle went around where the source said) and settles
+at ``q_src / sqrt(1 - c)``; the default, 1.5, leaves room for errors that grow between frames, and
+:data:`MAX_SPREAD_FACTOR` bounds what is left.
 """
 
 from __future__ import annotations
@@ -73,12 +74,15 @@ CORRECTED_AXES = np.array([True, True, False, False, False, True])
 MAX_SPREAD_FACTOR = 4.0
 #: Unknowns per axis: the scale error ``s`` and the bias ``b`` (per second).
 UNKNOWNS = 2
-#: Prior standard deviations of ``(s, b)`` for the translation axes (a scale error of 10 %, a velocity bias of 1 m/s)
-#: and the rotation axes (10 %, 0.1 rad/s): weak, they only keep an axis that never moves well-posed.
-PRIOR_SIGMA_TRANSLATION = (0.1, 1.0)
-PRIOR_SIGMA_ROTATION = (0.1, 0.1)
-#: A frame's typical innovation scatter on the translation (m) and rotation (rad) axes, the scale of the prior.
-REFERENCE_SCATTER = (0.01, 0.001)
+#: Prior standard deviations of ``(s, b)`` for the translation axes (a scale error of 5 %, a velocity bias of
+#: 0.1 m/s) and the rotation axes (5 %, 10 mrad/s): what a car's odometry and a MEMS gyro may have. They keep an axis
+#: that never moves well-posed, and they split what a drive at one speed cannot (``s u + b dt`` with ``u``
+#: constant): mostly into the scale forward, into the bias where the increment is small.
+PRIOR_SIGMA_TRANSLATION = (0.05, 0.1)
+PRIOR_SIGMA_ROTATION = (0.05, 0.01)
+#: A frame's typical innovation scatter on the translation (m) and rotation (rad) axes, the scale of the prior: with
+#: it the bias's prior weighs as much as a few frames.
+REFERENCE_SCATTER = (0.02, 0.002)
 
 
 def motion_innovation(measured, predicted) -> np.ndarray:

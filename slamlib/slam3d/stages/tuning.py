@@ -26,9 +26,11 @@ by a weak prior so that an axis that never moves (the lateral one's ``u``) has a
   own slow drift (the map is built from the filter's estimates, and its tilt random-walks), which the fit would
   take for a bias and then follow, giving up the IMU's hold on exactly the drift the filter most needs held;
   the tilt prior (:mod:`slamlib.slam3d.stages.prior`) corrects those axes against gravity instead;
-* step 6's spread is the innovation's own scatter, ``sigma_a = sqrt((gain q_a)^2 + floor_a^2)`` with ``q_a^2``
-  the running mean square of the *predictive* residuals ``e_a - s_a u_a - b_a dt`` (each computed before the frame
-  enters the fit, so an over-fitted model cannot shrink it; :meth:`SelfTuning.spread`). ``gain`` > 1 keeps the
+* step 6's spread is the source's own scatter, ``sigma_a = sqrt((gain q_a)^2 + floor_a^2)`` with ``q_a^2`` from the
+  *predictive* residuals ``r_a = e_a - s_a u_a - b_a dt`` (each computed before the frame enters the fit, so an
+  over-fitted model cannot shrink it): their running mean square less what the filter's own jitter adds, which
+  shows as a negative correlation of consecutive residuals (:attr:`SelfTuning.source_variance`;
+  :meth:`SelfTuning.spread`). ``gain`` > 1 keeps the
   truth inside the cloud when the errors grow; ``floor`` keeps a spread where the source is exact, for the map's
   own corrections. Until ``warmup`` frames have been seen, the configured spread stands.
 
@@ -41,11 +43,10 @@ velocity model's error, the accelerations it cannot know.
 Stability
 ---------
 The innovation holds the source's error and the filter's own jitter, and the jitter grows with the spread: roughly
-``q^2 = q_src^2 + c sigma^2`` for some ``c < 1`` that depends on the scan. With ``sigma = gain q`` that settles at
-``q^2 = q_src^2 / (1 - c gain^2)``, which runs away once ``c gain^2 >= 1``: on the development drives a gain of 3
-did (errors of metres), a gain of 2 widened the forward spread to two or three times the source's error. A gain of
-1 is the prior predictive itself (the spread of where the vehicle went around where the source said) and settles
-at ``q_src / sqrt(1 - c)``; the default, 1.5, leaves room for errors that grow between frames, and
+``q^2 = q_src^2 + c sigma^2`` for some ``c < 1`` that depends on the scan. Were the spread ``gain q``, it would
+settle at ``q^2 = q_src^2 / (1 - c gain^2)`` and run away once ``c gain^2 >= 1``: on the development drives a gain
+of 3 on the raw mean square did (errors of metres). Taking the jitter out (:attr:`SelfTuning.source_variance`) cuts
+that loop; ``gain`` (1.5 by default) leaves room for errors that grow between frames, and
 :data:`MAX_SPREAD_FACTOR` bounds what is left.
 """
 
@@ -171,8 +172,21 @@ class SelfTuning:
         self.eta = np.zeros((6, UNKNOWNS))
         self.scale, self.bias = np.zeros(6), np.zeros(6)
         self.mean_square = np.zeros(6)
+        self.lag_product = np.zeros(6)
         self.frames = 0
         self._weight = 0.0
+        self._residual = None
+
+    @property
+    def source_variance(self) -> np.ndarray:
+        """The source's own error variance per axis ``(6,)``: the residuals' mean square less what the filter's
+        jitter adds. A pose off by ``eps_k`` puts ``eps_k - eps_{k-1}`` into the frame's innovation, which adds
+        ``2 var(eps)`` to the mean square and ``-var(eps)`` to the product of consecutive residuals; the source's
+        white noise adds nothing to that product. So ``q_src^2 = mean(r_k^2) + 2 mean(r_k r_{k-1})``, at least a
+        quarter of the mean square (a floor for the estimate's own noise)."""
+        return np.maximum(
+            self.mean_square + 2.0 * self.lag_product, 0.25 * self.mean_square
+        )
 
     @property
     def ready(self) -> bool:
@@ -194,7 +208,7 @@ class SelfTuning:
         configured = np.asarray(configured, dtype=np.float64)
         if not self.ready:
             return configured
-        learnt = np.sqrt(self.gain**2 * self.mean_square + self.floor**2)
+        learnt = np.sqrt(self.gain**2 * self.source_variance + self.floor**2)
         return np.minimum(learnt, MAX_SPREAD_FACTOR * np.maximum(configured, self.floor))
 
     def learn(self, predicted, measured, dt: float) -> None:
@@ -208,6 +222,9 @@ class SelfTuning:
         # the running mean square, normalised by its own total weight so early frames are not biased to zero
         self._weight = a * self._weight + 1.0
         self.mean_square += (residual**2 - self.mean_square) / self._weight
+        previous = residual if self._residual is None else self._residual
+        self.lag_product += (residual * previous - self.lag_product) / self._weight
+        self._residual = residual
         self.info, self.eta = innovation_update(
             self.info, self.eta, H, e, np.exp(-float(dt) / self.memory)
         )

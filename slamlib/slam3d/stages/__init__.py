@@ -9,7 +9,8 @@ stage          serves                                         forms
 ============== ============================================== ===============================================
 motion         step 3's source, step 5's increment, step 6's  :class:`ImuMotion` (IMU velocities and rates,
                spread, the scoring sample, the start search   dead-reckoning twin), :class:`ConstantVelocity`
-                                                              (LIDAR-only: the filter's own motion held)
+               (both learning their source's errors:          (LIDAR-only: the filter's own motion held)
+               :mod:`~slamlib.slam3d.stages.tuning`)
 scan           step 2: crop, down-sample, de-skew             :class:`ScanPreparation`
 prior          step 8's second term                           :class:`TiltPrior` (roll and pitch held to
                                                               gravity), :class:`NoPrior`

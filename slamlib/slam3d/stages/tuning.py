@@ -18,7 +18,8 @@ the errors of an IMU's velocities and rates: a wheel or speed scale error ``s`` 
 synthetic IMU), biases ``b`` (m/s, rad/s) that wander. Each axis's ``(s_a, b_a)`` is a recursive least-squares
 fit with exponential forgetting (memory ``memory`` seconds: the factor ``lambda = exp(-dt / memory)`` per frame;
 Ljung & Soederstroem, "Theory and Practice of Recursive Identification", 1983, ch. 2), regularised toward zero
-by a weak prior so that an axis that never moves (the lateral one's ``u``) has a defined scale. Then:
+by a prior (:data:`PRIOR_SIGMA_TRANSLATION`, :data:`PRIOR_SIGMA_ROTATION`) so that an axis that never moves (the
+lateral one's ``u``) has a defined scale. Then:
 
 * step 5 moves by the **corrected** increment ``u_a + s_a u_a + b_a dt`` (:meth:`SelfTuning.correct`) on the
   axes of :data:`CORRECTED_AXES`, forward, left and yaw, so the cloud is centred where the vehicle is likely to
@@ -30,9 +31,9 @@ by a weak prior so that an axis that never moves (the lateral one's ``u``) has a
   *predictive* residuals ``r_a = e_a - s_a u_a - b_a dt`` (each computed before the frame enters the fit, so an
   over-fitted model cannot shrink it): their running mean square less what the filter's own jitter adds, which
   shows as a negative correlation of consecutive residuals (:attr:`SelfTuning.source_variance`;
-  :meth:`SelfTuning.spread`). ``gain`` > 1 keeps the
-  truth inside the cloud when the errors grow; ``floor`` keeps a spread where the source is exact, for the map's
-  own corrections. Until ``warmup`` frames have been seen, the configured spread stands.
+  :meth:`SelfTuning.spread`). ``gain`` > 1 keeps the truth inside the cloud when the errors grow; ``floor`` keeps
+  a spread where the source is exact, for the map's own corrections. Until ``warmup`` frames have been seen, the
+  configured spread stands.
 
 The residual cannot shrink below what step 8 resolves (the posterior's width), whatever the spread, so the estimate
 does not collapse onto itself; and it grows with the truth's distance from the prediction, which widens the spread
@@ -57,6 +58,9 @@ import numpy as np
 from slamlib.geometry import matrix_to_rpy, rpy_to_matrix
 
 __all__ = [
+    "MAX_SPREAD_FACTOR",
+    "PRIOR_SIGMA_ROTATION",
+    "PRIOR_SIGMA_TRANSLATION",
     "FixedSpread",
     "SelfTuning",
     "motion_innovation",

@@ -413,7 +413,7 @@ def test_the_defaults_have_their_values():
         1.5,
         20,
     )
-    assert (c.motion.tuning_memory, c.motion.tuning_noise_memory) == (30.0, 5.0)
+    assert (c.motion.tuning_memory, c.motion.tuning_noise_memory) == (30.0, 15.0)
     assert c.motion.tuning_floor == (0.005, 0.005, 0.005, 0.0003, 0.0003, 0.0005)
     assert (c.search.collapse_ess, c.search.collapse_rounds) == (0.0, 3)
     cv = c.motion.constant_velocity

@@ -329,7 +329,7 @@ class MotionConfig:
     self_tuning: bool = True
     tuning_gain: float = 1.5
     tuning_memory: float = 30.0
-    tuning_noise_memory: float = 5.0
+    tuning_noise_memory: float = 15.0
     tuning_floor: tuple = (0.005, 0.005, 0.005, 0.0003, 0.0003, 0.0005)
     tuning_warmup: int = 20
 

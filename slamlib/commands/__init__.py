@@ -26,6 +26,6 @@ def parameter_default(function, name: str):
 def tilt_sigma(text: str):
     """``--tilt-sigma``'s value: ``auto`` (:data:`slamlib.slam3d.config.AUTO`: the prior weighs the accelerometer by
     its own consistency) or a number of radians (0 = off), checked by the configuration."""
-    if text.strip().lower() == "auto":
-        return "auto"
-    return float(text)
+    from slamlib.slam3d.config import AUTO
+
+    return AUTO if text.strip().lower() == AUTO else float(text)

@@ -319,7 +319,7 @@ def main(args) -> int:
         if not 0 <= rounds <= MAX_ANNEAL_ROUNDS:
             _fail(f"--anneal-rounds must be in [0, {MAX_ANNEAL_ROUNDS}], got {rounds}")
         settings = [dict(s, anneal_rounds=rounds) for s in settings]
-    if args.tilt_sigma is not None and args.tilt_sigma != "auto":
+    if args.tilt_sigma is not None and not isinstance(args.tilt_sigma, str):
         if not (math.isfinite(args.tilt_sigma) and args.tilt_sigma >= 0):
             _fail(
                 f"--tilt-sigma must be a finite number >= 0 (radians), got {args.tilt_sigma}"

@@ -125,7 +125,7 @@ class DriveOptions:
         }
         if layout == "raw" and (self.bias_walk or self.imu_noise != 1):
             noise = WANDERING_BIASES if self.bias_walk else ImuNoise()
-            kw["noise"] = noise.scaled(self.imu_noise) if self.imu_noise != 1 else noise
+            kw["noise"] = noise.scaled(self.imu_noise)
         return kw
 
 

@@ -221,7 +221,7 @@ class SelfTuning:
         u = _as_vector(predicted)
         e = motion_innovation(measured, predicted)
         H = innovation_model(u, dt)
-        residual = e - (self.scale * u + self.bias * float(dt)) if self.frames else e
+        residual = e - (self.scale * u + self.bias * float(dt))
         a = np.exp(-float(dt) / self.noise_memory)
         # the running mean square, normalised by its own total weight so early frames are not biased to zero
         self._weight = a * self._weight + 1.0

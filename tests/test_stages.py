@@ -14,10 +14,10 @@ from world3d import simulate, tiny_config
 
 from slamlib.geometry import make_pose, rpy_to_matrix
 from slamlib.odometry import GRAVITY
-from slamlib.slam3d import Particles3D, ParticleSLAM3D
+from slamlib.slam3d import Particles3D, ParticleSLAM3D, steps
 from slamlib.slam3d.config import TiltConfig
 from slamlib.slam3d.preprocess import road_mask
-from slamlib.slam3d.stages import NoPolish, NoPrior, ScanMatch, TiltPrior
+from slamlib.slam3d.stages import Annealing, NoPolish, NoPrior, ScanMatch, TiltPrior
 from slamlib.slam3d.stages.prior import (
     balance_heading_bins,
     gravity_up,
@@ -323,9 +323,8 @@ def test_auto_tilt_sigma_follows_the_accelerometers_consistency(noise):
     for f in frames[5:]:
         slam.register_frame(f)
     assert AUTO_TILT_SIGMA_MIN <= slam.prior.sigma <= AUTO_TILT_SIGMA_MAX
-    assert (
-        slam.prior.scatter_weight > 30
-    )  # frames 21-69 each compared with one a window before
+    # frames 21-69 each compared with one a window before
+    assert slam.prior.scatter.weight > 30
     # simulate's IMU: velocity noise 0.02 m/s, accelerometer noise 0.05 m/s^2 (plus this test's)
     sigma_v, sigma_f = 0.02, np.hypot(0.05, noise)
     expected = np.hypot(np.sqrt(2) * sigma_v, sigma_f * 0.1 * np.sqrt(9.5)) / GRAVITY
@@ -523,3 +522,45 @@ def test_no_polish_keeps_the_pose_and_the_particles():
     stage = NoPolish()
     got_pose, got_particles = stage(pose, _road_scan(), particles, None)
     assert got_pose is pose and got_particles is particles and stage.n_matched == 0
+
+
+def _annealing(monkeypatch, collapsed_calls, collapse_ess=0.5, collapse_rounds=3):
+    """An :class:`Annealing` of 1 round (shrink 0.5) whose weighing collapses the weights onto one particle for its
+    first ``collapsed_calls`` calls and leaves them uniform after; step 6's spreads recorded in ``sigmas``."""
+    sigmas, calls = [], []
+
+    def perturb(particles, sigma, rng, noise=None, backend=None):
+        sigmas.append(float(np.asarray(sigma)[0]))
+        return particles
+
+    def weigh(particles, log_weights, sample):
+        calls.append(1)
+        P = len(log_weights)
+        if len(calls) <= collapsed_calls:
+            return np.r_[0.0, np.full(P - 1, -1e3)]
+        return np.full(P, -np.log(P))
+
+    monkeypatch.setattr(steps, "perturb_with_noise", perturb)
+    search = Annealing(
+        1, 0.5, weigh, np.random.default_rng(0), "numpy", collapse_ess, collapse_rounds
+    )
+    return search, sigmas
+
+
+@pytest.mark.parametrize(
+    "collapsed_calls, collapse_ess, further",
+    [(0, 0.5, 0), (1, 0.5, 1), (2, 0.5, 2), (99, 0.5, 3), (99, 0.0, 0)],
+)
+def test_annealing_adds_rounds_while_the_weights_collapse(
+    monkeypatch, collapsed_calls, collapse_ess, further
+):
+    """After its fixed round, the search runs a further round while ``ESS < collapse_ess * P`` (one particle
+    holding all the weight: ESS 1 of 10), at most ``collapse_rounds`` (3) of them, each shrinking the spread by
+    ``anneal_shrink`` once more than the one before; uniform weights (ESS = P) or ``collapse_ess`` 0 stop it."""
+    search, sigmas = _annealing(monkeypatch, collapsed_calls, collapse_ess)
+    P = 10
+    particles = Particles3D(np.repeat(np.eye(3)[None], P, axis=0), np.zeros((P, 3)))
+    search(particles, np.full(P, -np.log(P)), None, np.ones(6))
+    assert search.n_collapse_rounds == further
+    assert search.n_rounds == 1 + further
+    np.testing.assert_allclose(sigmas, 0.5 ** np.arange(1, 2 + further))

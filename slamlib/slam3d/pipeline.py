@@ -183,7 +183,7 @@ class ParticleSLAM3D:
         pose, moved = self.polish(pose, points, moved, self.map)
         self._learn(pose, dt)  # what 9 found tunes 5, 6 and 8's prior
         steps.merge_scan(self.map, pose, points, be)  # 10
-        self._record(pose, imu, dT, points, dt, sample=sample, sigma=sigma, best=best)
+        self._record(pose, imu, points, dt, sample=sample, sigma=sigma, best=best)
         self.upkeep(self.map, poses)
         self._resample(moved, log_w)  # 11
         return pose
@@ -232,19 +232,17 @@ class ParticleSLAM3D:
 
     def _start(self, points, imu, dt) -> np.ndarray:
         """The first frame: step 10 at the start pose, which is also the first pose of both trajectories."""
-        self._unscored(self.T0, imu, None, points, dt)
+        self._unscored(self.T0, imu, points, dt)
         return self.poses[-1]
 
     def _skip(self, moved, imu, increment, points, dt, sigma) -> np.ndarray:
         """A frame not scored: keep the moved particles and their weights; the pose is the motion prediction."""
         self.particles = moved
         pose = self.poses[-1] @ increment_matrix(*increment)
-        self._unscored(
-            pose, imu, increment, points, dt, sample=points[:0], sigma=sigma, best=None
-        )
+        self._unscored(pose, imu, points, dt, sample=points[:0], sigma=sigma, best=None)
         return pose
 
-    def _unscored(self, pose, imu, increment, points, dt, **last) -> None:
+    def _unscored(self, pose, imu, points, dt, **last) -> None:
         """A frame not scored (the first, a degenerate one) at ``pose``: its scan starts the map there when it has
         enough points (the map is still empty), else it counts as skipped; then the bookkeeping and upkeep. What
         :meth:`step` reports of it: the particles as they are, their weights unchanged, zero scores, no
@@ -253,18 +251,18 @@ class ParticleSLAM3D:
             steps.merge_scan(self.map, pose, points, self.backend)
         else:
             self.n_skipped_frames += 1
-        self._record(pose, imu, increment, points, dt, **last)
+        self._record(pose, imu, points, dt, **last)
         P = len(self.particles)
         self.last.update(moved=self.particles, log_weights=self.log_weights)
         self.last.update(scores=np.zeros(P), resampled=False)
         self.upkeep(self.map, self.poses)
 
-    def _record(self, pose, imu, increment, points, dt, **last) -> None:
+    def _record(self, pose, imu, points, dt, **last) -> None:
         """Bookkeeping after step 10: the SLAM pose and its ``dt``, the motion stage's record of the frame (the
-        dead-reckoning twin moved by ``increment``, None on the first frame), this frame's intermediate results."""
+        dead-reckoning twin moved by the source's own increment), this frame's intermediate results."""
         self.poses.append(np.asarray(pose, dtype=np.float64))
         self.dts.append(float(dt))
-        self.motion.record(imu, increment)
+        self.motion.record(imu)
         self.last.update(points=points, **last)
 
     def map_points(self) -> np.ndarray:

@@ -23,7 +23,7 @@ Two sources, chosen once for a drive (:func:`slamlib.slam3d.stages.choose_stages
 
 Both offer the same methods: ``read(frame, poses, dts)`` (step 3), ``predict(imu, dt, poses)`` (what steps 5 and 6
 need: the increment, the spread and the start search's extra rounds), ``scoring_sample(points, rng)`` (step 8's
-points) and ``record(imu, increment)`` (after the frame).
+points) and ``record(imu)`` (after the frame).
 """
 
 from __future__ import annotations
@@ -121,14 +121,14 @@ class ImuMotion:
         """Step 8's points: ``scored_points`` of the scan drawn at random."""
         return sample_points(points, self.scored_points, rng)
 
-    def record(self, imu, increment) -> None:
+    def record(self, imu) -> None:
         """After a frame: the twin moved by the IMU's own increment of this frame (the start pose on the first
-        frame, ``increment`` None), and this sample kept for the next frame's midpoint twist."""
+        frame), and this sample kept for the next frame's midpoint twist."""
         # the twin moves by the IMU's own increment, not the one self-tuning corrected: dead reckoning is the baseline
         T = (
-            self.T0
-            if increment is None
-            else self.dr_poses[-1] @ increment_matrix(*self.predicted)
+            self.dr_poses[-1] @ increment_matrix(*self.predicted)
+            if self.dr_poses
+            else self.T0
         )
         self.dr_poses.append(np.asarray(T, dtype=np.float64))
         self.previous = imu
@@ -178,6 +178,6 @@ class ConstantVelocity:
         pool = thin_ground(points, self.held.ground_share, rng)
         return sample_points(pool, self.scored_points, rng)
 
-    def record(self, imu, increment) -> None:
+    def record(self, imu) -> None:
         """After a frame: keep the held twist (``previous``)."""
         self.previous = imu

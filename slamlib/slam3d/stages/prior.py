@@ -42,6 +42,7 @@ import numpy as np
 from slamlib.odometry import increment_matrix
 from slamlib.slam3d import steps
 from slamlib.slam3d.config import AUTO, TiltConfig
+from slamlib.slam3d.stages.tuning import ForgettingMean
 
 __all__ = [
     "AUTO_TILT_SIGMA_MAX",
@@ -311,7 +312,7 @@ class TiltPrior:
         self.window = config.tilt_window
         # "auto": (time, residual) of the frames of the last window, and the running mean of up_scatter
         self.residuals: deque = deque()
-        self.time, self.scatter, self.scatter_weight = 0.0, 0.0, 0.0
+        self.time, self.scatter = 0.0, ForgettingMean(UP_SCATTER_MEMORY_S)
         self.samples: deque = deque()
         self.up, self.up_span = None, 0.0
         self.calibration_prior = tilt_calibration_prior(
@@ -375,7 +376,8 @@ class TiltPrior:
 
     def _weigh_by_consistency(self, pose, dt: float) -> None:
         """``tilt_sigma = "auto"``: this frame's residual against the one a window earlier into the running mean of
-        :func:`up_scatter`, and ``sigma`` from it (module docstring)."""
+        :func:`up_scatter` (``scatter``), and the up's own noise ``noise_sigma`` from it (module docstring);
+        :meth:`calibrate` adds the bias fit's uncertainty to make ``sigma``."""
         self.time += dt
         own = pose[:3, :3].T @ self.world_up
         residual = self.up - self.up_bias - own
@@ -385,11 +387,7 @@ class TiltPrior:
             earlier = self.residuals.popleft()[1]
         if earlier is None:
             return
-        a = np.exp(-dt / UP_SCATTER_MEMORY_S)
-        self.scatter_weight = a * self.scatter_weight + 1.0
-        self.scatter += (
-            up_scatter(residual, earlier) - self.scatter
-        ) / self.scatter_weight
+        self.scatter.add(up_scatter(residual, earlier), dt)
         self.noise_sigma = float(
-            np.clip(np.sqrt(self.scatter), AUTO_TILT_SIGMA_MIN, AUTO_TILT_SIGMA_MAX)
+            np.clip(np.sqrt(self.scatter.value), AUTO_TILT_SIGMA_MIN, AUTO_TILT_SIGMA_MAX)
         )

@@ -37,7 +37,9 @@ class Annealing:
     """``rounds`` annealing rounds per frame, each shrinking step 6's spread by ``shrink`` (module docstring).
 
     ``weigh(particles, log_weights, sample) -> log_weights`` is the filter's steps 7 + 8 (with the prior's term);
-    ``rng`` and ``backend`` are the filter's. ``n_rounds`` counts the rounds run.
+    ``rng`` and ``backend`` are the filter's; ``collapse_ess`` and ``collapse_rounds`` the further rounds while the
+    weights collapse (:class:`~slamlib.slam3d.config.AnnealConfig`). ``n_rounds`` counts the rounds run,
+    ``n_collapse_rounds`` the further ones among them.
     """
 
     def __init__(
@@ -47,8 +49,8 @@ class Annealing:
         weigh,
         rng,
         backend,
-        collapse_ess: float = 0.0,
-        collapse_rounds: int = 0,
+        collapse_ess: float,
+        collapse_rounds: int,
     ):
         self.rounds, self.shrink = int(rounds), float(shrink)
         self.weigh, self.rng, self.backend = weigh, rng, backend

@@ -62,6 +62,7 @@ __all__ = [
     "PRIOR_SIGMA_ROTATION",
     "PRIOR_SIGMA_TRANSLATION",
     "FixedSpread",
+    "ForgettingMean",
     "SelfTuning",
     "motion_innovation",
     "innovation_update",
@@ -137,6 +138,26 @@ def _prior_information() -> np.ndarray:
 _PRIOR = _prior_information()
 
 
+class ForgettingMean:
+    """A running mean that forgets with a memory of ``memory`` seconds: after samples ``x_1 .. x_k``, the ``j``-th
+    ``t_kj`` seconds old,
+
+        m_k = sum_j lambda_j x_j / sum_j lambda_j,        lambda_j = exp(-t_kj / memory),
+
+    kept as ``W_k = exp(-dt / memory) W_{k-1} + 1`` and ``m_k = m_{k-1} + (x_k - m_{k-1}) / W_k`` (exponential
+    forgetting, Ljung & Soederstroem 1983, ch. 2): normalised by its own total weight ``W``, so the first samples
+    are not pulled toward the zero it starts from. ``value`` the mean (a number or an array), ``weight`` ``W``.
+    """
+
+    def __init__(self, memory: float, value=0.0):
+        self.memory, self.value, self.weight = float(memory), value, 0.0
+
+    def add(self, x, dt: float) -> None:
+        """The sample ``x``, ``dt`` seconds after the one before, into the mean."""
+        self.weight = np.exp(-float(dt) / self.memory) * self.weight + 1.0
+        self.value = self.value + (x - self.value) / self.weight
+
+
 class SelfTuning:
     """The motion source's scale errors, biases and scatter, learnt from the innovations (module docstring).
 
@@ -155,8 +176,9 @@ class SelfTuning:
     correct_bias : bool
         Whether :meth:`correct` applies the fitted ``(s, b)`` (LIDAR-only the held twist has no bias to learn).
 
-    Attributes: ``scale (6,)``, ``bias (6,)`` (per second) the fit; ``mean_square (6,)`` the residuals' ``q^2``;
-    ``frames`` the frames learnt.
+    Attributes: ``scale (6,)``, ``bias (6,)`` (per second) the fit; ``mean_square (6,)`` the residuals' ``q^2`` and
+    ``lag_product (6,)`` the mean product of consecutive residuals (both :class:`ForgettingMean` over
+    ``noise_memory``); ``frames`` the frames learnt.
     """
 
     def __init__(
@@ -175,11 +197,20 @@ class SelfTuning:
         self.info = np.zeros((6, UNKNOWNS, UNKNOWNS))
         self.eta = np.zeros((6, UNKNOWNS))
         self.scale, self.bias = np.zeros(6), np.zeros(6)
-        self.mean_square = np.zeros(6)
-        self.lag_product = np.zeros(6)
+        self._mean_square = ForgettingMean(noise_memory, np.zeros(6))
+        self._lag_product = ForgettingMean(noise_memory, np.zeros(6))
         self.frames = 0
-        self._weight = 0.0
         self._residual = None
+
+    @property
+    def mean_square(self) -> np.ndarray:
+        """The predictive residuals' running mean square ``(6,)``."""
+        return self._mean_square.value
+
+    @property
+    def lag_product(self) -> np.ndarray:
+        """The running mean ``(6,)`` of the products of consecutive predictive residuals."""
+        return self._lag_product.value
 
     @property
     def source_variance(self) -> np.ndarray:
@@ -222,12 +253,9 @@ class SelfTuning:
         e = motion_innovation(measured, predicted)
         H = innovation_model(u, dt)
         residual = e - (self.scale * u + self.bias * float(dt))
-        a = np.exp(-float(dt) / self.noise_memory)
-        # the running mean square, normalised by its own total weight so early frames are not biased to zero
-        self._weight = a * self._weight + 1.0
-        self.mean_square += (residual**2 - self.mean_square) / self._weight
         previous = residual if self._residual is None else self._residual
-        self.lag_product += (residual * previous - self.lag_product) / self._weight
+        self._mean_square.add(residual**2, dt)
+        self._lag_product.add(residual * previous, dt)
         self._residual = residual
         self.info, self.eta = innovation_update(
             self.info, self.eta, H, e, np.exp(-float(dt) / self.memory)

@@ -1,5 +1,6 @@
 """The book's notebooks follow the chapter conventions of CONTRIBUTING.md ("Writing a chapter") that a build does
-not check by itself: code wrapped to 90 columns, figures numbered and named, each cited from the prose."""
+not check by itself: code wrapped to 90 columns, figures numbered and named, each cited from the prose, and each
+chapter framed: what it teaches and needs first, a summary, exercises with hidden solutions, and its checks."""
 
 import json
 import re
@@ -7,7 +8,9 @@ from pathlib import Path
 
 import pytest
 
-NOTEBOOKS = sorted((Path(__file__).resolve().parents[1] / "notebooks").glob("*.ipynb"))
+ROOT = Path(__file__).resolve().parents[1]
+NOTEBOOKS = sorted((ROOT / "notebooks").glob("*.ipynb"))
+BOOK_PAGES = sorted((ROOT / "book").glob("*.md"))
 MAX_CODE_COLUMNS = 90
 
 
@@ -48,3 +51,55 @@ def test_figures_are_named_captioned_and_cited(path):
         )
     names = [f["name"] for f in figures]
     assert len(names) == len(set(names)), names
+
+
+CHECKS_HEADING = "## Checks: this chapter's claims, run as tests"
+
+
+def _markdown(cell):
+    return "".join(cell["source"]) if cell["cell_type"] == "markdown" else ""
+
+
+@pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.stem)
+def test_every_chapter_has_a_frame(path):
+    """A chapter opens with what it teaches and needs, and closes with a summary, exercises with hidden solutions
+    and the checks that assert its claims, under one heading, after which only code cells follow."""
+    cells = _cells(path)
+    prose = [_markdown(c) for c in cells]
+    assert any(
+        ":::{admonition} In this chapter" in text
+        and "**You will learn**" in text
+        and "**You need first**" in text
+        for text in prose[:3]
+    ), f"{path.name}: no 'In this chapter' admonition in the first 3 cells"
+    assert any(
+        line.strip() == "## Summary" for text in prose for line in text.splitlines()
+    ), f"{path.name}: no '## Summary' cell"
+    text = "\n".join(prose)
+    opened = re.findall(r"^:{3,}\{", text, re.M)
+    closed = re.findall(r"^:{3,}\s*$", text, re.M)
+    assert len(opened) == len(closed), f"{path.name}: an unclosed ::: directive"
+    exercises = re.findall(r"^:::\{exercise\}\n:label: (\S+)$", text, re.M)
+    solutions = re.findall(r"^:::\{solution\} (\S+)\n:class: dropdown$", text, re.M)
+    assert len(exercises) >= 3, f"{path.name}: {len(exercises)} exercises, want 3"
+    assert len(exercises) == len(set(exercises)) and set(solutions) == set(exercises), (
+        path.name,
+        exercises,
+        solutions,
+    )
+    elsewhere = "\n".join(
+        [p.read_text(encoding="utf-8") for p in NOTEBOOKS if p != path]
+        + [p.read_text(encoding="utf-8") for p in BOOK_PAGES]
+    )
+    reused = [
+        e for e in exercises if re.search(rf":label: {re.escape(e)}(?![\w-])", elsewhere)
+    ]
+    assert not reused, (
+        f"{path.name}: exercise labels used elsewhere in the book: {reused}"
+    )
+    heading = [i for i, t in enumerate(prose) if t.splitlines()[:1] == [CHECKS_HEADING]]
+    assert len(heading) == 1, f"{path.name}: want one '{CHECKS_HEADING}' cell"
+    after = cells[heading[0] + 1 :]
+    assert after and all(c["cell_type"] == "code" for c in after), (
+        f"{path.name}: only the check cells may follow '{CHECKS_HEADING}'"
+    )

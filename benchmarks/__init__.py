@@ -29,6 +29,7 @@ BENCHMARKS = {
     "particles": "benchmarks.particles",
     "scaling": "benchmarks.scaling",
     "lidar_only": "benchmarks.lidar_only",
+    "startup": "benchmarks.startup",
 }
 
 

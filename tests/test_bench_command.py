@@ -24,6 +24,7 @@ NAMES = (
     "particles",
     "scaling",
     "lidar_only",
+    "startup",
 )
 
 

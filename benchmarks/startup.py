@@ -1,0 +1,141 @@
+"""``slamlib bench startup``: what a user waits for before the first steady frame, cold and warm.
+
+Each run is a fresh interpreter running the real command, ``slamlib run --frames 0:FRAMES`` on the embedded default
+drive (generated into the cache once, before any timing), in both motion modes (the IMU's, and ``--lidar-only``):
+
+* ``cold``: an empty Numba cache (``NUMBA_CACHE_DIR`` a new temporary folder per run): every kernel the mode uses
+  is compiled, as on a user's first run;
+* ``warm``: the same command again with the cache a cold run left: the kernels are loaded, not compiled.
+
+Reported per mode and cache, medians and bests (``min``) over the repeats:
+
+* ``wall_s``: the whole process, interpreter start to exit (results written, plots off);
+* ``startup_s``: what ``slamlib run`` prints as its start-up: from the command's entry (before slamlib's heavy
+  imports) until the first :data:`slamlib.slam3d.run.STARTUP_FRAMES` frames are done (imports, the kernels compiled
+  or loaded, the map begun);
+* ``steady_fps``: the frames/s after them, as printed;
+* ``overhead_s``: the start-up less what those frames take at the steady rate, ``startup_s - STARTUP_FRAMES /
+  steady_fps``: the time spent importing, compiling or loading kernels, and opening the drive.
+
+Beside them, ``kiss_icp``: a fresh interpreter that imports KISS-ICP 1.3.0 (through :mod:`slamlib.peers`) and
+registers the first :data:`STARTUP_FRAMES` frames of the same drive, timed from the process's start: the start-up
+of a peer without a compile step.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+HELP = "start-up: fresh `slamlib run` with an empty and a warm Numba cache (IMU and LIDAR-only), beside KISS-ICP"
+
+#: Frames of each run: the start-up frames and enough after them for a steady rate.
+FRAMES = 30
+QUICK_FRAMES = 8
+MODES = {"imu": [], "lidar_only": ["--lidar-only"]}
+#: What ``slamlib run`` prints (slamlib.commands.run): "... N frames/s after a start-up of S s ...".
+PRINTED = re.compile(r"([\d.]+) frames/s after a start-up of ([\d.]+) s")
+
+KISS_SCRIPT = """
+import sys, time
+t0 = time.perf_counter()
+from slamlib.kitti import KittiRawDrive
+from slamlib.peers import kiss_icp_poses
+from slamlib.slam3d.run import STARTUP_FRAMES
+basedir, date, drive = sys.argv[1], sys.argv[2], int(sys.argv[3])
+frames = KittiRawDrive(basedir, date, drive, frames=range(STARTUP_FRAMES))
+kiss_icp_poses(frames, deskew=True)
+print(time.perf_counter() - t0)
+"""
+
+
+def _slamlib_run(args: list[str], cache: str, out: str) -> dict:
+    """One fresh ``slamlib run`` with ``NUMBA_CACHE_DIR=cache``; its wall time and what it printed."""
+    from slamlib.slam3d.run import STARTUP_FRAMES
+
+    env = {**os.environ, "NUMBA_CACHE_DIR": cache}
+    command = [sys.executable, "-m", "slamlib.cli", "run", *args, "--out", out]
+    command += ["--overwrite", "--no-plots", "--no-progress"]
+    t0 = time.perf_counter()
+    done = subprocess.run(command, env=env, capture_output=True, text=True, check=False)
+    wall = time.perf_counter() - t0
+    if done.returncode != 0:
+        raise RuntimeError(
+            f"{' '.join(command)} failed ({done.returncode}):\n{done.stderr[-2000:]}"
+        )
+    match = PRINTED.search(done.stdout)
+    if match is None:
+        raise RuntimeError(
+            f"no start-up line in the output of {' '.join(command)}:\n{done.stdout}"
+        )
+    fps, startup = float(match.group(1)), float(match.group(2))
+    return {
+        "wall_s": wall,
+        "startup_s": startup,
+        "steady_fps": fps,
+        "overhead_s": startup - STARTUP_FRAMES / fps,
+    }
+
+
+def _summary(runs: list[dict]) -> dict:
+    """Median and best of each measure over the runs."""
+    out = {"repeat": len(runs)}
+    for key in runs[0]:
+        values = np.array([r[key] for r in runs], dtype=float)
+        out[f"{key}_median"] = float(np.median(values))
+        out[f"{key}_min"] = float(np.min(values))
+    return out
+
+
+def run(quick: bool = False) -> dict:
+    from slamlib.synth import default_drive
+    from slamlib.synth.drive import DEFAULT_FRAMES
+
+    n = QUICK_FRAMES if quick else FRAMES
+    repeat = 1 if quick else 5
+    basedir, date, drive = default_drive(progress=False)  # generated before any timing
+    frames = ["--frames", f"0:{n}"]
+    rows = {}
+    with tempfile.TemporaryDirectory(prefix="slamlib-bench-startup-") as tmp:
+        out = str(Path(tmp) / "run")
+        for mode, flags in MODES.items():
+            caches = [str(Path(tmp) / f"numba-{mode}-{k}") for k in range(repeat)]
+            cold = [_slamlib_run(frames + flags, cache, out) for cache in caches]
+            # the warm runs load what the last cold run compiled
+            warm = [_slamlib_run(frames + flags, caches[-1], out) for _ in range(repeat)]
+            rows[mode] = {"cold": _summary(cold), "warm": _summary(warm)}
+            print(
+                f"{mode}: start-up cold {rows[mode]['cold']['startup_s_median']:.2f} s, "
+                f"warm {rows[mode]['warm']['startup_s_median']:.2f} s (medians); steady "
+                f"{rows[mode]['warm']['steady_fps_median']:.1f} frames/s, warm overhead "
+                f"{rows[mode]['warm']['overhead_s_median']:.2f} s"
+            )
+        kiss = []
+        for _ in range(repeat):
+            t0 = time.perf_counter()
+            done = subprocess.run(
+                [sys.executable, "-c", KISS_SCRIPT, str(basedir), date, str(drive)],
+                capture_output=True,
+                text=True,
+                check=True,
+            )
+            kiss.append(
+                {
+                    "wall_s": time.perf_counter() - t0,
+                    "startup_s": float(done.stdout.split()[-1]),
+                }
+            )
+        rows["kiss_icp"] = _summary(kiss)
+    print(f"KISS-ICP: start-up {rows['kiss_icp']['startup_s_median']:.2f} s (median)")
+    return {
+        "drive": f"default drive (route 07, key frames 0:{DEFAULT_FRAMES[1]}), frames 0:{n}",
+        "frames": n,
+        "rows": rows,
+    }

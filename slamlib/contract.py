@@ -289,13 +289,15 @@ class StepsFilter:
     steps module) and passes the shared settings to ``__init__``; what it adds to the calls it says by overriding
     :meth:`scan_options` (step 2), :meth:`score_options` (step 8) and :meth:`mean_pose` (the optional
     :attr:`StepInfo.mean`). Every step is called with the contract's parameters first and the additions as
-    keywords, so its defaults stand for whatever the subclass does not add.
+    keywords, so its defaults stand for whatever the subclass does not add. The parameters below have the same
+    names and order at every dimension that uses this class.
 
-    Parameters (the same names and order at every dimension that uses it)
+    Parameters
     ----------
     n_particles : int
         P; step 1 puts all of them at the world origin with log-weights ``-log P``.
-    world_map : the dimension's map, empty or not; changed in place by every :meth:`step` (step 10).
+    world_map : the dimension's map
+        Empty or not; changed in place by every :meth:`step` (step 10).
     motion_noise : float or array
         Step 6's spread **per second**, finite and >= 0: step 6 gets ``sigma = motion_noise * dt``.
     rng : numpy.random.Generator

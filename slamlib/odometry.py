@@ -122,13 +122,13 @@ def increment_matrix(rpy_delta, trans_delta) -> np.ndarray:
 def dead_reckon(velocities, angular_rates, dts, T0=None) -> np.ndarray:
     """Integrate body-frame velocities and rates into poses ``T_w_imu (N, 4, 4)``.
 
+    ``T[k] = T[k-1] @ increment(v[k-1], w[k-1], v[k], w[k], dts[k])`` (:func:`imu_increments`).
+
     Parameters
     ----------
     velocities, angular_rates : (N, 3) body-frame samples ``(vf, vl, vu)`` m/s and ``(wf, wl, wu)`` rad/s.
     dts : (N,) ``dts[k] = t_k - t_{k-1}`` (s); ``dts[0]`` is ignored.
     T0 : (4, 4) initial pose (default identity).
-
-    ``T[k] = T[k-1] @ increment(v[k-1], w[k-1], v[k], w[k], dts[k])`` (:func:`imu_increments`).
     """
     v = np.asarray(velocities, dtype=np.float64)
     w = np.asarray(angular_rates, dtype=np.float64)

@@ -181,6 +181,9 @@ def write_map_video(
 ) -> dict:
     """Write the video of ``run``'s map being built to ``path`` (``.mp4`` or ``.gif``); one frame per snapshot.
 
+    Returns ``{"path", "frames", "seconds", "size", "bytes"}``. Raises ``ValueError`` for an unknown extension
+    or a run without snapshots, ``ImportError`` naming the package when the writer is missing.
+
     Parameters
     ----------
     run : a :class:`~slamlib.slam3d.run.SLAMRun` with ``snapshots`` (``run_drive(..., snapshot_every=n)``).
@@ -189,9 +192,6 @@ def write_map_video(
     max_points : map points drawn per frame (a random subset).
     progress : a tqdm bar over the frames.
     quality : mp4 quality 1-10 (imageio-ffmpeg: H.264 crf = 51 (1 - quality / 10); lower is smaller).
-
-    Returns ``{"path", "frames", "seconds", "size", "bytes"}``. Raises ``ValueError`` for an unknown extension
-    or a run without snapshots, ``ImportError`` naming the package when the writer is missing.
     """
     from tqdm.auto import tqdm
 

@@ -28,6 +28,8 @@ from slamlib.maps.codes import axis_indices, morton_codes
 class MortonBVHMap(Map3D):
     """Point map as sorted Morton codes with nearest-neighbour lookup.
 
+    The cell level is the smallest ``L`` with ``quantum * 2**L >= 2 * radius``.
+
     Parameters
     ----------
     radius : float
@@ -40,8 +42,6 @@ class MortonBVHMap(Map3D):
         Keep one point per voxel of edge ``quantum * 2**dedup_level`` (default 3: 8 cm); 0 keeps one per quantum.
     max_points : int
         Maximum number of stored points (default 4,000,000); new points beyond it are dropped.
-
-    The cell level is the smallest ``L`` with ``quantum * 2**L >= 2 * radius``.
     """
 
     def __init__(

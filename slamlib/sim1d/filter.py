@@ -94,8 +94,9 @@ class ParticleSLAM1D(StepsFilter):
 
     Attributes
     ----------
-    particles : (P,) float64 positions; log_weights : (P,) float64 log-weights (logsumexp 0);
-    world_map (also ``grid``) : the map, changed in place by every :meth:`step`.
+    particles : (P,) float64 positions.
+    log_weights : (P,) float64 log-weights (logsumexp 0).
+    world_map : the map, changed in place by every :meth:`step` (also :attr:`grid`).
     """
 
     steps = steps_1d
@@ -171,12 +172,12 @@ class SLAM1DResult:
 
     @property
     def slam_error(self) -> np.ndarray:
-        """(K,) |estimated - true| (m)."""
+        """(K,) ``|estimated - true|`` (m)."""
         return np.abs(self.estimated - self.true_positions)
 
     @property
     def dead_reckoning_error(self) -> np.ndarray:
-        """(K,) |dead reckoned - true| (m)."""
+        """(K,) ``|dead reckoned - true|`` (m)."""
         return np.abs(self.dead_reckoned - self.true_positions)
 
     def observed_landmarks(self, min_returns: int = DEFAULT_MIN_RETURNS) -> np.ndarray:

@@ -118,7 +118,7 @@ def plot_map(
 
 
 def plot_result(result, max_range: float | None = None):
-    """Three panels: position over time (true, SLAM, dead reckoning), |error| over time, map vs true landmarks."""
+    """Three panels: position over time (true, SLAM, dead reckoning), ``|error|`` over time, map vs true landmarks."""
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(

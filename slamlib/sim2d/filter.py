@@ -140,12 +140,12 @@ class SLAM2DResult:
 
     @property
     def slam_heading_error(self) -> np.ndarray:
-        """(K,) |heading error| of the estimate (rad)."""
+        """(K,) ``|heading error|`` of the estimate (rad)."""
         return np.abs(wrap_angle(self.estimated[:, 2] - self.true_poses[:, 2]))
 
     @property
     def dead_reckoning_heading_error(self) -> np.ndarray:
-        """(K,) |heading error| of dead reckoning (rad)."""
+        """(K,) ``|heading error|`` of dead reckoning (rad)."""
         return np.abs(wrap_angle(self.dead_reckoned[:, 2] - self.true_poses[:, 2]))
 
     @property

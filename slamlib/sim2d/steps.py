@@ -90,21 +90,22 @@ class OccupancyGrid2D:
     Cell ``(r, c)`` covers ``x in [origin_x + c res, origin_x + (c + 1) res)`` and
     ``y in [origin_y + r res, origin_y + (r + 1) res)``; ``counts`` is ``(H, W)`` int64.
 
-    Attributes
-    ----------
-    origin : (2,) world position of the lower-left corner of cell (0, 0) (m).
-    resolution : cell size (m).
-    counts : (H, W) int64 returns merged into each cell.
-    kind : ``"density"`` (the seed's density grid) or ``"likelihood"`` (the likelihood field), see the module.
-    sigma : width of the likelihood field (m); n_sat : hits at which a density cell saturates;
-    eps : random-return term of the likelihood field.
-
     The likelihood field ``F`` (at cell centres) is kept up to date **incrementally**: every merged point ``p``
     raises ``F <- max(F, h_p exp(-|x_c - p|^2 / 2 sigma^2))`` at the centres ``x_c`` within ``3 sigma`` of it,
     with ``h_p = min(1, n_c / n_sat)`` from the count of ``p``'s cell after merging. Since
     ``exp(-min d^2 / 2 sigma^2) = max exp(-d^2 / 2 sigma^2)``, once every cell holds ``n_sat`` returns this is the
     Gaussian of the distance to the nearest merged point (Thrun et al.'s distance-transform field), truncated at
     ``3 sigma``, with no cell quantisation; a return in a cell merged fewer times gets a lower bump.
+
+    Attributes
+    ----------
+    origin : (2,) world position of the lower-left corner of cell (0, 0) (m).
+    resolution : cell size (m).
+    counts : (H, W) int64 returns merged into each cell.
+    kind : ``"density"`` (the seed's density grid) or ``"likelihood"`` (the likelihood field), see the module.
+    sigma : width of the likelihood field (m).
+    n_sat : hits at which a density cell saturates.
+    eps : random-return term of the likelihood field.
     """
 
     origin: np.ndarray

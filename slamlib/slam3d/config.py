@@ -1,18 +1,18 @@
 """Settings of the 3D particle SLAM, one group per stage of the filter (:mod:`slamlib.slam3d.stages`).
 
-========== ======================= ============================================================================
-group      class                   what it sets
-========== ======================= ============================================================================
+========== ======================== ============================================================================
+group      class                    what it sets
+========== ======================== ============================================================================
 scan       :class:`ScanConfig`      step 2: crop, down-sampling, de-skewing
 motion     :class:`MotionConfig`    steps 3, 5, 6: the motion source and step 6's spread; its
-                                   ``constant_velocity`` (:class:`ConstantVelocityConfig`) the LIDAR-only source
+                                    ``constant_velocity`` (:class:`ConstantVelocityConfig`) the LIDAR-only source
 map        :class:`MapConfig`       steps 8 and 10: the map structure, its parameters typed per kind
 upkeep     :class:`UpkeepConfig`    after step 10: pruning and eviction
 filter     :class:`FilterConfig`    the particle filter itself: particles, scoring sample, tempering, steps 9, 11
 prior      :class:`TiltConfig`      step 8's second term: roll and pitch held to gravity
 search     :class:`AnnealConfig`    annealing rounds inside a frame
 polish     :class:`ScanMatchConfig` scan matching of step 9's pose
-========== ======================= ============================================================================
+========== ======================== ============================================================================
 
 Every default is written once: here, or as a constant of the lower module that owns it (the backend, the
 map's parameters, ``ess_fraction``), which the field takes. The step functions of :mod:`slamlib.slam3d.steps`

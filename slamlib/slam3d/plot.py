@@ -193,7 +193,7 @@ def animate_map_building(
 def plot_error_over_distance(
     poses, dead_reckoning=None, ground_truth=None, ax=None, log: bool = True, title=None
 ):
-    """Position error |p_est - p_gt| (m) of SLAM (and dead reckoning) against the distance travelled along the
+    """Position error ``|p_est - p_gt|`` (m) of SLAM (and dead reckoning) against the distance travelled along the
     ground truth (m, :func:`slamlib.metrics.trajectory_distances`)."""
     import matplotlib.pyplot as plt
 

@@ -137,6 +137,10 @@ def run_drive(
 ) -> SLAMRun:
     """Register every frame of ``frames`` with a fresh :class:`ParticleSLAM3D`.
 
+    A gap in time (a frame interval over :data:`~slamlib.slam3d.segments.GAP_PERIODS` typical ones) starts a new
+    segment with a fresh filter, its start pose predicted across the gap, and warns naming the frames
+    (:mod:`slamlib.slam3d.segments`). Returns a :class:`SLAMRun`.
+
     Parameters
     ----------
     frames : iterable of frames (``.scan``, ``.velocity``, ``.angular_rate``, ``.dt``; optional ground truth
@@ -145,10 +149,6 @@ def run_drive(
     config : filter settings.
     progress : show a tqdm bar with frames/s.
     snapshot_every : keep a copy of the map points every that many frames (0: none), for animations.
-
-    A gap in time (a frame interval over :data:`~slamlib.slam3d.segments.GAP_PERIODS` typical ones) starts a new
-    segment with a fresh filter, its start pose predicted across the gap, and warns naming the frames
-    (:mod:`slamlib.slam3d.segments`). Returns a :class:`SLAMRun`.
     """
     import warnings
 

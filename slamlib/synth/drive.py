@@ -109,6 +109,15 @@ def write_drive(
 ) -> tuple[Path, str, int]:
     """Write a synthetic drive under ``basedir`` in the KITTI raw layout (see :mod:`slamlib.synth.writer`).
 
+    Returns ``(Path(basedir), date, drive)``.
+
+    The drive appears whole or not at all (:func:`slamlib.atomic.atomic_folder`): it is written into a temporary
+    sibling folder under an exclusive lock and renamed into place. An existing drive folder is rewritten only if it
+    is this generator's (complete or interrupted, see :func:`slamlib.synth.writer.is_own_drive`) or empty: then the
+    generator's part (markers, ``oxts/``, ``velodyne_points/``) is replaced and the user's other files in it stay.
+    Raises ``FileExistsError``, before writing anything, for another non-empty folder or for differing calibration
+    files in ``basedir/DATE``.
+
     Parameters
     ----------
     basedir : output root; the drive goes to ``basedir/DATE/DATE_drive_NNNN_sync``.
@@ -131,15 +140,6 @@ def write_drive(
 
     wait : when another process writes the same drive folder, wait for it (``False``: raise
         :class:`~slamlib.errors.FolderBusyError` naming that process).
-
-    Returns ``(Path(basedir), date, drive)``.
-
-    The drive appears whole or not at all (:func:`slamlib.atomic.atomic_folder`): it is written into a temporary
-    sibling folder under an exclusive lock and renamed into place. An existing drive folder is rewritten only if it
-    is this generator's (complete or interrupted, see :func:`slamlib.synth.writer.is_own_drive`) or empty: then the
-    generator's part (markers, ``oxts/``, ``velodyne_points/``) is replaced and the user's other files in it stay.
-    Raises ``FileExistsError``, before writing anything, for another non-empty folder or for differing calibration
-    files in ``basedir/DATE``.
     """
     from slamlib.kitti.calib import load_T_velo_imu
 

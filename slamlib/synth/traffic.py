@@ -5,11 +5,11 @@ route's clock (:class:`~slamlib.synth.routes.Route`). The ego car drives along t
 
 Every mover follows the route's **centre line** parametrised by arc length ``s`` (m): the IMU positions of the
 driven part sampled densely (:data:`CENTRE_LINE_HZ`), re-sampled every :data:`CENTRE_LINE_STEP` m and extended
-straight on by :data:`EXTEND` m before the start and after the end (as the town is, :func:`~slamlib.synth.scene.
-build_scene`). A mover at arc length ``s`` with lateral offset ``y`` (m, + to the left of the route direction)
-stands at ``c(s) + y n(s)`` with ``c`` the centre line, ``n`` its left unit normal in the ground plane; its box
-stands on the road (IMU height minus :data:`~slamlib.synth.scene.IMU_HEIGHT`) and is yawed along the tangent
-(reversed for movers driving against the route). Its arc length moves as one of::
+straight on by :data:`EXTEND` m before the start and after the end (as the town is,
+:func:`~slamlib.synth.scene.build_scene`). A mover at arc length ``s`` with lateral offset ``y`` (m, + to the left
+of the route direction) stands at ``c(s) + y n(s)`` with ``c`` the centre line, ``n`` its left unit normal in the
+ground plane; its box stands on the road (IMU height minus :data:`~slamlib.synth.scene.IMU_HEIGHT`) and is yawed
+along the tangent (reversed for movers driving against the route). Its arc length moves as one of::
 
     s(t) = s_ego(t) +- smax(|s_ego(t +- gap) - s_ego(t)|, FOLLOW_MIN_DIST)   # follows the ego car by a time gap
     s(t) = s_0 + v (t - t_0)                                                # own constant speed v (signed)

@@ -106,6 +106,8 @@ def gravity_up(rotations, specific_force, velocity, dts) -> np.ndarray | None:
     ``dv`` at either end tilts it by about ``dv / (g T)`` (0.05 m/s over 2 s: 2.5 mrad), an accelerometer bias ``b``
     by ``b / g`` (0.03 m/s^2: 3 mrad), for ever: a constant bias is indistinguishable from a tilt.
 
+    Returns the unit vector ``R_K^T e_z`` (3,) as measured, or None when the window spans no time (``K = 0``).
+
     Parameters
     ----------
     rotations : (K + 1, 3, 3) body-to-world rotations ``R_k`` (any common world frame).
@@ -113,8 +115,6 @@ def gravity_up(rotations, specific_force, velocity, dts) -> np.ndarray | None:
         ``ax, ay, az``; ``+g`` on z when level and still).
     velocity : (K + 1, 3) body velocities ``v`` (m/s; OXTS ``vf, vl, vu``).
     dts : (K + 1,) ``dts[k] = t_k - t_{k-1}`` (s); ``dts[0]`` is ignored.
-
-    Returns the unit vector ``R_K^T e_z`` (3,) as measured, or None when the window spans no time (``K = 0``).
     """
     R = np.asarray(rotations, dtype=np.float64)
     f_w = np.einsum("kij,kj->ki", R, np.asarray(specific_force, dtype=np.float64))

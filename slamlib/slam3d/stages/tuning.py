@@ -161,6 +161,10 @@ class ForgettingMean:
 class SelfTuning:
     """The motion source's scale errors, biases and scatter, learnt from the innovations (module docstring).
 
+    Attributes: ``scale (6,)``, ``bias (6,)`` (per second) the fit; ``mean_square (6,)`` the residuals' ``q^2`` and
+    ``lag_product (6,)`` the mean product of consecutive residuals (both :class:`ForgettingMean` over
+    ``noise_memory``); ``frames`` the frames learnt.
+
     Parameters
     ----------
     memory : float
@@ -175,10 +179,6 @@ class SelfTuning:
         Frames learnt before :meth:`spread` and :meth:`correct` use the estimate.
     correct_bias : bool
         Whether :meth:`correct` applies the fitted ``(s, b)`` (LIDAR-only the held twist has no bias to learn).
-
-    Attributes: ``scale (6,)``, ``bias (6,)`` (per second) the fit; ``mean_square (6,)`` the residuals' ``q^2`` and
-    ``lag_product (6,)`` the mean product of consecutive residuals (both :class:`ForgettingMean` over
-    ``noise_memory``); ``frames`` the frames learnt.
     """
 
     def __init__(

@@ -1,6 +1,7 @@
 """The book's notebooks follow the chapter conventions of CONTRIBUTING.md ("Writing a chapter") that a build does
-not check by itself: code wrapped to 90 columns, figures numbered and named, each cited from the prose, and each
-chapter framed: what it teaches and needs first, a summary, exercises with hidden solutions, and its checks."""
+not check by itself: code wrapped to 90 columns, figures numbered and named, each cited from the prose, plotting code
+folded, and each chapter framed: what it teaches and needs first, a summary, exercises with hidden solutions, and
+its checks."""
 
 import json
 import re
@@ -51,6 +52,47 @@ def test_figures_are_named_captioned_and_cited(path):
         )
     names = [f["name"] for f in figures]
     assert len(names) == len(set(names)), names
+
+
+# Plotting and plumbing hidden, code that teaches shown: a code cell that makes a figure and is longer than this
+# carries a folding tag, unless it is listed below with the reason it stays shown.
+MAX_SHOWN_FIGURE_LINES = 15
+FIGURE_CALL = re.compile(r"plt\.(subplots|figure)\(|\bfig, ax")
+FOLDING_TAGS = {"hide-input", "hide-cell", "remove-input", "remove-cell"}
+SHOWN_FIGURE_CELLS = [  # (notebook, cell id, why its code stays shown)
+    (
+        "04_slam_3d",
+        "17620c7d",
+        "step 7 by hand: transform_scan runs inside the figure's loop, once per panel",
+    ),
+]
+
+
+def _is_long_shown_figure_cell(cell):
+    source = "".join(cell["source"])
+    return (
+        cell["cell_type"] == "code"
+        and FIGURE_CALL.search(source) is not None
+        and len(source.splitlines()) > MAX_SHOWN_FIGURE_LINES
+        and not FOLDING_TAGS & set(cell.get("metadata", {}).get("tags", []))
+    )
+
+
+@pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.stem)
+def test_plotting_code_is_folded(path):
+    """A code cell that makes a figure and runs over MAX_SHOWN_FIGURE_LINES lines is tagged `hide-input` (or
+    `hide-cell`, `remove-*`), so that the page shows the figure and the code that teaches, not the plotting; the
+    few cells whose code teaches although it draws are listed, with a reason, and every listed cell still needs it."""
+    cells = _cells(path)
+    listed = {cid for stem, cid, _ in SHOWN_FIGURE_CELLS if stem == path.stem}
+    long_shown = {c.get("id") for c in cells if _is_long_shown_figure_cell(c)}
+    unfolded = sorted(long_shown - listed)
+    assert not unfolded, (
+        f"{path.name}: figure cells of more than {MAX_SHOWN_FIGURE_LINES} lines shown in full "
+        f"(tag them hide-input, split the teaching part off, or list them): {unfolded}"
+    )
+    stale = sorted(listed - long_shown)
+    assert not stale, f"{path.name}: listed but folded, short or gone: {stale}"
 
 
 CHECKS_HEADING = "## Checks: this chapter's claims, run as tests"

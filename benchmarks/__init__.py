@@ -30,6 +30,7 @@ BENCHMARKS = {
     "scaling": "benchmarks.scaling",
     "lidar_only": "benchmarks.lidar_only",
     "startup": "benchmarks.startup",
+    "stages": "benchmarks.stages",
 }
 
 

@@ -25,6 +25,7 @@ NAMES = (
     "scaling",
     "lidar_only",
     "startup",
+    "stages",
 )
 
 

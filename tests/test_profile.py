@@ -51,7 +51,8 @@ def test_every_stage_is_timed_by_its_own_time(settings, timed, untimed):
     assert profile.calls["bookkeeping"] == 7
     assert all(s >= 0 for s in profile.seconds.values()), profile.seconds
     total = sum(profile.seconds.values())
-    assert total == pytest.approx(wall, rel=0.05)
+    # all of the frames' time, less the loop's own around them (a wide margin: a shared machine may pause it)
+    assert 0.8 * wall <= total <= wall
     assert sum(profile.ms_per_frame().values()) == pytest.approx(1e3 * total / 7)
 
 

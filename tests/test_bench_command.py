@@ -153,3 +153,21 @@ def test_benchmarks_chapter_lists_every_benchmark():
             continue
     assert listed == tuple(load_benchmarks().BENCHMARKS)
     assert "import benchmarks" not in source and "from benchmarks" not in source
+
+
+def test_the_readme_states_the_committed_start_up():
+    """The README's cold and warm start-up of `slamlib run` are the committed `slamlib bench startup` medians (IMU
+    mode), to the tenth of a second, with the date of that run: one number per fact."""
+    import re
+
+    result = paths.load_bench_result("startup")
+    readme = (paths.SOURCE_ROOT / "README.md").read_text(encoding="utf-8")
+    text = " ".join(readme.split())
+    found = re.search(
+        r"start-up takes ([\d.]+) s, and later runs, .*? cache, ([\d.]+) s", text
+    )
+    assert found, "the README's start-up sentence"
+    rows = result["rows"]["imu"]
+    assert float(found.group(1)) == round(rows["cold"]["startup_s_median"], 1)
+    assert float(found.group(2)) == round(rows["warm"]["startup_s_median"], 1)
+    assert result["machine"]["utc"][:10] in text

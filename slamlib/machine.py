@@ -36,7 +36,11 @@ def _gpu_name() -> str | None:
 
 
 def describe() -> dict:
-    """Return CPU model, usable cores, GPU (if any), Python and key library versions, and the UTC time."""
+    """Return CPU model, usable cores, GPU (if any), Python and key library versions, and the UTC time.
+
+    With a GPU, also the numba-cuda version (its compiler decides what the card runs)."""
+    from importlib import metadata
+
     import numba
     import numpy
 
@@ -44,13 +48,20 @@ def describe() -> dict:
         cores = len(os.sched_getaffinity(0))
     except AttributeError:  # pragma: no cover - non-Linux
         cores = os.cpu_count()
-    return {
+    gpu = _gpu_name()
+    described = {
         "cpu": _cpu_model(),
         "cores": cores,
-        "gpu": _gpu_name(),
+        "gpu": gpu,
         "python": platform.python_version(),
         "numpy": numpy.__version__,
         "numba": numba.__version__,
         "platform": platform.platform(),
         "utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
     }
+    if gpu is not None:
+        try:
+            described["numba_cuda"] = metadata.version("numba-cuda")
+        except metadata.PackageNotFoundError:
+            described["numba_cuda"] = None
+    return described

@@ -1,4 +1,5 @@
-"""CUDA kernels (slamlib.kernels.cuda) against the numpy reference, in Numba's CUDA simulator (tiny sizes)."""
+"""CUDA kernels (slamlib.kernels.cuda) against the numpy reference, in Numba's CUDA simulator (tiny sizes), or on
+the card with ``SLAMLIB_REAL_CUDA=1`` (tests/conftest.py; benchmarks/gpu_check.sh)."""
 
 import os
 import subprocess
@@ -24,6 +25,17 @@ def _particles(rng, P):
 
 
 SIGMA = np.array([0.1, 0.2, 0.05, 0.01, 0.02, 0.03])
+
+# The behaviour without a GPU (refusals, error messages) cannot be seen on a card: the simulator stands in for
+# "no GPU" in these tests, and on a real GPU they would run the full benchmark instead of refusing.
+without_a_gpu = pytest.mark.skipif(
+    os.environ.get("SLAMLIB_REAL_CUDA") == "1", reason="checks what happens without a GPU"
+)
+# The filter's own sizes and default launch settings (many blocks, several scan levels), which the simulator
+# (~1 s per 10k threads) cannot run in CI: on a GPU only.
+on_a_gpu = pytest.mark.skipif(
+    os.environ.get("SLAMLIB_REAL_CUDA") != "1", reason="real sizes: a GPU only"
+)
 
 
 def test_move_particles_equals_reference_with_passed_noise():
@@ -261,6 +273,7 @@ def test_no_gpu_gives_backend_unavailable_error_with_the_fix():
     assert issubclass(BackendUnavailableError, RuntimeError)
 
 
+@without_a_gpu
 def test_bench_cuda_refuses_without_gpu_and_runs_in_simulator_when_asked():
     from slamlib.commands.bench import load_benchmark
 
@@ -282,6 +295,7 @@ def test_bench_cuda_refuses_without_gpu_and_runs_in_simulator_when_asked():
     }
 
 
+@without_a_gpu
 def test_bench_cuda_cli_exits_non_zero_without_gpu(tmp_path):
     env = {k: v for k, v in os.environ.items() if k != "NUMBA_ENABLE_CUDASIM"}
     res = subprocess.run(
@@ -347,3 +361,35 @@ def test_move_particles_keeps_rotations_orthonormal(rpy, sig, step):
     np.testing.assert_allclose(np.linalg.det(R_new), 1.0, atol=1e-12)
     want = ref.move_particles(R, t, rpy, [0.3, -0.1, 0.0], lut.draw(8), np.asarray(sig))
     np.testing.assert_allclose(t_new, want[1], atol=1e-12)
+
+
+@on_a_gpu
+@pytest.mark.parametrize("layout", kc.SCORE_LAYOUTS)
+@pytest.mark.parametrize("which", [0, 1], ids=["voxel_hash", "morton_bvh"])
+def test_the_filters_sizes_on_a_gpu_equal_the_cpu_backend(street_maps, which, layout):
+    """Default launch settings at the filter's sizes (300 particles, 1,000 scored points; 10,000 particles
+    moved; 100,003 weights resampled, several blocks and scan levels): the same numbers as the CPU backend."""
+    world, lookups = street_maps
+    rng = np.random.default_rng(11)
+    P, n = 300, 1000
+    R, t = geometry.rpy_to_matrix(rng.normal(0, 0.05, (P, 3))), rng.normal(0, 0.3, (P, 3))
+    pts = (world[rng.choice(len(world), n)] + rng.normal(0, 0.05, (n, 3))).astype(
+        np.float32
+    )
+    got = kc.score_particles(R, t, pts, lookups[which], layout=layout)
+    np.testing.assert_allclose(
+        got, cpu.score_particles(R, t, pts, lookups[which]), rtol=1e-9
+    )
+    assert np.ptp(got) > 1.0
+
+    R, t = _particles(rng, 10_000)
+    noise = rng.standard_normal((10_000, 6))
+    want_R, want_t = ref.move_particles(R, t, [0, 0, 0.01], [1, 0, 0], noise, SIGMA)
+    got_R, got_t = kc.move_particles(R, t, [0, 0, 0.01], [1, 0, 0], noise, SIGMA)
+    np.testing.assert_allclose(got_R, want_R, atol=1e-12)
+    np.testing.assert_allclose(got_t, want_t, atol=1e-9)
+
+    w = rng.random(100_003) ** 3
+    np.testing.assert_array_equal(
+        kc.systematic_resample(w, 0.37), ref.systematic_resample(w, 0.37)
+    )

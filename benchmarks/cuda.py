@@ -1,7 +1,7 @@
 """``slamlib bench cuda``: the CUDA kernels' timings on a real GPU (device arrays, synchronised).
 
-Rows: ``move_particles`` with device LUT noise and with a noise array already on the device (the rotation +
-translation kernels), ``transform_points`` (grid-stride), fused ``score_particles`` on the synthetic street of
+Rows: ``move_particles`` with device LUT noise (tables uploaded once) and with a noise array already on the device
+(the rotation + translation kernels; up to 10^7 particles, past the seed's saturation at 10^6), ``transform_points`` (grid-stride), fused ``score_particles`` on the synthetic street of
 :func:`slamlib.synth.street.street_scene` in the voxel-hash map in both layouts (one block per particle; blocks
 over particle x point tiles, ``layout="tiles"``, which keeps more SMs busy at the default 300 particles),
 ``systematic_resample`` (scan + binary search),
@@ -71,6 +71,7 @@ def run(
         sizes = (
             {
                 "P": [300, 1000, 10000],
+                "move": [300, 1000, 10000],
                 "N": [10000],
                 "points": [10**6],
                 "resample": [10**4, 10**6],
@@ -79,6 +80,8 @@ def run(
             if quick
             else {
                 "P": [300, 1000, 10000, 100000],
+                # up to the seed's saturation (1e6 particles and more on its K40)
+                "move": [300, 1000, 10000, 100000, 10**6, 10**7],
                 "N": [1000, 10000, 120000],
                 "points": [10**6, 10**7],
                 "resample": [10**3, 10**4, 10**6],
@@ -98,8 +101,8 @@ def run(
         rows.append({"kernel": kernel, "n": n, **extra, **t, "per_s": n / t["median_s"]})
 
     sigma = np.array([0.05, 0.05, 0.02, 0.002, 0.002, 0.005])
-    tables = N.make_tables(1)
-    for P in sizes["P"]:
+    tables = kc.tables_to_device(N.make_tables(1))  # uploaded once, as a filter would
+    for P in sizes.get("move", sizes["P"]):
         R = kc.to_device(geometry.rpy_to_matrix(rng.normal(0, 0.01, (P, 3))))
         t = kc.to_device(rng.normal(0, 0.3, (P, 3)))
         noise_d = kc.to_device(rng.standard_normal((P, 6)))

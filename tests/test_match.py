@@ -72,10 +72,9 @@ def test_cost_is_the_negated_map_score_of_that_pose():
         assert np.linalg.eigvalsh(H).min() >= -1e-9 * np.trace(H)
 
 
-def _frozen_cost(T, scan, lookup, road=None):
-    """E as a function of the step (omega, v) with each point's 8 voxels and trilinear weights frozen at ``T``
-    (numpy, from the lookup's fields as documented on VoxelHashLookup): the function g and H are derived from.
-    ``road`` points move only by the vertical part of the step's displacement."""
+def _frozen_corners(T, scan, lookup):
+    """Each point's 8 voxels at ``T`` (numpy, from the lookup's fields as documented on VoxelHashLookup): the
+    rotated points ``r = R p`` (N, 3) and, per corner, (trilinear weight (N,), voxel found (N,), its slot (N,))."""
     from slamlib.maps.codes import axis_indices, pack_keys
 
     occupied = np.flatnonzero(lookup.keys >= 0)
@@ -95,7 +94,14 @@ def _frozen_cost(T, scan, lookup, road=None):
         corners.append(
             (np.prod(np.where(d == 1, f, 1.0 - f), axis=1), hit, occupied[pos])
         )
+    return r, corners
 
+
+def _frozen_cost(T, scan, lookup, road=None):
+    """E as a function of the step (omega, v) with each point's 8 voxels and trilinear weights frozen at ``T``:
+    the function g and H are derived from. ``road`` points move only by the vertical part of the step's
+    displacement."""
+    r, corners = _frozen_corners(T, scan, lookup)
     vertical_only = np.zeros(len(scan), bool) if road is None else road
 
     def cost(step):
@@ -112,6 +118,53 @@ def _frozen_cost(T, scan, lookup, road=None):
         return total
 
     return cost
+
+
+def _gauss_newton(T, scan, lookup, road):
+    """``(H, g)`` summed corner by corner in numpy: ``sum w J^T A J`` and ``sum w J^T A d`` over the untruncated
+    terms, ``J = [-[r]_x | I]`` with a road point's first two rows zero (the module docstring's definitions)."""
+    r, corners = _frozen_corners(T, scan, lookup)
+    n = len(scan)
+    J = np.zeros((n, 3, 6))
+    J[:, 0, 1], J[:, 0, 2], J[:, 1, 0] = r[:, 2], -r[:, 1], -r[:, 2]
+    J[:, 1, 2], J[:, 2, 0], J[:, 2, 1] = r[:, 0], r[:, 1], -r[:, 0]
+    J[:, :, 3:] = np.eye(3)
+    J[road, :2] = 0.0
+    H, g = np.zeros((6, 6)), np.zeros(6)
+    for w, hit, slot in corners:
+        e = r + T[:3, 3] - lookup.mean[slot].astype(np.float64)
+        a = lookup.icov[slot].astype(np.float64)
+        A = a[:, [0, 1, 2, 1, 3, 4, 2, 4, 5]].reshape(-1, 3, 3)
+        m = np.einsum("ni,nij,nj->n", e, A, e)
+        use = hit & (m < lookup.m_max)
+        wu = np.where(use, w, 0.0)
+        H += np.einsum("n,nki,nkl,nlj->ij", wu, J, A, J)
+        g += np.einsum("n,nki,nkl,nl->i", wu, J, A, e)
+    return H, g
+
+
+def test_h_and_g_are_the_gauss_newton_sums_on_any_number_of_threads():
+    """The kernel sums each point's corners before multiplying by J, in fixed chunks over threads: the same H and
+    g as summing corner by corner (to rounding), and the very same numbers on one thread as on several."""
+    import numba
+
+    rng = np.random.default_rng(4)
+    world = _room(rng)
+    m = _map(world)
+    scan = world[rng.choice(len(world), 4000, replace=False)]
+    T = make_pose(rpy_to_matrix([0.01, -0.004, 0.02]), np.array([0.1, -0.05, 0.04]))
+    road = rng.random(len(scan)) < 0.3
+    H, g, E = normal_equations(T, scan, m.lookup(), road)
+    H_ref, g_ref = _gauss_newton(T, scan, m.lookup(), road)
+    np.testing.assert_allclose(H, H_ref, rtol=1e-10, atol=1e-10 * np.abs(H_ref).max())
+    np.testing.assert_allclose(g, g_ref, rtol=1e-10, atol=1e-10 * np.abs(g_ref).max())
+    threads = numba.get_num_threads()
+    try:
+        numba.set_num_threads(1)
+        one = normal_equations(T, scan, m.lookup(), road)
+    finally:
+        numba.set_num_threads(threads)
+    assert np.array_equal(one[0], H) and np.array_equal(one[1], g) and one[2] == E
 
 
 def test_gradient_is_the_derivative_of_the_cost_with_the_voxels_held():

@@ -1,7 +1,8 @@
 """``slamlib bench cuda``: the CUDA kernels' timings on a real GPU (device arrays, synchronised).
 
 Rows: ``move_particles`` with device LUT noise (tables uploaded once) and with a noise array already on the device
-(the rotation + translation kernels; up to 10^7 particles, past the seed's saturation at 10^6), ``transform_points`` (grid-stride), fused ``score_particles`` on the synthetic street of
+(the rotation + translation kernels; up to 10^7 particles, past the seed's saturation at 10^6),
+``transform_points`` (grid-stride), fused ``score_particles`` on the synthetic street of
 :func:`slamlib.synth.street.street_scene` in the voxel-hash map in both layouts (one block per particle; blocks
 over particle x point tiles, ``layout="tiles"``, which keeps more SMs busy at the default 300 particles),
 ``systematic_resample`` (scan + binary search),

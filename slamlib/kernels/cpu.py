@@ -631,6 +631,8 @@ def _sum_chunks(partial):
     return out
 
 
+#: Voxel blocks whose 8 corner slots one scoring task remembers (:func:`score_particles`, voxel hash map).
+BLOCK_CACHE = 4
 #: An index no voxel block has (``voxel_cell``'s indexes stay within about ``2**22`` of zero, below it too).
 _NO_BLOCK = np.int64(-(2**62))
 
@@ -657,29 +659,38 @@ def _score_voxel_nb(
     miss = -0.5 * m_max
     for task in prange(npc * nqc):
         c, j0, j1, i0, i1 = _task_span(task, nqc, N, P, pt_chunk, part_chunk)
-        # the 8 corner slots of the block (cx, cy, cz), looked up once per block
-        # no block yet
-        slots = np.empty(8, np.int64)
-        cx = cy = cz = _NO_BLOCK
+        # the 8 corner slots of the last BLOCK_CACHE blocks looked up (oldest replaced first): the particles'
+        # copies of a point straddle a few neighbouring blocks, which one remembered block would keep swapping
+        bx = np.full(BLOCK_CACHE, _NO_BLOCK)
+        by = np.full(BLOCK_CACHE, _NO_BLOCK)
+        bz = np.full(BLOCK_CACHE, _NO_BLOCK)
+        slots = np.empty((BLOCK_CACHE, 8), np.int64)
+        cur, oldest = 0, 0
         for j in range(j0, j1):
             x, y, z = np.float64(pts[j, 0]), np.float64(pts[j, 1]), np.float64(pts[j, 2])
-            # the particles' copies of point j fall in the same few blocks of voxels
             for i in range(i0, i1):
                 wx, wy, wz = _world_point(R, t, i, x, y, z)
                 ux0, uy0, uz0, fx, fy, fz, ok = _voxel_cell(wx, wy, wz, inv_h)
                 if not ok:
                     partial[c, i] += miss
                     continue
-                if ux0 != cx or uy0 != cy or uz0 != cz:
-                    cx, cy, cz = ux0, uy0, uz0
-                    for k in range(8):
-                        slots[k] = _corner_slot(
-                            cx, cy, cz, k, keys, log2_capacity, max_probe
-                        )
+                if ux0 != bx[cur] or uy0 != by[cur] or uz0 != bz[cur]:
+                    cur = -1
+                    for e in range(BLOCK_CACHE):
+                        if ux0 == bx[e] and uy0 == by[e] and uz0 == bz[e]:
+                            cur = e
+                            break
+                    if cur < 0:
+                        cur, oldest = oldest, (oldest + 1) % BLOCK_CACHE
+                        bx[cur], by[cur], bz[cur] = ux0, uy0, uz0
+                        for k in range(8):
+                            slots[cur, k] = _corner_slot(
+                                ux0, uy0, uz0, k, keys, log2_capacity, max_probe
+                            )
                 total = 0.0  # voxel_term's sum, in its corner order: the same bits
                 for k in range(8):
                     total += _corner_weight(fx, fy, fz, k) * _slot_term(
-                        wx, wy, wz, slots[k], mean, icov, m_max
+                        wx, wy, wz, slots[cur, k], mean, icov, m_max
                     )
                 partial[c, i] += total
     return _sum_chunks(partial)

@@ -680,21 +680,25 @@ def test_run_reports_steady_frames_per_second_apart_from_the_start_up(
 ):
     """The rate after the first ``STARTUP_FRAMES`` frames, and the start-up (imports, kernels, those frames) on
     its own: a new user's first number is not the compile time. The numbers come from the run's own clocks."""
-    import re
-
     from slamlib.cli import main
+    from slamlib.commands.run import STARTUP_LINE_RE, startup_line
     from slamlib.slam3d.run import STARTUP_FRAMES
 
     args, _ = cli_drive
     assert main(args + ["--out", str(tmp_path / "o")]) == 0
     out = capsys.readouterr().out
-    m = re.search(
-        r"(\d+) frames in ([\d.]+) s: ([\d.]+|nan) frames/s after a start-up of ([\d.]+) s \(imports, "
-        rf"kernels compiled or loaded, the first {STARTUP_FRAMES} frames\)",
-        out,
-    )
+    m = STARTUP_LINE_RE.search(out)
     assert m, out
     assert float(m.group(4)) > 0
+    assert (
+        f"(imports, kernels compiled or loaded, the first {STARTUP_FRAMES} frames)" in out
+    )
+    # what benchmarks/startup.py reads back is what was printed
+    line = startup_line(300, 12.34, 88.25, 2.5)
+    assert STARTUP_LINE_RE.search(line).groups() == ("300", "12.3", "88.2", "2.50")
+    assert (
+        STARTUP_LINE_RE.search(startup_line(3, 1.0, float("nan"), 1.0)).group(3) == "nan"
+    )
 
 
 def test_steady_frames_per_second_leaves_out_the_start_up_frames():

@@ -17,12 +17,31 @@ reckoning, frames/s) and two plots (see :func:`slamlib.slam3d.run.save_run`).
 from __future__ import annotations
 
 import argparse
+import re
 from pathlib import Path
 
 NAME = "run"
 HELP = (
     "Run 3D particle SLAM on a KITTI raw drive or odometry sequence (default: the synthetic drive); write "
     "trajectories, map, metrics."
+)
+
+
+def startup_line(frames: int, seconds: float, fps: float, startup: float) -> str:
+    """The line a run ends with: its frames, wall time, the steady frames/s after the first
+    :data:`~slamlib.slam3d.run.STARTUP_FRAMES` frames and the start-up before them, in seconds
+    (``benchmarks/startup.py`` reads it back with :data:`STARTUP_LINE_RE`)."""
+    from slamlib.slam3d.run import STARTUP_FRAMES
+
+    return (
+        f"{frames} frames in {seconds:.1f} s: {fps:.1f} frames/s after a start-up of {startup:.2f} s "
+        f"(imports, kernels compiled or loaded, the first {STARTUP_FRAMES} frames)"
+    )
+
+
+#: :func:`startup_line` read back; groups: frames, seconds, frames/s (``nan`` for a run too short to tell), start-up.
+STARTUP_LINE_RE = re.compile(
+    r"(\d+) frames in ([\d.]+) s: ([\d.]+|nan) frames/s after a start-up of ([\d.]+) s"
 )
 
 
@@ -356,7 +375,6 @@ def main(args) -> int:
     from slamlib.kitti import KittiRawDrive
     from slamlib.slam3d import SLAM3DConfig, parse_frames, save_run
     from slamlib.slam3d.config import OLD_MAP_NAMES
-    from slamlib.slam3d.run import STARTUP_FRAMES
 
     given = [x is not None for x in (args.basedir, args.date, args.drive)]
     odometry = args.odometry_dir is not None or args.sequence is not None
@@ -528,10 +546,7 @@ def main(args) -> int:
             f"slamlib run: could not write the results into {args.out}: {why}"
         ) from None
     startup = run.warm_at - getattr(args, "started", run.started_at)
-    print(
-        f"{len(run.poses)} frames in {run.seconds:.1f} s: {run.steady_fps:.1f} frames/s after a start-up "
-        f"of {startup:.2f} s (imports, kernels compiled or loaded, the first {STARTUP_FRAMES} frames)"
-    )
+    print(startup_line(len(run.poses), run.seconds, run.steady_fps, startup))
     info = json.loads(Path(files["metrics"]).read_text())
     if "metrics" in info:
         m = info["metrics"]

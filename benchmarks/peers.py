@@ -1,22 +1,28 @@
-"""``slamlib bench peers``: KISS-ICP, the LIDAR odometry to beat, beside slamlib's particle SLAM on one drive.
+"""``slamlib bench peers``: KISS-ICP, the LIDAR odometry to beat, beside slamlib's particle SLAM in each mode.
 
 KISS-ICP (Vizzo et al., "KISS-ICP: In Defense of Point-to-Point ICP", RA-L 2023; ``pip install kiss-icp``, MIT
 licence) registers each full scan against a local voxel map with point-to-point ICP and an adaptive threshold.
-It uses the LIDAR only; slamlib's filter uses the LIDAR and the IMU. Both run here on the same frames of the
-still default synthetic drive (``default_drive(realism=False)``; the realistic drives are ``slamlib sweep``'s),
-one after the other in one process, and are scored with the same metrics
-(:func:`slamlib.metrics.trajectory_metrics`) against the same ground truth:
+It uses the LIDAR only. slamlib runs in each of its modes (:data:`MODES`): the default (LIDAR + IMU) and
+LIDAR-only (constant-velocity motion, scan matching on). All of them run on the same frames, one after the other
+in one process, and are scored with the same metrics (:func:`slamlib.metrics.trajectory_metrics`) against the same
+ground truth, on three drives:
 
-* KISS-ICP gets the raw Velodyne scan (``x, y, z`` float64, its default configuration, de-skewing off since the
-  synthetic scans are cast from one pose). Its poses ``P_k = T_{velo_0 <- velo_k}`` are turned into body (IMU)
-  poses ``T_{body_0 <- body_k} = T_velo_imu^{-1} P_k T_velo_imu`` (KITTI ``calib_imu_to_velo.txt``).
-* slamlib runs :class:`~slamlib.slam3d.SLAM3DConfig` defaults (300 particles, voxel map, Numba CPU).
+* the **realistic default drive** (``default_drive()``: swept scans, traffic, wandering IMU biases; what
+  ``slamlib run`` uses), where KISS-ICP de-skews the swept scans and its poses are moved to the frames' pose times,
+  as in ``slamlib sweep``;
+* the **still** default drive and the **whole route** still (``realism=False``, scans cast from one pose, KISS-ICP
+  without de-skewing), the rows of the earlier runs, kept for their history.
 
-Reported per method: per-frame time (median, from the registration call alone, file reading excluded), frames/s
-of that median, and ATE / RPE / KITTI error. The full run takes each drive ``REPEATS`` times, the two methods in
-turn, and reports every repeat's medians and their ratio (``speed_ratio_per_repeat``, KISS-ICP's time over
-slamlib's) beside the median of the repeats. ``--quick`` uses the first 60 frames of the 300-frame drive, once;
-the full run adds the whole ~690 m route.
+KISS-ICP gets the raw Velodyne scan (``x, y, z`` float64, its default configuration); its poses
+``P_k = T_{velo_0 <- velo_k}`` become body (IMU) poses ``T_velo_imu^{-1} P_k T_velo_imu`` (KITTI
+``calib_imu_to_velo.txt``). slamlib runs :class:`~slamlib.slam3d.SLAM3DConfig` defaults (300 particles, voxel map,
+Numba CPU), the mode's settings added.
+
+Reported per drive and method: per-frame time (median, from the registration call alone, file reading excluded),
+frames/s of that median, and ATE / RPE / KITTI error. The full run takes each drive ``REPEATS`` times, the methods in
+turn, and reports every repeat's medians and, per slamlib mode, the ratio of KISS-ICP's median to the mode's in each
+repeat (``speed_ratio_per_repeat``) beside the median of the repeats. ``--quick``: the first 60 frames of the still
+drive, once.
 """
 
 from __future__ import annotations
@@ -25,19 +31,24 @@ import numpy as np
 
 HELP = "KISS-ICP (LIDAR-only ICP odometry) beside slamlib's particle SLAM on the same drive: time per frame, ATE"
 
-#: Runs of both methods on each drive in the full benchmark (their frame-time medians vary between runs).
+#: Runs of every method on each drive in the full benchmark (their frame-time medians vary between runs).
 REPEATS = 3
+#: slamlib's modes: the name of its rows, and the settings (:meth:`SLAM3DConfig.of`) added to the defaults. The
+#: default mode keeps the name ``slamlib`` of the earlier results.
+MODES = {"slamlib": {}, "slamlib_lidar_only": {"model": "constant_velocity"}}
 
 INSTALL_HINT = "slamlib bench peers needs KISS-ICP: pip install kiss-icp (or pip install -e '.[peers]')"
 
 
-def _kiss_icp(drive) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """KISS-ICP over ``drive`` (:func:`slamlib.peers.kiss_icp_poses`, de-skewing off: the synthetic scans are cast
-    from one pose); body poses ``(F, 4, 4)``, per-frame registration seconds ``(F,)`` and the points of every 25th
-    scan (read again, outside the timing)."""
+def _kiss_icp(drive, swept: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """KISS-ICP over ``drive`` (:func:`slamlib.peers.kiss_icp_poses`; ``swept`` scans de-skewed, the poses moved to
+    the frames' pose times, as in ``slamlib sweep``); body poses ``(F, 4, 4)``, per-frame registration seconds
+    ``(F,)`` and the points of every 25th scan (read again, outside the timing)."""
     from slamlib.peers import kiss_icp_poses
 
-    poses, seconds = kiss_icp_poses(drive, drive.T_velo_imu, deskew=False)
+    poses, seconds = kiss_icp_poses(
+        drive, drive.T_velo_imu, deskew=swept, pose_times=swept
+    )
     return (
         poses,
         seconds,
@@ -45,58 +56,66 @@ def _kiss_icp(drive) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     )
 
 
-def _compare(drive, repeats: int = 1) -> dict:
-    """Both methods on ``drive``, ``repeats`` times in turn (slamlib, KISS-ICP, slamlib, ...): per-frame medians of
-    every repeat, their ratio per repeat, and the metrics of the first repeat (``repeat_pose_difference_max``: the
+def _compare(drive, repeats: int = 1, swept: bool = False) -> dict:
+    """Every slamlib mode and KISS-ICP on ``drive``, ``repeats`` times in turn: per-frame medians of every repeat,
+    KISS-ICP's over each mode's per repeat, and the metrics of the first repeat (``repeat_pose_difference_max``: the
     largest difference of any later repeat's pose matrices from the first's)."""
     from slamlib.metrics import trajectory_distances, trajectory_metrics
     from slamlib.slam3d import SLAM3DConfig, run_drive
 
-    medians = {"kiss_icp": [], "slamlib": []}
-    # largest difference of a repeat's poses from the first's
-    spread = {"kiss_icp": 0.0, "slamlib": 0.0}
+    methods = (*MODES, "kiss_icp")
+    medians = {m: [] for m in methods}
+    spread = dict.fromkeys(
+        methods, 0.0
+    )  # largest difference of a repeat's poses from the first's
+    first = {}
     for r in range(repeats):
-        slam = run_drive(drive, SLAM3DConfig(), progress=False)
-        kiss_poses, kiss_seconds, n_points = _kiss_icp(drive)
-        if r == 0:
-            first = {"kiss_icp": kiss_poses, "slamlib": np.asarray(slam.poses)}
-        # slamlib repeats bit for bit; KISS-ICP's parallel sums may differ in the last bits
-        else:
-            for name, poses in (("kiss_icp", kiss_poses), ("slamlib", slam.poses)):
-                spread[name] = max(
-                    spread[name], float(np.max(np.abs(np.asarray(poses) - first[name])))
-                )
-        medians["slamlib"].append(float(np.median(slam.frame_seconds[1:])))
+        poses = {}
+        for mode, settings in MODES.items():
+            run = run_drive(drive, SLAM3DConfig.of(**settings), progress=False)
+            poses[mode] = np.asarray(run.poses)
+            medians[mode].append(float(np.median(run.frame_seconds[1:])))
+            if mode == "slamlib":
+                slam = run  # the default mode's run: the ground truth and dead reckoning
+        poses["kiss_icp"], kiss_seconds, n_points = _kiss_icp(drive, swept)
         medians["kiss_icp"].append(float(np.median(kiss_seconds[1:])))
+        if r == 0:
+            first = poses
+        # slamlib repeats bit for bit; KISS-ICP's parallel sums may differ in the last bits
+        for m in methods:
+            spread[m] = max(spread[m], float(np.max(np.abs(poses[m] - first[m]))))
     gt = slam.ground_truth
     rows = {}
-    for name in ("kiss_icp", "slamlib"):
-        median = float(np.median(medians[name]))
-        rows[name] = {
+    for m in methods:
+        median = float(np.median(medians[m]))
+        rows[m] = {
             "frame_ms_median": round(median * 1e3, 2),
             "fps_median": round(1.0 / median, 1),
-            "frame_ms_median_per_repeat": [round(m * 1e3, 2) for m in medians[name]],
-            "repeat_pose_difference_max": spread[name],
+            "frame_ms_median_per_repeat": [round(x * 1e3, 2) for x in medians[m]],
+            "repeat_pose_difference_max": spread[m],
             **{
-                k: round(float(v), 5)
-                for k, v in trajectory_metrics(first[name], gt).items()
+                k: round(float(v), 5) for k, v in trajectory_metrics(first[m], gt).items()
             },
         }
+        if m != "kiss_icp":
+            rows[m]["speed_ratio_per_repeat"] = [
+                round(k / s, 3) for k, s in zip(medians["kiss_icp"], medians[m])
+            ]
     rows["dead_reckoning"] = {
         k: round(float(v), 5)
         for k, v in trajectory_metrics(slam.dead_reckoning, gt).items()
     }
-    ratios = [k / s for k, s in zip(medians["kiss_icp"], medians["slamlib"])]
     out = {
         "frames": int(len(gt)),
         "path_length_m": round(float(trajectory_distances(gt)[-1]), 1),
         "scan_points_median": int(np.median(n_points)),
+        "swept": bool(swept),
         "repeats": repeats,
-        "speed_ratio_per_repeat": [round(x, 3) for x in ratios],
+        "speed_ratio_per_repeat": rows["slamlib"]["speed_ratio_per_repeat"],
         **rows,
     }
     print(
-        {k: v for k, v in out.items() if k in ("frames", "speed_ratio_per_repeat")},
+        {"frames": out["frames"]} | {m: rows[m]["speed_ratio_per_repeat"] for m in MODES},
         flush=True,
     )
     return out
@@ -119,11 +138,18 @@ def run(quick: bool = False) -> dict:
     # JIT compilation and caches, untimed
     _compare(KittiRawDrive(*source, frames=range(0, 5)))
     repeats = 1 if quick else REPEATS
-    drives = {f"default drive {DEFAULT_FRAMES}": _compare(drive, repeats)}
+    drives = {}
+    if not quick:
+        realistic = KittiRawDrive(*default_drive(progress=False))
+        drives[f"realistic default drive {DEFAULT_FRAMES}"] = _compare(
+            realistic, repeats, swept=True
+        )
+    drives[f"default drive {DEFAULT_FRAMES}"] = _compare(drive, repeats)
     if not quick:
         whole = default_drive(full=True, progress=False, realism=False)
         drives["whole route (full=True)"] = _compare(KittiRawDrive(*whole), repeats)
     return {
+        "modes": MODES,
         "kiss_icp_version": version("kiss-icp"),
         "numba_threads": int(numba.get_num_threads()),
         "drives": drives,

@@ -10,6 +10,8 @@ PACKAGE_DATA = Path(__file__).resolve().parent / "data"
 
 #: The folder holding the ``slamlib`` package: the root of the source checkout when slamlib runs from one
 #: (``pip install -e .``), ``site-packages`` when it is installed.
+#:
+#: :meta hide-value:
 SOURCE_ROOT = Path(__file__).resolve().parents[1]
 
 

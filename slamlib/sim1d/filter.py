@@ -99,6 +99,9 @@ class ParticleSLAM1D(StepsFilter):
     world_map : the map, changed in place by every :meth:`step` (also :attr:`grid`).
     """
 
+    #: The step functions the filter runs (:mod:`slamlib.sim1d.steps`).
+    #:
+    #: :meta hide-value:
     steps = steps_1d
 
     @_grid_is_world_map

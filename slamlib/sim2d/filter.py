@@ -71,6 +71,9 @@ class ParticleSLAM2D(StepsFilter):
     max_points : optional down-sampling of the scan read at step 2 (scoring and merging use the same points).
     """
 
+    #: The step functions the filter runs (:mod:`slamlib.sim2d.steps`).
+    #:
+    #: :meta hide-value:
     steps = steps_2d
 
     def __init__(

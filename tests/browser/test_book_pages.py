@@ -11,6 +11,7 @@ with Playwright driving Debian's Chromium; a page fails, with a message naming i
 - a broken internal link: an `a[href]` to a local file that is not in the build, or to `page.html#anchor`
   with no element of that id in the page;
 - a table left as raw pipes: a paragraph whose text has `| ... |` lines and a `---` rule row;
+- a path of the machine that built the book (`/tmp/...`, `/root/...`, `/home/...`) in the page's text;
 - a reference left unresolved or doubled: a role's source (`` {eq}` ``, `` {numref}` ``, ...), a raw label in
   parentheses (`(eq-...)`, `(fig-...)`), or an equation number in two pairs of brackets (`((1))`: `({eq}`x`)`);
 - an animation (matplotlib `to_jshtml`) whose frame does not change within ~1 s of pressing play;
@@ -185,6 +186,20 @@ def _bad_references(text: str) -> list[str]:
     return problems
 
 
+#: A path of the machine that built the book (a temporary or home folder, the checkout): meaningless to a reader.
+_BUILD_PATH = re.compile(
+    r"(?<![\w.~])/(?:tmp|root|home|work|private|var/folders)/[^\s'\"),;]*"
+)
+
+
+def _build_paths(text: str) -> list[str]:
+    """One problem per distinct path of the building machine in the page's ``text``."""
+    return [
+        f"a path of the machine that built the book: {path!r}"
+        for path in sorted({m.group(0) for m in _BUILD_PATH.finditer(text)})
+    ]
+
+
 # Runs in the page after load: makes lazy images load, waits for every image to settle, waits for MathJax.
 _SETTLE_JS = """async () => {
   const imgs = Array.from(document.images);
@@ -303,6 +318,7 @@ def test_book_page(page_path, server, browser):
         problems += _check_links(server, info["hrefs"])
         problems += _raw_tables(info["paragraphs"])
         problems += _bad_references(info["articleText"])
+        problems += _build_paths(info["articleText"])
         if info["mathNodes"] and not info["mathRendered"]:
             problems.append(
                 f"{info['mathNodes']} math element(s) not rendered (MathJax loaded: {info['mathJaxLoaded']})"
@@ -342,4 +358,18 @@ def test_bad_references_are_found_and_good_ones_pass():
         "a raw label",
         "an equation number in two pairs of brackets",
         "an equation number in two pairs of brackets",
+    ]
+
+
+def test_build_paths_are_found_and_a_readers_paths_pass():
+    """The build-path check on planted page texts (it runs without a built book)."""
+    ok = "cached in ~/.cache/slamlib; open _build/html/index.html; Chromium at /usr/bin/chromium"
+    assert _build_paths(ok) == []
+    found = _build_paths(
+        "--data /tmp/swfull/data --out /tmp/swfull/all; from '/root/x/steps.py'> and /tmp/swfull/all"
+    )
+    assert found == [
+        "a path of the machine that built the book: '/root/x/steps.py'",
+        "a path of the machine that built the book: '/tmp/swfull/all'",
+        "a path of the machine that built the book: '/tmp/swfull/data'",
     ]

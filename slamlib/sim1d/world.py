@@ -5,8 +5,8 @@ at positions unknown to the filter: irregularly spaced stretches and a **colonna
 whose repetition makes scans at shifts of one spacing look alike (a 1D version of a corridor with identical
 doors). The **vehicle** starts at ``x = 0`` at ``t = 0`` and follows a smooth velocity profile
 
-.. math:: v(t) = \\bar v + \\sum_m a_m \\sin(2 \\pi t / T_m + \\varphi_m), \\qquad
-          x(t) = \\bar v t
+.. math:: v(t) &= \\bar v + \\sum_m a_m \\sin(2 \\pi t / T_m + \\varphi_m), \\\\
+          x(t) &= \\bar v t
           + \\sum_m \\frac{a_m T_m}{2\\pi} \\left[\\cos\\varphi_m - \\cos(2\\pi t / T_m + \\varphi_m)\\right]
 
 (the position is the exact integral, so no integration error enters the ground truth).

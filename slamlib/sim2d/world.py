@@ -57,9 +57,9 @@ def integrate_arc(pose, speed, yaw_rate, dt):
     from start to end has length ``v dt sin(d theta / 2) / (d theta / 2)`` and points along the mean heading
     ``theta + d theta / 2``:
 
-    .. math:: x' = x + v\\,dt\\,\\mathrm{sinc}(\\tfrac{d\\theta}{2}) \\cos(\\theta + \\tfrac{d\\theta}{2}), \\quad
-              y' = y + v\\,dt\\,\\mathrm{sinc}(\\tfrac{d\\theta}{2}) \\sin(\\theta + \\tfrac{d\\theta}{2}), \\quad
-              \\theta' = \\theta + d\\theta
+    .. math:: x' &= x + v\\,dt\\,\\mathrm{sinc}(\\tfrac{d\\theta}{2}) \\cos(\\theta + \\tfrac{d\\theta}{2}), \\\\
+              y' &= y + v\\,dt\\,\\mathrm{sinc}(\\tfrac{d\\theta}{2}) \\sin(\\theta + \\tfrac{d\\theta}{2}), \\\\
+              \\theta' &= \\theta + d\\theta
 
     (``sinc(u) = sin(u) / u``, 1 at 0: no division by ``w``, exact for straight driving too). ``pose`` is
     ``(..., 3)``; the heading is wrapped to ``[-pi, pi)``. Returns a new array.

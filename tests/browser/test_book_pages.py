@@ -11,6 +11,8 @@ with Playwright driving Debian's Chromium; a page fails, with a message naming i
 - a broken internal link: an `a[href]` to a local file that is not in the build, or to `page.html#anchor`
   with no element of that id in the page;
 - a table left as raw pipes: a paragraph whose text has `| ... |` lines and a `---` rule row;
+- a table, code block, output, display equation or image wider than the text column (scrolled sideways or past
+  the article's edge) on a desktop window of `VIEWPORT`;
 - a path of the machine that built the book (`/tmp/...`, `/root/...`, `/home/...`) in the page's text;
 - a reference left unresolved or doubled: a role's source (`` {eq}` ``, `` {numref}` ``, ...), a raw label in
   parentheses (`(eq-...)`, `(fig-...)`), or an equation number in two pairs of brackets (`((1))`: `({eq}`x`)`);
@@ -213,6 +215,20 @@ _SETTLE_JS = """async () => {
   }
 }"""
 
+# The visible blocks of the article wider than their own box (scrolled sideways, part of them hidden) or reaching
+# past the article's right edge: tables, code and output, display math, images.
+_OVERFLOW_JS = """() => {
+  const art = document.querySelector('article') || document.body;
+  const edge = art.getBoundingClientRect().right;
+  const blocks = 'table, pre, div.math, mjx-container[display="true"], .cell_output, div.highlight, '
+      + '.pst-scrollable-table-container, img';
+  return Array.from(art.querySelectorAll(blocks))
+      .filter(el => el.getClientRects().length > 0)
+      .filter(el => el.scrollWidth > el.clientWidth + 1 || el.getBoundingClientRect().right > edge + 1)
+      .map(el => `${el.tagName.toLowerCase()} ${el.scrollWidth} px wide in ${el.clientWidth} px: `
+           + (el.innerText || el.getAttribute('src') || '').trim().replace(/\\s+/g, ' ').slice(0, 70));
+}"""
+
 _INSPECT_JS = """() => ({
   brokenImages: Array.from(document.images)
       .filter(i => i.complete && i.naturalWidth === 0)
@@ -319,6 +335,10 @@ def test_book_page(page_path, server, browser):
         problems += _raw_tables(info["paragraphs"])
         problems += _bad_references(info["articleText"])
         problems += _build_paths(info["articleText"])
+        problems += [
+            f"wider than the text column at {VIEWPORT['width']} px (cut off or scrolled sideways): {what}"
+            for what in page.evaluate(_OVERFLOW_JS)
+        ]
         if info["mathNodes"] and not info["mathRendered"]:
             problems.append(
                 f"{info['mathNodes']} math element(s) not rendered (MathJax loaded: {info['mathJaxLoaded']})"
@@ -373,3 +393,31 @@ def test_build_paths_are_found_and_a_readers_paths_pass():
         "a path of the machine that built the book: '/tmp/swfull/all'",
         "a path of the machine that built the book: '/tmp/swfull/data'",
     ]
+
+
+def test_overflow_is_found_on_a_planted_page(browser):
+    """The overflow check on a planted page: a wide table and a long unwrapped line are found, a narrow table and
+    a wrapped long line pass."""
+    context = browser.new_context(viewport=VIEWPORT)
+    page = context.new_page()
+    try:
+        wide = "".join(
+            f"<td>column_{k}_with_a_long_unbreakable_name</td>" for k in range(8)
+        )
+        page.set_content(
+            "<article style='width: 600px'>"
+            f"<table id='wide'><tr>{wide}</tr></table>"
+            "<table><tr><td>a</td><td>b</td></tr></table>"
+            "<pre style='overflow-x: auto'>" + "x" * 300 + "</pre>"
+            "<pre style='white-space: pre-wrap; overflow-wrap: anywhere'>"
+            + "y"
+            * 300
+            + "</pre>"
+            "</article>"
+        )
+        found = page.evaluate(_OVERFLOW_JS)
+    finally:
+        context.close()
+    assert len(found) == 2, found
+    assert found[0].startswith("table ") and "column_0" in found[0]
+    assert found[1].startswith("pre ") and "xxx" in found[1]

@@ -103,7 +103,7 @@ def run(
 
     sigma = np.array([0.05, 0.05, 0.02, 0.002, 0.002, 0.005])
     tables = kc.tables_to_device(N.make_tables(1))  # uploaded once, as a filter would
-    for P in sizes.get("move", sizes["P"]):
+    for P in sizes["move"]:
         R = kc.to_device(geometry.rpy_to_matrix(rng.normal(0, 0.01, (P, 3))))
         t = kc.to_device(rng.normal(0, 0.3, (P, 3)))
         noise_d = kc.to_device(rng.standard_normal((P, 6)))

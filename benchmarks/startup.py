@@ -41,8 +41,6 @@ HELP = "start-up: fresh `slamlib run` with an empty and a warm Numba cache (IMU 
 FRAMES = 30
 QUICK_FRAMES = 8
 MODES = {"imu": [], "lidar_only": ["--lidar-only"]}
-#: What ``slamlib run`` prints (slamlib.commands.run): "... N frames/s after a start-up of S s ...".
-
 
 KISS_SCRIPT = """
 import sys, time

@@ -283,7 +283,14 @@ def test_bench_cuda_refuses_without_gpu_and_runs_in_simulator_when_asked():
         bench_cuda.run(quick=True)  # the simulator is on in the tests: no timings
     d = bench_cuda.run(
         allow_simulator=True,
-        sizes={"P": [2], "N": [20], "points": [50], "resample": [10], "map": 500},
+        sizes={
+            "P": [2],
+            "move": [2],
+            "N": [20],
+            "points": [50],
+            "resample": [10],
+            "map": 500,
+        },
     )
     assert d["simulator"] is True
     assert {r["kernel"] for r in d["rows"]} == {

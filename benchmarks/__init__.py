@@ -31,6 +31,7 @@ BENCHMARKS = {
     "lidar_only": "benchmarks.lidar_only",
     "startup": "benchmarks.startup",
     "stages": "benchmarks.stages",
+    "loops2d": "benchmarks.loops2d",
 }
 
 

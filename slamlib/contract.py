@@ -287,7 +287,8 @@ class StepsFilter:
     For a dimension whose filter does nothing between the steps (1D, 2D; 3D's filter adds tempering, annealing,
     scan matching and a tilt prior and keeps its own loop). A subclass sets the class attribute ``steps`` (its
     steps module) and passes the shared settings to ``__init__``; what it adds to the calls it says by overriding
-    :meth:`scan_options` (step 2), :meth:`score_options` (step 8) and :meth:`mean_pose` (the optional
+    :meth:`scan_options` (step 2), :meth:`score_options` (step 8), :meth:`merge_pose` (step 10),
+    :meth:`resample_options` (step 11) and :meth:`mean_pose` (the optional
     :attr:`StepInfo.mean`). Every step is called with the contract's parameters first and the additions as
     keywords, so its defaults stand for whatever the subclass does not add. The parameters below have the same
     names and order at every dimension that uses this class.
@@ -347,6 +348,15 @@ class StepsFilter:
         """Keyword arguments this dimension adds to step 8's ``score_particles(particles, points, world_map)``."""
         return {}
 
+    def merge_pose(self, moved, pose):
+        """What step 10 merges the scan with: the best ``pose`` (one shared map, here); a filter whose particles
+        each carry a map returns every particle's pose ``moved``."""
+        return pose
+
+    def resample_options(self) -> dict:
+        """Keyword arguments this dimension adds to step 11's ``resample_particles`` (none here)."""
+        return {}
+
     def mean_pose(self, moved, weights):
         """The weighted mean pose of ``moved`` for :attr:`StepInfo.mean`, or None (none here)."""
         return None
@@ -373,9 +383,9 @@ class StepsFilter:
         scores = s.score_particles(moved, points, self.world_map, **self.score_options())
         log_w = normalise_log_weights(self.log_weights + scores)
         pose, best = s.pick_best_particle(moved, log_w)  # 9
-        s.merge_scan(self.world_map, pose, points)  # 10
+        s.merge_scan(self.world_map, self.merge_pose(moved, pose), points)  # 10
         self.particles, self.log_weights, resampled = s.resample_particles(  # 11
-            moved, log_w, self.rng, self.ess_fraction
+            moved, log_w, self.rng, self.ess_fraction, **self.resample_options()
         )
         weights = weights_from_log_weights(log_w)
         return StepInfo(

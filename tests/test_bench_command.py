@@ -26,6 +26,7 @@ NAMES = (
     "lidar_only",
     "startup",
     "stages",
+    "loops2d",
 )
 
 

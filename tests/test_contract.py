@@ -33,7 +33,12 @@ from slamlib.resampling import normalise_log_weights
 from slamlib.sim1d import OccupancyGrid1D, ParticleSLAM1D
 from slamlib.sim1d import make_world as make_world_1d
 from slamlib.sim1d import simulate as simulate_1d
-from slamlib.sim2d import OccupancyGrid2D, ParticleSLAM2D
+from slamlib.sim2d import (
+    OccupancyGrid2D,
+    ParticleMaps2D,
+    ParticleMapsSLAM2D,
+    ParticleSLAM2D,
+)
 from slamlib.sim2d import make_world as make_world_2d
 from slamlib.sim2d import simulate as simulate_2d
 from slamlib.slam3d import FilterConfig, ParticleSLAM3D, SLAM3DConfig
@@ -327,6 +332,20 @@ def _filter_2d(recording_1d, recording_2d, ess_fraction):
     return slam, recording_2d.frames[:8], steps2d, True
 
 
+def _filter_2d_maps(recording_1d, recording_2d, ess_fraction):
+    lo, hi = recording_2d.world.bounds
+    grid = OccupancyGrid2D.empty(np.subtract(lo, 14), np.add(hi, 14), 0.1)
+    slam = ParticleMapsSLAM2D(
+        12,
+        ParticleMaps2D(grid, 12),
+        [0.1, 0.05, 0.02],
+        np.random.default_rng(1),
+        ess_fraction,
+        60,
+    )
+    return slam, recording_2d.frames[:8], steps2d, True
+
+
 def _filter_3d(recording_1d, recording_2d, ess_fraction):
     config = SLAM3DConfig(
         filter=FilterConfig(
@@ -339,11 +358,12 @@ def _filter_3d(recording_1d, recording_2d, ess_fraction):
     return ParticleSLAM3D(config), frames, steps3d, False  # 3D may refine step 9's pose
 
 
-FILTERS = [_filter_1d, _filter_2d, _filter_3d]
+FILTERS = [_filter_1d, _filter_2d, _filter_2d_maps, _filter_3d]
+FILTER_IDS = ["1D", "2D", "2D-per-particle-maps", "3D"]
 
 
 @pytest.mark.parametrize("ess_fraction", [None, 0.0], ids=["always", "never"])
-@pytest.mark.parametrize("make", FILTERS, ids=IDS)
+@pytest.mark.parametrize("make", FILTERS, ids=FILTER_IDS)
 def test_filter_step_keeps_the_contract(make, ess_fraction, recording_1d, recording_2d):
     """Every frame's ``step`` returns a StepInfo the contract describes and leaves the state it says, both when
     step 11 resamples every frame and when it never does."""
@@ -408,7 +428,7 @@ def test_the_filter_step_checker_finds_a_broken_step_info(
 
 # ------------------------------------------------------------------------------- the loop 1D and 2D share
 def test_1d_and_2d_filters_share_the_loop_the_state_and_the_constructor():
-    for cls in (ParticleSLAM1D, ParticleSLAM2D):
+    for cls in (ParticleSLAM1D, ParticleSLAM2D, ParticleMapsSLAM2D):
         assert issubclass(cls, StepsFilter) and cls.step is StepsFilter.step
         params = list(inspect.signature(cls).parameters)
         assert params[:5] == [

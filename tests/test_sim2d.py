@@ -316,3 +316,119 @@ def test_sim2d_bad_option_is_refused_before_the_run(tmp_path, monkeypatch, optio
     with pytest.raises(SystemExit) as exc:
         main(["sim2d", option, value])
     assert str(exc.value).startswith(f"slamlib sim2d: {option}"), str(exc.value)
+
+
+# ------------------------------------------------------------------------------------- a map per particle
+def _scans(recording, n):
+    return [read_scan(f, max_points=40) for f in recording.frames[1 : n + 1]]
+
+
+@pytest.mark.parametrize("kind", ["density", "likelihood"])
+def test_each_particle_map_is_the_grid_its_own_scans_build(recording, kind):
+    """Particle i's map, merged scan by scan at particle i's poses, equals an OccupancyGrid2D merged with the
+    same points (counts and field to the bit), scores the same, and is untouched by the other particles'
+    merges even where they share tiles."""
+    from slamlib.sim2d import ParticleMaps2D
+
+    lo, hi = recording.world.bounds
+    template = OccupancyGrid2D.empty(np.subtract(lo, 13), np.add(hi, 13), 0.1, kind=kind)
+    maps = ParticleMaps2D(template, 3, tile=8)
+    dense = [template.copy() for _ in range(3)]
+    offsets = np.array([[0.0, 0.0, 0.0], [0.3, -0.1, 0.02], [0.0, 0.0, 0.0]])
+    for k, pts in enumerate(_scans(recording, 6)):
+        poses = recording.true_poses[k + 1] + offsets
+        poses[2, 0] += 0.05 * k  # particle 2 drifts
+        merge_scan(maps, poses, pts)
+        for i in range(3):
+            merge_scan(dense[i], poses[i], pts)
+    probe = transform_scan(recording.true_poses[3] + offsets, _scans(recording, 3)[-1])
+    terms = maps.point_terms(probe)
+    for i in range(3):
+        grid = maps.grid(i)
+        assert np.array_equal(grid.counts, dense[i].counts)
+        assert np.array_equal(grid.field, dense[i].field)
+        assert np.array_equal(terms[i], dense[i].point_terms(probe[i]))
+    assert maps.totals.tolist() == [d.total for d in dense]
+
+
+def test_resampled_maps_share_tiles_and_copy_only_what_they_write(recording):
+    """Resampling copies tables, not tiles; a merge copies a shared tile before writing it (the others keep the
+    original), tiles nobody holds are recycled, and reference counts always equal the tables' holdings."""
+    from slamlib.sim2d import ParticleMaps2D
+    from slamlib.sim2d.particle_maps import EMPTY_TILE
+
+    lo, hi = recording.world.bounds
+    template = OccupancyGrid2D.empty(np.subtract(lo, 13), np.add(hi, 13), 0.1)
+    maps = ParticleMaps2D(template, 4)
+
+    def check_counts():
+        held = maps.tables[maps.tables != EMPTY_TILE]
+        assert np.array_equal(
+            np.bincount(held, minlength=len(maps.refcount)), maps.refcount
+        )
+
+    scans = _scans(recording, 3)
+    pose = recording.true_poses[1]
+    merge_scan(
+        maps,
+        np.repeat(pose[None], 4, axis=0) + [[0.2 * i, 0, 0] for i in range(4)],
+        scans[0],
+    )
+    check_counts()
+    assert maps.distinct_maps() == 4 and maps.disputed_tiles() > 0
+    maps.select([1, 1, 1, 1])
+    check_counts()
+    own = np.count_nonzero(maps.tables[0] != EMPTY_TILE)
+    assert (
+        maps.live_tiles == own and maps.distinct_maps() == 1
+    )  # the others' tiles recycled
+    before = [maps.grid(i) for i in range(4)]
+    maps.merge(np.zeros((4, 0, 2)))  # an empty scan writes nothing and copies nothing
+    assert maps.live_tiles == own
+    # only particle 3 merges (the others' points fall outside the grid)...
+    outside = np.full((3, len(scans[1]), 2), -1e6)
+    placed = transform_scan(recording.true_poses[2] + [0.0, 0.5, 0.0], scans[1])
+    maps.merge(np.concatenate([outside, placed[None]]))
+    check_counts()
+    for i in range(3):  # ...and the maps it shared with the others are unchanged
+        assert np.array_equal(maps.grid(i).counts, before[i].counts)
+        assert np.array_equal(maps.grid(i).field, before[i].field)
+    assert maps.grid(3).total == before[3].total + len(scans[1])
+    copied = maps.live_tiles - own
+    assert 0 < copied <= np.count_nonzero(maps.tables[3] != EMPTY_TILE)
+    assert maps.memory_bytes() < maps.full_copy_bytes() / 4
+
+
+def test_one_particle_with_its_own_map_is_the_shared_map_filter(recording):
+    """With one particle its map is the shared map: both filters give the same estimates and the same map."""
+    runs = [
+        run_slam_2d(
+            recording, n_particles=1, seed=3, max_points=40, per_particle_maps=per
+        )
+        for per in (False, True)
+    ]
+    assert np.array_equal(runs[0].estimated, runs[1].estimated)
+    assert np.array_equal(runs[0].world_map.counts, runs[1].world_map.counts)
+    assert np.array_equal(runs[0].world_map.field, runs[1].world_map.field)
+
+
+def test_per_particle_maps_beat_dead_reckoning_in_a_fraction_of_full_copies(recording):
+    res = run_slam_2d(
+        recording, n_particles=20, seed=0, max_points=60, per_particle_maps=True
+    )
+    assert res.ate < 0.25 * res.ate_dead_reckoning
+    assert res.map_bytes.max() < 0.2 * res.particle_maps.full_copy_bytes()
+    live = res.particle_maps.live_tiles
+    assert 0 <= res.disputed_tiles.min() and res.disputed_tiles.max() <= live
+
+
+def test_tempering_scales_the_scores(recording):
+    lo, hi = recording.world.bounds
+    grid = OccupancyGrid2D.empty(np.subtract(lo, 13), np.add(hi, 13), 0.1)
+    pts = read_scan(recording.frames[1])
+    merge_scan(grid, recording.true_poses[1], pts)
+    poses = recording.true_poses[1] + np.array([[0, 0, 0], [0.05, 0, 0], [0, 0.1, 0.01]])
+    full = score_particles(poses, pts, grid)
+    assert np.allclose(score_particles(poses, pts, grid, tempering=0.25), 0.25 * full)
+    with pytest.raises(ValueError, match="tempering"):
+        score_particles(poses, pts, grid, tempering=0.0)

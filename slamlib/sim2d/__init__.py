@@ -5,8 +5,11 @@
 * :mod:`slamlib.sim2d.steps`: the eleven step functions under the contract of :mod:`slamlib.contract`
   (particles ``(P, 3)`` poses ``(x, y, theta)``) and the map :class:`OccupancyGrid2D` with two scoring rules,
   the seed's density grid and the likelihood field.
-* :mod:`slamlib.sim2d.filter`: :class:`ParticleSLAM2D` (``step(frame)`` is the twelve steps) and
-  :func:`run_slam_2d` -> :class:`SLAM2DResult`.
+* :mod:`slamlib.sim2d.particle_maps`: :class:`ParticleMaps2D`, one map per particle in shared
+  copy-on-write tiles (Rao-Blackwellised particle SLAM).
+* :mod:`slamlib.sim2d.filter`: :class:`ParticleSLAM2D` (``step(frame)`` is the twelve steps, one shared map),
+  :class:`ParticleMapsSLAM2D` (the same steps, a map per particle) and :func:`run_slam_2d` ->
+  :class:`SLAM2DResult`.
 * :mod:`slamlib.sim2d.plot`: figures and the animation of the book's chapter (imports matplotlib when called).
 
 Example::
@@ -18,6 +21,7 @@ Example::
 """
 
 from slamlib.sim2d.filter import (
+    ParticleMapsSLAM2D,
     ParticleSLAM2D,
     SLAM2DResult,
     StepInfo2D,
@@ -26,6 +30,7 @@ from slamlib.sim2d.filter import (
     position_rmse,
     run_slam_2d,
 )
+from slamlib.sim2d.particle_maps import ParticleMaps2D
 from slamlib.sim2d.steps import (
     MAP_KINDS,
     OccupancyGrid2D,
@@ -59,6 +64,8 @@ __all__ = [
     "Frame2D",
     "MAP_KINDS",
     "OccupancyGrid2D",
+    "ParticleMaps2D",
+    "ParticleMapsSLAM2D",
     "ParticleSLAM2D",
     "Recording2D",
     "Route2D",

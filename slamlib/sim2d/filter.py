@@ -24,10 +24,12 @@ import numpy as np
 import slamlib.sim2d.steps as steps_2d
 from slamlib.contract import StepInfo, StepsFilter
 from slamlib.resampling import DEFAULT_ESS_FRACTION
+from slamlib.sim2d.particle_maps import DEFAULT_TILE, ParticleMaps2D
 from slamlib.sim2d.steps import DEFAULT_MAP_KIND, DEFAULT_RESOLUTION, OccupancyGrid2D
 from slamlib.sim2d.world import Recording2D, integrate_arc, wrap_angle
 
 __all__ = [
+    "ParticleMapsSLAM2D",
     "ParticleSLAM2D",
     "SLAM2DResult",
     "StepInfo2D",
@@ -69,6 +71,7 @@ class ParticleSLAM2D(StepsFilter):
     rng : numpy.random.Generator, the source of motion noise and resampling offsets.
     ess_fraction : resample when ``ESS < ess_fraction * P``; ``None`` every frame.
     max_points : optional down-sampling of the scan read at step 2 (scoring and merging use the same points).
+    tempering : step 8's ``beta`` in ``(0, 1]``: the scan likelihood raised to ``beta`` (1: as it is).
     """
 
     #: The step functions the filter runs (:mod:`slamlib.sim2d.steps`).
@@ -84,6 +87,7 @@ class ParticleSLAM2D(StepsFilter):
         rng: np.random.Generator,
         ess_fraction: float | None = DEFAULT_ESS_FRACTION,
         max_points: int | None = None,
+        tempering: float = 1.0,
     ):
         super().__init__(
             n_particles,
@@ -93,10 +97,55 @@ class ParticleSLAM2D(StepsFilter):
             ess_fraction,
         )
         self.max_points = max_points
+        self.tempering = tempering
+
+    def score_options(self) -> dict:
+        """Step 8's tempering."""
+        return {"tempering": self.tempering}
 
     def scan_options(self) -> dict:
         """Step 2's down-sampling."""
         return {"max_points": self.max_points}
+
+
+class ParticleMapsSLAM2D(ParticleSLAM2D):
+    """Rao-Blackwellised particle SLAM in the plane: every particle carries its own map (FastSLAM's scheme).
+
+    The same twelve steps and parameters as :class:`ParticleSLAM2D`, with ``world_map`` a
+    :class:`~slamlib.sim2d.particle_maps.ParticleMaps2D` of ``n_particles`` maps: step 8 scores each particle
+    against its own map, step 10 merges the scan into every particle's map at that particle's pose
+    (:meth:`merge_pose`), and step 11 hands each resampled particle its parent's map (:meth:`resample_options`).
+    The estimate is still the best particle, whose map is ``world_map.grid(best)``.
+    """
+
+    def __init__(
+        self,
+        n_particles: int,
+        world_map: ParticleMaps2D,
+        motion_noise,
+        rng: np.random.Generator,
+        ess_fraction: float | None = DEFAULT_ESS_FRACTION,
+        max_points: int | None = None,
+        tempering: float = 1.0,
+    ):
+        if (
+            not isinstance(world_map, ParticleMaps2D)
+            or world_map.n_particles != n_particles
+        ):
+            raise ValueError(
+                f"world_map must be a ParticleMaps2D of n_particles={n_particles} maps, got {world_map!r}"
+            )
+        super().__init__(
+            n_particles, world_map, motion_noise, rng, ess_fraction, max_points, tempering
+        )
+
+    def merge_pose(self, moved, pose):
+        """Every particle's pose: each merges the scan into its own map."""
+        return moved
+
+    def resample_options(self) -> dict:
+        """The maps follow their particles through resampling."""
+        return {"maps": self.world_map}
 
 
 def dead_reckon_2d(recording: Recording2D, pose0=None) -> np.ndarray:
@@ -118,8 +167,11 @@ def position_rmse(estimate, truth) -> float:
 @dataclass
 class SLAM2DResult:
     """A run: ``times (K,)``, ``true_poses``, ``estimated`` (best particle), ``dead_reckoned`` (all ``(K, 3)``),
-    ``ess (K,)``, ``resampled (K,)``, the final ``world_map``, and when kept ``particle_history (K, P, 3)`` float32,
-    ``weight_history (K, P)`` float32."""
+    ``ess (K,)``, ``resampled (K,)``, the final ``world_map`` (the best particle's, with per-particle maps), and
+    when kept ``particle_history (K, P, 3)`` float32, ``weight_history (K, P)`` float32. With per-particle maps
+    also ``particle_maps`` (the final :class:`~slamlib.sim2d.particle_maps.ParticleMaps2D`), ``map_bytes (K,)``
+    (their memory after each frame), ``disputed_tiles (K,)`` (tile positions where the particles' maps differ) and
+    ``map_snapshots`` (frame -> a copy of the maps and the particles after that frame, for the frames asked)."""
 
     times: np.ndarray
     true_poses: np.ndarray
@@ -130,6 +182,10 @@ class SLAM2DResult:
     world_map: OccupancyGrid2D
     particle_history: np.ndarray | None = None
     weight_history: np.ndarray | None = None
+    particle_maps: ParticleMaps2D | None = None
+    map_bytes: np.ndarray | None = None
+    disputed_tiles: np.ndarray | None = None
+    map_snapshots: dict | None = None
 
     @property
     def slam_error(self) -> np.ndarray:
@@ -191,8 +247,13 @@ def run_slam_2d(
     n_sat: int = OccupancyGrid2D.n_sat,
     ess_fraction: float | None = DEFAULT_ESS_FRACTION,
     max_points: int | None = None,
+    tempering: float = 1.0,
     keep_history: bool = False,
     progress: bool = False,
+    per_particle_maps: bool = False,
+    tile: int = DEFAULT_TILE,
+    margin: float = 4.0,
+    snapshots: tuple = (),
 ) -> SLAM2DResult:
     """Run :class:`ParticleSLAM2D` over every frame of ``recording`` (step 12, the loop).
 
@@ -204,8 +265,13 @@ def run_slam_2d(
     resolution : cell size (m); the grid covers the world's structure plus the sensor range around the route.
     motion_noise : (3,) per second, default :func:`default_motion_noise` of the recording's sensors.
     likelihood_sigma : field width (m), default ``max(resolution, 2 sigma_r)``.
-    eps, n_sat : see :class:`OccupancyGrid2D`; ess_fraction, max_points : see :class:`ParticleSLAM2D`.
+    eps, n_sat : see :class:`OccupancyGrid2D`; ess_fraction, max_points, tempering : see
+        :class:`ParticleSLAM2D`.
     keep_history : keep the particles and weights of every frame; progress : tqdm bar.
+    per_particle_maps : one map per particle (:class:`ParticleMapsSLAM2D`, tiles of ``tile`` cells a side)
+        instead of one shared map grown from the best particle (:class:`ParticleSLAM2D`).
+    margin : metres of grid beyond the structure and the sensor's reach round the route.
+    snapshots : frames after which to keep ``(maps copy, particles, log_weights)`` (per-particle maps only).
     """
     from tqdm.auto import tqdm
 
@@ -216,19 +282,22 @@ def run_slam_2d(
         likelihood_sigma = max(resolution, 2 * sensors.range_noise)
     lo, hi = recording.world.bounds
     path = recording.true_poses[:, :2]
-    margin = 4.0
     lo = np.minimum(lo, path.min(axis=0) - sensors.max_range) - margin
     hi = np.maximum(hi, path.max(axis=0) + sensors.max_range) + margin
     world_map = OccupancyGrid2D.empty(
         lo, hi, resolution, kind=map_kind, sigma=likelihood_sigma, eps=eps, n_sat=n_sat
     )
-    slam = ParticleSLAM2D(
+    cls = ParticleMapsSLAM2D if per_particle_maps else ParticleSLAM2D
+    if per_particle_maps:
+        world_map = ParticleMaps2D(world_map, n_particles, tile)
+    slam = cls(
         n_particles,
         world_map,
         motion_noise,
         np.random.default_rng(seed),
         ess_fraction=ess_fraction,
         max_points=max_points,
+        tempering=tempering,
     )
     k_frames = len(recording)
     estimated = np.zeros((k_frames, 3))
@@ -240,6 +309,9 @@ def run_slam_2d(
     weight_history = (
         np.zeros((k_frames, n_particles), np.float32) if keep_history else None
     )
+    map_bytes = np.zeros(k_frames, np.int64) if per_particle_maps else None
+    disputed = np.zeros(k_frames, np.int64) if per_particle_maps else None
+    kept = {} if per_particle_maps else None
     for k, frame in enumerate(
         tqdm(recording.frames, desc="sim2d SLAM", unit="frame", disable=not progress)
     ):
@@ -248,6 +320,21 @@ def run_slam_2d(
         if keep_history:
             particle_history[k] = info.moved
             weight_history[k] = info.weights
+        if per_particle_maps:
+            map_bytes[k] = slam.world_map.memory_bytes()
+            disputed[k] = slam.world_map.disputed_tiles()
+            if k in snapshots:
+                kept[k] = (
+                    slam.world_map.copy(),
+                    slam.particles.copy(),
+                    slam.log_weights.copy(),
+                )
+    final_map = slam.world_map
+    if per_particle_maps:
+        # resampling may have moved the best particle's map: take the particle at the estimate's pose (a
+        # resampled copy of the best sits exactly there)
+        holder = np.argmin(np.sum((slam.particles - estimated[-1]) ** 2, axis=1))
+        final_map = slam.world_map.grid(int(holder))
     return SLAM2DResult(
         times=recording.times.copy(),
         true_poses=recording.true_poses.copy(),
@@ -255,7 +342,11 @@ def run_slam_2d(
         dead_reckoned=dead_reckon_2d(recording),
         ess=ess,
         resampled=resampled,
-        world_map=slam.world_map,
+        world_map=final_map,
         particle_history=particle_history,
         weight_history=weight_history,
+        particle_maps=slam.world_map if per_particle_maps else None,
+        map_bytes=map_bytes,
+        disputed_tiles=disputed,
+        map_snapshots=kept,
     )

@@ -276,11 +276,14 @@ def animate_run(
     dpi: int = BOOK_DPI,
     interval: int = 150,
     window: float = 0.3,
+    span: tuple | None = None,
+    label: str = "SLAM",
 ):
     """A ``FuncAnimation``: the paths and the current scan (placed by the estimate) over the world, and the
     particle cloud relative to the truth (``window`` metres half-width). Needs ``keep_history=True``; the caller
     renders it (``anim.to_jshtml()``) and closes the figure (``plt.close(anim._fig)``). Keep
-    ``n_frames`` low: every frame is embedded as a PNG (at the book's ``dpi``, so the fonts stay legible)."""
+    ``n_frames`` low: every frame is embedded as a PNG (at the book's ``dpi``, so the fonts stay legible).
+    ``span = (k0, k1)``: only frames ``k0`` to ``k1`` (default the whole run); ``label`` names the estimate."""
     import matplotlib.pyplot as plt
     from matplotlib.animation import FuncAnimation
 
@@ -290,13 +293,14 @@ def animate_run(
         raise ValueError(
             "animate_run needs a result from run_slam_2d(..., keep_history=True)"
         )
-    ks = np.unique(np.linspace(1, result.times.size - 1, n_frames).round().astype(int))
+    k0, k1 = span or (1, result.times.size - 1)
+    ks = np.unique(np.linspace(k0, k1, n_frames).round().astype(int))
     fig, (ax0, ax1) = plt.subplots(
         1, 2, figsize=figsize, dpi=dpi, gridspec_kw={"width_ratios": [1.6, 1]}
     )
     draw_world(recording.world, ax0, color="0.6", lw=0.8)
     (truth_line,) = ax0.plot([], [], "k", lw=2, label="truth")
-    (slam_line,) = ax0.plot([], [], "C0", lw=1.2, label="SLAM")
+    (slam_line,) = ax0.plot([], [], "C0", lw=1.2, label=label)
     (dr_line,) = ax0.plot([], [], "C3--", lw=1.2, label="dead reckoning")
     (scan_pts,) = ax0.plot([], [], ".", color="C2", ms=2, label="scan at the estimate")
     ax0.legend(fontsize=10, loc="upper right", ncol=2)
@@ -329,7 +333,7 @@ def animate_run(
             [(result.estimated[k, 1] - result.true_poses[k, 1]) * 100],
         )
         title.set_text(
-            f"t = {result.times[k]:.1f} s: SLAM off by {result.slam_error[k] * 100:.1f} cm, "
+            f"t = {result.times[k]:.1f} s: {label} off by {result.slam_error[k] * 100:.1f} cm, "
             f"dead reckoning by {result.dead_reckoning_error[k]:.2f} m"
         )
         return [truth_line, slam_line, dr_line, scan_pts, cloud, best_pt, title]

@@ -19,7 +19,7 @@ step  function (the contract's parameters first)                         2D math
 8     ``score_particles(particles, points, world_map)``                  ``s_i = sum_j l(p_ij)``, the map's term
 9     ``pick_best_particle(particles, log_weights) -> (pose, index)``    ``i = argmax log w``
 10    ``merge_scan(world_map, pose, points) -> world_map``               counts at the cells of ``R q + t``, in place
-11    ``resample_particles(particles, log_weights, rng, ess_fraction)``  systematic, when the ESS drops
+11    ``resample_particles(particles, log_weights, rng, ess_fraction)``  systematic, when the ESS drops (maps follow)
 12    (the loop)                                                         :meth:`ParticleSLAM2D.step`
 ====  =================================================================  ===============================================
 
@@ -80,6 +80,71 @@ MAP_KINDS = ("density", "likelihood")
 DEFAULT_MAP_KIND = "likelihood"
 #: Cell size (m) when none is given (:meth:`OccupancyGrid2D.empty`, :func:`~slamlib.sim2d.run_slam_2d`).
 DEFAULT_RESOLUTION = 0.05
+
+
+# --------------------------------------------------------------------- field math shared by every 2D map
+def field_bumps(
+    origin, resolution: float, sigma: float, shape, world_points, heights=1.0
+):
+    """The likelihood field's bumps of world points ``p`` of ``(M, 2)``: ``h_p exp(-|x_c - p|^2 / 2 sigma^2)``
+    at the centres ``x_c`` of the cells within ``3 sigma`` of ``p`` (``heights`` ``h_p``, scalar or ``(M,)``).
+
+    Returns ``(rows, cols, values)``, flat arrays of the cells inside a grid of ``shape (H, W)`` whose cell
+    ``(0, 0)`` has its lower-left corner at ``origin``; raising ``F <- max(F, value)`` at them adds the points
+    to the field. Every 2D map (:class:`OccupancyGrid2D`, :class:`slamlib.sim2d.particle_maps.ParticleMaps2D`)
+    raises its field with these bumps, so their fields agree to the bit.
+    """
+    rows, cols, vals, ok = _bumps(origin, resolution, sigma, shape, world_points, heights)
+    return rows[ok], cols[ok], vals[ok]
+
+
+def _bumps(origin, resolution, sigma, shape, world_points, heights):
+    """:func:`field_bumps` before dropping the cells outside the grid: ``(rows, cols, values, ok)``, each
+    ``(M, K)`` with ``K = (2 ceil(3 sigma / resolution) + 1)^2`` (so a caller can tell which point each is)."""
+    p = np.asarray(world_points, dtype=np.float64).reshape(-1, 2)
+    half = max(1, int(np.ceil(3 * sigma / resolution)))
+    k = np.arange(-half, half + 1)
+    dr, dc = (a.ravel() for a in np.meshgrid(k, k, indexing="ij"))
+    r0 = np.floor((p[:, 1] - origin[1]) / resolution).astype(np.int64)
+    c0 = np.floor((p[:, 0] - origin[0]) / resolution).astype(np.int64)
+    rows = r0[:, None] + dr[None, :]
+    cols = c0[:, None] + dc[None, :]
+    cx = origin[0] + (cols + 0.5) * resolution
+    cy = origin[1] + (rows + 0.5) * resolution
+    vals = np.exp(-0.5 * ((cx - p[:, :1]) ** 2 + (cy - p[:, 1:]) ** 2) / sigma**2)
+    vals = (
+        vals * np.broadcast_to(np.asarray(heights, dtype=np.float64), (len(p),))[:, None]
+    )
+    h, w = shape
+    ok = (rows >= 0) & (rows < h) & (cols >= 0) & (cols < w)
+    return rows, cols, vals, ok
+
+
+def bilinear_taps(origin, resolution: float, shape, world_points):
+    """The four cell-centre taps of bilinear interpolation at world points ``(..., 2)``.
+
+    With ``u = (x - origin_x) / res - 1/2``, ``v = (y - origin_y) / res - 1/2``, ``c0 = floor(u)``,
+    ``r0 = floor(v)``, ``f_u = u - c0``, ``f_v = v - r0``, the value is the sum of
+    ``(1 - f_v)(1 - f_u) F[r0, c0]``, ``(1 - f_v) f_u F[r0, c0 + 1]``, ``f_v (1 - f_u) F[r0 + 1, c0]`` and
+    ``f_v f_u F[r0 + 1, c0 + 1]``.
+    Yields ``(rows, cols, weights)`` per tap, each shaped like the points' leading axes; a tap outside the grid
+    ``shape (H, W)`` has weight 0 (and indexes clamped to cell ``(0, 0)``), so the field reads 0 outside.
+    """
+    p = np.asarray(world_points, dtype=np.float64)
+    u = (p[..., 0] - origin[0]) / resolution - 0.5
+    v = (p[..., 1] - origin[1]) / resolution - 0.5
+    c0, r0 = np.floor(u).astype(np.int64), np.floor(v).astype(np.int64)
+    fu, fv = u - c0, v - r0
+    h, w = shape
+    for dr, dc, wt in (
+        (0, 0, (1 - fv) * (1 - fu)),
+        (0, 1, (1 - fv) * fu),
+        (1, 0, fv * (1 - fu)),
+        (1, 1, fv * fu),
+    ):
+        r, c = r0 + dr, c0 + dc
+        ok = (r >= 0) & (r < h) & (c >= 0) & (c < w)
+        yield np.where(ok, r, 0), np.where(ok, c, 0), np.where(ok, wt, 0.0)
 
 
 # ------------------------------------------------------------------------------------------------- the map
@@ -196,36 +261,17 @@ class OccupancyGrid2D:
         return np.where(inside, r, 0), np.where(inside, c, 0), inside
 
     def _raise_field(self, world_points: np.ndarray, heights=1.0) -> None:
-        """``F <- max(F, h_p exp(-|x_c - p|^2 / 2 sigma^2))`` at the cell centres ``x_c`` within ``3 sigma`` of each
-        world point ``p`` of ``(M, 2)`` (``heights`` ``h_p``, scalar or ``(M,)``): the field of the exact points,
-        not of their cells' centres."""
-        half = max(1, int(np.ceil(3 * self.sigma / self.resolution)))
-        k = np.arange(-half, half + 1)
-        dr, dc = (a.ravel() for a in np.meshgrid(k, k, indexing="ij"))
-        r0 = np.floor((world_points[:, 1] - self.origin[1]) / self.resolution).astype(
-            np.int64
+        """``F <- max(F, bump)`` with the bumps of :func:`field_bumps` (the field of the exact points, not of
+        their cells' centres)."""
+        rows, cols, vals = field_bumps(
+            self.origin,
+            self.resolution,
+            self.sigma,
+            self.counts.shape,
+            world_points,
+            heights,
         )
-        c0 = np.floor((world_points[:, 0] - self.origin[0]) / self.resolution).astype(
-            np.int64
-        )
-        rows = r0[:, None] + dr[None, :]
-        cols = c0[:, None] + dc[None, :]
-        cx = self.origin[0] + (cols + 0.5) * self.resolution
-        cy = self.origin[1] + (rows + 0.5) * self.resolution
-        vals = np.exp(
-            -0.5
-            * ((cx - world_points[:, :1]) ** 2 + (cy - world_points[:, 1:]) ** 2)
-            / self.sigma**2
-        )
-        vals = (
-            vals
-            * np.broadcast_to(
-                np.asarray(heights, dtype=np.float64), (len(world_points),)
-            )[:, None]
-        )
-        h, w = self.counts.shape
-        ok = (rows >= 0) & (rows < h) & (cols >= 0) & (cols < w)
-        np.maximum.at(self.field, (rows[ok], cols[ok]), vals[ok])
+        np.maximum.at(self.field, (rows, cols), vals)
 
     def merge(self, world_points) -> OccupancyGrid2D:
         """Add one count per world point ``(N, 2)`` to its cell and raise the field around it; in place.
@@ -262,23 +308,9 @@ class OccupancyGrid2D:
         poses a fraction of a cell apart still score differently (a nearest-cell lookup would not).
         """
         p = np.asarray(world_points, dtype=np.float64)
-        u = (p[..., 0] - self.origin[0]) / self.resolution - 0.5
-        v = (p[..., 1] - self.origin[1]) / self.resolution - 0.5
-        c0, r0 = np.floor(u).astype(np.int64), np.floor(v).astype(np.int64)
-        fu, fv = u - c0, v - r0
-        h, w = self.counts.shape
         out = np.zeros(p.shape[:-1])
-        for dr, dc, wt in (
-            (0, 0, (1 - fv) * (1 - fu)),
-            (0, 1, (1 - fv) * fu),
-            (1, 0, fv * (1 - fu)),
-            (1, 1, fv * fu),
-        ):
-            r, c = r0 + dr, c0 + dc
-            ok = (r >= 0) & (r < h) & (c >= 0) & (c < w)
-            out += wt * np.where(
-                ok, self.field[np.where(ok, r, 0), np.where(ok, c, 0)], 0.0
-            )
+        for r, c, wt in bilinear_taps(self.origin, self.resolution, self.counts.shape, p):
+            out += wt * self.field[r, c]
         return out
 
     def density(self) -> np.ndarray:
@@ -373,19 +405,24 @@ def transform_scan(particles, points: np.ndarray) -> np.ndarray:
 
 
 def score_particles(
-    particles, points: np.ndarray, world_map: OccupancyGrid2D
+    particles, points: np.ndarray, world_map: OccupancyGrid2D, tempering: float = 1.0
 ) -> np.ndarray:
-    """Steps 7 + 8: ``s_i = sum_j l(R(theta_i) q_j + t_i)``, ``(P,)`` float64 log-likelihoods.
+    """Steps 7 + 8: ``s_i = beta sum_j l(R(theta_i) q_j + t_i)``, ``(P,)`` float64 log-likelihoods.
 
     ``l`` is the map's per-point term (:meth:`OccupancyGrid2D.point_terms`: the saturated hit density for
     ``kind="density"``, ``log(F + eps)`` for the likelihood field). An empty map or empty scan scores all zeros
     (every particle equally likely: the first frame). One pose ``(3,)`` gives a ``(1,)`` result.
+    ``tempering`` ``beta`` in ``(0, 1]`` flattens the likelihood ``p(z | x)^beta``: the points of one scan are
+    not independent (neighbouring beams hit the same wall, and the map's errors are shared), so the product of
+    their terms is overconfident and collapses the weights every frame (Thrun et al. 2005, sec. 6.3.4).
     """
+    if not 0 < tempering <= 1:
+        raise ValueError(f"tempering must be in (0, 1], got {tempering}")
     pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
     poses = np.atleast_2d(np.asarray(particles, dtype=np.float64))
     if len(pts) == 0 or world_map.total == 0:
         return np.zeros(len(poses))
-    return world_map.point_terms(transform_scan(poses, pts)).sum(axis=-1)
+    return tempering * world_map.point_terms(transform_scan(poses, pts)).sum(axis=-1)
 
 
 def pick_best_particle(particles: np.ndarray, log_weights) -> tuple[np.ndarray, int]:
@@ -394,11 +431,17 @@ def pick_best_particle(particles: np.ndarray, log_weights) -> tuple[np.ndarray, 
     return np.array(particles[i], dtype=np.float64), i
 
 
-def merge_scan(world_map: OccupancyGrid2D, pose, points: np.ndarray) -> OccupancyGrid2D:
-    """Step 10: add the scan placed by ``pose (3,)`` (:func:`transform_scan`) to ``world_map``, **in place**."""
-    return world_map.merge(
-        transform_scan(np.asarray(pose, dtype=np.float64).reshape(3), points)
-    )
+def merge_scan(world_map, pose, points: np.ndarray):
+    """Step 10: add the scan placed by ``pose`` (:func:`transform_scan`) to ``world_map``, **in place**.
+
+    A shared :class:`OccupancyGrid2D` takes the best pose ``(3,)``; a
+    :class:`~slamlib.sim2d.particle_maps.ParticleMaps2D` (one map per particle) takes every particle's pose
+    ``(P, 3)`` and merges particle ``i``'s placement of the scan into particle ``i``'s map.
+    """
+    pose = np.asarray(pose, dtype=np.float64)
+    if isinstance(world_map, OccupancyGrid2D):
+        pose = pose.reshape(3)
+    return world_map.merge(transform_scan(pose, points))
 
 
 def resample_particles(
@@ -406,11 +449,14 @@ def resample_particles(
     log_weights,
     rng: np.random.Generator,
     ess_fraction: float | None = DEFAULT_ESS_FRACTION,
+    maps=None,
 ) -> tuple[np.ndarray, np.ndarray, bool]:
     """Step 11: systematic resampling when ``ESS < ess_fraction * P`` (``None``: always).
 
     :func:`slamlib.resampling.resample_indexes` draws one offset ``u0`` from ``rng`` and returns the indexes;
     this step returns ``(particles[idx], -log P, True)``, or ``(a copy, normalised log-weights, False)``.
+    ``maps``: the particles' own maps (:class:`~slamlib.sim2d.particle_maps.ParticleMaps2D`), which follow
+    their particles (``maps.select(idx)``, in place); None for a shared map.
     """
     particles = np.asarray(particles, dtype=np.float64)
     log_w = normalise_log_weights(log_weights)
@@ -421,4 +467,6 @@ def resample_particles(
     idx = resample_indexes(log_w, rng, ess_fraction)
     if idx is None:
         return particles.copy(), log_w, False
+    if maps is not None:
+        maps.select(idx)
     return particles[idx], uniform_log_weights(len(particles)), True

@@ -271,7 +271,9 @@ def run_slam_2d(
     per_particle_maps : one map per particle (:class:`ParticleMapsSLAM2D`, tiles of ``tile`` cells a side)
         instead of one shared map grown from the best particle (:class:`ParticleSLAM2D`).
     margin : metres of grid beyond the structure and the sensor's reach round the route.
-    snapshots : frames after which to keep ``(maps copy, particles, log_weights)`` (per-particle maps only).
+    snapshots : frames after which to keep ``(maps copy, particles, log_weights)`` (per-particle maps only); the
+        maps are tagged there (:meth:`~slamlib.sim2d.particle_maps.ParticleMaps2D.tag`), so the next snapshot's
+        ``maps.ancestors`` names the particles of this one that it descends from.
     """
     from tqdm.auto import tqdm
 
@@ -329,6 +331,7 @@ def run_slam_2d(
                     slam.particles.copy(),
                     slam.log_weights.copy(),
                 )
+                slam.world_map.tag()  # later snapshots' ancestors name this one's particles
     final_map = slam.world_map
     if per_particle_maps:
         # resampling may have moved the best particle's map: take the particle at the estimate's pose (a

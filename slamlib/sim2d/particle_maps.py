@@ -48,7 +48,8 @@ class ParticleMaps2D:
     Particle ``i``'s map is ``tables[i] (TH, TW)``: tile ids into the pool ``counts_pool (capacity, T, T)``
     int32 and ``field_pool (capacity, T, T)`` float64, or :data:`EMPTY_TILE`. Grid cell ``(r, c)`` is cell
     ``(r mod T, c mod T)`` of tile ``(r // T, c // T)``. ``refcount[j]`` is how many table entries hold tile
-    ``j``; a tile with more than one holder is never written (step 10 copies it first).
+    ``j``; a tile with more than one holder is never written (step 10 copies it first). ``ancestors (P,)``: the
+    particle each descends from, counted from the last :meth:`tag` (or the start).
 
     Parameters
     ----------
@@ -90,7 +91,13 @@ class ParticleMaps2D:
             table[tr, tc] = j
         self.tables = np.repeat(table[None], int(n_particles), axis=0)
         self.totals = np.full(int(n_particles), template.total, np.int64)
+        self.ancestors = np.arange(int(n_particles))
         self._recount()
+
+    def tag(self) -> None:
+        """Name the current particles ``0 .. P-1`` as ancestors: after later resamplings, ``ancestors[k]`` is the
+        particle, at the time of the tag, that particle ``k`` (and its map) descends from."""
+        self.ancestors = np.arange(self.n_particles)
 
     def copy(self) -> ParticleMaps2D:
         """An independent copy (the pool, tables and counts copied): a snapshot the filter will not change."""
@@ -301,6 +308,7 @@ class ParticleMaps2D:
             raise ValueError(f"indexes must be ({self.n_particles},), got {idx.shape}")
         self.tables = self.tables[idx]
         self.totals = self.totals[idx]
+        self.ancestors = self.ancestors[idx]
         self._recount()
         return self
 

@@ -33,7 +33,8 @@ system-packages:
 $(VENV)/.installed: pyproject.toml requirements.lock
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
-	$(BIN)/python -m pip install -q -c requirements.lock -e ".[test,book,cudacompile,peers,sweep]"
+	$(BIN)/python -m pip install -q -c requirements.lock -e ".[test,book,cudacompile,peers,sweep,loops]"
+	$(BIN)/python -m pip install -q --no-deps -c requirements.lock map-closures kiss-slam  # see pyproject's `loops`
 	touch $@
 
 # Build the book: executes every notebook (on the embedded default data) and writes HTML under _build/html.

@@ -27,6 +27,7 @@ LAYERS = {
     "metrics": 2,
     "odometry": 2,
     "peers": 2,
+    "loops": 2,
     "maps": 1,
     "noise": 1,
     "geometry": 1,

@@ -735,3 +735,37 @@ def test_a_path_under_100_m_has_no_kitti_error_and_says_so(cli_drive, tmp_path, 
     ]
     assert len(rows) == 2 and all(row.endswith("n/a (path < 100 m)") for row in rows)
     assert "nan" not in out
+
+
+def test_slamlib_run_loop_closure_writes_its_poses_and_closures(
+    tiny_drive, tmp_path, capsys
+):
+    """--loop-closure: the re-anchored trajectory and closures.json beside the filter's own poses, its row in the
+    printed table and in metrics.json; a 10-frame drive is one local map, so no closure and the same poses."""
+    from slamlib.cli import main
+    from slamlib.kitti import read_kitti_poses
+
+    base, date, drive = tiny_drive
+    out = tmp_path / "out"
+    args = ["run", "--basedir", str(base), "--date", date, "--drive", str(drive)]
+    args += [
+        "--frames",
+        "1:11",
+        "--particles",
+        "50",
+        "--points",
+        "200",
+        "--out",
+        str(out),
+    ]
+    assert main(args + ["--no-progress", "--no-plots", "--loop-closure"]) == 0
+    slam = read_kitti_poses(out / "slam_poses.txt")
+    closed = read_kitti_poses(out / "slam_loop_closed_poses.txt")
+    assert closed.shape == slam.shape and np.allclose(closed, slam, atol=1e-6)
+    closures = json.loads((out / "closures.json").read_text())
+    assert closures["closures"] == [] and len(closures["local_maps"]) == 1
+    assert closures["local_maps"][0]["first_frame"] == 1
+    info = json.loads((out / "metrics.json").read_text())
+    assert "slam_loop_closed" in info["metrics"]
+    printed = capsys.readouterr().out
+    assert "+ loop closure" in printed and "1 local maps, 0 verified closures" in printed

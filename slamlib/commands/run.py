@@ -245,6 +245,14 @@ def add_arguments(parser) -> None:
             action="store_true",
             help=argparse.SUPPRESS,
         )
+    lc = parser.add_argument_group("loop closure (a back end behind the filter)")
+    lc.add_argument(
+        "--loop-closure",
+        action="store_true",
+        help="cut local maps from the trajectory, find revisits by place recognition (map-closures), verify "
+        "them by ICP and optimise a pose graph (GTSAM); writes slam_loop_closed_poses.txt and closures.json "
+        "beside the filter's own poses (slamlib.loops)",
+    )
     o = parser.add_argument_group("output")
     o.add_argument(
         "--out",
@@ -355,9 +363,12 @@ def _run(drive, cfg, args):
                 cfg,
                 progress=not args.no_progress,
                 snapshot_every=snapshot_every_for(len(drive)),
+                loop_closure=args.loop_closure,
             )
         else:
-            run = run_drive(drive, cfg, progress=not args.no_progress)
+            run = run_drive(
+                drive, cfg, progress=not args.no_progress, loop_closure=args.loop_closure
+            )
     for w in seen:
         if issubclass(w.category, UserWarning):
             print(f"warning: {w.message}")
@@ -559,9 +570,10 @@ def main(args) -> int:
         )
         for key, label in (
             ("slam", "particle SLAM"),
+            ("slam_loop_closed", "  + loop closure"),
             ("dead_reckoning", "dead reckoning"),
         ):
-            if key not in m:  # LIDAR-only: no dead reckoning
+            if key not in m:  # LIDAR-only: no dead reckoning; no loop closure asked
                 continue
             k = num(m[key].get("kitti_t_err_percent"))
             # the KITTI metric needs 100 m segments
@@ -569,6 +581,12 @@ def main(args) -> int:
             print(f"{label:22s}{num(m[key]['ate_rmse_m']):14.3f}{kitti}")
         if "segments" in m:
             print(f"{len(m['segments'])} segments (gaps in time): {m['evaluated']}")
+    if run.loop_closer is not None:
+        c = run.loop_closer.closures
+        print(
+            f"loop closure: {len(run.loop_closer.mapper.maps)} local maps, {len(c)} verified "
+            f"closures, {sum(x.kept for x in c)} kept by the pose graph"
+        )
     if info.get("n_skipped_frames"):
         print(f"warning: {info['warnings'][0]}")
     if args.video is not None:

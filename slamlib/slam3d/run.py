@@ -58,6 +58,8 @@ class SLAMRun:
         begun); ``steady_fps`` is the rate after them.
     segment_starts : (S,) frame positions where a segment starts (``[0]`` without a gap in time,
         :mod:`slamlib.slam3d.segments`); ``segments`` the filter of each (``slam`` is the last).
+    loop_closed : (F, 4, 4) or None, the poses re-anchored by loop closure (``run_drive(loop_closure=True)``,
+        :mod:`slamlib.loops`); ``loop_closer`` the :class:`~slamlib.loops.LoopCloser` (its ``closures``, graph).
     """
 
     poses: np.ndarray
@@ -73,6 +75,8 @@ class SLAMRun:
     segments: list = field(default_factory=list, repr=False)
     warm_at: float = float("nan")
     started_at: float = float("nan")
+    loop_closed: np.ndarray | None = field(default=None, repr=False)
+    loop_closer: object = field(default=None, repr=False)
 
     @property
     def steady_fps(self) -> float:
@@ -134,6 +138,7 @@ def run_drive(
     progress: bool = True,
     snapshot_every: int = 0,
     desc: str = "slam3d",
+    loop_closure: bool = False,
 ) -> SLAMRun:
     """Register every frame of ``frames`` with a fresh :class:`ParticleSLAM3D`.
 
@@ -149,6 +154,9 @@ def run_drive(
     config : filter settings.
     progress : show a tqdm bar with frames/s.
     snapshot_every : keep a copy of the map points every that many frames (0: none), for animations.
+    loop_closure : feed every frame's pose and prepared scan to a :class:`slamlib.loops.LoopCloser` (local maps,
+        place recognition, verified closures, a pose graph), inside each frame's timing; the re-anchored poses
+        are the run's ``loop_closed``, the filter's own ``poses`` stay as they were.
     """
     import warnings
 
@@ -169,6 +177,11 @@ def run_drive(
     if T_velo_imu is None:
         T_velo_imu = getattr(frames, "T_velo_imu", None)
     slam = ParticleSLAM3D(config, T_velo_imu=T_velo_imu)
+    closer = None
+    if loop_closure:
+        from slamlib.loops import LoopCloser
+
+        closer = LoopCloser()
     filters, starts, intervals = [slam], [0], []
     gt, times, idx, snaps, frame_seconds = [], [], [], [], []
     total = len(frames) if hasattr(frames, "__len__") else None
@@ -192,6 +205,8 @@ def run_drive(
             intervals.append(dt)
         tf = time.perf_counter()
         pose = slam.register_frame(frame)
+        if closer is not None:
+            closer.add_frame(k, pose, slam.last.get("points", np.zeros((0, 3))))
         frame_seconds.append(time.perf_counter() - tf)
         # odometry layout: T_w_body
         gt.append(getattr(frame, "T_w_body", getattr(frame, "T_w_imu", None)))
@@ -201,6 +216,10 @@ def run_drive(
             snaps.append((k, slam.map_points(), pose.copy()))
         if k == STARTUP_FRAMES - 1:
             warm_at = time.perf_counter()
+    loop_closed = None
+    if closer is not None:
+        closer.finish()
+        loop_closed = closer.corrected_poses()
     seconds = time.perf_counter() - t0
     bar.close()
     ground_truth = None
@@ -223,6 +242,8 @@ def run_drive(
         filters,
         warm_at,
         t0,
+        loop_closed,
+        closer,
     )
 
 
@@ -249,7 +270,8 @@ def evaluate(run: SLAMRun) -> dict:
     metric (segments of 100..800 m; only for paths over 100 m) of the SLAM and dead-reckoning trajectories.
 
     Returns ``{"slam": {...}, "dead_reckoning": {...}, "path_length_m", "frames", "fps"}`` (no
-    ``"dead_reckoning"`` for a LIDAR-only run); raises ValueError
+    ``"dead_reckoning"`` for a LIDAR-only run; ``"slam_loop_closed"`` too for a run with loop closure); raises
+    ValueError
     without ground truth.
     """
     from slamlib.metrics import trajectory_distances, trajectory_metrics
@@ -267,6 +289,10 @@ def evaluate(run: SLAMRun) -> dict:
     if run.dead_reckoning is not None:
         dr = stitch_segments(run.dead_reckoning, G, starts)
         out["dead_reckoning"] = trajectory_metrics(dr, G)
+    if run.loop_closed is not None:
+        out["slam_loop_closed"] = trajectory_metrics(
+            stitch_segments(run.loop_closed, G, starts), G
+        )
     if len(starts) > 1:
         ends = list(starts[1:]) + [len(run.poses)]
         out["segments"] = [
@@ -296,9 +322,10 @@ _EMPTY_MAP = {
 #: unless they come from an earlier run).
 RUN_FILES = tuple(
     f"{name}_{kind}.txt"
-    for name in ("slam", "dead_reckoning", "ground_truth")
+    for name in ("slam", "slam_loop_closed", "dead_reckoning", "ground_truth")
     for kind in ("poses", "tum")
 ) + (
+    "closures.json",
     "times.txt",
     "map.ply",
     "map.pcd",
@@ -376,6 +403,8 @@ def save_run(
     * ``slam_poses.txt`` / ``slam_tum.txt``: SLAM trajectory in KITTI (12 numbers per line) and TUM formats;
     * ``dead_reckoning_poses.txt`` / ``dead_reckoning_tum.txt``: the IMU-only baseline (not LIDAR-only);
     * ``ground_truth_poses.txt`` / ``ground_truth_tum.txt`` when the frames had ground truth;
+    * ``slam_loop_closed_poses.txt`` / ``slam_loop_closed_tum.txt`` and ``closures.json``: with loop closure,
+      the re-anchored trajectory and the local maps and closures (:func:`run_drive`'s ``loop_closure``);
     * ``times.txt``: seconds since the first processed frame (KITTI odometry ``times.txt``);
     * ``map.ply`` or ``map.pcd`` (open3d): the map's points (voxel means or stored points, including the parts
       pruned on the way, :meth:`ParticleSLAM3D.map_points`), world frame;
@@ -422,6 +451,37 @@ def _quiet_stderr():
         os.close(saved)
 
 
+def _closures_json(run: SLAMRun) -> dict:
+    """The loop closer's local maps (first frame, key pose) and closures (the local maps and frames they join,
+    ``T_query^{-1} T_reference``, place-recognition inliers, ICP fitness and RMSE, whether the graph kept it)."""
+    closer, frames = run.loop_closer, run.frame_indices
+    maps = closer.mapper.maps
+    return {
+        "local_maps": [
+            {
+                "node": m.node,
+                "first_frame": int(frames[m.frames[0]]),
+                "frames": len(m.frames),
+            }
+            for m in maps
+        ],
+        "closures": [
+            {
+                "query": c.query,
+                "reference": c.reference,
+                "query_frame": int(frames[maps[c.query].frames[0]]),
+                "reference_frame": int(frames[maps[c.reference].frames[0]]),
+                "relative": np.round(c.relative, 6).tolist(),
+                "inliers": c.inliers,
+                "fitness": round(c.fitness, 4),
+                "rmse_m": round(c.rmse, 4),
+                "kept": c.kept,
+            }
+            for c in closer.closures
+        ],
+    }
+
+
 def _write_results(
     run: SLAMRun, out, map_format: str, plots: bool, extra: dict | None
 ) -> dict:
@@ -435,6 +495,8 @@ def _write_results(
     out = Path(out)
     files = {}
     trajs = {"slam": run.poses}
+    if run.loop_closed is not None:
+        trajs["slam_loop_closed"] = run.loop_closed
     if run.dead_reckoning is not None:
         trajs["dead_reckoning"] = run.dead_reckoning
     if run.ground_truth is not None:
@@ -446,6 +508,11 @@ def _write_results(
         write_tum(files[f"{name}_tum"], run.timestamps, T)
     files["times"] = out / "times.txt"
     write_times(files["times"], run.timestamps)
+    if run.loop_closer is not None:
+        files["closures"] = out / "closures.json"
+        files["closures"].write_text(
+            json.dumps(_closures_json(run), indent=1), encoding="utf-8"
+        )
 
     if map_format not in MAP_FORMATS:
         raise ValueError(f"map_format must be 'ply' or 'pcd', got {map_format!r}")

@@ -7,9 +7,17 @@ import os
 if os.environ.get("SLAMLIB_REAL_CUDA") != "1":
     os.environ["NUMBA_ENABLE_CUDASIM"] = "1"
 
+import signal  # noqa: E402
+
 import matplotlib  # noqa: E402
 
 matplotlib.use("Agg")
+
+# Several tests stop a command with Ctrl-C (SIGINT) and check what it leaves. A shell without job control starts a
+# background job (`make test &`) with SIGINT ignored, and a subprocess inherits that: restore Python's handler, so
+# that the tests, and the commands they start, see SIGINT as a user's Ctrl-C.
+if signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 import numpy as np  # noqa: E402

@@ -32,6 +32,7 @@ BENCHMARKS = {
     "startup": "benchmarks.startup",
     "stages": "benchmarks.stages",
     "loops2d": "benchmarks.loops2d",
+    "loops": "benchmarks.loops",
 }
 
 

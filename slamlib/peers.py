@@ -1,10 +1,16 @@
-"""Other LIDAR odometry methods run on slamlib's frames, to compare with: KISS-ICP.
+"""Other LIDAR odometry and SLAM methods run on slamlib's frames, to compare with: KISS-ICP and KISS-SLAM.
 
 KISS-ICP (I. Vizzo, T. Guadagnino, B. Mersch, L. Wiesmann, J. Behley, C. Stachniss, "KISS-ICP: In Defense of
 Point-to-Point ICP -- Simple, Accurate, and Robust Registration If Done the Right Way", IEEE RA-L 2023;
 ``pip install kiss-icp``, MIT licence) registers each full scan against a local voxel map with point-to-point ICP,
 an adaptive threshold and a constant-velocity prediction. It is installed with ``pip install -e '.[peers]'``
 (``make setup`` does).
+
+KISS-SLAM (T. Guadagnino, B. Mersch, S. Gupta, I. Vizzo, G. Grisetti, C. Stachniss, "KISS-SLAM: A Simple, Robust,
+and Accurate 3D LiDAR SLAM System With Enhanced Generalization Capabilities", IROS 2025; ``pip install kiss-slam``,
+MIT licence) adds loop closure to KISS-ICP's odometry: local maps every 100 m, MapClosures' place recognition,
+ICP verification by overlap, and a pose graph optimised after each closure and, at the end, frame by frame
+(:func:`kiss_slam_poses` runs it as its own pipeline does).
 
 Frames: KISS-ICP estimates Velodyne poses ``P_k = T_{velo_0 <- velo_k}``; :func:`kiss_icp_poses` returns them as
 body poses ``T_{body_0 <- body_k} = T_velo_imu^{-1} P_k T_velo_imu`` (the identity calibration for LIDAR-only data,
@@ -22,6 +28,9 @@ ground truth's stamps before comparing (:func:`move_along`).
 
 from __future__ import annotations
 
+import contextlib
+import os
+import sys
 import time
 
 import numpy as np
@@ -31,6 +40,7 @@ from slamlib.odometry import imu_increment, increment_matrix, twist_between
 
 __all__ = [
     "kiss_icp_poses",
+    "kiss_slam_poses",
     "kiss_icp_available",
     "move_along",
     "pose_time_fraction",
@@ -130,3 +140,80 @@ def kiss_icp_poses(
             pose = move_along(pose, odometry.last_delta, fraction)
         poses.append(T_imu_velo @ pose @ T_velo_imu)
     return np.asarray(poses).reshape(-1, 4, 4), np.asarray(seconds)
+
+
+@contextlib.contextmanager
+def _quiet_stdout():
+    """The process's stdout (file descriptor 1: Python's prints and the C++ optimiser's alike) sent to
+    ``/dev/null`` for the block."""
+    sys.stdout.flush()
+    saved = os.dup(1)
+    try:
+        with open(os.devnull, "wb") as null:
+            os.dup2(null.fileno(), 1)
+        with contextlib.redirect_stdout(open(os.devnull, "w")) as sink:
+            try:
+                yield
+            finally:
+                sink.close()
+    finally:
+        sys.stdout.flush()
+        os.dup2(saved, 1)
+        os.close(saved)
+
+
+def kiss_slam_poses(
+    frames, T_velo_imu=None, deskew: bool = False
+) -> tuple[np.ndarray, np.ndarray, list]:
+    """Run KISS-SLAM 0.0.2 (its default configuration) over ``frames`` (``.scan`` (N, 4), Velodyne frame), as its
+    own pipeline does: ``process_scan`` per frame, then the last local map closed, dropped, and the frame-by-frame
+    pose graph optimised (``fine_grained_optimization``).
+
+    ``T_velo_imu`` and ``deskew`` as :func:`kiss_icp_poses`'s. Returns ``(poses (F, 4, 4) body, seconds (F,),
+    closures)``: each frame's ``process_scan`` time (the final optimisation spread evenly over the frames, so that
+    ``1 / median`` and the mean both count it) and the closures KISS-SLAM accepted, ``(reference local map, query
+    local map)`` pairs. KISS-SLAM's own prints go nowhere. Raises ``ImportError`` naming the install when it is
+    missing.
+    """
+    try:
+        from kiss_slam.config.config import load_config
+        from kiss_slam.slam import KissSLAM
+    except ImportError:
+        raise ImportError(
+            "KISS-SLAM is not installed: `make setup` installs kiss-slam 0.0.2 (and map-closures 2.2.0) "
+            "without their dependencies, see pyproject.toml's `loops` extra"
+        ) from None
+
+    config = load_config(None)
+    config.odometry.preprocessing.deskew = bool(deskew)
+    if T_velo_imu is None:
+        T_velo_imu = getattr(frames, "T_velo_imu", None)
+    T_velo_imu = (
+        np.eye(4) if T_velo_imu is None else np.asarray(T_velo_imu, dtype=np.float64)
+    )
+    T_imu_velo = np.linalg.inv(T_velo_imu)
+    seconds = []
+    with _quiet_stdout():
+        slam = KissSLAM(config)
+        for frame in frames:
+            points = np.asarray(frame.scan[:, :3], dtype=np.float64)
+            stamps = (
+                0.5 * (1.0 - np.arctan2(points[:, 1], points[:, 0]) / np.pi)
+                if deskew
+                else np.zeros(0)
+            )
+            t0 = time.perf_counter()
+            slam.process_scan(points, stamps)
+            seconds.append(time.perf_counter() - t0)
+        t0 = time.perf_counter()
+        slam.generate_new_node()
+        slam.local_map_graph.erase_last_local_map()
+        poses, _ = slam.fine_grained_optimization()
+        final = time.perf_counter() - t0
+    seconds = np.asarray(seconds) + final / max(1, len(seconds))
+    poses = np.asarray(poses).reshape(-1, 4, 4)
+    return (
+        T_imu_velo @ poses @ T_velo_imu,
+        seconds,
+        [tuple(c) for c in slam.get_closures()],
+    )

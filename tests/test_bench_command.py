@@ -27,6 +27,7 @@ NAMES = (
     "startup",
     "stages",
     "loops2d",
+    "loops",
 )
 
 

@@ -78,3 +78,19 @@ def test_kiss_icp_deskews_to_the_end_of_the_sweep():
     assert (
         np.abs(out[np.argmax(s[keep])] - points[keep][np.argmax(s[keep])]).max() < 1e-12
     )
+
+
+def test_kiss_slam_runs_as_its_pipeline_does_and_keeps_quiet(capfd):
+    """KISS-SLAM on a short drive: one pose per frame in the body frame, a time per frame, no closure on a drive
+    without revisits, and nothing printed (its Python prints and its C++ optimiser's alike)."""
+    from world3d import simulate
+
+    from slamlib.peers import kiss_slam_poses
+
+    frames, truth = simulate()
+    poses, seconds, closures = kiss_slam_poses(frames)
+    assert poses.shape == (len(frames), 4, 4) and seconds.shape == (len(frames),)
+    assert np.all(seconds > 0) and closures == []
+    assert np.allclose(poses[0], np.eye(4), atol=1e-9)
+    out, err = capfd.readouterr()
+    assert out == ""

@@ -32,13 +32,27 @@ SPLITTING_DISTANCE = 50.0
 LOCAL_MAP_VOXEL = 0.5
 
 
+#: Bits per axis of a packed voxel key (:func:`voxel_down_sample`): voxel indexes within +-2^20 of the origin,
+#: +-524 km at 0.5 m.
+_KEY_BITS = 21
+
+
 def voxel_down_sample(points, voxel: float) -> np.ndarray:
-    """The first point of each occupied ``voxel``-metre cube, in the points' order: ``(M, 3)`` float64."""
+    """The first point of each occupied ``voxel``-metre cube, in the points' order: ``(M, 3)`` float64.
+
+    Each point's voxel index ``floor(p / voxel)`` is packed into one int64 (21 bits an axis), so that one sort of
+    integers finds the first point of every voxel.
+    """
     p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     if not len(p):
         return p
-    keys = np.floor(p / voxel).astype(np.int64)
-    _, first = np.unique(keys, axis=0, return_index=True)
+    keys = np.floor(p / voxel).astype(np.int64) + (1 << (_KEY_BITS - 1))
+    if keys.min() < 0 or keys.max() >= 1 << _KEY_BITS:
+        raise ValueError(
+            f"points further than {voxel * (1 << (_KEY_BITS - 1)):.0f} m from the origin"
+        )
+    packed = (keys[:, 0] << (2 * _KEY_BITS)) | (keys[:, 1] << _KEY_BITS) | keys[:, 2]
+    _, first = np.unique(packed, return_index=True)
     return p[np.sort(first)]
 
 

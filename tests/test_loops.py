@@ -235,3 +235,23 @@ def test_the_closer_is_fed_frame_by_frame_as_the_filter_runs(town_drive):
     closer.finish()
     assert any(c is not None for c in found)
     assert len(closer.corrected_poses()) == len(truth)
+
+
+def test_the_trajectory_plot_marks_each_closure(town_drive):
+    """slamlib run's trajectory.png with loop closure: the re-anchored path and one line per closure, solid when
+    the graph kept it, dotted when it did not."""
+    from slamlib.slam3d.plot import plot_trajectories
+
+    truth, drifted, _ = town_drive
+    fig = plot_trajectories(
+        drifted,
+        ground_truth=truth,
+        loop_closed=truth,
+        closures=[(290, 10, True), (200, 20, False)],
+    )
+    ax = fig.axes[0]
+    lines = [ln for ln in ax.lines if ln.get_color() == "tab:purple"]
+    assert [ln.get_linestyle() for ln in lines] == ["-", ":"]
+    assert np.allclose(lines[0].get_xdata(), [truth[290][0, 3], truth[10][0, 3]])
+    labels = [t.get_text() for t in ax.get_legend().get_texts()]
+    assert "particle SLAM + loop closure" in labels and labels.count("loop closure") == 1

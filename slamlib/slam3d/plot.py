@@ -30,7 +30,14 @@ def _subsample(points: np.ndarray, max_points: int, seed: int = 0) -> np.ndarray
 
 
 def plot_trajectories(
-    poses, dead_reckoning=None, ground_truth=None, map_points=None, ax=None, title=None
+    poses,
+    dead_reckoning=None,
+    ground_truth=None,
+    map_points=None,
+    ax=None,
+    title=None,
+    loop_closed=None,
+    closures=(),
 ):
     """Top-down (x, y) plot of the SLAM trajectory, dead reckoning and ground truth, over a faint map.
 
@@ -38,6 +45,9 @@ def plot_trajectories(
     ----------
     poses : (F, 4, 4) SLAM poses; dead_reckoning, ground_truth : (F, 4, 4) or None.
     map_points : (M, 3) or None, drawn as light grey dots (at most 60,000).
+    loop_closed : (F, 4, 4) or None, the poses re-anchored by loop closure (:mod:`slamlib.loops`).
+    closures : ``(query frame, reference frame, kept)`` positions into ``loop_closed``: each drawn as a line
+        between the two (solid when the pose graph kept it, dotted when it did not).
     """
     import matplotlib.pyplot as plt
 
@@ -75,6 +85,26 @@ def plot_trajectories(
         lw=1.3,
         label="particle SLAM",
     )
+    if loop_closed is not None:
+        ax.plot(
+            loop_closed[:, 0, 3],
+            loop_closed[:, 1, 3],
+            "-",
+            color="tab:green",
+            lw=1.3,
+            label="particle SLAM + loop closure",
+        )
+        for n, (q, r, kept) in enumerate(closures):
+            ax.plot(
+                [loop_closed[q, 0, 3], loop_closed[r, 0, 3]],
+                [loop_closed[q, 1, 3], loop_closed[r, 1, 3]],
+                "-" if kept else ":",
+                color="tab:purple",
+                lw=2.5,
+                marker="o",
+                ms=5,
+                label=None if n else "loop closure",
+            )
     ax.plot(poses[0, 0, 3], poses[0, 1, 3], "go", ms=6, label="start")
     ax.set_aspect("equal", adjustable="datalim")
     ax.set_xlabel("x (m, world = first IMU pose)")

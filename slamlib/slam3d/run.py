@@ -413,7 +413,8 @@ def save_run(
       (frames skipped for scoring, with a ``warnings`` entry when there were any; :mod:`slamlib.slam3d.pipeline`)
       and, with ground truth, :func:`evaluate` (ATE, RPE, KITTI metric). Always valid JSON: a non-finite number
       is written ``null`` (:func:`slamlib.metrics.json_safe`);
-    * ``trajectory.png`` (with and without SLAM vs ground truth) and ``map_topdown.png`` (coloured by height).
+    * ``trajectory.png`` (with and without SLAM vs ground truth; with loop closure its trajectory too, each
+      closure a line between the places it joins) and ``map_topdown.png`` (coloured by height).
 
     The results appear whole or not at all (:func:`slamlib.atomic.atomic_folder`): they are written into a
     temporary folder beside ``out_dir`` (``.NAME.PID.partial``) under an exclusive lock (a second writer of the same
@@ -596,7 +597,21 @@ def _write_results(
 
         from slamlib.slam3d.plot import plot_map_topdown, plot_trajectories
 
-        fig = plot_trajectories(run.poses, run.dead_reckoning, run.ground_truth, pts)
+        closures = []
+        if run.loop_closer is not None:
+            maps = run.loop_closer.mapper.maps
+            closures = [
+                (maps[c.query].frames[0], maps[c.reference].frames[0], c.kept)
+                for c in run.loop_closer.closures
+            ]
+        fig = plot_trajectories(
+            run.poses,
+            run.dead_reckoning,
+            run.ground_truth,
+            pts,
+            loop_closed=run.loop_closed,
+            closures=closures,
+        )
         files["trajectory_plot"] = out / "trajectory.png"
         fig.savefig(files["trajectory_plot"], dpi=120, bbox_inches="tight")
         plt.close(fig)

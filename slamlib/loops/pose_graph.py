@@ -115,7 +115,6 @@ class PoseGraph:
 
     poses: dict = field(default_factory=dict)
     edges: list = field(default_factory=list)
-    #: Each closure's verdict after the last :meth:`optimise` (1: kept, 0: rejected), in :attr:`closures` order.
     closure_weights: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     def add_node(self, node: int, pose) -> None:

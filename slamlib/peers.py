@@ -86,6 +86,25 @@ def pose_time_fraction(
     return (-float(scan_time_offset_s) - t_kiss) / sweep_period
 
 
+def _calibration(frames, T_velo_imu):
+    """``(T_velo_imu, its inverse)``: the one given, else the frames' ``T_velo_imu``, else the identity."""
+    if T_velo_imu is None:
+        T_velo_imu = getattr(frames, "T_velo_imu", None)
+    T_velo_imu = (
+        np.eye(4) if T_velo_imu is None else np.asarray(T_velo_imu, dtype=np.float64)
+    )
+    return T_velo_imu, np.linalg.inv(T_velo_imu)
+
+
+def _points_and_stamps(frame, deskew: bool):
+    """A frame's ``(N, 3)`` float64 Velodyne points and, when de-skewing, each point's normalised sweep time by
+    KISS-ICP's rule for KITTI, ``s = 0.5 (1 - atan2(y, x) / pi)`` (else an empty array)."""
+    points = np.asarray(frame.scan[:, :3], dtype=np.float64)
+    if not deskew:
+        return points, np.zeros(0)
+    return points, 0.5 * (1.0 - np.arctan2(points[:, 1], points[:, 0]) / np.pi)
+
+
 def kiss_icp_poses(
     frames,
     T_velo_imu=None,
@@ -115,20 +134,10 @@ def kiss_icp_poses(
     config = load_config(None)
     config.data.deskew = bool(deskew)
     odometry = KissICP(config)
-    if T_velo_imu is None:
-        T_velo_imu = getattr(frames, "T_velo_imu", None)
-    T_velo_imu = (
-        np.eye(4) if T_velo_imu is None else np.asarray(T_velo_imu, dtype=np.float64)
-    )
-    T_imu_velo = np.linalg.inv(T_velo_imu)
+    T_velo_imu, T_imu_velo = _calibration(frames, T_velo_imu)
     poses, seconds = [], []
     for frame in frames:
-        points = np.asarray(frame.scan[:, :3], dtype=np.float64)
-        stamps = (
-            0.5 * (1.0 - np.arctan2(points[:, 1], points[:, 0]) / np.pi)
-            if deskew
-            else np.zeros(0)
-        )
+        points, stamps = _points_and_stamps(frame, deskew)
         t0 = time.perf_counter()
         odometry.register_frame(points, stamps)
         seconds.append(time.perf_counter() - t0)
@@ -186,22 +195,12 @@ def kiss_slam_poses(
 
     config = load_config(None)
     config.odometry.preprocessing.deskew = bool(deskew)
-    if T_velo_imu is None:
-        T_velo_imu = getattr(frames, "T_velo_imu", None)
-    T_velo_imu = (
-        np.eye(4) if T_velo_imu is None else np.asarray(T_velo_imu, dtype=np.float64)
-    )
-    T_imu_velo = np.linalg.inv(T_velo_imu)
+    T_velo_imu, T_imu_velo = _calibration(frames, T_velo_imu)
     seconds = []
     with _quiet_stdout():
         slam = KissSLAM(config)
         for frame in frames:
-            points = np.asarray(frame.scan[:, :3], dtype=np.float64)
-            stamps = (
-                0.5 * (1.0 - np.arctan2(points[:, 1], points[:, 0]) / np.pi)
-                if deskew
-                else np.zeros(0)
-            )
+            points, stamps = _points_and_stamps(frame, deskew)
             t0 = time.perf_counter()
             slam.process_scan(points, stamps)
             seconds.append(time.perf_counter() - t0)

@@ -77,23 +77,12 @@ def plot_trajectories(
             lw=1.3,
             label="dead reckoning (IMU only)",
         )
-    ax.plot(
-        poses[:, 0, 3],
-        poses[:, 1, 3],
-        "-",
-        color="tab:blue",
-        lw=1.3,
-        label="particle SLAM",
-    )
+    paths = [(poses, "tab:blue", "particle SLAM")]
     if loop_closed is not None:
-        ax.plot(
-            loop_closed[:, 0, 3],
-            loop_closed[:, 1, 3],
-            "-",
-            color="tab:green",
-            lw=1.3,
-            label="particle SLAM + loop closure",
-        )
+        paths.append((loop_closed, "tab:green", "particle SLAM + loop closure"))
+    for T, color, label in paths:
+        ax.plot(T[:, 0, 3], T[:, 1, 3], "-", color=color, lw=1.3, label=label)
+    if loop_closed is not None:
         for n, (q, r, kept) in enumerate(closures):
             ax.plot(
                 [loop_closed[q, 0, 3], loop_closed[r, 0, 3]],

@@ -30,7 +30,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from slamlib.sim2d.steps import MAP_KINDS, OccupancyGrid2D, _bumps, bilinear_taps
+from slamlib.sim2d.steps import (
+    MAP_KINDS,
+    OccupancyGrid2D,
+    _bumps,
+    bilinear_taps,
+    grid_cells,
+)
 
 __all__ = ["DEFAULT_TILE", "EMPTY_TILE", "ParticleMaps2D"]
 
@@ -83,11 +89,12 @@ class ParticleMaps2D:
         self._free = np.zeros(0, np.int64)
         # the template's non-empty tiles, shared by every particle from the start
         table = np.full(self.tiles_shape, EMPTY_TILE, np.int32)
-        counts, fld = self._padded(template.counts), self._padded(template.field)
-        for tr, tc in np.argwhere(self._blocks(counts).any(axis=(2, 3))):
+        counts = self._blocks(self._padded(template.counts))
+        fld = self._blocks(self._padded(template.field))
+        for tr, tc in np.argwhere(counts.any(axis=(2, 3))):
             (j,) = self._allocate(1)
-            self.counts_pool[j] = self._blocks(counts)[tr, tc]
-            self.field_pool[j] = self._blocks(fld)[tr, tc]
+            self.counts_pool[j] = counts[tr, tc]
+            self.field_pool[j] = fld[tr, tc]
             table[tr, tc] = j
         self.tables = np.repeat(table[None], int(n_particles), axis=0)
         self.totals = np.full(int(n_particles), template.total, np.int64)
@@ -214,14 +221,9 @@ class ParticleMaps2D:
         ``log(F + eps)`` with ``F`` bilinear between cell centres for ``"likelihood"``. Returns ``(P, N)``.
         """
         p, who = self._particle_axis(world_points)
-        h, w = self.shape
         if self.kind == "density":
-            c = np.floor((p[..., 0] - self.origin[0]) / self.resolution).astype(np.int64)
-            r = np.floor((p[..., 1] - self.origin[1]) / self.resolution).astype(np.int64)
-            inside = (r >= 0) & (r < h) & (c >= 0) & (c < w)
-            n = self._read(
-                self.counts_pool, who, np.where(inside, r, 0), np.where(inside, c, 0)
-            )
+            r, c, inside = grid_cells(self.origin, self.resolution, self.shape, p)
+            n = self._read(self.counts_pool, who, r, c)
             return np.where(inside, np.minimum(n, self.n_sat) / self.n_sat, 0.0)
         f = np.zeros(p.shape[:-1])
         for r, c, wt in bilinear_taps(self.origin, self.resolution, self.shape, p):
@@ -272,11 +274,8 @@ class ParticleMaps2D:
         rows, cols, vals, ok = _bumps(
             self.origin, self.resolution, self.sigma, self.shape, flat, 1.0
         )
-        # the points' own cells (bump centre) and every bump cell need a writable tile
-        h, w = self.shape
-        c0 = np.floor((flat[:, 0] - self.origin[0]) / self.resolution).astype(np.int64)
-        r0 = np.floor((flat[:, 1] - self.origin[1]) / self.resolution).astype(np.int64)
-        inside = (r0 >= 0) & (r0 < h) & (c0 >= 0) & (c0 < w)
+        r0, c0, inside = grid_cells(self.origin, self.resolution, self.shape, flat)
+        # every bump cell (the point's own cell among them) needs a writable tile
         bump_owner = np.broadcast_to(owner[:, None], rows.shape)[ok]
         br, bc = rows[ok], cols[ok]
         n_tiles = self.tiles_shape[0] * self.tiles_shape[1]

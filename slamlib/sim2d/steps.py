@@ -60,6 +60,9 @@ __all__ = [
     "DEFAULT_RESOLUTION",
     "MAP_KINDS",
     "OccupancyGrid2D",
+    "bilinear_taps",
+    "field_bumps",
+    "grid_cells",
     "initialise_particles",
     "merge_scan",
     "offset_by_motion",
@@ -82,7 +85,19 @@ DEFAULT_MAP_KIND = "likelihood"
 DEFAULT_RESOLUTION = 0.05
 
 
-# --------------------------------------------------------------------- field math shared by every 2D map
+# --------------------------------------------------------------------- grid math shared by every 2D map
+def grid_cells(origin, resolution: float, shape, world_points):
+    """``(row, col, inside)`` int64 cell indexes of world points ``(..., 2)`` in a grid of ``shape (H, W)`` whose
+    cell ``(0, 0)`` has its lower-left corner at ``origin``, ``row = floor((y - origin_y) / res)``,
+    ``col = floor((x - origin_x) / res)``, and whether they lie in it (indexes outside clamped to 0)."""
+    p = np.asarray(world_points, dtype=np.float64)
+    c = np.floor((p[..., 0] - origin[0]) / resolution).astype(np.int64)
+    r = np.floor((p[..., 1] - origin[1]) / resolution).astype(np.int64)
+    h, w = shape
+    inside = (r >= 0) & (r < h) & (c >= 0) & (c < w)
+    return np.where(inside, r, 0), np.where(inside, c, 0), inside
+
+
 def field_bumps(
     origin, resolution: float, sigma: float, shape, world_points, heights=1.0
 ):
@@ -253,12 +268,7 @@ class OccupancyGrid2D:
 
     def cells_of(self, world_points) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(row, col, inside)`` int64 cell indexes of world points ``(..., 2)`` and whether they lie in the grid."""
-        p = np.asarray(world_points, dtype=np.float64)
-        c = np.floor((p[..., 0] - self.origin[0]) / self.resolution).astype(np.int64)
-        r = np.floor((p[..., 1] - self.origin[1]) / self.resolution).astype(np.int64)
-        h, w = self.counts.shape
-        inside = (r >= 0) & (r < h) & (c >= 0) & (c < w)
-        return np.where(inside, r, 0), np.where(inside, c, 0), inside
+        return grid_cells(self.origin, self.resolution, self.counts.shape, world_points)
 
     def _raise_field(self, world_points: np.ndarray, heights=1.0) -> None:
         """``F <- max(F, bump)`` with the bumps of :func:`field_bumps` (the field of the exact points, not of

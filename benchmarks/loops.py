@@ -33,10 +33,9 @@ def _closure_rows(run, gt) -> list:
     """Each slamlib closure: local maps, frames, kept, and its relative pose's error against the truth."""
     from slamlib.geometry import invert_pose
 
-    maps = run.loop_closer.mapper.maps
     rows = []
     for c in run.loop_closer.closures:
-        q, r = maps[c.query].frames[0], maps[c.reference].frames[0]
+        q, r = c.query_frame, c.reference_frame
         err = invert_pose(invert_pose(gt[q]) @ gt[r]) @ c.relative
         angle = np.degrees(np.arccos(np.clip((np.trace(err[:3, :3]) - 1) / 2, -1, 1)))
         rows.append(

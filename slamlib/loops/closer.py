@@ -23,7 +23,7 @@ After each optimisation every frame is **re-anchored** on its local map's optimi
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -59,12 +59,16 @@ MIN_FITNESS = 0.4
 
 @dataclass(frozen=True)
 class Closure:
-    """A verified candidate: local map ``query`` (the newer) saw ``reference``; ``relative`` (4x4) is
-    ``T_query^{-1} T_reference`` from ICP; ``inliers`` from place recognition, ``fitness`` and ``rmse`` (m)
-    from ICP; ``kept``: whether the pose graph kept it (set by :class:`LoopCloser` after optimising)."""
+    """A verified candidate: local map ``query`` (the newer) saw ``reference``; ``query_frame`` and
+    ``reference_frame`` are their key poses' frames (the positions :meth:`LoopCloser.add_frame` was given);
+    ``relative`` (4x4) is ``T_query^{-1} T_reference`` from ICP; ``inliers`` from place recognition, ``fitness``
+    and ``rmse`` (m) from ICP; ``kept``: whether the pose graph kept it (:attr:`LoopCloser.closures` reads it
+    from the graph)."""
 
     query: int
     reference: int
+    query_frame: int
+    reference_frame: int
     relative: np.ndarray
     inliers: int
     fitness: float
@@ -100,7 +104,7 @@ def verify_closure(reference_points, query_points, guess, distance: float = ICP_
 
 class LoopCloser:
     """The back end; see the module. Attributes: ``mapper`` (:class:`LocalMapper`), ``graph``
-    (:class:`PoseGraph`, node ``i`` = local map ``i``), ``closures`` (verified :class:`Closure` s, in order)."""
+    (:class:`PoseGraph`, node ``i`` = local map ``i``); :attr:`closures` the verified ones."""
 
     def __init__(
         self,
@@ -112,13 +116,23 @@ class LoopCloser:
     ):
         self.mapper = LocalMapper(splitting_distance, voxel)
         self.graph = PoseGraph()
-        self.closures: list[Closure] = []
+        self._verified: list[Closure] = []
         self.min_inliers, self.min_fitness, self.min_node_gap = (
             min_inliers,
             min_fitness,
             min_node_gap,
         )
         self._detector = None
+
+    @property
+    def closures(self) -> list[Closure]:
+        """The verified closures in the order found, each ``kept`` as the pose graph decided (the graph holds
+        one closure edge per verified closure, in the same order)."""
+        kept = self.graph.closure_kept
+        return [
+            replace(c, kept=bool(k < len(kept) and kept[k]))
+            for k, c in enumerate(self._verified)
+        ]
 
     def _detect(self, local_map: LocalMap):
         if self._detector is None:
@@ -145,7 +159,6 @@ class LoopCloser:
         done = self.mapper.finish()
         closure = self._node(done) if done is not None else None
         self.graph.optimise()
-        self._mark_kept()
         return closure
 
     def _node(self, m: LocalMap) -> Closure | None:
@@ -168,20 +181,21 @@ class LoopCloser:
         )
         if fitness < self.min_fitness:
             return None
-        closure = Closure(
-            m.node, reference, T, int(candidate.number_of_inliers), fitness, rmse
+        self._verified.append(
+            Closure(
+                m.node,
+                reference,
+                m.frames[0],
+                self.mapper.maps[reference].frames[0],
+                T,
+                int(candidate.number_of_inliers),
+                fitness,
+                rmse,
+            )
         )
-        self.closures.append(closure)
         self.graph.add_closure(m.node, reference, T)
         self.graph.optimise()
-        self._mark_kept()
         return self.closures[-1]
-
-    def _mark_kept(self) -> None:
-        self.closures = [
-            Closure(**{**c.__dict__, "kept": bool(w > 0.5)})
-            for c, w in zip(self.closures, self.graph.closure_weights)
-        ]
 
     def corrected_poses(self) -> np.ndarray:
         """``(K, 4, 4)`` every frame so far re-anchored on its local map's optimised key pose."""

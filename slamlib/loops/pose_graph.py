@@ -110,12 +110,13 @@ class PoseGraph:
     ----------
     poses : dict id -> (4, 4) float64, the current estimate of each node (changed by :meth:`optimise`).
     edges : list of :class:`Edge`.
-    closure_weights : (C,) each closure's verdict after the last :meth:`optimise` (1 kept, 0 rejected).
+    closure_kept : (C,) bool, each closure decided so far: whether :meth:`optimise` kept it (in :attr:`closures`
+        order).
     """
 
     poses: dict = field(default_factory=dict)
     edges: list = field(default_factory=list)
-    closure_weights: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    closure_kept: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
 
     def add_node(self, node: int, pose) -> None:
         """A node ``node`` at ``pose`` (4x4): its initial estimate."""
@@ -156,7 +157,9 @@ class PoseGraph:
         """The closure edges."""
         return [e for e in self.edges if e.closure]
 
-    def _factors(self, gtsam, edges, robust: bool = False):
+    def _factors(self, gtsam, edges, huber: float | None = None):
+        """The prior on the first node and ``edges`` as GTSAM factors; closures under a Huber loss with its corner
+        at ``huber`` whitened units when given."""
         graph = gtsam.NonlinearFactorGraph()
         first = min(self.poses)
         graph.add(
@@ -168,16 +171,16 @@ class PoseGraph:
         )
         for e in edges:
             noise = gtsam.noiseModel.Diagonal.Sigmas(e.sigmas)
-            if robust and e.closure:
+            if huber is not None and e.closure:
                 noise = gtsam.noiseModel.Robust.Create(
-                    gtsam.noiseModel.mEstimator.Huber.Create(np.sqrt(chi2_gate())), noise
+                    gtsam.noiseModel.mEstimator.Huber.Create(huber), noise
                 )
             graph.add(gtsam.BetweenFactorPose3(e.i, e.j, gtsam.Pose3(e.relative), noise))
         return graph
 
-    def _values(self, gtsam, poses=None):
+    def _values(self, gtsam):
         values = gtsam.Values()
-        for node, pose in (poses or self.poses).items():
+        for node, pose in self.poses.items():
             values.insert(node, gtsam.Pose3(pose))
         return values
 
@@ -200,21 +203,23 @@ class PoseGraph:
         lm = gtsam.LevenbergMarquardtParams()
         lm.setMaxIterations(int(max_iterations))
         gate = chi2_gate()
-        while len(self.closure_weights) < len(self.closures):
-            new = self.closures[len(self.closure_weights)]
+        while len(self.closure_kept) < len(self.closures):
+            new = self.closures[len(self.closure_kept)]
             graph = self._factors(gtsam, self._kept_edges() + [new])
             trial = gtsam.LevenbergMarquardtOptimizer(
                 graph, self._values(gtsam), lm
             ).optimize()
             worst = max(2 * graph.at(k).error(trial) for k in range(1, graph.size()))
-            self.closure_weights = np.append(self.closure_weights, float(worst <= gate))
+            self.closure_kept = np.append(self.closure_kept, worst <= gate)
         result = gtsam.LevenbergMarquardtOptimizer(
-            self._factors(gtsam, self._kept_edges(), robust=True), self._values(gtsam), lm
+            self._factors(gtsam, self._kept_edges(), huber=np.sqrt(gate)),
+            self._values(gtsam),
+            lm,
         ).optimize()
         self.poses = {node: result.atPose3(node).matrix() for node in self.poses}
         return self.poses
 
     def _kept_edges(self) -> list:
         """The odometry edges and the closures decided and kept."""
-        kept = [c for c, w in zip(self.closures, self.closure_weights) if w > 0.5]
+        kept = [c for c, k in zip(self.closures, self.closure_kept) if k]
         return [e for e in self.edges if not e.closure] + kept

@@ -456,7 +456,6 @@ def _closures_json(run: SLAMRun) -> dict:
     """The loop closer's local maps (first frame, key pose) and closures (the local maps and frames they join,
     ``T_query^{-1} T_reference``, place-recognition inliers, ICP fitness and RMSE, whether the graph kept it)."""
     closer, frames = run.loop_closer, run.frame_indices
-    maps = closer.mapper.maps
     return {
         "local_maps": [
             {
@@ -464,14 +463,14 @@ def _closures_json(run: SLAMRun) -> dict:
                 "first_frame": int(frames[m.frames[0]]),
                 "frames": len(m.frames),
             }
-            for m in maps
+            for m in closer.mapper.maps
         ],
         "closures": [
             {
                 "query": c.query,
                 "reference": c.reference,
-                "query_frame": int(frames[maps[c.query].frames[0]]),
-                "reference_frame": int(frames[maps[c.reference].frames[0]]),
+                "query_frame": int(frames[c.query_frame]),
+                "reference_frame": int(frames[c.reference_frame]),
                 "relative": np.round(c.relative, 6).tolist(),
                 "inliers": c.inliers,
                 "fitness": round(c.fitness, 4),
@@ -599,9 +598,8 @@ def _write_results(
 
         closures = []
         if run.loop_closer is not None:
-            maps = run.loop_closer.mapper.maps
             closures = [
-                (maps[c.query].frames[0], maps[c.reference].frames[0], c.kept)
+                (c.query_frame, c.reference_frame, c.kept)
                 for c in run.loop_closer.closures
             ]
         fig = plot_trajectories(

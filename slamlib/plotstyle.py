@@ -3,7 +3,10 @@ and animations as self-contained HTML (:func:`animation_html`).
 
 The book's text column is about 690 px wide. Figures are at most :data:`MAX_FIGURE_WIDTH_IN` inches wide at
 ``figure.dpi = 100``, so they are shown at (nearly) their own size, and the fonts below stay at 10 pt or more on
-the page. Matplotlib warns when placing a legend with ``loc="best"`` takes over a second; that depends only on the
+the page. In a notebook they are drawn at :data:`BOOK_PIXEL_DENSITY` times that many pixels (IPython's "retina"
+PNGs, whose output metadata keeps the displayed size), so that they stay sharp on high-density screens.
+
+Matplotlib warns when placing a legend with ``loc="best"`` takes over a second; that depends only on the
 machine's load (a busy CI runner), so the warning is silenced here: otherwise it lands in a cell's stderr and
 fails the ``-W`` book build at random.
 """
@@ -15,10 +18,14 @@ import warnings
 
 __all__ = [
     "BOOK_DPI",
+    "BOOK_INLINE_FORMAT",
+    "BOOK_PIXEL_DENSITY",
     "BOOK_RCPARAMS",
     "MAX_FIGURE_WIDTH_IN",
     "animation_html",
     "book_style",
+    "data_under_legend",
+    "legend_below",
 ]
 
 #: Widest figure (inches at 100 dpi) that the book's ~690 px column shows without shrinking the fonts below 10 pt.
@@ -26,6 +33,14 @@ MAX_FIGURE_WIDTH_IN = 7.0
 
 #: Pixels per inch of the book's figures and animation frames: 1 pt of font is BOOK_DPI / 72 px on the page.
 BOOK_DPI = 100
+
+#: Image pixels per displayed (CSS) pixel of the book's figures: IPython's ``retina`` format
+#: (:data:`BOOK_INLINE_FORMAT`) draws each PNG at twice ``figure.dpi`` and records the 1x size in the output's
+#: metadata, which the page's ``<img>`` keeps.
+BOOK_PIXEL_DENSITY = 2
+
+#: The inline figure format of :func:`book_style`, the one that draws at :data:`BOOK_PIXEL_DENSITY`.
+BOOK_INLINE_FORMAT = "retina"
 
 #: Matplotlib settings of the book's figures (points; 11 pt text, 10.5 pt ticks and legends).
 BOOK_RCPARAMS = {
@@ -41,15 +56,103 @@ BOOK_RCPARAMS = {
 
 
 def book_style() -> None:
-    """Apply :data:`BOOK_RCPARAMS` and silence matplotlib's load-dependent legend-placement warning."""
+    """Apply :data:`BOOK_RCPARAMS`, draw inline figures at :data:`BOOK_PIXEL_DENSITY` (in IPython), and
+    silence matplotlib's load-dependent legend-placement warning."""
     import matplotlib.pyplot as plt
 
     plt.rcParams.update(BOOK_RCPARAMS)
+    _inline_format(BOOK_INLINE_FORMAT)
     warnings.filterwarnings(
         "ignore",
         message='Creating legend with loc="best" can be slow',
         category=UserWarning,
     )
+
+
+def _inline_format(fmt: str) -> None:
+    """Inline figures in format ``fmt`` in an IPython kernel; nothing elsewhere (a script, a test)."""
+    try:
+        from IPython import get_ipython
+    except (
+        ImportError
+    ):  # pragma: no cover - IPython is a dependency of the book, not of slamlib
+        return
+    if get_ipython() is None:
+        return
+    from matplotlib_inline.backend_inline import set_matplotlib_formats
+
+    set_matplotlib_formats(fmt)
+
+
+#: Points between an axes' x label (or tick labels) and a legend that :func:`legend_below` puts under them.
+LEGEND_GAP_PT = 4.0
+
+
+def legend_below(ax, ncols: int | None = None, **kwargs):
+    """Draw ``ax``'s legend under the axes, below its tick labels and x label: off the data, wherever it lies.
+
+    The legend hangs from the axes' bottom edge by the height of what is drawn under it, in points, so it stays
+    clear when ``tight_layout`` or ``constrained`` layout resizes the axes afterwards (both make room for it).
+    ``ncols`` defaults to all entries on one row, up to 3; ``kwargs`` go to :meth:`~matplotlib.axes.Axes.legend`.
+    """
+    from matplotlib.transforms import offset_copy
+
+    fig = ax.figure
+    fig.canvas.draw()  # the tick labels' and x label's extents exist only once drawn
+    below = ax.get_tightbbox(fig.canvas.get_renderer())
+    legend = ax.get_legend()
+    if legend is not None:
+        legend.remove()
+        below = ax.get_tightbbox(fig.canvas.get_renderer())
+    drop_pt = (ax.bbox.y0 - below.y0) * 72.0 / fig.dpi + LEGEND_GAP_PT
+    _, labels = ax.get_legend_handles_labels()
+    hang = offset_copy(ax.transAxes, fig=fig, y=-drop_pt, units="points")
+    options = {"frameon": False, "ncols": ncols or min(len(labels), 3)} | kwargs
+    return ax.legend(
+        loc="upper center", bbox_to_anchor=(0.5, 0.0), bbox_transform=hang, **options
+    )
+
+
+def data_under_legend(ax) -> int:
+    """How many of ``ax``'s data vertices (line points, scatter offsets, bar and patch corners) the legend's box
+    covers on the drawn figure: 0 means the legend hides no data. 0 when ``ax`` has no legend."""
+    import numpy as np
+    from matplotlib.collections import Collection
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
+    from matplotlib.spines import Spine
+
+    legend = ax.get_legend()
+    if legend is None:
+        return 0
+    fig = ax.figure
+    fig.canvas.draw()
+    box = legend.get_window_extent(fig.canvas.get_renderer())
+    points = []
+    for artist in ax.get_children():
+        if artist is legend or isinstance(artist, Spine) or not artist.get_visible():
+            continue
+        if isinstance(artist, Line2D):
+            xy = np.asarray(artist.get_xydata(), dtype=float)
+            points.append(artist.get_transform().transform(xy))
+        elif isinstance(artist, Collection) and len(artist.get_offsets()):
+            points.append(artist.get_offset_transform().transform(artist.get_offsets()))
+        elif isinstance(artist, Patch) and artist is not ax.patch:
+            corners = artist.get_window_extent().get_points()
+            points.append(
+                np.array([corners[0], corners[1], [corners[0, 0], corners[1, 1]]])
+            )
+    if not points:
+        return 0
+    xy = np.concatenate(points)
+    xy = xy[np.isfinite(xy).all(axis=1)]
+    inside = (
+        (xy[:, 0] > box.x0)
+        & (xy[:, 0] < box.x1)
+        & (xy[:, 1] > box.y0)
+        & (xy[:, 1] < box.y1)
+    )
+    return int(inside.sum())
 
 
 #: The stylesheet link matplotlib's ``to_jshtml`` adds for its player icons (Font Awesome 4.4 from a CDN). The

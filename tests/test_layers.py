@@ -39,6 +39,7 @@ LAYERS = {
     "data": 1,
     "plotstyle": 1,
     "machine": 1,
+    "results": 1,
     "__init__": 6,
     "__main__": 6,
 }

@@ -6,8 +6,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from slamlib.experiments.render import offscreen_available, render_map_3d
+from slamlib.experiments.render import (
+    offscreen_available,
+    render_map_3d,
+    scale_bar_length,
+)
 from slamlib.experiments.video import (
+    PLAYER_CONTROLS_PX,
     check_video_path,
     snapshot_every_for,
     write_map_video,
@@ -81,6 +86,10 @@ def test_video_frames_show_the_map_growing(tiny_run):
         and frames[0].dtype == np.uint8
     )
     assert not np.array_equal(frames[0], frames[-1])
+    controls = frames[0][-PLAYER_CONTROLS_PX:]
+    assert np.all(
+        controls == 255
+    )  # nothing under a browser's video controls: the x label is above them
 
 
 def test_video_rejects_unknown_extension_and_runs_without_snapshots(tiny_run, tmp_path):
@@ -189,6 +198,17 @@ def test_render_map_3d_returns_an_image_of_the_requested_size(tiny_run, engine):
     assert 0.02 < 1 - background.mean() < 0.98  # something was drawn, not everything
     no_path = render_map_3d(pts, None, size=(200, 120), engine=engine)
     assert np.any(np.any(img != no_path, axis=2))  # the trajectory is drawn
+    assert np.any(
+        np.all(img < 40, axis=2)
+    )  # the black scale bar (the height colours are never black)
+
+
+def test_the_scale_bar_is_a_round_length_of_at_most_a_quarter_of_the_map():
+    span = lambda metres: np.c_[np.linspace(0, metres, 5), np.zeros(5), np.zeros(5)]  # noqa: E731
+    assert scale_bar_length(span(692.0)) == 100.0
+    assert scale_bar_length(span(199.0)) == 20.0
+    assert scale_bar_length(span(200.0)) == 50.0
+    assert scale_bar_length(span(1.0)) == 1.0  # the shortest, however small the map
 
 
 def test_render_map_3d_rejects_bad_input():

@@ -1,12 +1,19 @@
-"""The book's figure helpers: animations that play offline, the style applied."""
+"""The book's figure helpers: animations that play offline, the style applied, legends off the data."""
 
 import warnings
 
 import matplotlib
 import matplotlib.pyplot as plt
+import numpy as np
 from matplotlib.animation import FuncAnimation
 
-from slamlib.plotstyle import BOOK_RCPARAMS, animation_html, book_style
+from slamlib.plotstyle import (
+    BOOK_RCPARAMS,
+    animation_html,
+    book_style,
+    data_under_legend,
+    legend_below,
+)
 
 
 def test_animation_html_has_every_frame_and_no_off_machine_request():
@@ -34,3 +41,32 @@ def test_book_style_sets_the_fonts_and_silences_only_the_legend_timing_warning()
         )
         warnings.warn("something else", UserWarning, stacklevel=1)
     assert [str(w.message) for w in seen] == ["something else"]
+
+
+def test_legend_below_moves_a_legend_off_the_data_and_clear_of_the_x_label():
+    fig, ax = plt.subplots(figsize=(5, 3))
+    x = np.linspace(0, 1, 400)
+    ax.plot(x, np.sin(40 * x), label="fills the axes")
+    ax.plot(x, np.cos(40 * x), label="also")
+    ax.set_xlabel("t (s)")
+    ax.legend(loc="center")
+    assert data_under_legend(ax) > 0  # a legend inside covers data
+    legend = legend_below(ax)
+    fig.tight_layout()
+    assert data_under_legend(ax) == 0
+    fig.canvas.draw()
+    renderer = fig.canvas.get_renderer()
+    box = legend.get_window_extent(renderer)
+    label = ax.xaxis.label.get_window_extent(renderer)
+    assert box.y1 <= label.y0  # under the x label, not on it
+    assert (
+        ax.get_legend() is legend and len(legend.get_texts()) == 2
+    )  # one legend, both entries
+    plt.close(fig)
+
+
+def test_data_under_legend_is_zero_without_a_legend():
+    fig, ax = plt.subplots()
+    ax.plot([0, 1], [0, 1])
+    assert data_under_legend(ax) == 0
+    plt.close(fig)

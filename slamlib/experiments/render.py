@@ -15,9 +15,49 @@ import sys
 
 import numpy as np
 
-from slamlib.slam3d.plot import _subsample
+from slamlib.slam3d.plot import SCALE_BAR_RGB, TRAJECTORY_RGB, _subsample
 
-__all__ = ["render_map_3d", "offscreen_available", "height_colours", "default_camera"]
+__all__ = [
+    "render_map_3d",
+    "offscreen_available",
+    "height_colours",
+    "default_camera",
+    "scale_bar_length",
+]
+
+#: Metres the trajectory is drawn above the poses: clear of the points around the road (cars, hedges, the
+#: road itself under an oblique view), which would otherwise hide it.
+TRAJECTORY_LIFT_M = 2.0
+#: Width (pixels) of the trajectory's line and of the scale bar in the open3d render.
+TRAJECTORY_WIDTH_PX, SCALE_BAR_WIDTH_PX = 6.0, 5.0
+#: Round lengths (m) a scale bar may have; :func:`scale_bar_length` picks the longest up to a quarter of the map.
+SCALE_BAR_LENGTHS_M = (1, 2, 5, 10, 20, 50, 100, 200, 500, 1000)
+
+
+def scale_bar_length(points: np.ndarray) -> float:
+    """The length (m) of the scale bar :func:`render_map_3d` draws: the longest of :data:`SCALE_BAR_LENGTHS_M`
+    no longer than a quarter of the map's extent along x."""
+    span = float(np.ptp(np.asarray(points)[:, 0])) if len(points) else 0.0
+    fitting = [length for length in SCALE_BAR_LENGTHS_M if length <= span / 4]
+    return float(fitting[-1] if fitting else SCALE_BAR_LENGTHS_M[0])
+
+
+def _scale_bar(points: np.ndarray) -> np.ndarray:
+    """The scale bar's polyline (4, 3): a segment of :func:`scale_bar_length` along world x on the ground, near the
+    map's (min x, min y) corner, with an upright tick of a tenth of its length at each end."""
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    length = scale_bar_length(points)
+    x0, y0 = lo[:2] + 0.05 * (hi[:2] - lo[:2])
+    z0 = float(np.percentile(points[:, 2], 2))
+    tick = length / 10
+    return np.array(
+        [
+            [x0, y0, z0 + tick],
+            [x0, y0, z0],
+            [x0 + length, y0, z0],
+            [x0 + length, y0, z0 + tick],
+        ]
+    )
 
 
 def height_colours(
@@ -123,8 +163,9 @@ def render_map_3d(
     fov_deg: float = 40.0,
     background=(1.0, 1.0, 1.0),
 ) -> np.ndarray:
-    """Render the map ``points`` (M, 3) coloured by height and the trajectory ``poses`` (F, 4, 4) (red line) to
-    an RGB image ``(H, W, 3)`` uint8, ``size = (W, H)`` pixels.
+    """Render the map ``points`` (M, 3) coloured by height, the trajectory ``poses`` (F, 4, 4) (a red line
+    :data:`TRAJECTORY_LIFT_M` above the poses) and a black scale bar of :func:`scale_bar_length` metres along the
+    world x axis (upright ticks at its ends) to an RGB image ``(H, W, 3)`` uint8, ``size = (W, H)`` pixels.
 
     ``engine``: ``"open3d"`` (offscreen, perspective camera with ``fov_deg`` vertical field of view placed by
     :func:`default_camera`), ``"matplotlib"`` (3D scatter, same viewing angles) or ``"auto"`` (open3d when
@@ -143,19 +184,35 @@ def render_map_3d(
     if engine == "auto":
         engine = "open3d" if offscreen_available() else "matplotlib"
     colours, _ = height_colours(pts[:, 2], zlim)
-    traj = None if poses is None else np.asarray(poses)[:, :3, 3]
+    traj = (
+        None
+        if poses is None
+        else np.asarray(poses)[:, :3, 3] + [0.0, 0.0, TRAJECTORY_LIFT_M]
+    )
+    bar = _scale_bar(pts)
     eye, centre = default_camera(pts, elevation_deg, azimuth_deg, distance)
     if engine == "open3d":
         return _render_open3d(
-            pts, colours, traj, w, h, eye, centre, point_size, fov_deg, background
+            pts, colours, traj, bar, w, h, eye, centre, point_size, fov_deg, background
         )
     return _render_matplotlib(
-        pts, colours, traj, w, h, point_size, elevation_deg, azimuth_deg, background
+        pts, colours, traj, bar, w, h, point_size, elevation_deg, azimuth_deg, background
     )
 
 
+def _polyline(o3d, vertices: np.ndarray, rgb):
+    lines = o3d.geometry.LineSet(
+        o3d.utility.Vector3dVector(vertices),
+        o3d.utility.Vector2iVector(
+            np.c_[np.arange(len(vertices) - 1), np.arange(1, len(vertices))]
+        ),
+    )
+    lines.paint_uniform_color(list(rgb))
+    return lines
+
+
 def _render_open3d(
-    pts, colours, traj, w, h, eye, centre, point_size, fov_deg, background
+    pts, colours, traj, bar, w, h, eye, centre, point_size, fov_deg, background
 ):
     o3d = _open3d()
     rendering = o3d.visualization.rendering
@@ -171,19 +228,14 @@ def _render_open3d(
         mat.shader = "defaultUnlit"
         mat.point_size = float(point_size)
         r.scene.add_geometry("map", pcd, mat)
+        drawn = [("scale bar", bar, SCALE_BAR_RGB, SCALE_BAR_WIDTH_PX)]
         if traj is not None and len(traj) > 1:
-            lifted = traj + [0.0, 0.0, 0.3]  # just above the ground the car drove on
-            lines = o3d.geometry.LineSet(
-                o3d.utility.Vector3dVector(lifted),
-                o3d.utility.Vector2iVector(
-                    np.c_[np.arange(len(traj) - 1), np.arange(1, len(traj))]
-                ),
-            )
-            lines.paint_uniform_color([0.85, 0.1, 0.1])
+            drawn.append(("trajectory", traj, TRAJECTORY_RGB, TRAJECTORY_WIDTH_PX))
+        for name, vertices, rgb, width in drawn:
             lmat = rendering.MaterialRecord()
             lmat.shader = "unlitLine"
-            lmat.line_width = 4.0
-            r.scene.add_geometry("trajectory", lines, lmat)
+            lmat.line_width = float(width)
+            r.scene.add_geometry(name, _polyline(o3d, vertices, rgb), lmat)
         r.setup_camera(
             float(fov_deg),
             centre.astype(np.float32),
@@ -199,7 +251,7 @@ def _render_open3d(
 
 
 def _render_matplotlib(
-    pts, colours, traj, w, h, point_size, elevation_deg, azimuth_deg, background
+    pts, colours, traj, bar, w, h, point_size, elevation_deg, azimuth_deg, background
 ):
     import matplotlib.pyplot as plt
     from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -219,7 +271,8 @@ def _render_matplotlib(
         sub[:, 0], sub[:, 1], sub[:, 2], c=c, s=point_size * 0.3, lw=0, depthshade=False
     )
     if traj is not None:
-        ax.plot(traj[:, 0], traj[:, 1], traj[:, 2] + 0.3, color=(0.85, 0.1, 0.1), lw=2)
+        ax.plot(*traj.T, color=TRAJECTORY_RGB, lw=TRAJECTORY_WIDTH_PX / 2)
+    ax.plot(*bar.T, color=SCALE_BAR_RGB, lw=SCALE_BAR_WIDTH_PX / 2)
     span = np.ptp(pts, axis=0)
     ax.set_box_aspect((span[0], span[1], max(span[2], 0.05 * span[:2].max())))
     ax.view_init(elev=elevation_deg, azim=azimuth_deg)

@@ -24,6 +24,13 @@ __all__ = [
 #: File extensions :func:`write_map_video` can write, and the package each needs.
 VIDEO_FORMATS = {".mp4": "imageio-ffmpeg", ".gif": "pillow"}
 
+#: Pixels at the bottom of a frame that a browser's video controls (play bar, time, volume) draw over.
+PLAYER_CONTROLS_PX = 44
+#: Pixels under the map's axes for the x tick labels and the x label (10 pt at 100 dpi).
+X_LABEL_PX = 46
+#: Frame fractions: the map axes' width, and the margin above them for the title.
+AXES_WIDTH, TOP_MARGIN = 0.72, 0.08
+
 
 def check_video_path(path, overwrite: bool = True) -> str:
     """The format (``".mp4"`` or ``".gif"``) of ``path``, checked before any work is done.
@@ -113,8 +120,11 @@ def map_video_frames(
     dpi = 100
     fig = Figure(figsize=(w / dpi, h / dpi), dpi=dpi)
     FigureCanvasAgg(fig)
-    ax = fig.add_axes([0.1, 0.1, 0.72, 0.8])
-    cax = fig.add_axes([0.85, 0.15, 0.025, 0.7])
+    # the axes sit above the band that a browser's video controls cover, with room for the x label
+    bottom = (PLAYER_CONTROLS_PX + X_LABEL_PX) / h
+    ax_w, ax_h = AXES_WIDTH, 1.0 - bottom - TOP_MARGIN
+    ax = fig.add_axes([0.1, bottom, ax_w, ax_h])
+    cax = fig.add_axes([0.85, bottom + 0.05, 0.025, ax_h - 0.1])
     last = np.asarray(snapshots[-1][1])
     lo, hi = (
         zlim
@@ -126,7 +136,7 @@ def map_video_frames(
         if ground_truth is None
         else np.vstack([poses[:, :2, 3], ground_truth[:, :2, 3]])
     )
-    ext = max(np.ptp(xy[:, 0]), np.ptp(xy[:, 1]) * w / h * 0.72 / 0.8) / 2 + pad
+    ext = max(np.ptp(xy[:, 0]), np.ptp(xy[:, 1]) * w / h * ax_w / ax_h) / 2 + pad
     cx, cy = (xy.min(axis=0) + xy.max(axis=0)) / 2
     sc = ax.scatter(
         np.zeros(0),
@@ -146,7 +156,7 @@ def map_video_frames(
         [], [], marker=_CAR, color="tab:red", ms=14, ls="none", mec="k", mew=0.6
     )
     ax.set_xlim(cx - ext, cx + ext)
-    ax.set_ylim(cy - ext * h / w * 0.8 / 0.72, cy + ext * h / w * 0.8 / 0.72)
+    ax.set_ylim(cy - ext * h / w * ax_h / ax_w, cy + ext * h / w * ax_h / ax_w)
     ax.set_aspect("equal", adjustable="datalim")
     ax.set_xlabel("x (m)", fontsize=10)
     ax.set_ylabel("y (m)", fontsize=10)

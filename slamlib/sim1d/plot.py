@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from slamlib.plotstyle import BOOK_DPI, MAX_FIGURE_WIDTH_IN
+from slamlib.plotstyle import BOOK_DPI, MAX_FIGURE_WIDTH_IN, legend_below
 
 __all__ = ["animate_run", "plot_map", "plot_result", "plot_world"]
 
@@ -113,7 +113,7 @@ def plot_map(
         ax.set_xlim(*xlim)
     ax.set_xlabel("x (m)")
     ax.set_ylabel("returns per cell")
-    ax.legend(loc="upper right")
+    legend_below(ax)  # the bars fill the axes: no corner is free
     return fig
 
 
@@ -124,7 +124,7 @@ def plot_result(result, max_range: float | None = None):
     fig, axes = plt.subplots(
         3,
         1,
-        figsize=(MAX_FIGURE_WIDTH_IN, 7.5),
+        figsize=(MAX_FIGURE_WIDTH_IN, 8.6),
         gridspec_kw={"height_ratios": [2, 1.4, 1.4]},
     )
     t = result.times
@@ -154,7 +154,7 @@ def plot_result(result, max_range: float | None = None):
     ax.set_yscale("log")
     ax.set_ylabel("|error| (m, log)")
     ax.set_xlabel("t (s)")
-    ax.legend()
+    legend_below(ax, ncols=2)
     lo = result.true_positions.min() - (max_range or 10.0)
     hi = result.true_positions.max() + (max_range or 10.0)
     plot_map(

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from slamlib.plotstyle import BOOK_DPI, MAX_FIGURE_WIDTH_IN
+from slamlib.plotstyle import BOOK_DPI, MAX_FIGURE_WIDTH_IN, legend_below
 
 __all__ = [
     "animate_run",
@@ -227,7 +227,7 @@ def plot_trajectories(result, world=None, ax=None, label: str = "particle SLAM")
     ax.set_aspect("equal")
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
-    ax.legend(fontsize=10, loc="upper right", framealpha=0.9)
+    legend_below(ax, ncols=2, fontsize=10)  # the lap fills the world: no corner is free
     return fig
 
 
@@ -272,7 +272,7 @@ def animate_run(
     result,
     recording,
     n_frames: int = 40,
-    figsize=(MAX_FIGURE_WIDTH_IN, 3.1),
+    figsize=(MAX_FIGURE_WIDTH_IN, 3.6),
     dpi: int = BOOK_DPI,
     interval: int = 150,
     window: float = 0.3,
@@ -303,7 +303,7 @@ def animate_run(
     (slam_line,) = ax0.plot([], [], "C0", lw=1.2, label=label)
     (dr_line,) = ax0.plot([], [], "C3--", lw=1.2, label="dead reckoning")
     (scan_pts,) = ax0.plot([], [], ".", color="C2", ms=2, label="scan at the estimate")
-    ax0.legend(fontsize=10, loc="upper right", ncol=2)
+    legend_below(ax0, ncols=2, fontsize=10)  # off the world, which fills the panel
     cloud = ax1.scatter(np.zeros(0), np.zeros(0), s=8, c="C0")
     ax1.plot([0], [0], "k+", ms=12, mew=2)
     (best_pt,) = ax1.plot([], [], "o", mfc="none", mec="C2", ms=10, mew=2)

@@ -320,13 +320,28 @@ def plot_maps_side_by_side(
     return fig
 
 
+#: Colours (RGB in [0, 1]) of the trajectory and the scale bar in a rendered map
+#: (:func:`slamlib.experiments.render.render_map_3d`) and in :func:`show_map_render`'s key: red and black, apart
+#: from the height colour map.
+TRAJECTORY_RGB, SCALE_BAR_RGB = (0.9, 0.05, 0.05), (0.0, 0.0, 0.0)
+
+
 def show_map_render(
-    image, zlim, title=None, figsize=(MAX_FIGURE_WIDTH_IN, 4.4), cmap: str = "viridis"
+    image,
+    zlim,
+    title=None,
+    figsize=(MAX_FIGURE_WIDTH_IN, 4.4),
+    cmap: str = "viridis",
+    scale_m: float | None = None,
+    trajectory: str | None = "trajectory",
 ):
-    """Show a rendered map image (:func:`slamlib.experiments.render.render_map_3d`) with its height colour bar (m)."""
+    """Show a rendered map image (:func:`slamlib.experiments.render.render_map_3d`) with its height colour bar (m)
+    and a key under it: the red ``trajectory`` line (``None``: no trajectory was drawn) and, given ``scale_m``
+    (:func:`~slamlib.experiments.render.scale_bar_length` of the rendered points), the black scale bar's length."""
     import matplotlib.pyplot as plt
     from matplotlib.cm import ScalarMappable
     from matplotlib.colors import Normalize
+    from matplotlib.lines import Line2D
 
     fig, ax = plt.subplots(figsize=figsize, layout="constrained")
     ax.imshow(image)
@@ -334,6 +349,15 @@ def show_map_render(
     fig.colorbar(
         ScalarMappable(Normalize(*zlim), cmap), ax=ax, label="height z (m)", shrink=0.7
     )
+    key = []
+    if trajectory:
+        key.append(Line2D([], [], color=TRAJECTORY_RGB, lw=3, label=trajectory))
+    if scale_m is not None:
+        key.append(
+            Line2D([], [], color=SCALE_BAR_RGB, lw=3, label=f"scale bar: {scale_m:g} m")
+        )
+    if key:
+        fig.legend(handles=key, loc="outside lower center", ncols=len(key), frameon=False)
     if title:
         ax.set_title(title, fontsize=11)
     return fig

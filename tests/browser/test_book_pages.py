@@ -17,10 +17,12 @@ with Playwright driving Debian's Chromium; a page fails, with a message naming i
 - a reference left unresolved or doubled: a role's source (`` {eq}` ``, `` {numref}` ``, ...), a raw label in
   parentheses (`(eq-...)`, `(fig-...)`), or an equation number in two pairs of brackets (`((1))`: `({eq}`x`)`);
 - an animation (matplotlib `to_jshtml`) whose frame does not change within ~1 s of pressing play;
+- a figure (not an animation or SVG) drawn at fewer than `BOOK_PIXEL_DENSITY` image pixels per displayed pixel:
+  blurry on a high-density screen;
 - a figure or animation frame shrunk to fit the column below `MIN_FIGURE_SCALE` of its own size: the book draws
   its fonts at 11 pt (10.5 pt ticks) at `slamlib.plotstyle.BOOK_DPI`, so they stay at >= 10 pt on the page only
   if the image is shown at (nearly) its own size, on a desktop window of `VIEWPORT`;
-- an output image (not an animation) without a numbered caption: every figure is a myst-nb figure
+- an output image, animation or video without a numbered caption: every figure is a myst-nb figure
   (`mystnb.figure` cell metadata, a `<figure>` with a `<figcaption>`) that the prose can cite with `{numref}`.
 
 Environment: BOOK_HTML (default `_build/html`), CHROMIUM (default /usr/bin/chromium). The test runs only with
@@ -41,6 +43,8 @@ from pathlib import Path
 from urllib.parse import unquote, urlsplit
 
 import pytest
+
+from slamlib.plotstyle import BOOK_PIXEL_DENSITY
 
 ROOT = Path(__file__).resolve().parents[2]
 BUILD = Path(os.environ.get("BOOK_HTML", ROOT / "_build" / "html")).resolve()
@@ -240,9 +244,14 @@ _INSPECT_JS = """() => ({
   mathJaxLoaded: !!(window.MathJax && MathJax.version),
   mathRendered: document.querySelectorAll('mjx-container').length,
   animations: Array.from(document.querySelectorAll('img[id^="_anim_img"]')).map(i => i.id),
+  videos: Array.from(document.querySelectorAll('article video'))
+      .map(v => !!(v.closest('figure') && v.closest('figure').querySelector('figcaption'))),
   outputImages: Array.from(document.querySelectorAll('.cell_output img'))
       .filter(i => i.naturalWidth > 0 && i.getClientRects().length > 0)   // loaded and not in a folded cell
       .map(i => ({src: i.id || (i.getAttribute('src') || '').slice(0, 80), natural: i.naturalWidth,
+                  // the size the page asks for (a retina PNG's 1x size), else the image's own
+                  intended: parseFloat(i.style.width) || parseFloat(i.getAttribute('width')) || i.naturalWidth,
+                  svg: (i.getAttribute('src') || '').includes('svg'),
                   shown: i.getBoundingClientRect().width, animation: i.id.startsWith('_anim_img'),
                   captioned: !!(i.closest('figure') && i.closest('figure').querySelector('figcaption'))})),
 })"""
@@ -344,16 +353,30 @@ def test_book_page(page_path, server, browser):
                 f"{info['mathNodes']} math element(s) not rendered (MathJax loaded: {info['mathJaxLoaded']})"
             )
         for im in info["outputImages"]:
-            if im["shown"] < MIN_FIGURE_SCALE * im["natural"]:
+            if im["shown"] < MIN_FIGURE_SCALE * im["intended"]:
                 problems.append(
-                    f"image {im['src']} is {im['natural']} px wide but shown at {im['shown']:.0f} px: "
+                    f"image {im['src']} is {im['intended']:.0f} px wide but shown at {im['shown']:.0f} px: "
                     f"its fonts fall below 10 pt (draw it at most "
                     f"{im['shown'] / MIN_FIGURE_SCALE / 100:.1f} in wide at 100 dpi)"
                 )
-            if not im["animation"] and not im["captioned"]:
+            if (
+                not (im["animation"] or im["svg"])
+                and im["natural"] < BOOK_PIXEL_DENSITY * im["intended"]
+            ):
                 problems.append(
-                    f"image {im['src']} has no numbered caption (give its cell mystnb.figure metadata)"
+                    f"image {im['src']} has {im['natural']} px for {im['intended']:.0f} px shown: draw it at "
+                    f"{BOOK_PIXEL_DENSITY}x pixel density (slamlib.plotstyle.book_style in the set-up cell)"
                 )
+            if not im["captioned"]:
+                what = "animation" if im["animation"] else "image"
+                problems.append(
+                    f"{what} {im['src']} has no numbered caption (give its cell mystnb.figure metadata)"
+                )
+        problems += [
+            f"video {i + 1} has no numbered caption (give its cell mystnb.figure metadata)"
+            for i, captioned in enumerate(info["videos"])
+            if not captioned
+        ]
         for img_id in info["animations"]:
             why = page.evaluate(_ANIMATE_JS, img_id)
             if why:

@@ -14,7 +14,7 @@ export NUMBA_CACHE_DIR ?= $(CURDIR)/_cache/numba
 SYSTEM_PACKAGES := libusb-1.0-0 libvulkan1 mesa-vulkan-drivers
 SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 
-.PHONY: all setup system-packages book test lint test-unit test-notebooks bench clean mathjax browser-check lab mutate mutate-run planted
+.PHONY: all setup system-packages book test lint test-unit test-notebooks bench clean mathjax browser-check browser-tools pdf lab mutate mutate-run planted
 
 all: book
 
@@ -128,11 +128,21 @@ $(MATHJAX_DIR)/.version-$(MATHJAX_VERSION):
 # package, driven by Playwright) and fails on JavaScript errors, failed or off-machine requests, unrendered
 # math, broken images and internal links, raw pipe tables and animations that do not play:
 # tests/browser/test_book_pages.py. Run after `make book`.
-browser-check: setup
+browser-check: browser-tools
+	BOOK_BROWSER_CHECK=1 CHROMIUM=/usr/bin/chromium $(BIN)/python -m pytest -p no:dash -p no:cacheprovider tests/browser
+
+# Debian's Chromium and Playwright's Python package, which drives it (its own browser download cannot reach its
+# host): for the browser check and the PDF.
+browser-tools: setup
 	@dpkg -s chromium >/dev/null 2>&1 || { echo "installing chromium"; $(SUDO) apt-get update -qq && \
 	  DEBIAN_FRONTEND=noninteractive $(SUDO) apt-get install -y -qq chromium >/dev/null; }
 	@$(BIN)/python -c "import playwright" 2>/dev/null || $(BIN)/python -m pip install -q -c requirements.lock playwright
-	BOOK_BROWSER_CHECK=1 CHROMIUM=/usr/bin/chromium $(BIN)/python -m pytest -p no:dash -p no:cacheprovider tests/browser
+
+# The whole book as one PDF, _build/pdf/book.pdf: Jupyter Book's HTML-to-PDF builder (every notebook executed, as
+# `make book`), printed by Debian's Chromium (book/_ext/book_pdf.py; not in CI, which prints a small book instead).
+pdf: browser-tools mathjax
+	CHROMIUM=/usr/bin/chromium $(BIN)/python book/_ext/book_pdf.py . --all -n --keep-going
+	@echo "pdf: _build/pdf/book.pdf"
 
 clean:
 	rm -rf _build _cache .pytest_cache

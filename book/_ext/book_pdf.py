@@ -1,0 +1,80 @@
+"""``make pdf``: the whole book as one PDF, printed by Debian's Chromium.
+
+Jupyter Book 1's HTML-to-PDF builder (``jupyter-book build --builder pdfhtml``) builds the book as one HTML
+page (Sphinx's ``singlehtml``) and prints it with Playwright. jupyter-book 1.0.4 launches Playwright's own
+Chromium build (``jupyter_book.pdf._html_to_pdf``), which Playwright downloads from a host this machine cannot
+reach; this wrapper replaces that one function with the same steps on ``$CHROMIUM`` (default
+``/usr/bin/chromium``, Debian's package, as the browser check uses), waits for MathJax to finish typesetting,
+and runs the builder. Usage: ``python book/_ext/book_pdf.py BOOK_DIR [jupyter-book build options]``; the PDF
+is ``BOOK_DIR/_build/pdf/book.pdf``.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import sys
+from pathlib import Path
+
+#: The browser that prints the book (Debian's package; `make browser-check` and `make pdf` install it).
+CHROMIUM = os.environ.get("CHROMIUM", "/usr/bin/chromium")
+#: Page margins of the PDF (A4 or Letter, Chromium's default paper).
+MARGINS = {"left": "0.5in", "right": "0.5in", "top": "0.5in", "bottom": "0.5in"}
+#: Jupyter Book's own print rule: a code cell or its output is not split across two pages.
+KEEP_CELLS_WHOLE_CSS = """
+div.cell_input, div.cell_output {
+    -webkit-column-break-inside: avoid;
+    page-break-inside: avoid;
+    break-inside: avoid;
+}
+"""
+#: Resolves once MathJax has typeset the page (immediately on a page without math).
+MATHJAX_DONE_JS = (
+    "() => (window.MathJax && MathJax.startup && MathJax.startup.promise) || null"
+)
+
+
+async def _html_to_pdf(html_file, pdf_file) -> None:
+    """jupyter_book.pdf._html_to_pdf on ``CHROMIUM``: load the page, let MathJax finish, print it."""
+    from playwright.async_api import async_playwright
+
+    async with async_playwright() as pw:
+        browser = await pw.chromium.launch(executable_path=CHROMIUM)
+        try:
+            page = await browser.new_page()
+            await page.goto(Path(html_file).resolve().as_uri(), wait_until="networkidle")
+            await page.evaluate(MATHJAX_DONE_JS)
+            await page.add_style_tag(content=KEEP_CELLS_WHOLE_CSS)
+            await page.pdf(path=str(pdf_file), margin=MARGINS, print_background=True)
+        finally:
+            await browser.close()
+
+
+def html_to_pdf(html_file, pdf_file) -> None:
+    """Print ``html_file`` to ``pdf_file`` with ``CHROMIUM`` (the function jupyter-book calls)."""
+    asyncio.run(_html_to_pdf(html_file, pdf_file))
+
+
+def main(argv: list[str]) -> int:
+    import jupyter_book.pdf
+    from jupyter_book.cli.main import main as jupyter_book_main
+
+    if not Path(CHROMIUM).exists():
+        print(f"make pdf: no Chromium at {CHROMIUM} (set CHROMIUM=...)", file=sys.stderr)
+        return 2
+    # jupyter_book.pdf.html_to_pdf runs the module's _html_to_pdf, looked up when called
+    jupyter_book.pdf._html_to_pdf = _html_to_pdf
+    try:
+        jupyter_book_main.main(
+            args=["build", *argv, "--builder", "pdfhtml"], standalone_mode=False
+        )
+    except (
+        RuntimeError
+    ) as error:  # jupyter-book's "error in building" box, already printed
+        print(error, file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))

@@ -1,0 +1,56 @@
+"""``make pdf``'s printer (``book/_ext/book_pdf.py``): a small book printed to PDF by Debian's Chromium. Run by
+`make browser-check` (BOOK_BROWSER_CHECK=1), which installs Chromium and Playwright; the whole book's PDF executes
+every chapter again, too long for CI, so CI prints this one-page book with math and a table instead."""
+
+from __future__ import annotations
+
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+PRINTER = ROOT / "book" / "_ext" / "book_pdf.py"
+
+pytestmark = pytest.mark.skipif(
+    os.environ.get("BOOK_BROWSER_CHECK") != "1",
+    reason="runs under `make browser-check` (BOOK_BROWSER_CHECK=1), with Chromium and Playwright",
+)
+
+
+def test_a_book_prints_to_pdf_with_debians_chromium(tmp_path):
+    book = tmp_path / "book"
+    book.mkdir()
+    (book / "_config.yml").write_text(
+        'title: tiny\nexecute:\n  execute_notebooks: "off"\n'
+    )
+    (book / "_toc.yml").write_text(
+        "format: jb-book\nroot: intro\nchapters:\n- file: two\n"
+    )
+    (book / "intro.md").write_text(
+        "# One\n\nMath $x^2$.\n\n| a | b |\n|---|---|\n| 1 | 2 |\n"
+    )
+    (book / "two.md").write_text("# Two\n\nA second chapter.\n")
+    done = subprocess.run(
+        [sys.executable, str(PRINTER), str(book)],
+        capture_output=True,
+        text=True,
+        timeout=600,
+        env={**os.environ, "CHROMIUM": os.environ.get("CHROMIUM", "/usr/bin/chromium")},
+    )
+    assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]
+    pdf = (book / "_build" / "pdf" / "book.pdf").read_bytes()
+    assert pdf.startswith(b"%PDF-") and len(re.findall(rb"/Type\s*/Page\b", pdf)) >= 1
+
+
+def test_a_missing_chromium_is_named(tmp_path):
+    done = subprocess.run(
+        [sys.executable, str(PRINTER), str(tmp_path)],
+        capture_output=True,
+        text=True,
+        env={**os.environ, "CHROMIUM": str(tmp_path / "no-chromium")},
+    )
+    assert done.returncode == 2 and "no Chromium at" in done.stderr

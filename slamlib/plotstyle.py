@@ -1,5 +1,6 @@
 """The book's figure style: one call in each chapter's set-up cell (``from slamlib.plotstyle import book_style``),
-and animations as self-contained HTML (:func:`animation_html`).
+animations as self-contained HTML (:func:`animation_html`), legends off the data (:func:`legend_below`) and
+results as tables rather than printed text (:func:`markdown_table`).
 
 The book's text column is about 690 px wide. Figures are at most :data:`MAX_FIGURE_WIDTH_IN` inches wide at
 ``figure.dpi = 100``, so they are shown at (nearly) their own size, and the fonts below stay at 10 pt or more on
@@ -26,6 +27,7 @@ __all__ = [
     "book_style",
     "data_under_legend",
     "legend_below",
+    "markdown_table",
 ]
 
 #: Widest figure (inches at 100 dpi) that the book's ~690 px column shows without shrinking the fonts below 10 pt.
@@ -153,6 +155,16 @@ def data_under_legend(ax) -> int:
         & (xy[:, 1] < box.y1)
     )
     return int(inside.sum())
+
+
+def markdown_table(header, rows):
+    """A table for a notebook's output: ``header`` the column names, ``rows`` lists of cells (formatted
+    strings), as an ``IPython.display.Markdown`` that the book renders as a table (not preformatted text)."""
+    from IPython.display import Markdown
+
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    lines += ["| " + " | ".join(str(cell) for cell in row) + " |" for row in rows]
+    return Markdown("\n".join(lines))
 
 
 #: The stylesheet link matplotlib's ``to_jshtml`` adds for its player icons (Font Awesome 4.4 from a CDN). The

@@ -13,6 +13,7 @@ from slamlib.plotstyle import (
     book_style,
     data_under_legend,
     legend_below,
+    markdown_table,
 )
 
 
@@ -70,3 +71,13 @@ def test_data_under_legend_is_zero_without_a_legend():
     ax.plot([0, 1], [0, 1])
     assert data_under_legend(ax) == 0
     plt.close(fig)
+
+
+def test_markdown_table_is_a_pipe_table_with_one_row_per_row():
+    table = markdown_table(["map", "ATE (m)"], [["voxel", "0.079"], ["bvh", 0.12]])
+    assert table.data.splitlines() == [
+        "| map | ATE (m) |",
+        "|---|---|",
+        "| voxel | 0.079 |",
+        "| bvh | 0.12 |",
+    ]

@@ -104,6 +104,8 @@ _STILL_300 = "the still default drive's first 300 frames"
 _DEFAULT = f"the default filter ({DEFAULT_PARTICLES} particles, voxel map)"
 
 #: Every fact that pages of the book state, by key. Keys are glue names (letters, digits, hyphens).
+#:
+#: :meta hide-value:
 FACTS: dict[str, Fact] = {
     "default-fps": Fact(
         "slam3d",
@@ -188,6 +190,8 @@ FACTS: dict[str, Fact] = {
 #: Facts that a second benchmark measures on the same deterministic configuration: the key, the benchmark
 #: and how it reads the same quantity. Committed results must agree (to ``MEASURED_TWICE_TOLERANCE``, the
 #: rounding of the JSON files); they do only when both benchmarks ran on the same code.
+#:
+#: :meta hide-value:
 MEASURED_TWICE: dict[str, tuple[str, Callable[[dict], float]]] = {
     "default-ate-m": ("peers", _peers(PEERS_STILL, "slamlib", "ate_rmse_m")),
     "whole-ate-m": ("peers", _peers(PEERS_WHOLE, "slamlib", "ate_rmse_m")),

@@ -75,9 +75,7 @@ def _inline_format(fmt: str) -> None:
     """Inline figures in format ``fmt`` in an IPython kernel; nothing elsewhere (a script, a test)."""
     try:
         from IPython import get_ipython
-    except (
-        ImportError
-    ):  # pragma: no cover - IPython is a dependency of the book, not of slamlib
+    except ImportError:  # pragma: no cover - the book's dependency, not slamlib's
         return
     if get_ipython() is None:
         return
@@ -100,12 +98,10 @@ def legend_below(ax, ncols: int | None = None, **kwargs):
     from matplotlib.transforms import offset_copy
 
     fig = ax.figure
+    if ax.get_legend() is not None:
+        ax.get_legend().remove()  # replaced, and not counted in what is under the axes
     fig.canvas.draw()  # the tick labels' and x label's extents exist only once drawn
     below = ax.get_tightbbox(fig.canvas.get_renderer())
-    legend = ax.get_legend()
-    if legend is not None:
-        legend.remove()
-        below = ax.get_tightbbox(fig.canvas.get_renderer())
     drop_pt = (ax.bbox.y0 - below.y0) * 72.0 / fig.dpi + LEGEND_GAP_PT
     _, labels = ax.get_legend_handles_labels()
     hang = offset_copy(ax.transAxes, fig=fig, y=-drop_pt, units="points")

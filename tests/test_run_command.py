@@ -24,32 +24,29 @@ def tiny_drive(tmp_path_factory):
     )
 
 
+def _ten_frame_run(tiny_drive, out) -> list[str]:
+    """``slamlib run``'s arguments for frames 1 to 10 of ``tiny_drive`` (50 particles, 200 points, no progress
+    bar), writing to ``out``."""
+    base, date, drive = tiny_drive
+    return ["run", "--basedir", str(base), "--date", date, "--drive", str(drive)] + [
+        "--frames",
+        "1:11",
+        "--particles",
+        "50",
+        "--points",
+        "200",
+        "--out",
+        str(out),
+        "--no-progress",
+    ]
+
+
 def test_slamlib_run_writes_trajectories_map_metrics_and_plots(tiny_drive, tmp_path):
     from slamlib.cli import main
     from slamlib.kitti import read_kitti_poses, read_tum
 
-    base, date, drive = tiny_drive
     out = tmp_path / "out"
-    rc = main(
-        [
-            "run",
-            "--basedir",
-            str(base),
-            "--date",
-            date,
-            "--drive",
-            str(drive),
-            "--frames",
-            "1:11",
-            "--particles",
-            "50",
-            "--points",
-            "200",
-            "--out",
-            str(out),
-            "--no-progress",
-        ]
-    )
+    rc = main(_ten_frame_run(tiny_drive, out))
     assert rc == 0
     slam = read_kitti_poses(out / "slam_poses.txt")
     _, tum = read_tum(out / "slam_tum.txt")
@@ -745,20 +742,8 @@ def test_slamlib_run_loop_closure_writes_its_poses_and_closures(
     from slamlib.cli import main
     from slamlib.kitti import read_kitti_poses
 
-    base, date, drive = tiny_drive
     out = tmp_path / "out"
-    args = ["run", "--basedir", str(base), "--date", date, "--drive", str(drive)]
-    args += [
-        "--frames",
-        "1:11",
-        "--particles",
-        "50",
-        "--points",
-        "200",
-        "--out",
-        str(out),
-    ]
-    assert main(args + ["--no-progress", "--no-plots", "--loop-closure"]) == 0
+    assert main(_ten_frame_run(tiny_drive, out) + ["--no-plots", "--loop-closure"]) == 0
     slam = read_kitti_poses(out / "slam_poses.txt")
     closed = read_kitti_poses(out / "slam_loop_closed_poses.txt")
     assert closed.shape == slam.shape and np.allclose(closed, slam, atol=1e-6)

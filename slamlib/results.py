@@ -211,11 +211,14 @@ def _result(bench: str) -> dict:
     return result
 
 
+def _label(machine: dict) -> str:
+    gpu = machine.get("gpu") or "no GPU"
+    return f"{machine['cores']}-core {machine['cpu']} ({gpu}) on {machine['utc'][:10]}"
+
+
 def machine_label(bench: str) -> str:
     """Where and when ``bench``'s committed result was measured: ``"2-core AMD EPYC (no GPU) on 2026-11-26"``."""
-    m = _result(bench)["machine"]
-    gpu = m.get("gpu") or "no GPU"
-    return f"{m['cores']}-core {m['cpu']} ({gpu}) on {m['utc'][:10]}"
+    return _label(_result(bench)["machine"])
 
 
 def fact(key: str) -> Stated:
@@ -232,7 +235,7 @@ def fact(key: str) -> Stated:
         unit=f.unit,
         what=f.what,
         bench=f.bench,
-        machine=machine_label(f.bench),
+        machine=_label(result["machine"]),  # the file read once
         date=result["machine"]["utc"][:10],
     )
 

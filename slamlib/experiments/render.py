@@ -178,7 +178,8 @@ def render_map_3d(
         raise ValueError(
             f"engine must be 'auto', 'open3d' or 'matplotlib', got {engine!r}"
         )
-    pts = _subsample(np.asarray(points, dtype=np.float64), max_points)
+    points = np.asarray(points, dtype=np.float64)
+    pts = _subsample(points, max_points)
     if len(pts) == 0:
         raise ValueError("no map points to render")
     if engine == "auto":
@@ -189,7 +190,7 @@ def render_map_3d(
         if poses is None
         else np.asarray(poses)[:, :3, 3] + [0.0, 0.0, TRAJECTORY_LIFT_M]
     )
-    bar = _scale_bar(pts)
+    bar = _scale_bar(points)  # all the points: scale_bar_length(points) names its length
     eye, centre = default_camera(pts, elevation_deg, azimuth_deg, distance)
     if engine == "open3d":
         return _render_open3d(

@@ -7,6 +7,9 @@ reach; this wrapper replaces that one function with the same steps on ``$CHROMIU
 ``/usr/bin/chromium``, Debian's package, as the browser check uses), waits for MathJax to finish typesetting,
 and runs the builder. Usage: ``python book/_ext/book_pdf.py BOOK_DIR [jupyter-book build options]``; the PDF
 is ``BOOK_DIR/_build/pdf/book.pdf``.
+
+It is also a Sphinx extension (``_config.yml``'s ``local_extensions``): :func:`setup` gives the one-page builder
+the HTML that extensions register for the ``html`` builder alone.
 """
 
 from __future__ import annotations
@@ -53,6 +56,27 @@ async def _html_to_pdf(html_file, pdf_file) -> None:
 def html_to_pdf(html_file, pdf_file) -> None:
     """Print ``html_file`` to ``pdf_file`` with ``CHROMIUM`` (the function jupyter-book calls)."""
     asyncio.run(_html_to_pdf(html_file, pdf_file))
+
+
+def _one_page_draws_what_pages_draw(app) -> None:
+    """Give the ``singlehtml`` builder every node handler registered for ``html`` that it lacks."""
+    handlers = app.registry.translation_handlers
+    if "singlehtml" in handlers:
+        for node, visit_depart in handlers.get("html", {}).items():
+            handlers["singlehtml"].setdefault(node, visit_depart)
+
+
+def setup(app):
+    """Sphinx extension: the ``singlehtml`` builder, which the PDF is printed from, draws every node the ``html``
+    builder draws.
+
+    Sphinx looks a node's HTML up under the builder's name and falls back to the ``html`` format's only when no
+    extension registered any node for ``singlehtml``. sphinx-exercise does, so nodes registered for ``html``
+    alone, such as myst-nb 1.4's folded cells (``HideCodeCellNode``), had none in the one-page build, which
+    stopped at the first folded cell ("departing unknown node type: HideCodeCellNode"). Once every extension is
+    set up, the ``html`` handlers the ``singlehtml`` builder lacks are added to it."""
+    app.connect("builder-inited", _one_page_draws_what_pages_draw)
+    return {"parallel_read_safe": True, "parallel_write_safe": True}
 
 
 def main(argv: list[str]) -> int:

@@ -21,11 +21,27 @@ pytestmark = pytest.mark.skipif(
 )
 
 
+def _notebook_with_a_folded_cell(path):
+    """A chapter like the book's: a code cell whose input is folded (``hide-input``), with its output."""
+    import nbformat
+
+    cell = nbformat.v4.new_code_cell("print('two')", metadata={"tags": ["hide-input"]})
+    cell.outputs = [nbformat.v4.new_output("stream", name="stdout", text="two\n")]
+    notebook = nbformat.v4.new_notebook(
+        cells=[nbformat.v4.new_markdown_cell("# Two\n\nA second chapter."), cell]
+    )
+    nbformat.write(notebook, path)
+
+
 def test_a_book_prints_to_pdf_with_debians_chromium(tmp_path):
     book = tmp_path / "book"
     book.mkdir()
+    # the book's extensions that stopped the one-page build at a folded cell: sphinx-exercise registers nodes for
+    # `singlehtml`, and myst-nb's folded cells are registered for `html` alone (book_pdf.setup mends it)
     (book / "_config.yml").write_text(
         'title: tiny\nexecute:\n  execute_notebooks: "off"\n'
+        "sphinx:\n  extra_extensions: [sphinx_exercise]\n"
+        f"  local_extensions:\n    book_pdf: {PRINTER.parent}\n"
     )
     (book / "_toc.yml").write_text(
         "format: jb-book\nroot: intro\nchapters:\n- file: two\n"
@@ -33,7 +49,7 @@ def test_a_book_prints_to_pdf_with_debians_chromium(tmp_path):
     (book / "intro.md").write_text(
         "# One\n\nMath $x^2$.\n\n| a | b |\n|---|---|\n| 1 | 2 |\n"
     )
-    (book / "two.md").write_text("# Two\n\nA second chapter.\n")
+    _notebook_with_a_folded_cell(book / "two.ipynb")
     done = subprocess.run(
         [sys.executable, str(PRINTER), str(book)],
         capture_output=True,
@@ -44,6 +60,10 @@ def test_a_book_prints_to_pdf_with_debians_chromium(tmp_path):
     assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]
     pdf = (book / "_build" / "pdf" / "book.pdf").read_bytes()
     assert pdf.startswith(b"%PDF-") and len(re.findall(rb"/Type\s*/Page\b", pdf)) >= 1
+    page = (
+        book / "_build" / "html" / "intro.html"
+    ).read_text()  # the one page it printed
+    assert '<details class="admonition hide' in page and "two" in page
 
 
 def test_a_missing_chromium_is_named(tmp_path):

@@ -105,6 +105,19 @@ def _points_and_stamps(frame, deskew: bool):
     return points, 0.5 * (1.0 - np.arctan2(points[:, 1], points[:, 0]) / np.pi)
 
 
+def _time_offset(frame) -> float:
+    """A frame's ``scan_time_offset_s`` (scan stamp minus pose stamp, s), 0 when it has none."""
+    return float(getattr(frame, "scan_time_offset_s", 0.0))
+
+
+def _at_pose_time(
+    pose, delta, offset: float, deskew: bool, sweep_period: float
+) -> np.ndarray:
+    """A KISS pipeline's Velodyne ``pose`` moved to its frame's pose time (``offset``: :func:`_time_offset`) along
+    its last motion ``delta`` (one sweep): :func:`move_along` by :func:`pose_time_fraction`."""
+    return move_along(pose, delta, pose_time_fraction(offset, deskew, sweep_period))
+
+
 def kiss_icp_poses(
     frames,
     T_velo_imu=None,
@@ -143,10 +156,9 @@ def kiss_icp_poses(
         seconds.append(time.perf_counter() - t0)
         pose = odometry.last_pose
         if pose_times:
-            fraction = pose_time_fraction(
-                getattr(frame, "scan_time_offset_s", 0.0), deskew, sweep_period
+            pose = _at_pose_time(
+                pose, odometry.last_delta, _time_offset(frame), deskew, sweep_period
             )
-            pose = move_along(pose, odometry.last_delta, fraction)
         poses.append(T_imu_velo @ pose @ T_velo_imu)
     return np.asarray(poses).reshape(-1, 4, 4), np.asarray(seconds)
 
@@ -172,17 +184,24 @@ def _quiet_stdout():
 
 
 def kiss_slam_poses(
-    frames, T_velo_imu=None, deskew: bool = False
+    frames,
+    T_velo_imu=None,
+    deskew: bool = False,
+    pose_times: bool = False,
+    sweep_period: float = SWEEP_PERIOD_S,
 ) -> tuple[np.ndarray, np.ndarray, list]:
     """Run KISS-SLAM 0.0.2 (its default configuration) over ``frames`` (``.scan`` (N, 4), Velodyne frame), as its
     own pipeline does: ``process_scan`` per frame, then the last local map closed, dropped, and the frame-by-frame
     pose graph optimised (``fine_grained_optimization``).
 
-    ``T_velo_imu`` and ``deskew`` as :func:`kiss_icp_poses`'s. Returns ``(poses (F, 4, 4) body, seconds (F,),
-    closures)``: each frame's ``process_scan`` time (the final optimisation spread evenly over the frames, so that
-    ``1 / median`` and the mean both count it) and the closures KISS-SLAM accepted, ``(reference local map, query
-    local map)`` pairs. KISS-SLAM's own prints go nowhere. Raises ``ImportError`` naming the install when it is
-    missing.
+    ``T_velo_imu``, ``deskew``, ``pose_times`` and ``sweep_period`` as :func:`kiss_icp_poses`'s; the motion each
+    optimised pose is moved along is the one from the frame before, ``D_k = P_{k-1}^{-1} P_k`` (the identity for
+    the first frame), KISS-ICP's ``last_delta`` on the optimised trajectory.
+
+    Returns ``(poses (F, 4, 4) body, seconds (F,), closures)``: each frame's ``process_scan`` time (the final
+    optimisation spread evenly over the frames, so that ``1 / median`` and the mean both count it) and the closures
+    KISS-SLAM accepted, ``(reference local map, query local map)`` pairs. KISS-SLAM's own prints go nowhere. Raises
+    ``ImportError`` naming the install when it is missing.
     """
     try:
         from kiss_slam.config.config import load_config
@@ -196,10 +215,11 @@ def kiss_slam_poses(
     config = load_config(None)
     config.odometry.preprocessing.deskew = bool(deskew)
     T_velo_imu, T_imu_velo = _calibration(frames, T_velo_imu)
-    seconds = []
+    seconds, offsets = [], []
     with _quiet_stdout():
         slam = KissSLAM(config)
         for frame in frames:
+            offsets.append(_time_offset(frame))
             points, stamps = _points_and_stamps(frame, deskew)
             t0 = time.perf_counter()
             slam.process_scan(points, stamps)
@@ -211,6 +231,14 @@ def kiss_slam_poses(
         final = time.perf_counter() - t0
     seconds = np.asarray(seconds) + final / max(1, len(seconds))
     poses = np.asarray(poses).reshape(-1, 4, 4)
+    if pose_times and len(poses):
+        deltas = np.concatenate([np.eye(4)[None], np.linalg.inv(poses[:-1]) @ poses[1:]])
+        poses = np.array(
+            [
+                _at_pose_time(p, d, offset, deskew, sweep_period)
+                for p, d, offset in zip(poses, deltas, offsets)
+            ]
+        )
     return (
         T_imu_velo @ poses @ T_velo_imu,
         seconds,

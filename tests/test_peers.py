@@ -94,3 +94,26 @@ def test_kiss_slam_runs_as_its_pipeline_does_and_keeps_quiet(capfd):
     assert np.allclose(poses[0], np.eye(4), atol=1e-9)
     out, err = capfd.readouterr()
     assert out == ""
+
+
+def test_kiss_slam_poses_move_to_the_frames_pose_times_along_their_last_motion():
+    """With ``pose_times``, each optimised pose moves by :func:`pose_time_fraction` of its motion from the frame
+    before (none for the first frame), as :func:`kiss_icp_poses` moves KISS-ICP's."""
+    from types import SimpleNamespace
+
+    from world3d import simulate
+
+    from slamlib.peers import kiss_slam_poses
+
+    OFFSET = -0.017  # s: a KITTI raw frame's pose is stamped after its scan
+    frames, _ = simulate(n=12)
+    stamped = [SimpleNamespace(scan=f.scan, scan_time_offset_s=OFFSET) for f in frames]
+    at_scans = kiss_slam_poses(stamped)[0]
+    moved = kiss_slam_poses(stamped, pose_times=True)[0]
+    fraction = pose_time_fraction(OFFSET, deskew=False)
+    assert fraction > 0.1  # the test moves the poses measurably
+    deltas = [np.eye(4)] + [np.linalg.inv(a) @ b for a, b in zip(at_scans, at_scans[1:])]
+    expected = [move_along(p, d, fraction) for p, d in zip(at_scans, deltas)]
+    np.testing.assert_allclose(moved, expected, atol=1e-6)
+    np.testing.assert_allclose(moved[0], np.eye(4), atol=1e-9)
+    assert np.abs(moved[1:, :3, 3] - at_scans[1:, :3, 3]).max() > 0.05

@@ -39,6 +39,18 @@ def test_tasks_are_the_cross_product_with_kiss_icp_once_per_drive():
         sweep_tasks(["07"], [0], ["raw"], ["orb_slam"])
 
 
+def test_loop_closure_runs_take_the_settings_and_kiss_slam_runs_once_per_drive():
+    methods = ["slamlib", "slamlib_loop_closure", "kiss_slam"]
+    settings = [{"particles": 100}, {"particles": 300}]
+    tasks = sweep_tasks(["07"], [0, 1], ["odometry"], methods, settings, (0, 50))
+    per_method = {m: [t.settings for t in tasks if t.method == m] for m in methods}
+    assert per_method == {
+        "slamlib": settings * 2,
+        "slamlib_loop_closure": settings * 2,
+        "kiss_slam": [{}, {}],
+    }
+
+
 @pytest.fixture(scope="module")
 def cluster():
     from distributed import LocalCluster
@@ -94,6 +106,28 @@ def test_sweep_on_a_dask_cluster_writes_one_tidy_row_per_run(cluster, tmp_path):
     np.testing.assert_allclose(
         [r["ate_rmse_m"] for r in back], [r["ate_rmse_m"] for r in rows], rtol=1e-12
     )
+
+
+def test_a_sweep_closes_loops_and_runs_kiss_slam_on_the_same_drive(cluster, tmp_path):
+    """``slamlib_loop_closure`` is slamlib's filter with the back end: on a drive too short for a loop the back
+    end has nothing to correct, so its row is slamlib's. Likewise KISS-SLAM's is KISS-ICP's, its odometry."""
+    methods = ["slamlib", "slamlib_loop_closure", "kiss_icp", "kiss_slam"]
+    tasks = sweep_tasks(["loop"], [0], ["odometry"], methods, [{"particles": 40}], (0, 6))
+    rows = run_sweep(
+        tasks, tmp_path / "data", scheduler=cluster.scheduler_address, progress=False
+    )
+    by = {r["method"]: r for r in rows}
+    assert set(by) == set(methods) and len(rows) == len(methods)
+    assert len(list((tmp_path / "data").iterdir())) == 1  # one drive, generated once
+    assert by["slamlib_loop_closure"]["settings"] == '{"particles": 40}'
+    assert by["kiss_slam"]["settings"] == ""
+    assert by["slamlib_loop_closure"]["ate_rmse_m"] == pytest.approx(
+        by["slamlib"]["ate_rmse_m"], abs=1e-9
+    )
+    assert by["kiss_slam"]["ate_rmse_m"] == pytest.approx(
+        by["kiss_icp"]["ate_rmse_m"], rel=1e-6
+    )
+    assert all(math.isfinite(r["ate_rmse_m"]) and r["fps"] > 0 for r in rows)
 
 
 def test_a_failing_task_names_itself_in_one_line_and_the_others_rows_are_kept(

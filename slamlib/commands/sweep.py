@@ -1,4 +1,4 @@
-"""``slamlib sweep``: SLAM and KISS-ICP over routes x seeds x settings on a Dask cluster, into one tidy table.
+"""``slamlib sweep``: SLAM and its peers over routes x seeds x settings on a Dask cluster, into one tidy table.
 
 Examples::
 
@@ -7,6 +7,8 @@ Examples::
     slamlib sweep --out sweeps/lidar --layouts odometry --particles 300,1000      # LIDAR-only, two settings
     slamlib sweep --out sweeps/real --routes 00,05,07 --frames 0: --distortion --traffic --bias-walk \\
         --deskew --anneal-rounds 2 --tilt-sigma 0.003                # realistic drives, annealed, tilt held
+    slamlib sweep --out sweeps/loops --layouts odometry --frames 0: --methods slamlib_loop_closure,kiss_slam \
+        --distortion --traffic                            # loop closure against KISS-SLAM, whole routes
     slamlib sweep --out sweeps/x --scheduler tcp://10.0.0.5:8786                  # on an existing Dask cluster
 
 Writes ``OUT/sweep.csv`` (one row per run: route, frames, seed, layout, method, settings, path length, KITTI
@@ -18,6 +20,7 @@ See :mod:`slamlib.experiments.sweep`.
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import json
 import math
 import shlex
@@ -92,7 +95,8 @@ def add_arguments(parser) -> None:
     parser.add_argument(
         "--methods",
         default="slamlib,kiss_icp",
-        help="comma-separated: slamlib, kiss_icp (default both)",
+        help="comma-separated: slamlib, kiss_icp, slamlib_loop_closure (slamlib's filter with its loop-closing "
+        "back end), kiss_slam (default slamlib,kiss_icp)",
     )
     parser.add_argument(
         "--particles",
@@ -288,7 +292,9 @@ def main(args) -> int:
     if any(s < 0 for s in seeds):
         _fail(f"--seeds must be >= 0, got {args.seeds!r}")
     layouts = _list(args.layouts, "--layouts", ("raw", "odometry"))
-    methods = _list(args.methods, "--methods", ("slamlib", "kiss_icp"))
+    from slamlib.experiments.sweep import METHODS
+
+    methods = _list(args.methods, "--methods", METHODS)
     settings = [{}]
     if args.particles is not None:
         counts = _list(args.particles, "--particles", kind=int)
@@ -362,6 +368,11 @@ def main(args) -> int:
 
         if not kiss_icp_available():
             _fail(INSTALL_HINT + " (or --methods slamlib)")
+    if "kiss_slam" in methods and importlib.util.find_spec("kiss_slam") is None:
+        _fail(
+            "--methods kiss_slam: KISS-SLAM is not installed (`make setup` installs kiss-slam 0.0.2, "
+            "see pyproject.toml's `loops` extra)"
+        )
     try:
         import distributed  # noqa: F401
     except ImportError:
@@ -396,6 +407,7 @@ def main(args) -> int:
         "scheduler": args.scheduler,
         "generator_version": GENERATOR_VERSION,
         "kiss_icp_version": _version("kiss-icp"),
+        "kiss_slam_version": _version("kiss-slam"),
         "slamlib_version": _version("slamlib"),
     }
     from slamlib.atomic import folder_lock

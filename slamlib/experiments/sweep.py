@@ -1,4 +1,4 @@
-"""Sweeps: SLAM (and KISS-ICP) over routes x seeds x settings, as tasks on a Dask cluster, into one tidy table.
+"""Sweeps: SLAM (and its peers) over routes x seeds x settings, as tasks on a Dask cluster, into one tidy table.
 
 A sweep is the cross product of
 
@@ -7,9 +7,11 @@ A sweep is the cross product of
 * **seeds**: each seed is one synthetic drive (town, sensor and IMU noise) *and* the filter's seed,
 * **layouts**: ``"raw"`` (KITTI raw drive: LIDAR + IMU) or ``"odometry"`` (KITTI odometry sequence: LIDAR only),
 * **methods**: ``"slamlib"`` for every entry of ``settings`` (dicts of :meth:`SLAM3DConfig.of` settings, e.g.
-  ``{"particles": 100}`` or ``{"deskew": True}``), and ``"kiss_icp"`` (:func:`slamlib.peers.kiss_icp_poses`, its
-  de-skewing on exactly when the drive's scans are swept, and then its poses moved from the sweep's end to the
-  frames' pose times, where the ground truth is),
+  ``{"particles": 100}`` or ``{"deskew": True}``), ``"slamlib_loop_closure"`` likewise, its poses re-anchored by
+  the loop-closing back end (:func:`slamlib.slam3d.run_drive`'s ``loop_closure``), and the peers once per drive:
+  ``"kiss_icp"`` (:func:`slamlib.peers.kiss_icp_poses`) and ``"kiss_slam"`` (:func:`slamlib.peers.kiss_slam_poses`),
+  each with its de-skewing on exactly when the drive's scans are swept, and then its poses moved from the sweep's
+  end to the frames' pose times, where the ground truth is,
 * one set of **drive options** (:class:`DriveOptions`) for every drive: sweep distortion, moving traffic, wandering
   IMU biases (all off by default: the town holds still and every scan is cast from one pose).
 
@@ -53,10 +55,13 @@ __all__ = [
     "plot_sweep",
     "COLUMNS",
     "METHODS",
+    "SLAMLIB_METHODS",
     "LAYOUTS",
 ]
 
-METHODS = ("slamlib", "kiss_icp")
+METHODS = ("slamlib", "kiss_icp", "slamlib_loop_closure", "kiss_slam")
+#: The methods that are slamlib's filter, run once per entry of a sweep's ``settings``.
+SLAMLIB_METHODS = ("slamlib", "slamlib_loop_closure")
 LAYOUTS = ("raw", "odometry")
 #: The columns of a sweep's table, in order (``drive`` is :meth:`DriveOptions.label`, empty for a still town seen by
 #: unswept scans; ``settings`` is the slamlib settings as JSON, empty for KISS-ICP).
@@ -167,8 +172,8 @@ def sweep_tasks(
     frames=(0, None),
     drive: DriveOptions = DriveOptions(),
 ) -> list:
-    """The cross product, as :class:`SweepTask` s (KISS-ICP once per drive: it has no slamlib settings), every
-    drive written with the options ``drive``."""
+    """The cross product, as :class:`SweepTask` s (the peers once per drive: they have no slamlib settings),
+    every drive written with the options ``drive``."""
     tasks = []
     for route in routes:
         for seed in seeds:
@@ -182,7 +187,7 @@ def sweep_tasks(
                         raise ValueError(
                             f"method must be one of {', '.join(METHODS)}, got {method!r}"
                         )
-                    for s in settings if method == "slamlib" else ({},):
+                    for s in settings if method in SLAMLIB_METHODS else ({},):
                         tasks.append(
                             SweepTask(
                                 str(route),
@@ -257,19 +262,25 @@ def run_task(task: SweepTask, base: str) -> dict:
         "settings": json.dumps(task.settings, sort_keys=True) if task.settings else "",
     }
     t0 = time.perf_counter()
-    if task.method == "slamlib":
+    if task.method in SLAMLIB_METHODS:
         from slamlib.slam3d import SLAM3DConfig, run_drive
 
+        closing = task.method == "slamlib_loop_closure"
         run = run_drive(
-            frames, SLAM3DConfig.of(seed=task.seed, **task.settings), progress=False
+            frames,
+            SLAM3DConfig.of(seed=task.seed, **task.settings),
+            progress=False,
+            loop_closure=closing,
         )
-        poses, gt, dr = run.poses, run.ground_truth, run.dead_reckoning
+        poses = run.loop_closed if closing else run.poses
+        gt, dr = run.ground_truth, run.dead_reckoning
     else:
-        from slamlib.peers import kiss_icp_poses
+        from slamlib.peers import kiss_icp_poses, kiss_slam_poses
 
-        # KISS-ICP de-skews swept scans, its poses then moved to the frames' pose times
+        # the peers de-skew swept scans, their poses then moved to the frames' pose times
         swept = task.drive.distortion
-        poses, _ = kiss_icp_poses(frames, deskew=swept, pose_times=swept)
+        peer = kiss_icp_poses if task.method == "kiss_icp" else kiss_slam_poses
+        poses = peer(frames, deskew=swept, pose_times=swept)[0]
         gt = (
             frames.ground_truth_poses()
             if task.layout == "odometry"

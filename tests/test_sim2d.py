@@ -432,3 +432,17 @@ def test_tempering_scales_the_scores(recording):
     assert np.allclose(score_particles(poses, pts, grid, tempering=0.25), 0.25 * full)
     with pytest.raises(ValueError, match="tempering"):
         score_particles(poses, pts, grid, tempering=0.0)
+
+
+def test_the_chapters_figures_keep_their_legends_off_the_data(recording):
+    """The world with its scan and the heading lever fill their axes with walls, route and returns: their
+    legends hang below the axes, covering no data vertex."""
+    import matplotlib.pyplot as plt
+
+    from slamlib.plotstyle import data_under_legend
+    from slamlib.sim2d.plot import plot_heading_lever, plot_world
+
+    for fig in (plot_world(recording, frame=5), plot_heading_lever(recording, 5)):
+        legends = [ax for ax in fig.axes if ax.get_legend() is not None]
+        assert legends and all(data_under_legend(ax) == 0 for ax in legends), fig
+        plt.close(fig)

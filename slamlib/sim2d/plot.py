@@ -77,7 +77,9 @@ def plot_world(recording, frame: int | None = None, ax=None, rays: bool = True):
                 ax.plot([pose[0], p[0]], [pose[1], p[1]], color="C3", lw=0.3, alpha=0.4)
         ax.plot(*pts.T, ".", color="C3", ms=3, label=f"LIDAR returns, frame {frame}")
         _vehicle(ax, pose, label="vehicle (heading arrow)")
-    ax.legend(loc="upper right", fontsize=10, framealpha=0.9)
+    legend_below(
+        ax, fontsize=10
+    )  # the route and the scan reach every corner of the world
     return fig
 
 
@@ -100,7 +102,7 @@ def plot_heading_lever(recording, frame: int, dtheta_deg: float = 2.0, dxy: floa
     side = np.array([-np.sin(pose[2]), np.cos(pose[2])]) * dxy
     shifted = truth + side
     fig, (ax0, ax1) = plt.subplots(
-        1, 2, figsize=(MAX_FIGURE_WIDTH_IN, 3.0), gridspec_kw={"width_ratios": [1.4, 1]}
+        1, 2, figsize=(MAX_FIGURE_WIDTH_IN, 4.2), gridspec_kw={"width_ratios": [1.4, 1]}
     )
     draw_world(recording.world, ax0, color="0.6", lw=0.8)
     ax0.plot(*truth.T, ".", color="k", ms=3, label="scan at the true pose")
@@ -109,7 +111,7 @@ def plot_heading_lever(recording, frame: int, dtheta_deg: float = 2.0, dxy: floa
     )
     ax0.plot(*shifted.T, ".", color="C0", ms=2, label=f"position off by {dxy * 100:g} cm")
     _vehicle(ax0, pose)
-    ax0.legend(fontsize=10, loc="upper right", framealpha=0.9)
+    legend_below(ax0, ncols=2, fontsize=10)
     r = np.hypot(*q.T)
     ax1.plot(
         r,
@@ -129,7 +131,7 @@ def plot_heading_lever(recording, frame: int, dtheta_deg: float = 2.0, dxy: floa
     )
     ax1.set_xlabel("range r of the return (m)")
     ax1.set_ylabel("displacement of the return (cm)")
-    ax1.legend(fontsize=10)
+    legend_below(ax1, ncols=1, fontsize=10)
     fig.tight_layout()
     return fig
 

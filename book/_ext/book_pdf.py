@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import asyncio
 import os
+import re
 import sys
 from pathlib import Path
 
@@ -31,21 +32,62 @@ div.cell_input, div.cell_output {
     break-inside: avoid;
 }
 """
+#: The stylesheets and images a loaded page links but the browser could not load (a file:// page reports no
+#: failed request for a missing file, so the page is asked).
+UNLOADED_JS = """() => [
+    ...Array.from(document.querySelectorAll('link[rel="stylesheet"]')).filter(l => !l.sheet).map(l => l.href),
+    ...Array.from(document.images).filter(i => i.complete && i.naturalWidth === 0).map(i => i.src),
+]"""
 #: Resolves once MathJax has typeset the page (immediately on a page without math).
 MATHJAX_DONE_JS = (
     "() => (window.MathJax && MathJax.startup && MathJax.startup.promise) || null"
 )
 
 
+#: The redirect ``index.html`` holds when the book's root page is in a folder (this book's is ``book/intro``).
+REDIRECT = re.compile(
+    r'<meta http-equiv="Refresh" content="0; url=([^"]+)"', re.IGNORECASE
+)
+#: The name the one page is printed under, beside ``index.html``.
+PRINTED_PAGE = "_print.html"
+
+
+def one_page(html_file) -> Path:
+    """The page to print for the builder's ``html_file`` (its ``index.html``), where its links resolve.
+
+    With the root page in a folder, ``index.html`` only redirects to ``FOLDER/ROOT.html``, and Sphinx's one-page
+    builder writes that page's links to ``_static/`` and ``_images/`` as if it sat beside ``index.html``, where
+    they are: from its folder the browser found none (a PDF without styles or figures). The page is copied there,
+    as :data:`PRINTED_PAGE`, and that copy printed."""
+    html_file = Path(html_file)
+    redirect = REDIRECT.search(html_file.read_text(encoding="utf-8"))
+    if redirect is None:
+        return html_file
+    page = html_file.parent / redirect.group(1)
+    if page.parent == html_file.parent:
+        return page
+    printed = html_file.parent / PRINTED_PAGE
+    printed.write_text(page.read_text(encoding="utf-8"), encoding="utf-8")
+    return printed
+
+
 async def _html_to_pdf(html_file, pdf_file) -> None:
-    """jupyter_book.pdf._html_to_pdf on ``CHROMIUM``: load the page, let MathJax finish, print it."""
+    """jupyter_book.pdf._html_to_pdf on ``CHROMIUM``: load the page (:func:`one_page`), let MathJax finish,
+    print it."""
     from playwright.async_api import async_playwright
 
     async with async_playwright() as pw:
         browser = await pw.chromium.launch(executable_path=CHROMIUM)
         try:
             page = await browser.new_page()
-            await page.goto(Path(html_file).resolve().as_uri(), wait_until="networkidle")
+            await page.goto(
+                one_page(html_file).resolve().as_uri(), wait_until="networkidle"
+            )
+            missing = await page.evaluate(UNLOADED_JS)
+            if missing:
+                raise RuntimeError(
+                    f"make pdf: {len(missing)} files the page links did not load, e.g. {missing[:3]}"
+                )
             await page.evaluate(MATHJAX_DONE_JS)
             await page.add_style_tag(content=KEEP_CELLS_WHOLE_CSS)
             await page.pdf(path=str(pdf_file), margin=MARGINS, print_background=True)

@@ -48,6 +48,7 @@ def test_a_true_closure_takes_the_drift_back():
     after = _end_error(graph.optimise(), truth)
     assert before > 3.0 and after < 0.1 * before
     assert graph.closure_kept.tolist() == [True]
+    assert 0 < graph.closure_statistic[0] <= chi2_gate()
 
 
 def test_a_false_closure_is_dropped_and_bends_nothing():
@@ -55,6 +56,9 @@ def test_a_false_closure_is_dropped_and_bends_nothing():
     graph.add_closure(10, 0, make_pose(rot_z(1.0), [120.0, 50.0, 0.0]))
     poses = graph.optimise()
     assert graph.closure_kept.tolist() == [False]
+    assert (
+        graph.closure_statistic[0] > 100 * chi2_gate()
+    )  # far beyond the gate, not near it
     assert all(np.allclose(poses[k], est[k], atol=1e-6) for k in range(20))
 
 

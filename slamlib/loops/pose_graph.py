@@ -112,11 +112,14 @@ class PoseGraph:
     edges : list of :class:`Edge`.
     closure_kept : (C,) bool, each closure decided so far: whether :meth:`optimise` kept it (in :attr:`closures`
         order).
+    closure_statistic : (C,) float, the test each faced: the largest whitened squared error ``e^T Sigma^{-1} e``
+        of any edge once the graph was solved with it, kept when at most :func:`chi2_gate`.
     """
 
     poses: dict = field(default_factory=dict)
     edges: list = field(default_factory=list)
     closure_kept: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
+    closure_statistic: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     def add_node(self, node: int, pose) -> None:
         """A node ``node`` at ``pose`` (4x4): its initial estimate."""
@@ -211,6 +214,7 @@ class PoseGraph:
             ).optimize()
             worst = max(2 * graph.at(k).error(trial) for k in range(1, graph.size()))
             self.closure_kept = np.append(self.closure_kept, worst <= gate)
+            self.closure_statistic = np.append(self.closure_statistic, worst)
         result = gtsam.LevenbergMarquardtOptimizer(
             self._factors(gtsam, self._kept_edges(), huber=np.sqrt(gate)),
             self._values(gtsam),

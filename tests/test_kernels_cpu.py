@@ -1398,3 +1398,69 @@ def test_move_kernels_built_afresh_equal_the_reference(monkeypatch):
         move_particles_soa(R_j, t_j, *args, nz_soa, sigma, out=(R_j, t_j))
         np.testing.assert_array_equal(R_j, R_s)
         np.testing.assert_array_equal(t_j, t_s)
+
+
+#: What a run compiles: the filter in both motion modes (crop and down-sampling, the move, scoring, merging, the
+#: LIDAR-only scan match) and the move kernels in both layouts with drawn and LUT noise (with and without the
+#: per-call trig table: 40 particles, tables of 16 and 256 entries).
+_CACHE_WORKLOAD = """
+import dataclasses, sys
+import numpy as np
+sys.path.insert(0, {tests!r})
+from world3d import simulate, tiny_config
+from slamlib.kernels import cpu
+from slamlib.noise import LutNoise, make_tables
+from slamlib.slam3d import ParticleSLAM3D
+frames, _ = simulate(n=4)
+for lidar_only in (False, True):
+    slam = ParticleSLAM3D(tiny_config())
+    for f in frames:
+        slam.register_frame(dataclasses.replace(f, velocity=None) if lidar_only else f)
+P = 40
+R, t, sigma, zero = np.tile(np.eye(3), (P, 1, 1)), np.zeros((P, 3)), np.full(6, 0.01), np.zeros(3)
+drawn = np.random.default_rng(0).standard_normal((P, 6))
+for noise, noise_soa in [(drawn, drawn.T)] + [
+    (lut, lut) for lut in (LutNoise(make_tables(3, bits=b), 1, 2) for b in (4, 8))
+]:
+    cpu.move_particles(R, t, zero, zero, noise, sigma)
+    cpu.move_particles_soa(R.transpose(1, 2, 0), t.T, zero, zero, noise_soa, sigma)
+"""
+
+
+def test_a_second_run_loads_every_kernel_from_numbas_cache(tmp_path):
+    """Two fresh processes run the same work with one Numba cache: the second compiles nothing. A kernel whose
+    cache key changes between processes (a closure over a jitted function: Numba pickles the closure's cells
+    into the key) is compiled by every run, seconds of a warm start, and grows its cache index each time."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    workload = _CACHE_WORKLOAD.format(tests=str(Path(__file__).parent))
+    env = {
+        **os.environ,
+        "NUMBA_CACHE_DIR": str(tmp_path / "numba-cache"),
+        "NUMBA_DEBUG_CACHE": "1",
+    }
+    env.pop("NUMBA_DISABLE_JIT", None)
+
+    def saved_by_a_run() -> set:
+        done = subprocess.run(
+            [sys.executable, "-c", workload],
+            env=env,
+            capture_output=True,
+            text=True,
+            timeout=900,
+        )
+        assert done.returncode == 0, done.stderr[-3000:]
+        lines = (done.stdout + done.stderr).splitlines()
+        return {
+            line.split("'")[1].rsplit("/", 1)[-1].split("-")[0]
+            for line in lines
+            if "[cache] data saved" in line
+        }
+
+    first = saved_by_a_run()
+    for kernel in ("_move_nb", "_move_lut_nb", "crop_downsample", "_score_voxel_nb"):
+        assert any(kernel in name for name in first), (kernel, sorted(first))
+    assert saved_by_a_run() == set()

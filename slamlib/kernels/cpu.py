@@ -35,6 +35,7 @@ the same source the CUDA backend compiles with ``cuda.jit(device=True)``. This m
 
 from __future__ import annotations
 
+import hashlib
 import math
 
 import numba
@@ -146,10 +147,33 @@ def _lut_tables_nb(normal, sigma, step_tab, trig_tab, with_trig):
                 trig_tab[k, j, 1] = math.sin(a)
 
 
+def _cache_by_build(kernel, **build):
+    """Key ``kernel``'s entries in Numba's on-disk cache by its bytecode and the constants of its ``build``, not by
+    a pickle of its closure; returns ``kernel``.
+
+    Numba keys a cached closure by its bytecode and a pickle of its closure's cells (``Cache._index_key`` in
+    ``numba.core.caching``). The move kernels close over ``move_one``, a jitted function, whose pickle holds an
+    identifier drawn anew in every process: every run missed the cache, compiled them again (seconds of a warm
+    start) and added an entry to their index. Their builds differ by the constants named here, and nothing
+    else. As Numba's own key, this one does not see changes to jitted functions of other files; a change to this
+    file empties the cache as before (the index holds the source's time stamp)."""
+    cache = getattr(kernel, "_cache", None)
+    if not hasattr(cache, "_index_key"):  # caching off, or another Numba's cache
+        return kernel
+    code = hashlib.sha256(kernel.py_func.__code__.co_code).hexdigest()
+    constants = hashlib.sha256(repr(sorted(build.items())).encode()).hexdigest()
+    cache._index_key = lambda sig, codegen: (
+        sig,
+        codegen.magic_tuple(),
+        (code, constants),
+    )
+    return kernel
+
+
 def _make_move_kernels(soa: bool):
     """The fused move kernels (drawn noise, LUT noise with and without the trig table) for one particle layout,
     ``soa`` a constant of the build: a layout test inside the loop would stop LLVM from vectorising it (one build
-    per layout, each cached)."""
+    per layout, each cached, keyed by its build: :func:`_cache_by_build`)."""
 
     @njit(inline="always")
     def move_one(R, t, R_new, t_new, i, p, d, n, sx, sy, sz):
@@ -244,9 +268,9 @@ def _make_move_kernels(soa: bool):
                         trans_delta[2] + step_tab[2, _hash_index(h, 2, perm, bits)],
                     )
 
-        return _move_lut_nb
+        return _cache_by_build(_move_lut_nb, soa=soa, with_trig=with_trig)
 
-    return _move_nb, make_lut(True), make_lut(False)
+    return _cache_by_build(_move_nb, soa=soa), make_lut(True), make_lut(False)
 
 
 #: ``_MOVE[soa] = (drawn noise, LUT noise with the trig table, LUT noise calling cos/sin)``: particle-major

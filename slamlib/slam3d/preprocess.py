@@ -21,7 +21,13 @@ Steps 1 and 2 run as one ``O(N)`` Numba pass (:func:`crop_and_downsample`); :fun
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
+from numba import njit
+
+from slamlib.maps.base import AXIS_OFFSET, EMPTY_KEY
+from slamlib.maps.codes import AXIS_MASK, hash_slot_nb, pack_key_nb
 
 __all__ = [
     "crop_range",
@@ -131,60 +137,51 @@ def crop_and_downsample(
 _OUT_OF_RANGE = -1
 
 
-def _build_crop_downsample():
-    import math
+#: Voxel indexes are offset by this to be non-negative before packing (:mod:`slamlib.maps.codes`).
+_KEY_OFFSET = np.int64(AXIS_OFFSET)
 
-    from numba import njit
 
-    from slamlib.maps.base import AXIS_OFFSET, EMPTY_KEY
-    from slamlib.maps.codes import AXIS_MASK, hash_slot_nb, pack_key_nb
-
-    offset = np.int64(AXIS_OFFSET)
-
-    @njit(cache=True)
-    def crop_downsample(xyz, min_r2, max_r2, h, log2_capacity):
-        """Indexes (input order) of the first point in range of each occupied voxel (``h = 0``: every point in
-        range); ``[-1]`` when a voxel index leaves ``[0, 2**21)`` after the offset."""
-        n = xyz.shape[0]
-        keep = np.empty(n, np.int64)
-        keys = np.full(np.int64(1) << log2_capacity, EMPTY_KEY, np.int64)
-        mask = (np.int64(1) << log2_capacity) - 1
-        m = 0
-        for i in range(n):
-            x, y, z = np.float64(xyz[i, 0]), np.float64(xyz[i, 1]), np.float64(xyz[i, 2])
-            r2 = x * x + y * y + z * z
-            if r2 < min_r2 or r2 > max_r2:
+@njit(cache=True)
+def _crop_downsample_nb(xyz, min_r2, max_r2, h, log2_capacity):
+    """Indexes (input order) of the first point in range of each occupied voxel (``h = 0``: every point in
+    range); ``[-1]`` when a voxel index leaves ``[0, 2**21)`` after the offset. A module-level kernel: its helpers
+    are globals, which Numba's cache key leaves out (a closure's cells are in it, and a jitted function in a cell
+    made every run compile it again)."""
+    n = xyz.shape[0]
+    keep = np.empty(n, np.int64)
+    keys = np.full(np.int64(1) << log2_capacity, EMPTY_KEY, np.int64)
+    mask = (np.int64(1) << log2_capacity) - 1
+    m = 0
+    for i in range(n):
+        x, y, z = np.float64(xyz[i, 0]), np.float64(xyz[i, 1]), np.float64(xyz[i, 2])
+        r2 = x * x + y * y + z * z
+        if r2 < min_r2 or r2 > max_r2:
+            continue
+        if h > 0:
+            ux = np.int64(math.floor(x / h)) + _KEY_OFFSET
+            uy = np.int64(math.floor(y / h)) + _KEY_OFFSET
+            uz = np.int64(math.floor(z / h)) + _KEY_OFFSET
+            if (
+                ux < 0
+                or ux > AXIS_MASK
+                or uy < 0
+                or uy > AXIS_MASK
+                or uz < 0
+                or uz > AXIS_MASK
+            ):
+                out = np.empty(1, np.int64)
+                out[0] = _OUT_OF_RANGE
+                return out
+            key = pack_key_nb(ux, uy, uz)
+            s = hash_slot_nb(key, log2_capacity)
+            while keys[s] != EMPTY_KEY and keys[s] != key:
+                s = (s + 1) & mask
+            if keys[s] == key:
                 continue
-            if h > 0:
-                ux = np.int64(math.floor(x / h)) + offset
-                uy = np.int64(math.floor(y / h)) + offset
-                uz = np.int64(math.floor(z / h)) + offset
-                if (
-                    ux < 0
-                    or ux > AXIS_MASK
-                    or uy < 0
-                    or uy > AXIS_MASK
-                    or uz < 0
-                    or uz > AXIS_MASK
-                ):
-                    out = np.empty(1, np.int64)
-                    out[0] = _OUT_OF_RANGE
-                    return out
-                key = pack_key_nb(ux, uy, uz)
-                s = hash_slot_nb(key, log2_capacity)
-                while keys[s] != EMPTY_KEY and keys[s] != key:
-                    s = (s + 1) & mask
-                if keys[s] == key:
-                    continue
-                keys[s] = key
-            keep[m] = i
-            m += 1
-        return keep[:m]
-
-    return crop_downsample
-
-
-_crop_downsample_nb = _build_crop_downsample()
+            keys[s] = key
+        keep[m] = i
+        m += 1
+    return keep[:m]
 
 
 def sample_points(points, n: int, rng: np.random.Generator) -> np.ndarray:

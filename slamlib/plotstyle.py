@@ -170,11 +170,22 @@ _JSHTML_CDN_CSS = re.compile(
 )
 
 
+#: The frame of matplotlib's ``to_jshtml`` player, before its attributes.
+_JSHTML_FRAME = '<img id="_anim_img'
+
+
 def animation_html(anim, **kwargs) -> str:
     """``anim.to_jshtml(**kwargs)`` (every frame embedded, plays without a kernel) without the CDN stylesheet link,
-    then closes the animation's figure so that the notebook shows only the player, not a static last frame."""
+    then closes the animation's figure so that the notebook shows only the player, not a static last frame.
+
+    The frames are drawn at :data:`BOOK_PIXEL_DENSITY` times :data:`BOOK_DPI` and shown at the figure's size at
+    :data:`BOOK_DPI` (the frame's ``width``), as the book's figures are: sharp on high-density screens."""
+    import matplotlib as mpl
     import matplotlib.pyplot as plt
 
-    html = _JSHTML_CDN_CSS.sub("", anim.to_jshtml(**kwargs))
-    plt.close(anim._fig)
-    return html
+    fig = anim._fig
+    with mpl.rc_context({"savefig.dpi": BOOK_DPI * BOOK_PIXEL_DENSITY}):
+        html = _JSHTML_CDN_CSS.sub("", anim.to_jshtml(**kwargs))
+    plt.close(fig)
+    width = round(fig.get_figwidth() * BOOK_DPI)
+    return html.replace(_JSHTML_FRAME, f'<img style="width: {width}px" id="_anim_img', 1)

@@ -1,5 +1,6 @@
 """The book's figure helpers: animations that play offline, the style applied, legends off the data."""
 
+import base64
 import warnings
 
 import matplotlib
@@ -8,6 +9,8 @@ import numpy as np
 from matplotlib.animation import FuncAnimation
 
 from slamlib.plotstyle import (
+    BOOK_DPI,
+    BOOK_PIXEL_DENSITY,
     BOOK_RCPARAMS,
     animation_html,
     book_style,
@@ -26,6 +29,17 @@ def test_animation_html_has_every_frame_and_no_off_machine_request():
     assert "https://" not in html and "http://" not in html
     assert html.count("data:image/png;base64") == 4
     assert not plt.fignum_exists(fig.number)  # closed: no static copy of the last frame
+    # frames at the book's pixel density, shown at the figure's size (a new animation: to_jshtml keeps its
+    # first result, the plain one above)
+    fig, ax = plt.subplots()
+    (line,) = ax.plot([0, 1], [0, 1])
+    html = animation_html(FuncAnimation(fig, lambda k: line.set_ydata([0, k]), frames=2))
+    width = round(fig.get_figwidth() * BOOK_DPI)
+    assert f'<img style="width: {width}px" id="_anim_img' in html
+    frame = base64.b64decode(html.split("data:image/png;base64,")[1].split('"')[0])
+    assert (
+        int.from_bytes(frame[16:20], "big") == BOOK_PIXEL_DENSITY * width
+    )  # the PNG's width
 
 
 def test_book_style_sets_the_fonts_and_silences_only_the_legend_timing_warning():

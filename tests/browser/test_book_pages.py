@@ -17,8 +17,8 @@ with Playwright driving Debian's Chromium; a page fails, with a message naming i
 - a reference left unresolved or doubled: a role's source (`` {eq}` ``, `` {numref}` ``, ...), a raw label in
   parentheses (`(eq-...)`, `(fig-...)`), or an equation number in two pairs of brackets (`((1))`: `({eq}`x`)`);
 - an animation (matplotlib `to_jshtml`) whose frame does not change within ~1 s of pressing play;
-- a figure (not an animation or SVG) drawn at fewer than `BOOK_PIXEL_DENSITY` image pixels per displayed pixel:
-  blurry on a high-density screen;
+- a figure or animation frame (not an SVG) drawn at fewer than `BOOK_PIXEL_DENSITY` image pixels per displayed
+  pixel: blurry on a high-density screen;
 - a figure or animation frame shrunk to fit the column below `MIN_FIGURE_SCALE` of its own size: the book draws
   its fonts at 11 pt (10.5 pt ticks) at `slamlib.plotstyle.BOOK_DPI`, so they stay at >= 10 pt on the page only
   if the image is shown at (nearly) its own size, on a desktop window of `VIEWPORT`;
@@ -359,10 +359,7 @@ def test_book_page(page_path, server, browser):
                     f"its fonts fall below 10 pt (draw it at most "
                     f"{im['shown'] / MIN_FIGURE_SCALE / 100:.1f} in wide at 100 dpi)"
                 )
-            if (
-                not (im["animation"] or im["svg"])
-                and im["natural"] < BOOK_PIXEL_DENSITY * im["intended"]
-            ):
+            if not im["svg"] and im["natural"] < BOOK_PIXEL_DENSITY * im["intended"]:
                 problems.append(
                     f"image {im['src']} has {im['natural']} px for {im['intended']:.0f} px shown: draw it at "
                     f"{BOOK_PIXEL_DENSITY}x pixel density (slamlib.plotstyle.book_style in the set-up cell)"

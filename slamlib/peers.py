@@ -164,23 +164,26 @@ def kiss_icp_poses(
 
 
 @contextlib.contextmanager
-def _quiet_stdout():
-    """The process's stdout (file descriptor 1: Python's prints and the C++ optimiser's alike) sent to
-    ``/dev/null`` for the block."""
+def _quiet_output():
+    """The process's stdout and stderr (file descriptors 1 and 2: Python's prints and the C++ optimiser's
+    iteration log alike) sent to ``/dev/null`` for the block. An exception still reaches the caller, and its
+    traceback the terminal, once the block has left."""
     sys.stdout.flush()
-    saved = os.dup(1)
+    sys.stderr.flush()
+    saved = {fd: os.dup(fd) for fd in (1, 2)}
     try:
         with open(os.devnull, "wb") as null:
-            os.dup2(null.fileno(), 1)
-        with contextlib.redirect_stdout(open(os.devnull, "w")) as sink:
-            try:
+            for fd in saved:
+                os.dup2(null.fileno(), fd)
+        with open(os.devnull, "w") as sink:
+            with contextlib.redirect_stdout(sink), contextlib.redirect_stderr(sink):
                 yield
-            finally:
-                sink.close()
     finally:
         sys.stdout.flush()
-        os.dup2(saved, 1)
-        os.close(saved)
+        sys.stderr.flush()
+        for fd, copy in saved.items():
+            os.dup2(copy, fd)
+            os.close(copy)
 
 
 def kiss_slam_poses(
@@ -200,8 +203,8 @@ def kiss_slam_poses(
 
     Returns ``(poses (F, 4, 4) body, seconds (F,), closures)``: each frame's ``process_scan`` time (the final
     optimisation spread evenly over the frames, so that ``1 / median`` and the mean both count it) and the closures
-    KISS-SLAM accepted, ``(reference local map, query local map)`` pairs. KISS-SLAM's own prints go nowhere. Raises
-    ``ImportError`` naming the install when it is missing.
+    KISS-SLAM accepted, ``(reference local map, query local map)`` pairs. KISS-SLAM's own output (stdout and stderr)
+    goes nowhere. Raises ``ImportError`` naming the install when it is missing.
     """
     try:
         from kiss_slam.config.config import load_config
@@ -216,7 +219,7 @@ def kiss_slam_poses(
     config.odometry.preprocessing.deskew = bool(deskew)
     T_velo_imu, T_imu_velo = _calibration(frames, T_velo_imu)
     seconds, offsets = [], []
-    with _quiet_stdout():
+    with _quiet_output():
         slam = KissSLAM(config)
         for frame in frames:
             offsets.append(_time_offset(frame))

@@ -7,7 +7,7 @@ Examples::
     slamlib sweep --out sweeps/lidar --layouts odometry --particles 300,1000      # LIDAR-only, two settings
     slamlib sweep --out sweeps/real --routes 00,05,07 --frames 0: --distortion --traffic --bias-walk \\
         --deskew --anneal-rounds 2 --tilt-sigma 0.003                # realistic drives, annealed, tilt held
-    slamlib sweep --out sweeps/loops --layouts odometry --frames 0: --methods slamlib_loop_closure,kiss_slam \
+    slamlib sweep --out sweeps/loops --layouts odometry --frames 0: --methods slamlib_loop_closure,kiss_slam \\
         --distortion --traffic                            # loop closure against KISS-SLAM, whole routes
     slamlib sweep --out sweeps/x --scheduler tcp://10.0.0.5:8786                  # on an existing Dask cluster
 

@@ -14,8 +14,12 @@ pose graph (:mod:`slamlib.loops.pose_graph`), joined to the previous node by the
    guess (open3d), kept when at least :data:`MIN_FITNESS` of the candidate's points find a query point within
    :data:`ICP_DISTANCE` metres; candidates fewer than :data:`MIN_NODE_GAP` nodes back are not loops but the
    road just driven, and are skipped;
-3. **added** to the pose graph as a closure edge, which the graph keeps or rejects (graduated non-convexity,
-   :meth:`~slamlib.loops.pose_graph.PoseGraph.optimise`) before it re-optimises.
+3. **added** to the pose graph as a closure edge, which the graph keeps or rejects (a chi-square test of every
+   edge once solved with it, :meth:`~slamlib.loops.pose_graph.PoseGraph.optimise`) before it re-optimises.
+
+MapClosures itself compares a local map only with those more than three maps back, and needs more than two
+descriptor matches to propose one: a return that overlaps an old local map only over a few tens of metres (the
+end of route 07 against its start) may find no candidate at all.
 
 After each optimisation every frame is **re-anchored** on its local map's optimised key pose:
 ``T_k' = T_key' T_key^{-1} T_k`` (:meth:`LoopCloser.corrected_poses`), the filter's own poses left alone.

@@ -188,4 +188,5 @@ def animation_html(anim, **kwargs) -> str:
         html = _JSHTML_CDN_CSS.sub("", anim.to_jshtml(**kwargs))
     plt.close(fig)
     width = round(fig.get_figwidth() * BOOK_DPI)
-    return html.replace(_JSHTML_FRAME, f'<img style="width: {width}px" id="_anim_img', 1)
+    shown = _JSHTML_FRAME.replace("<img ", f'<img style="width: {width}px" ')
+    return html.replace(_JSHTML_FRAME, shown, 1)

@@ -26,8 +26,8 @@ import math
 import numpy as np
 from numba import njit
 
-from slamlib.maps.base import AXIS_OFFSET, EMPTY_KEY
-from slamlib.maps.codes import AXIS_MASK, hash_slot_nb, pack_key_nb
+from slamlib.maps.base import EMPTY_KEY
+from slamlib.maps.codes import AXIS_MASK, AXIS_OFFSET_I64, hash_slot_nb, pack_key_nb
 
 __all__ = [
     "crop_range",
@@ -137,10 +137,6 @@ def crop_and_downsample(
 _OUT_OF_RANGE = -1
 
 
-#: Voxel indexes are offset by this to be non-negative before packing (:mod:`slamlib.maps.codes`).
-_KEY_OFFSET = np.int64(AXIS_OFFSET)
-
-
 @njit(cache=True)
 def _crop_downsample_nb(xyz, min_r2, max_r2, h, log2_capacity):
     """Indexes (input order) of the first point in range of each occupied voxel (``h = 0``: every point in
@@ -158,9 +154,9 @@ def _crop_downsample_nb(xyz, min_r2, max_r2, h, log2_capacity):
         if r2 < min_r2 or r2 > max_r2:
             continue
         if h > 0:
-            ux = np.int64(math.floor(x / h)) + _KEY_OFFSET
-            uy = np.int64(math.floor(y / h)) + _KEY_OFFSET
-            uz = np.int64(math.floor(z / h)) + _KEY_OFFSET
+            ux = np.int64(math.floor(x / h)) + AXIS_OFFSET_I64
+            uy = np.int64(math.floor(y / h)) + AXIS_OFFSET_I64
+            uz = np.int64(math.floor(z / h)) + AXIS_OFFSET_I64
             if (
                 ux < 0
                 or ux > AXIS_MASK

@@ -10,6 +10,7 @@ from slamlib.loops import (
     LoopCloser,
     PoseGraph,
     close_loops,
+    nearby_maps,
     odometry_sigmas,
     verify_closure,
     voxel_down_sample,
@@ -232,6 +233,38 @@ def test_no_closure_on_a_drive_without_revisits(town_drive):
     corrected, closer = close_loops(drifted[:n], scans[:n])
     assert closer.closures == [] and len(closer.mapper.maps) >= 4
     assert np.allclose(corrected, drifted[:n])
+
+
+def test_candidates_by_position_are_the_earlier_paths_within_the_drift_bound():
+    """Maps 3 or more back whose path passes within radius + drift x distance driven, nearest first."""
+    line = np.column_stack([np.arange(0, 50, 5.0), np.zeros(10), np.zeros(10)])
+    paths = [line + [100.0 * j, 0, 0] for j in range(5)] + [line + [0, 12.0, 0]]
+    distances = [100.0 * j for j in range(6)]
+    # map 0 is 12 m away after 500 m driven: inside 10 + 0.02 x 500 = 20 m, outside a 10 m radius alone
+    assert nearby_maps(paths, distances) == [(0, 12.0)]
+    assert nearby_maps(paths, distances, drift=0.0) == []
+    # beside map 3, two maps back: the road just driven, unless the gap allowed is 2
+    paths[-1] = line + [300.0, 12.0, 0]
+    assert nearby_maps(paths, distances) == []
+    assert nearby_maps(paths, distances, min_node_gap=2) == [(3, 12.0)]
+    # several in reach: nearest first
+    paths[-1] = line + [0, 12.0, 0]
+    paths[1] = line + [0, 23.0, 0]
+    assert nearby_maps(paths, distances) == [(1, 11.0), (0, 12.0)]
+
+
+def test_a_return_that_place_recognition_misses_is_closed_by_position(town_drive):
+    """With place recognition unable to propose (an inlier threshold no match reaches), the graph's own
+    estimate of where the car is proposes the old local maps, and ICP verifies them."""
+    truth, drifted, scans = town_drive
+    corrected, closer = close_loops(drifted, scans, min_inliers=10**6)
+    assert closer.closures and all(c.proposed_by == "position" for c in closer.closures)
+    for c in closer.closures:
+        true = invert_pose(truth[c.query_frame]) @ truth[c.reference_frame]
+        assert np.linalg.norm((invert_pose(true) @ c.relative)[:3, 3]) < 0.5
+    assert _rmse(corrected, truth) < 0.5 * _rmse(drifted, truth)
+    _, neither = close_loops(drifted, scans, min_inliers=10**6, max_proposals=0)
+    assert neither.closures == []
 
 
 def test_the_closer_is_fed_frame_by_frame_as_the_filter_runs(town_drive):

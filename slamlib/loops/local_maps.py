@@ -59,13 +59,15 @@ def voxel_down_sample(points, voxel: float) -> np.ndarray:
 @dataclass
 class LocalMap:
     """Node ``node`` of the pose graph: ``key_pose`` (4x4, world), ``points`` (M, 3) in the key pose's frame,
-    ``frames`` the frame indexes it holds and ``poses`` (K, 4, 4) the filter's world poses of those frames."""
+    ``frames`` the frame indexes it holds, ``poses`` (K, 4, 4) the filter's world poses of those frames and
+    ``distance`` the metres driven from the first frame to the key pose."""
 
     node: int
     key_pose: np.ndarray
     points: np.ndarray
     frames: list = field(default_factory=list)
     poses: list = field(default_factory=list)
+    distance: float = 0.0
 
 
 class LocalMapper:
@@ -86,6 +88,7 @@ class LocalMapper:
         self._open: LocalMap | None = None
         self._chunks: list[np.ndarray] = []
         self._travelled = 0.0
+        self._driven = 0.0
         self._last = None
 
     def add(self, frame: int, pose, points) -> LocalMap | None:
@@ -93,11 +96,15 @@ class LocalMapper:
         pose = np.asarray(pose, dtype=np.float64)
         done = None
         if self._open is not None:
-            self._travelled += float(np.linalg.norm(pose[:3, 3] - self._last[:3, 3]))
+            step = float(np.linalg.norm(pose[:3, 3] - self._last[:3, 3]))
+            self._travelled += step
+            self._driven += step
             if self._travelled >= self.splitting_distance:
                 done = self.finish()
         if self._open is None:
-            self._open = LocalMap(len(self.maps), pose.copy(), np.zeros((0, 3)))
+            self._open = LocalMap(
+                len(self.maps), pose.copy(), np.zeros((0, 3)), distance=self._driven
+            )
             self._chunks, self._travelled = [], 0.0
         key_from_body = invert_pose(self._open.key_pose) @ pose
         self._chunks.append(

@@ -227,6 +227,19 @@ def test_the_back_end_closes_a_loop_with_closures_true_to_the_ground(town_drive)
     assert _rmse(corrected, truth) < 0.5 * _rmse(drifted, truth)
 
 
+def test_re_anchored_frames_move_smoothly_from_one_local_map_to_the_next(town_drive):
+    """Corrections blended between key poses: no frame-to-frame step of the corrected path differs from the
+    truth's by more than a centimetre and a half (re-anchoring each local map rigidly on its key pose jumps by
+    3 cm where one map hands over to the next on this drive)."""
+    truth, drifted, scans = town_drive
+    corrected, _ = close_loops(drifted, scans)
+
+    def steps(poses):
+        return np.linalg.norm(np.diff(poses[:, :3, 3], axis=0), axis=1)
+
+    assert np.abs(steps(corrected) - steps(truth)).max() < 0.015
+
+
 def test_no_closure_on_a_drive_without_revisits(town_drive):
     truth, drifted, scans = town_drive
     n = int(0.8 * len(truth) / 1.25)  # 0.8 of a lap: never back where it began

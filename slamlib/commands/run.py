@@ -249,9 +249,9 @@ def add_arguments(parser) -> None:
     lc.add_argument(
         "--loop-closure",
         action="store_true",
-        help="cut local maps from the trajectory, find revisits by place recognition (map-closures), verify "
-        "them by ICP and optimise a pose graph (GTSAM); writes slam_loop_closed_poses.txt and closures.json "
-        "beside the filter's own poses (slamlib.loops)",
+        help="cut local maps from the trajectory, find revisits by place recognition (map-closures) and "
+        "by position in the graph, verify them by ICP and optimise a pose graph (GTSAM); writes "
+        "slam_loop_closed_poses.txt and closures.json beside the filter's own poses (slamlib.loops)",
     )
     o = parser.add_argument_group("output")
     o.add_argument(

@@ -458,7 +458,8 @@ def _quiet_stderr():
 
 def _closures_json(run: SLAMRun) -> dict:
     """The loop closer's local maps (first frame, key pose) and closures (the local maps and frames they join,
-    ``T_query^{-1} T_reference``, place-recognition inliers, ICP fitness and RMSE, whether the graph kept it)."""
+    ``T_query^{-1} T_reference``, how it was proposed, place-recognition inliers, ICP fitness and RMSE, whether
+    the graph kept it)."""
     closer, frames = run.loop_closer, run.frame_indices
     return {
         "local_maps": [
@@ -476,6 +477,7 @@ def _closures_json(run: SLAMRun) -> dict:
                 "query_frame": int(frames[c.query_frame]),
                 "reference_frame": int(frames[c.reference_frame]),
                 "relative": np.round(c.relative, 6).tolist(),
+                "proposed_by": c.proposed_by,
                 "inliers": c.inliers,
                 "fitness": round(c.fitness, 4),
                 "rmse_m": round(c.rmse, 4),

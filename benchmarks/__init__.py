@@ -33,6 +33,7 @@ BENCHMARKS = {
     "stages": "benchmarks.stages",
     "loops2d": "benchmarks.loops2d",
     "loops": "benchmarks.loops",
+    "loops_route": "benchmarks.loops_route",
 }
 
 

@@ -28,6 +28,7 @@ NAMES = (
     "stages",
     "loops2d",
     "loops",
+    "loops_route",
 )
 
 

@@ -51,6 +51,34 @@ def test_the_committed_loop_benchmark_is_a_whole_run_on_its_named_seeds():
     ]
 
 
+def test_the_loop_route_benchmark_is_the_loop_benchmarks_run_of_its_drive():
+    """``loops_route`` keeps one drive of ``loops`` whole for chapter 10's figures; slamlib is deterministic at a
+    seed, so its committed errors agree with that drive's row only when both ran the same code."""
+    route = load_bench_result("loops_route")
+    row = next(
+        r
+        for r in load_bench_result("loops")["drives"]
+        if (r["route"], r["seed"]) == (route["route"], route["seed"])
+    )
+    assert route["quick"] is False and route["frames"] == row["frames"]
+    for method in ("slamlib", "slamlib_loop_closure"):
+        for key in ("ate_rmse_m", "kitti_t_err_percent"):
+            assert (
+                abs(route[method][key] - row[method][key]) <= MEASURED_TWICE_TOLERANCE
+            ), (
+                method,
+                key,
+            )
+    kept = [
+        (c["query_frame"], c["reference_frame"]) for c in route["closures"] if c["kept"]
+    ]
+    assert kept == [
+        (c["query_frame"], c["reference_frame"]) for c in row["closures"] if c["kept"]
+    ]
+    n = len(route["distance_m"])
+    assert all(len(p) == n for p in route["positions"].values())
+
+
 def test_an_unknown_fact_names_the_known_ones():
     with pytest.raises(KeyError, match="default-fps"):
         fact("default-fsp")

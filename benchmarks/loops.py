@@ -49,20 +49,6 @@ def _drive(route: str, seed: int, frames, select=None):
     return KittiRawDrive(base, "2011_09_26", 1, frames=select)
 
 
-def _row(poses, seconds, gt) -> dict:
-    from slamlib.metrics import trajectory_metrics
-
-    m = trajectory_metrics(poses, gt)
-    return {
-        "kitti_t_err_percent": round(
-            float(m.get("kitti_t_err_percent", float("nan"))), 4
-        ),
-        "ate_rmse_m": round(float(m["ate_rmse_m"]), 4),
-        "fps_median": round(float(1.0 / np.median(seconds[1:])), 2),
-        "fps_mean": round(float(len(seconds[1:]) / np.sum(seconds[1:])), 2),
-    }
-
-
 def _closure_rows(run, gt) -> list:
     """Each slamlib closure: local maps, frames, kept, proposed by, and its relative pose's error against the
     truth."""
@@ -97,6 +83,7 @@ def run(quick: bool = False) -> dict:
 
     import numba
 
+    from benchmarks.lidar_only import _row
     from slamlib.metrics import trajectory_distances
     from slamlib.peers import kiss_slam_poses
     from slamlib.slam3d import SLAM3DConfig, run_drive

@@ -41,7 +41,8 @@ def _map_points(closer, node: int, key_pose) -> np.ndarray:
 
 
 def run(quick: bool = False) -> dict:
-    from benchmarks.loops import QUICK_FRAMES, _drive, _ground_truth, _row
+    from benchmarks.lidar_only import _row
+    from benchmarks.loops import QUICK_FRAMES, _drive, _ground_truth
     from slamlib.metrics import trajectory_distances
     from slamlib.peers import kiss_slam_poses
     from slamlib.slam3d import SLAM3DConfig, run_drive

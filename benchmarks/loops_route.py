@@ -9,8 +9,7 @@ Reported: every :data:`STRIDE`-th frame's position (m, the first frame's IMU fra
 the filter with loop closure and KISS-SLAM, with the distance driven; the closures (frames they join, kept); and,
 for the maps before and after, the points (x, y, z, m) of the local maps that the first kept closure joins,
 thinned to one per :data:`MAP_VOXEL` metres and within :data:`MAP_RADIUS` metres (horizontally) of the reference
-key pose, placed
-by the filter's key poses and by the optimised ones. ``--quick``: the first 150 frames (no loop).
+key pose, placed by the filter's key poses and by the optimised ones. ``--quick``: the first 150 frames (no loop).
 """
 
 from __future__ import annotations
@@ -42,14 +41,14 @@ def _map_points(closer, node: int, key_pose) -> np.ndarray:
 
 def run(quick: bool = False) -> dict:
     from benchmarks.lidar_only import _row
-    from benchmarks.loops import QUICK_FRAMES, _drive, _ground_truth
+    from benchmarks.loops import QUICK_FRAMES, _drive
     from slamlib.metrics import trajectory_distances
     from slamlib.peers import kiss_slam_poses
     from slamlib.slam3d import SLAM3DConfig, run_drive
 
     drive = _drive(ROUTE, SEED, QUICK_FRAMES if quick else (0, None))
-    gt = _ground_truth(drive)
     slam = run_drive(drive, SLAM3DConfig(seed=SEED), progress=True, loop_closure=True)
+    gt = slam.ground_truth  # the IMU's, from the first frame's
     kiss = kiss_slam_poses(drive, deskew=True, pose_times=True)
     closer = slam.loop_closer
     closures = [

@@ -87,7 +87,6 @@ class LocalMapper:
         self.maps: list[LocalMap] = []
         self._open: LocalMap | None = None
         self._chunks: list[np.ndarray] = []
-        self._travelled = 0.0
         self._driven = 0.0
         self._last = None
 
@@ -96,16 +95,14 @@ class LocalMapper:
         pose = np.asarray(pose, dtype=np.float64)
         done = None
         if self._open is not None:
-            step = float(np.linalg.norm(pose[:3, 3] - self._last[:3, 3]))
-            self._travelled += step
-            self._driven += step
-            if self._travelled >= self.splitting_distance:
+            self._driven += float(np.linalg.norm(pose[:3, 3] - self._last[:3, 3]))
+            if self._driven - self._open.distance >= self.splitting_distance:
                 done = self.finish()
         if self._open is None:
             self._open = LocalMap(
                 len(self.maps), pose.copy(), np.zeros((0, 3)), distance=self._driven
             )
-            self._chunks, self._travelled = [], 0.0
+            self._chunks = []
         key_from_body = invert_pose(self._open.key_pose) @ pose
         self._chunks.append(
             voxel_down_sample(transform_points(key_from_body, points), self.voxel)

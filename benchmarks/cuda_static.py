@@ -4,7 +4,7 @@ No GPU and no timing: every kernel of :mod:`slamlib.kernels.cuda` is compiled fo
 with the argument types its host wrapper really passes (:func:`slamlib.kernels.cuda_static.static_report`), and
 ptxas' report (via nvJitLink) gives registers per thread, stack, static shared memory and spills. From these and
 the documented per-SM limits (:data:`slamlib.kernels.cuda_static.GPUS`) each row adds the theoretical occupancy
-(resident blocks and warps per SM) and, at the filter's default sizes (``FilterConfig.particles`` particles,
+(resident blocks and warps per SM) and, at the filter's default sizes (``FilterConfig.particle_count()`` particles,
 ``scored_points`` points), the launch's grid and how much of the card it can keep busy (``fill``).
 
 Everything here is **static analysis, not measurement**: a real GPU run (``slamlib bench cuda``) is needed for
@@ -28,7 +28,10 @@ def run_static() -> dict:
     if reason:
         raise SystemExit(f"slamlib bench cuda --static: {reason}")
     defaults = FilterConfig()
-    sizes = {"particles": int(defaults.particles), "points": int(defaults.scored_points)}
+    sizes = {
+        "particles": defaults.particle_count(),
+        "points": int(defaults.scored_points),
+    }
     report = cs.static_report(cs.DEFAULT_CCS, BLOCK_SIZES, fill_sizes=sizes)
     rows = []
     for r in report["results"]:

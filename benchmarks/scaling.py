@@ -100,7 +100,7 @@ def run(quick: bool = False) -> dict:
         _row(
             run_drive(drive, SLAM3DConfig.of(scored_points=N), progress=False),
             evaluate,
-            particles=default.filter.particles,
+            particles=default.filter.particle_count(),
             points=N,
         )
         for N in (QUICK_POINTS if quick else POINTS)
@@ -126,7 +126,7 @@ def run(quick: bool = False) -> dict:
         ),
         "frames": int(len(ms)),
         "path_length_m": round(float(m["path_length_m"]), 1),
-        "particles": default.filter.particles,
+        "particles": default.filter.particle_count(),
         "points": default.filter.scored_points,
         "map": default.map.kind,
         "fps": round(r.fps, 2),

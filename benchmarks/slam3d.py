@@ -105,7 +105,7 @@ def _long_run() -> dict:
         "drive": "slamlib.synth.default_drive(full=True, realism=False)",
         "frames": m["frames"],
         "path_length_m": round(m["path_length_m"], 1),
-        "particles": cfg.filter.particles,
+        "particles": cfg.filter.particle_count(),
         "map": cfg.map.kind,
         "fps": round(r.fps, 2),
         "fps_median": round(float(1.0 / np.median(r.frame_seconds[1:])), 2),

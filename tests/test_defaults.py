@@ -382,9 +382,13 @@ def test_the_defaults_have_their_values():
     )
     assert (c.scan.deskew, c.scan.sweep_period) == (AUTO, 0.10315)
     assert (c.filter.particles, c.filter.scored_points, c.filter.temperature) == (
-        300,
+        AUTO,
         1000,
         0.02,
+    )
+    assert (c.filter.particle_count(), c.filter.particle_count(lidar_only=True)) == (
+        300,
+        100,
     )
     assert (c.filter.ess_fraction, c.filter.pose_estimate, c.search.anneal_rounds) == (
         0.5,
@@ -396,6 +400,7 @@ def test_the_defaults_have_their_values():
         AUTO,
         15,
     )
+    assert c.polish.match_voxel == 0.5
     assert (c.map.kind, c.upkeep.prune_every, c.upkeep.transient_span) == (
         "voxel_hash",
         20,

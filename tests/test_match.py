@@ -255,6 +255,38 @@ def test_road_points_do_not_pull_a_moving_scan_back_onto_the_rings():
     assert abs(found["road"][2, 3]) < 0.01  # the road still holds the height
 
 
+def test_the_stage_matches_the_thinned_scan_and_moves_the_particles_with_it(monkeypatch):
+    """``ScanMatch(voxel=...)`` matches one point per cube of that edge (far fewer than the scan's), still finds
+    the pose, and moves every particle by the same correction."""
+    import slamlib.slam3d.stages.polish as polish
+    from slamlib.slam3d.preprocess import voxel_downsample
+    from slamlib.slam3d.stages import ScanMatch
+    from slamlib.slam3d.steps import Particles3D
+
+    rng = np.random.default_rng(7)
+    world = _room(rng)
+    m, truth = _map(world), np.eye(4)
+    start = make_pose(
+        rpy_to_matrix([0.004, -0.003, 0.008]), np.array([0.08, -0.05, 0.03])
+    )
+    seen = []
+    monkeypatch.setattr(
+        polish,
+        "match_scan",
+        lambda pose, pts, *a: seen.append(len(pts)) or match_scan(pose, pts, *a),
+    )
+    particles = Particles3D(
+        np.stack([start[:3, :3]] * 3), start[:3, 3] + np.eye(3) * 0.01
+    )
+    found, moved = ScanMatch(20, voxel=1.0)(start, world, particles, m)
+    assert seen == [len(voxel_downsample(world, 1.0))] and seen[0] < len(world) / 4
+    dt, da = _error(found, truth)
+    assert dt < 0.01 and da < 1e-3, (dt, da)
+    C = found @ np.linalg.inv(start)
+    np.testing.assert_allclose(moved.t, particles.t @ C[:3, :3].T + C[:3, 3], atol=1e-12)
+    np.testing.assert_allclose(moved.R[0], C[:3, :3] @ start[:3, :3], atol=1e-12)
+
+
 def test_leaves_the_pose_alone_where_it_cannot_match():
     rng = np.random.default_rng(4)
     world = _room(rng, 2000)
@@ -316,8 +348,10 @@ def test_pipeline_matches_lidar_only_by_default_and_with_an_imu_when_asked(tmp_p
         dict(scan_match_iterations=0),
         dict(scan_match_iterations=1.5),
         dict(scan_match_iterations=10**6),
+        dict(match_voxel=-0.5),
+        dict(match_voxel=float("nan")),
     ],
 )
 def test_config_rejects_bad_scan_match_settings(bad):
-    with pytest.raises(ValueError, match="scan_match"):
+    with pytest.raises(ValueError, match="scan_match|match_voxel"):
         SLAM3DConfig.of(**bad)

@@ -406,6 +406,28 @@ def test_a_frame_without_a_velocity_attribute_makes_the_filter_lidar_only():
     assert slam.lidar_only is True and slam.dead_reckoning is None
 
 
+def test_the_particle_count_follows_the_mode_unless_given():
+    """``particles="auto"`` (default): 300 particles with an IMU, 100 LIDAR-only (set at the first frame, when the
+    data tell the mode, even where the settings did not ask for LIDAR-only); a number holds in either mode."""
+    scan = _ring_scan()
+    counts = {}
+    for name, frame in (
+        ("imu", _imu_frame(scan)),
+        ("lidar_only", SimpleNamespace(scan=scan, dt=0.1)),
+    ):
+        for particles in ("auto", 40):
+            slam = ParticleSLAM3D(SLAM3DConfig.of(particles=particles))
+            slam.register_frame(frame)
+            slam.register_frame(frame)
+            counts[name, particles] = (len(slam.particles), len(slam.last["moved"]))
+    assert counts == {
+        ("imu", "auto"): (300, 300),
+        ("imu", 40): (40, 40),
+        ("lidar_only", "auto"): (100, 100),
+        ("lidar_only", 40): (40, 40),
+    }
+
+
 def _sorted(points):
     p = np.asarray(points, dtype=np.float64)
     return p[np.lexsort(p.T[::-1])]

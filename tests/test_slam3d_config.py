@@ -13,6 +13,7 @@ def test_config_rejects_bad_values():
         (dict(kind="octree"), "map kind"),
         (dict(kind="voxel"), "now called 'voxel_hash'"),
         (dict(particles=0), "particles"),
+        (dict(particles="many"), "particles must be an integer or 'auto'"),
         (dict(temperature=0.0), "temperature"),
         (dict(pose_estimate="median"), "pose_estimate"),
         (dict(min_range=5.0, max_range=4.0), "min_range"),
@@ -51,6 +52,7 @@ def test_config_changes_settings_by_name_and_keeps_the_other_defaults():
         "cpu",
         20,
     )
+    assert c.filter.particle_count() == c.filter.particle_count(lidar_only=True) == 7
     d = c.as_dict()
     assert d["filter"]["particles"] == 7
     assert d["motion"]["sigma_xyz_per_m"] == [0.02, 0.02, 0.01]

@@ -23,6 +23,14 @@ def parameter_default(function, name: str):
     return inspect.signature(function).parameters[name].default
 
 
+def particles(text: str):
+    """``--particles``'s value: ``auto`` (:data:`slamlib.slam3d.config.AUTO`: the count of the filter's mode,
+    :meth:`slamlib.slam3d.config.FilterConfig.particle_count`) or a whole number, checked by the caller."""
+    from slamlib.slam3d.config import AUTO
+
+    return AUTO if text.strip().lower() == AUTO else int(text)
+
+
 def tilt_sigma(text: str):
     """``--tilt-sigma``'s value: ``auto`` (:data:`slamlib.slam3d.config.AUTO`: the prior weighs the accelerometer by
     its own consistency) or a number of radians (0 = off), checked by the configuration."""

@@ -91,10 +91,13 @@ def add_arguments(parser) -> None:
         help="read a drive left half written by an interrupted slamlib synth, or with more scans than "
         "times, as far as it goes (refused by default)",
     )
+    from slamlib.commands import particles as _particles
     from slamlib.commands import tilt_sigma
     from slamlib.kernels import BACKENDS
     from slamlib.slam3d.config import (
         AUTO,
+        IMU_PARTICLES,
+        LIDAR_ONLY_PARTICLES,
         MAP_KINDS,
         OLD_MAP_NAMES,
         AnnealConfig,
@@ -173,9 +176,11 @@ def add_arguments(parser) -> None:
     f = parser.add_argument_group("filter (steps 1, 8, 9, 11)")
     f.add_argument(
         "--particles",
-        type=int,
+        type=_particles,
         default=FilterConfig.particles,
-        help=f"number of particles (default {FilterConfig.particles})",
+        metavar="N|auto",
+        help=f"number of particles (default {FilterConfig.particles}: {IMU_PARTICLES} with an IMU, "
+        f"{LIDAR_ONLY_PARTICLES} LIDAR-only, where scan matching finishes the search)",
     )
     f.add_argument(
         "--points",
@@ -385,7 +390,7 @@ def main(args) -> int:
     from slamlib.errors import BackendUnavailableError, DataFormatError
     from slamlib.kitti import KittiRawDrive
     from slamlib.slam3d import SLAM3DConfig, parse_frames, save_run
-    from slamlib.slam3d.config import OLD_MAP_NAMES
+    from slamlib.slam3d.config import AUTO, OLD_MAP_NAMES
 
     given = [x is not None for x in (args.basedir, args.date, args.drive)]
     odometry = args.odometry_dir is not None or args.sequence is not None
@@ -412,7 +417,7 @@ def main(args) -> int:
     import math
 
     for option, value in (("--particles", args.particles), ("--points", args.points)):
-        if value < 1:
+        if value != AUTO and value < 1:
             raise SystemExit(f"slamlib run: {option} must be >= 1, got {value}")
     if not (math.isfinite(args.noise) and args.noise >= 0):
         raise SystemExit(
@@ -518,7 +523,8 @@ def main(args) -> int:
 
     print(
         f"slamlib run: {source}: {drive.path} frames {drive.frames[0]}..{drive.frames[-1]} ({len(drive)}), "
-        f"{cfg.filter.particles} particles x {cfg.filter.scored_points} points, map {cfg.map.kind}, "
+        f"{cfg.filter.particle_count(cfg.motion.model != 'imu')} particles x {cfg.filter.scored_points} points, "
+        f"map {cfg.map.kind}, "
         f"backend {cfg.backend}"
         + (", LIDAR-only (constant velocity)" if cfg.motion.model != "imu" else "")
     )

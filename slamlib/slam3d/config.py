@@ -50,6 +50,8 @@ from slamlib.resampling import DEFAULT_ESS_FRACTION
 
 __all__ = [
     "AUTO",
+    "IMU_PARTICLES",
+    "LIDAR_ONLY_PARTICLES",
     "MOTION_MODELS",
     "POSE_ESTIMATES",
     "ScanConfig",
@@ -69,8 +71,14 @@ __all__ = [
     "RENAMED",
 ]
 
-#: A tri-state setting left to the data: ``deskew`` (the scans that were swept), ``scan_match`` (LIDAR-only).
+#: A setting left to the data: ``deskew`` (the scans that were swept), ``scan_match`` (LIDAR-only), ``particles``
+#: (by the mode).
 AUTO = "auto"
+#: ``FilterConfig.particles = "auto"`` with an IMU: the filter alone finds the pose (scan matching off).
+IMU_PARTICLES = 300
+#: ``FilterConfig.particles = "auto"`` LIDAR-only: scan matching climbs from step 9's pose to the peak, so the
+#: particles need only find its basin (why this many: "Why these defaults", ``book/defaults.md``).
+LIDAR_ONLY_PARTICLES = 100
 #: Map kinds (:func:`slamlib.maps.make_map`, the keys of :data:`slamlib.maps.MAP_TYPES`): hashed NDT voxels, exact
 #: points in a Morton-code BVH.
 MAP_KINDS = tuple(MAP_TYPES)
@@ -499,8 +507,10 @@ class FilterConfig:
 
     Attributes
     ----------
-    particles : int
-        Number of particles ``P``.
+    particles : int or "auto"
+        Number of particles ``P``; ``"auto"`` (default): :data:`IMU_PARTICLES` (300) with an IMU,
+        :data:`LIDAR_ONLY_PARTICLES` (100) LIDAR-only, where scan matching finishes the search
+        (:meth:`particle_count`; the filter sets it at the first frame, when the mode is known).
     scored_points : int
         Scan points sampled for scoring (step 8) per frame; step 10 merges the whole down-sampled scan.
     temperature : float
@@ -512,14 +522,21 @@ class FilterConfig:
         Step 9: ``"best"`` particle or ``"mean"`` (weighted mean of the particles near the best).
     """
 
-    particles: int = 300
+    particles: int | str = AUTO
     scored_points: int = 1000
     temperature: float = 0.02
     ess_fraction: float = DEFAULT_ESS_FRACTION
     pose_estimate: str = "best"
 
     def __post_init__(self):
-        p = _integer("particles", self.particles, 1, MAX_PARTICLES)
+        if isinstance(self.particles, str):
+            if self.particles != AUTO:
+                raise ValueError(
+                    f"particles must be an integer or {AUTO!r}, got {self.particles!r}"
+                )
+            p = max(IMU_PARTICLES, LIDAR_ONLY_PARTICLES)
+        else:
+            p = _integer("particles", self.particles, 1, MAX_PARTICLES)
         n = _integer("scored_points", self.scored_points, 1, MAX_SCORED_POINTS)
         if p * n > MAX_POINT_SCORES:
             raise ValueError(
@@ -536,6 +553,13 @@ class FilterConfig:
             raise ValueError(
                 f"pose_estimate must be 'best' or 'mean', got {self.pose_estimate!r}"
             )
+
+    def particle_count(self, lidar_only: bool = False) -> int:
+        """``P`` in the mode: ``particles`` when a number, else :data:`LIDAR_ONLY_PARTICLES` LIDAR-only and
+        :data:`IMU_PARTICLES` with an IMU."""
+        if self.particles == AUTO:
+            return LIDAR_ONLY_PARTICLES if lidar_only else IMU_PARTICLES
+        return int(self.particles)
 
 
 @dataclass(frozen=True)
@@ -636,10 +660,18 @@ class ScanMatchConfig:
     scan_match_iterations : int
         Most Gauss-Newton steps per frame (each one only if it lowers the cost; the iteration also stops once a step
         is tiny). Default 15; why: "Why these defaults" (``book/defaults.md``).
+    match_voxel : float
+        The scan is matched on its points thinned to one per cube of this edge (metres; 0 = every down-sampled
+        point, :func:`slamlib.slam3d.preprocess.voxel_downsample` order). KISS-ICP registers a scan thinned
+        three times coarser than the map it builds (Vizzo et al. 2023, Sec. III-B) for the same reason: the
+        Gauss-Newton sums over a few thousand well-spread points fix six numbers as well as over all of them, and
+        the dense returns near the car no longer outweigh the rest. Default 0.5 m, the map's voxel edge (why:
+        "Why these defaults").
     """
 
     scan_match: str | bool = AUTO
     scan_match_iterations: int = 15
+    match_voxel: float = 0.5
 
     def __post_init__(self):
         object.__setattr__(
@@ -651,6 +683,10 @@ class ScanMatchConfig:
             1,
             MAX_SCAN_MATCH_ITERATIONS,
         )
+        if not _finite("match_voxel", self.match_voxel) >= 0:
+            raise ValueError(
+                f"match_voxel must be >= 0 (0 = every point), got {self.match_voxel}"
+            )
 
 
 #: The groups of :class:`SLAM3DConfig`, by field name.

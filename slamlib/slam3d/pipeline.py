@@ -104,9 +104,9 @@ class ParticleSLAM3D:
         )
         self.map = cfg.map.make()
         self.T0 = np.eye(4) if T0 is None else np.asarray(T0, dtype=np.float64)
-        # step 1
+        # step 1 (the count by the mode the settings ask for; the first frame may change it, see _choose_stages)
         self.particles, self.log_weights = steps.initialise_particles(
-            cfg.filter.particles, self.T0
+            cfg.filter.particle_count(cfg.motion.model == "constant_velocity"), self.T0
         )
         self.poses: list[np.ndarray] = []
         self.dts: list[float] = []
@@ -201,8 +201,13 @@ class ParticleSLAM3D:
     # ----------------------------------------------------------------------------------------- helpers
     def _choose_stages(self, frame) -> None:
         """The motion source, prior and polish for the data whose first frame is ``frame``
-        (:func:`slamlib.slam3d.stages.choose_stages`)."""
+        (:func:`slamlib.slam3d.stages.choose_stages`), and step 1's particle count for that mode
+        (:meth:`~slamlib.slam3d.config.FilterConfig.particle_count`): the particles all still stand at the start
+        pose with equal weights, so starting them again with another count loses nothing."""
         self.motion, self.prior, self.polish = choose_stages(self.config, frame, self.T0)
+        P = self.config.filter.particle_count(self.motion.lidar_only)
+        if P != len(self.particles):
+            self.particles, self.log_weights = steps.initialise_particles(P, self.T0)
 
     def _learn(self, pose, dt: float) -> None:
         """After step 9, the stages learn from the frame's pose: the prior calibrates the accelerometer's bias (and

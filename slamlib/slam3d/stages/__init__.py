@@ -68,5 +68,6 @@ def choose_stages(config, frame, T0):
     match = config.polish.scan_match
     match = lidar_only if match == AUTO else match
     iterations = config.polish.scan_match_iterations
-    polish = ScanMatch(iterations, road=lidar_only) if match else NoPolish()
+    voxel = config.polish.match_voxel
+    polish = ScanMatch(iterations, road=lidar_only, voxel=voxel) if match else NoPolish()
     return motion, prior, polish

@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from slamlib.slam3d.match import match_scan
-from slamlib.slam3d.preprocess import road_mask
+from slamlib.slam3d.preprocess import crop_and_downsample, road_mask
 from slamlib.slam3d.steps import Particles3D
 
 __all__ = ["NoPolish", "ScanMatch"]
@@ -33,15 +33,19 @@ class NoPolish:
 
 
 class ScanMatch:
-    """Scan matching of step 9's pose (module docstring): at most ``iterations`` Gauss-Newton steps; ``road``:
-    the road's points hold height and tilt only (LIDAR-only). ``n_matched`` counts the frames matched."""
+    """Scan matching of step 9's pose (module docstring): at most ``iterations`` Gauss-Newton steps on the points
+    thinned to one per ``voxel`` cube (0: all); ``road``: the road's points hold height and tilt only
+    (LIDAR-only). ``n_matched`` counts the frames matched."""
 
-    def __init__(self, iterations: int, road: bool = False):
-        self.iterations, self.road = int(iterations), bool(road)
+    def __init__(self, iterations: int, road: bool = False, voxel: float = 0.0):
+        self.iterations, self.road, self.voxel = int(iterations), bool(road), float(voxel)
         self.n_matched = 0
 
     def __call__(self, pose, points, particles, world_map):
-        """``(matched pose (4, 4), particles moved by C = T_matched pose^-1)`` for the body-frame ``points``."""
+        """``(matched pose (4, 4), particles moved by C = T_matched pose^-1)`` for the body-frame ``points``
+        (thinned to one per ``voxel`` cube first when ``voxel > 0``)."""
+        if self.voxel > 0:
+            points = crop_and_downsample(points, voxel_size=self.voxel)
         road = road_mask(points) if self.road else None
         matched = match_scan(pose, points, world_map, self.iterations, road)
         C = matched @ np.linalg.inv(pose)

@@ -579,3 +579,33 @@ def test_map_params_are_the_constructors():
         assert [(f.name, f.default) for f in fields(params)] == [
             (p.name, p.default) for p in ctor
         ]
+
+
+def test_the_defaults_page_states_the_lidar_only_development_runs_as_committed():
+    """``book/defaults.md`` quotes the mean errors of ``benchmarks/results/lidar_only_dev`` that chose the LIDAR-only
+    particle count and ``match_voxel``: each run's mean over its four drives, as written on the page, and the
+    default's settings are those of the run the page calls the default."""
+    import json
+    from collections import defaultdict
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    page = " ".join((root / "book" / "defaults.md").read_text().split())
+    rows = defaultdict(list)
+    for line in (
+        (root / "benchmarks/results/lidar_only_dev/rows.jsonl").read_text().splitlines()
+    ):
+        r = json.loads(line)
+        rows[r["name"]].append(r)
+    assert {len(v) for v in rows.values()} == {4}
+    mean_t = {k: np.mean([r["t"] for r in v]) for k, v in rows.items()}
+    for name in ("base", "mv05", "mv10", "mv05p150", "mv05p100", "kiss-odo"):
+        assert f"{mean_t[name]:.4f} %" in page, name
+    for name in ("base", "mv05p100"):
+        assert f"{np.mean([r['ate'] for r in rows[name]]):.3f} m" in page, name
+    chosen = rows["mv05p100"][0]["settings"]
+    c = SLAM3DConfig()
+    assert (c.filter.particle_count(lidar_only=True), c.polish.match_voxel) == (
+        chosen["particles"],
+        chosen["match_voxel"],
+    )

@@ -96,7 +96,7 @@ MAX_POINT_SCORES = 10_000_000_000
 #: Most annealing rounds per frame (each one costs a whole scoring pass).
 MAX_ANNEAL_ROUNDS = 100
 #: Most Gauss-Newton steps of the scan matcher per frame (``ScanMatchConfig.scan_match_iterations``; each a pass
-#: over the whole down-sampled scan).
+#: over the matched points, ``ScanMatchConfig.match_voxel``).
 MAX_SCAN_MATCH_ITERATIONS = 100
 #: Most frames the LIDAR-only velocity is averaged over (``ConstantVelocityConfig.window``; 10 frames = 1 s at
 #: 10 Hz).
@@ -653,7 +653,8 @@ class ScanMatchConfig:
     ----------
     scan_match : "auto", True or False
         After step 9, move the best particle's pose to the nearest peak of the map score with Gauss-Newton on the
-        whole down-sampled scan (:func:`slamlib.slam3d.match.match_scan`), and the particles with it (the
+        down-sampled scan thinned to ``match_voxel`` (:func:`slamlib.slam3d.match.match_scan`), and the particles
+        with it (the
         improved proposal of Grisetti et al. 2007). ``"auto"`` (default): on LIDAR-only, where the constant-velocity
         prior leaves the filter the most to find, off with an IMU; True / False force it. Voxel hash map only
         (other maps are left as they are).

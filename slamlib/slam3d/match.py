@@ -23,7 +23,10 @@ normal equations stay well conditioned kilometres from the origin)::
 
 ``J_j`` does not depend on the corner, so each point's corners are summed first, ``S_j = sum_c w_jc A_c`` and
 ``s_j = sum_c w_jc A_c d_jc``, and then ``H = sum_j J_j^T S_j J_j``, ``g = sum_j J_j^T s_j``: the same sums in an
-eighth of the multiplications. The points are summed in :data:`MATCH_CHUNKS` fixed chunks in parallel.
+eighth of the multiplications. The points are summed in :data:`MATCH_CHUNKS` fixed chunks in parallel. A step
+moves the points by millimetres, so most keep their block of 8 voxels from one step to the next: each point's
+block and its 8 hash slots are remembered across the steps of one match and looked up again only when the block
+changes (the same slots, so the same sums).
 
 A step that does not lower ``E`` is not taken (the iteration stops there), so the result never scores worse than
 the start. ``lambda = MATCH_DAMPING * trace(H)`` keeps the solve defined on degenerate scenes (a flat plane alone
@@ -82,9 +85,25 @@ MATCH_CHUNKS = 16
 _N_UPPER, _N_SUMS = 21, 28
 
 
+#: A voxel block no point has yet (:func:`_normal_equations_nb`'s per-point cache starts with it).
+_NO_BLOCK = np.int64(-(2**62))
+
+
 @njit(cache=True, parallel=True)
 def _normal_equations_nb(
-    R, t, pts, road, keys, mean, icov, inv_h, log2_capacity, max_probe, m_max
+    R,
+    t,
+    pts,
+    road,
+    keys,
+    mean,
+    icov,
+    inv_h,
+    log2_capacity,
+    max_probe,
+    m_max,
+    blocks,
+    slots,
 ):
     # Per point, the 8 corners' weighted A_c and A_c d first (S = sum w A, v = sum w A d), then J^T S J and J^T v
     # once: the same sums as corner by corner, since J does not depend on the corner, in an eighth of the work.
@@ -105,12 +124,20 @@ def _normal_equations_nb(
             if not ok:
                 acc[_N_SUMS - 1] += 0.5 * m_max
                 continue
+            # a Gauss-Newton step moves a point by millimetres: its block (and so its 8 corner slots) is mostly
+            # the one of the step before, remembered per point instead of hashed again
+            if ux0 != blocks[j, 0] or uy0 != blocks[j, 1] or uz0 != blocks[j, 2]:
+                blocks[j, 0], blocks[j, 1], blocks[j, 2] = ux0, uy0, uz0
+                for corner in range(8):
+                    slots[j, corner] = _corner_slot(
+                        ux0, uy0, uz0, corner, keys, log2_capacity, max_probe
+                    )
             s0 = s1 = s2 = s3 = s4 = s5 = 0.0  # S = sum_c w A_c (symmetric: 6 entries)
             v0 = v1 = v2 = 0.0  # v = sum_c w A_c d
             cost = 0.0
             for corner in range(8):
                 w = _corner_weight(fx, fy, fz, corner)
-                s = _corner_slot(ux0, uy0, uz0, corner, keys, log2_capacity, max_probe)
+                s = slots[j, corner]
                 if s < 0:
                     cost += 0.5 * w * m_max
                     continue
@@ -189,6 +216,12 @@ def _road(road, n):
     return road
 
 
+def _block_cache(n):
+    """The per-point cache of :func:`_normal_equations_nb`: each point's last voxel block (n, 3), none yet, and
+    its 8 corner slots (n, 8)."""
+    return np.full((n, 3), _NO_BLOCK, np.int64), np.empty((n, 8), np.int64)
+
+
 def _lookup_args(lookup):
     return (
         lookup.keys,
@@ -215,6 +248,7 @@ def normal_equations(
         pts,
         _road(road, len(pts)),
         *_lookup_args(lookup),
+        *_block_cache(len(pts)),
     )
 
 
@@ -243,7 +277,7 @@ def match_scan(pose, points, map_, iterations: int, road=None) -> np.ndarray:
     if lookup.kind != KIND_VOXEL_HASH:
         return T
     pts = np.ascontiguousarray(points, dtype=np.float32)
-    args = (_road(road, len(pts)),) + _lookup_args(lookup)
+    args = (_road(road, len(pts)),) + _lookup_args(lookup) + _block_cache(len(pts))
     R, t = np.ascontiguousarray(T[:3, :3]), np.ascontiguousarray(T[:3, 3])
     H, g, cost = _normal_equations_nb(R, t, pts, *args)
     for _ in range(iterations):

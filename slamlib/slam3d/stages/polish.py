@@ -2,12 +2,13 @@
 
 Annealing sharpens the particle search; scan matching finishes it with a local optimiser. :class:`ScanMatch`
 moves the pose of step 9 by a few Gauss-Newton steps to the nearest peak of the same map score, computed on the
-whole down-sampled scan rather than step 8's sample (:func:`slamlib.slam3d.match.match_scan`), and every particle
-by the same correction ``C = T_matched T^-1`` (applied in the world frame) before step 11 resamples them: the
-particles are then drawn around the scan-matched pose, the *improved proposal* of Grisetti, Stachniss & Burgard
-(IEEE T-RO 2007). LIDAR-only this matters most: the constant-velocity prior is weak, and the map's pull toward the
-truth has to do what the IMU does otherwise; there the road's points keep only the vertical row of the Jacobian
-(:func:`slamlib.slam3d.preprocess.road_mask`), so the LIDAR's rings on the road cannot pull a moving scan back.
+down-sampled scan thinned to one point per ``ScanMatchConfig.match_voxel`` cube rather than step 8's sample
+(:func:`slamlib.slam3d.match.match_scan`), and every particle by the same correction ``C = T_matched T^-1``
+(applied in the world frame) before step 11 resamples them: the particles are then drawn around the scan-matched
+pose, the *improved proposal* of Grisetti, Stachniss & Burgard (IEEE T-RO 2007). LIDAR-only this matters most:
+the constant-velocity prior is weak, and the map's pull toward the truth has to do what the IMU does otherwise;
+there the road's points keep only the vertical row of the Jacobian (:func:`slamlib.slam3d.preprocess.road_mask`),
+so the LIDAR's rings on the road cannot pull a moving scan back.
 Voxel hash map only (other maps are left as they are). :class:`NoPolish` keeps step 9's pose.
 """
 

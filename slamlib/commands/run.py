@@ -522,12 +522,12 @@ def main(args) -> int:
             f"slamlib run: the drive has {len(drive)} frame(s); need at least 2"
         )
 
+    lidar_only = cfg.motion.model != "imu"
     print(
         f"slamlib run: {source}: {drive.path} frames {drive.frames[0]}..{drive.frames[-1]} ({len(drive)}), "
-        f"{cfg.filter.particle_count(cfg.motion.model != 'imu')} particles x {cfg.filter.scored_points} points, "
-        f"map {cfg.map.kind}, "
-        f"backend {cfg.backend}"
-        + (", LIDAR-only (constant velocity)" if cfg.motion.model != "imu" else "")
+        f"{cfg.filter.particle_count(lidar_only)} particles x {cfg.filter.scored_points} points, "
+        f"map {cfg.map.kind}, backend {cfg.backend}"
+        + (", LIDAR-only (constant velocity)" if lidar_only else "")
     )
     if cfg.backend == "cpu":
         from slamlib.kernels.cpu import kernels_cached

@@ -42,7 +42,7 @@ import numba
 import numpy as np
 from numba import njit, prange
 
-from slamlib.kernels.device import make_point_functions
+from slamlib.kernels.device import NO_BLOCK, make_point_functions
 from slamlib.kernels.memory_hints import (
     LINE_BYTES,
     LINE_F32,
@@ -657,8 +657,6 @@ def _sum_chunks(partial):
 
 #: Voxel blocks whose 8 corner slots one scoring task remembers (:func:`score_particles`, voxel hash map).
 BLOCK_CACHE = 4
-#: An index no voxel block has (``voxel_cell``'s indexes stay within about ``2**22`` of zero, below it too).
-_NO_BLOCK = np.int64(-(2**62))
 
 
 @njit(parallel=True, cache=True)
@@ -685,9 +683,9 @@ def _score_voxel_nb(
         c, j0, j1, i0, i1 = _task_span(task, nqc, N, P, pt_chunk, part_chunk)
         # the 8 corner slots of the last BLOCK_CACHE blocks looked up (oldest replaced first): the particles'
         # copies of a point straddle a few neighbouring blocks, which one remembered block would keep swapping
-        bx = np.full(BLOCK_CACHE, _NO_BLOCK)
-        by = np.full(BLOCK_CACHE, _NO_BLOCK)
-        bz = np.full(BLOCK_CACHE, _NO_BLOCK)
+        bx = np.full(BLOCK_CACHE, NO_BLOCK)
+        by = np.full(BLOCK_CACHE, NO_BLOCK)
+        bz = np.full(BLOCK_CACHE, NO_BLOCK)
         slots = np.empty((BLOCK_CACHE, 8), np.int64)
         cur, oldest = 0, 0
         for j in range(j0, j1):

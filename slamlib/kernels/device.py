@@ -40,6 +40,9 @@ from slamlib.maps.codes import AXIS_OFFSET_F64, AXIS_OFFSET_I64, make_code_funct
 #: Truncation of the voxel grid coordinate: ``|p / h - 1/2| <= 2**21`` is the widest range in which the
 #: int64 conversion is safe and an index can still be in range; beyond it every corner is a miss.
 VOXEL_GRID_LIMIT = float(1 << BITS_PER_AXIS)
+#: A voxel block index no block has (``voxel_cell``'s indexes stay within about ``2**22`` of zero, below it too):
+#: what a kernel that remembers blocks' corner slots starts its memory with.
+NO_BLOCK = np.int64(-(2**62))
 
 
 def _identity(fn):

@@ -654,10 +654,9 @@ class ScanMatchConfig:
     scan_match : "auto", True or False
         After step 9, move the best particle's pose to the nearest peak of the map score with Gauss-Newton on the
         down-sampled scan thinned to ``match_voxel`` (:func:`slamlib.slam3d.match.match_scan`), and the particles
-        with it (the
-        improved proposal of Grisetti et al. 2007). ``"auto"`` (default): on LIDAR-only, where the constant-velocity
-        prior leaves the filter the most to find, off with an IMU; True / False force it. Voxel hash map only
-        (other maps are left as they are).
+        with it (the improved proposal of Grisetti et al. 2007). ``"auto"`` (default): on LIDAR-only, where the
+        constant-velocity prior leaves the filter the most to find, off with an IMU; True / False force it. Voxel
+        hash map only (other maps are left as they are).
     scan_match_iterations : int
         Most Gauss-Newton steps per frame (each one only if it lowers the cost; the iteration also stops once a step
         is tiny). Default 15; why: "Why these defaults" (``book/defaults.md``).

@@ -53,7 +53,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from slamlib.kernels.device import make_point_functions
+from slamlib.kernels.device import NO_BLOCK, make_point_functions
 from slamlib.maps.base import KIND_VOXEL_HASH
 
 __all__ = [
@@ -83,10 +83,6 @@ _corner_weight = _F["corner_weight"]
 MATCH_CHUNKS = 16
 #: Entries of one chunk's partial sums: H's upper triangle (21), g (6) and the cost.
 _N_UPPER, _N_SUMS = 21, 28
-
-
-#: A voxel block no point has yet (:func:`_normal_equations_nb`'s per-point cache starts with it).
-_NO_BLOCK = np.int64(-(2**62))
 
 
 @njit(cache=True, parallel=True)
@@ -219,7 +215,7 @@ def _road(road, n):
 def _block_cache(n):
     """The per-point cache of :func:`_normal_equations_nb`: each point's last voxel block (n, 3), none yet, and
     its 8 corner slots (n, 8)."""
-    return np.full((n, 3), _NO_BLOCK, np.int64), np.empty((n, 8), np.int64)
+    return np.full((n, 3), NO_BLOCK, np.int64), np.empty((n, 8), np.int64)
 
 
 def _lookup_args(lookup):

@@ -104,9 +104,10 @@ class ParticleSLAM3D:
         )
         self.map = cfg.map.make()
         self.T0 = np.eye(4) if T0 is None else np.asarray(T0, dtype=np.float64)
+        self.motion = self.prior = self.polish = None  # chosen at the first frame
         # step 1 (the count by the mode the settings ask for; the first frame may change it, see _choose_stages)
         self.particles, self.log_weights = steps.initialise_particles(
-            cfg.filter.particle_count(cfg.motion.model == "constant_velocity"), self.T0
+            cfg.filter.particle_count(self.lidar_only), self.T0
         )
         self.poses: list[np.ndarray] = []
         self.dts: list[float] = []
@@ -125,7 +126,6 @@ class ParticleSLAM3D:
             f.collapse_rounds,
         )
         self.upkeep = MapUpkeep(cfg.upkeep)
-        self.motion = self.prior = self.polish = None
 
     # ----------------------------------------------------------------------------------------- step 12
     def step(self, frame) -> StepInfo:

@@ -383,12 +383,16 @@ def test_the_defaults_have_their_values():
     assert (c.scan.deskew, c.scan.sweep_period) == (AUTO, 0.10315)
     assert (c.filter.particles, c.filter.scored_points, c.filter.temperature) == (
         AUTO,
-        1000,
+        AUTO,
         0.02,
     )
     assert (c.filter.particle_count(), c.filter.particle_count(lidar_only=True)) == (
         300,
         100,
+    )
+    assert (c.filter.scored_point_count(), c.filter.scored_point_count(True)) == (
+        1000,
+        500,
     )
     assert (c.filter.ess_fraction, c.filter.pose_estimate, c.search.anneal_rounds) == (
         0.5,
@@ -400,7 +404,7 @@ def test_the_defaults_have_their_values():
         AUTO,
         15,
     )
-    assert c.polish.match_voxel == 0.5
+    assert (c.polish.match_voxel, c.polish.match_tolerance) == (0.5, 1e-4)
     assert (c.map.kind, c.upkeep.prune_every, c.upkeep.transient_span) == (
         "voxel_hash",
         20,
@@ -617,6 +621,50 @@ def test_the_defaults_page_states_the_lidar_only_development_runs_as_committed()
     assert (c.filter.particle_count(lidar_only=True), c.polish.match_voxel) == (
         chosen["particles"],
         chosen["match_voxel"],
+    )
+
+
+def test_the_defaults_page_states_the_scored_points_and_tolerance_runs_as_committed():
+    """``book/defaults.md``'s section on LIDAR-only ``scored_points`` and ``match_tolerance`` quotes the means of
+    their ``lidar_only_dev`` runs and the ATE of each peers drive, and the default's settings are those of the run
+    it calls the default."""
+    import json
+    from collections import defaultdict
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    page = " ".join((root / "book" / "defaults.md").read_text().split())
+    section = page[page.index("`ScanMatchConfig.match_tolerance`") :]
+    rows = defaultdict(list)
+    for line in (
+        (root / "benchmarks/results/lidar_only_dev/rows.jsonl").read_text().splitlines()
+    ):
+        row = json.loads(line)
+        rows[row["name"]].append(row)
+    for name in ("mv05p100", "tol4", "tol5sp500", "tol4sp500"):
+        assert len(rows[name]) == 4, name
+        assert f"{np.mean([r['t'] for r in rows[name]]):.4f} %" in section, name
+    for name in ("mv05p100", "tol4sp500"):
+        assert f"{np.mean([r['ate'] for r in rows[name]]):.3f} m" in section, name
+    for name in ("peers-p100-v0.5", "peers-new", "peers-tol4-p1000"):
+        ates = {r["drive"]: r["ate"] for r in rows[name]}
+        drives = (
+            "default_drive(full=True, realism=False)",
+            "default_drive()",
+            "default_drive(realism=False)",
+        )
+        said = ", ".join(f"{ates[d]:.3f}".rstrip("0") for d in drives[:2])
+        assert f"{said} and {ates[drives[2]]:.3f}".rstrip("0") in section, name
+    chosen = rows["tol4sp500"][0]["settings"]
+    c = SLAM3DConfig()
+    assert (
+        c.filter.particle_count(True),
+        c.filter.scored_point_count(True),
+        c.polish.match_voxel,
+        c.polish.match_tolerance,
+    ) == tuple(
+        chosen[k]
+        for k in ("particles", "scored_points", "match_voxel", "match_tolerance")
     )
 
 

@@ -203,6 +203,35 @@ def test_recovers_a_known_pose_and_never_scores_worse():
         assert E1 <= E0
 
 
+def test_the_iteration_ends_at_the_first_step_shorter_than_the_tolerance(monkeypatch):
+    """A step shorter than ``tolerance`` ends the match without being evaluated (no pass over the points for it);
+    a looser tolerance takes fewer passes, and what it leaves is about the size of the tolerance."""
+    import slamlib.slam3d.match as match
+
+    rng = np.random.default_rng(2)
+    world = _room(rng)
+    m = _map(world)
+    scan = world[rng.choice(len(world), 8000, replace=False)]
+    start = make_pose(
+        rpy_to_matrix([0.004, -0.003, 0.008]), np.array([0.05, -0.04, 0.02])
+    )
+    passes = []
+    inner = match._normal_equations_nb
+    monkeypatch.setattr(
+        match, "_normal_equations_nb", lambda *a: passes.append(1) or inner(*a)
+    )
+    found = {}
+    for tolerance in (1e3, 1e-2, 1e-7):
+        passes.clear()
+        found[tolerance] = match_scan(start, scan, m, 50, tolerance=tolerance)
+        found[tolerance, "passes"] = len(passes)
+    # the first step is longer than 1e-2 but shorter than 1e3: one pass, the start pose kept
+    np.testing.assert_array_equal(found[1e3], start)
+    assert found[1e3, "passes"] == 1
+    assert 1 < found[1e-2, "passes"] < found[1e-7, "passes"]
+    assert max(_error(found[1e-2], found[1e-7])) < 1e-2
+
+
 def test_a_plane_alone_brings_back_height_roll_and_pitch():
     """A flat floor fixes the three coordinates it can (height, roll, pitch), and the damped solve stays defined
     where the others are (nearly) free."""

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from slamlib.slam3d.match import match_scan
+from slamlib.slam3d.match import MATCH_TOLERANCE, match_scan
 from slamlib.slam3d.preprocess import crop_and_downsample, road_mask
 from slamlib.slam3d.steps import Particles3D
 
@@ -35,11 +35,18 @@ class NoPolish:
 
 class ScanMatch:
     """Scan matching of step 9's pose (module docstring): at most ``iterations`` Gauss-Newton steps on the points
-    thinned to one per ``voxel`` cube (0: all); ``road``: the road's points hold height and tilt only
-    (LIDAR-only). ``n_matched`` counts the frames matched."""
+    thinned to one per ``voxel`` cube (0: all), ending at the first step shorter than ``tolerance``; ``road``: the
+    road's points hold height and tilt only (LIDAR-only). ``n_matched`` counts the frames matched."""
 
-    def __init__(self, iterations: int, road: bool = False, voxel: float = 0.0):
+    def __init__(
+        self,
+        iterations: int,
+        road: bool = False,
+        voxel: float = 0.0,
+        tolerance: float = MATCH_TOLERANCE,
+    ):
         self.iterations, self.road, self.voxel = int(iterations), bool(road), float(voxel)
+        self.tolerance = float(tolerance)
         self.n_matched = 0
 
     def __call__(self, pose, points, particles, world_map):
@@ -48,7 +55,9 @@ class ScanMatch:
         if self.voxel > 0:
             points = crop_and_downsample(points, voxel_size=self.voxel)
         road = road_mask(points) if self.road else None
-        matched = match_scan(pose, points, world_map, self.iterations, road)
+        matched = match_scan(
+            pose, points, world_map, self.iterations, road, self.tolerance
+        )
         C = matched @ np.linalg.inv(pose)
         self.n_matched += 1
         moved = Particles3D(

@@ -30,7 +30,7 @@ def run_static() -> dict:
     defaults = FilterConfig()
     sizes = {
         "particles": defaults.particle_count(),
-        "points": defaults.scored_point_count(),
+        "points": int(defaults.scored_points),
     }
     report = cs.static_report(cs.DEFAULT_CCS, BLOCK_SIZES, fill_sizes=sizes)
     rows = []

@@ -92,7 +92,7 @@ def run(quick: bool = False) -> dict:
             run_drive(drive, SLAM3DConfig.of(particles=P), progress=False),
             evaluate,
             particles=P,
-            points=default.filter.scored_point_count(),
+            points=default.filter.scored_points,
         )
         for P in (QUICK_PARTICLES if quick else PARTICLES)
     ]
@@ -127,7 +127,7 @@ def run(quick: bool = False) -> dict:
         "frames": int(len(ms)),
         "path_length_m": round(float(m["path_length_m"]), 1),
         "particles": default.filter.particle_count(),
-        "points": default.filter.scored_point_count(),
+        "points": default.filter.scored_points,
         "map": default.map.kind,
         "fps": round(r.fps, 2),
         "ate_rmse_m": round(float(m["slam"]["ate_rmse_m"]), 4),

@@ -58,7 +58,7 @@ def run(quick: bool = False) -> dict:
             row = {
                 "map": kind,
                 "particles": P,
-                "points": cfg.filter.scored_point_count(),
+                "points": cfg.filter.scored_points,
                 "frames": m["frames"],
                 "fps": round(r.fps, 2),
                 "fps_median": round(float(1.0 / np.median(r.frame_seconds[1:])), 2),

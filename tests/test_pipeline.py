@@ -406,30 +406,25 @@ def test_a_frame_without_a_velocity_attribute_makes_the_filter_lidar_only():
     assert slam.lidar_only is True and slam.dead_reckoning is None
 
 
-def test_the_particle_and_point_counts_follow_the_mode_unless_given():
-    """``particles="auto"`` and ``scored_points="auto"`` (defaults): 300 particles scoring 1000 points with an IMU,
-    100 scoring 500 LIDAR-only (set at the first frame, when the data tell the mode, even where the settings did
-    not ask for LIDAR-only); numbers hold in either mode."""
-    scan = _ring_scan(n=4000)
+def test_the_particle_count_follows_the_mode_unless_given():
+    """``particles="auto"`` (default): 300 particles with an IMU, 100 LIDAR-only (set at the first frame, when the
+    data tell the mode, even where the settings did not ask for LIDAR-only); a number holds in either mode."""
+    scan = _ring_scan()
     counts = {}
     for name, frame in (
         ("imu", _imu_frame(scan)),
         ("lidar_only", SimpleNamespace(scan=scan, dt=0.1)),
     ):
-        for given in ("auto", 40):
-            slam = ParticleSLAM3D(SLAM3DConfig.of(particles=given, scored_points=given))
+        for particles in ("auto", 40):
+            slam = ParticleSLAM3D(SLAM3DConfig.of(particles=particles))
             slam.register_frame(frame)
             slam.register_frame(frame)
-            counts[name, given] = (
-                len(slam.particles),
-                len(slam.last["moved"]),
-                len(slam.last["sample"]),
-            )
+            counts[name, particles] = (len(slam.particles), len(slam.last["moved"]))
     assert counts == {
-        ("imu", "auto"): (300, 300, 1000),
-        ("imu", 40): (40, 40, 40),
-        ("lidar_only", "auto"): (100, 100, 500),
-        ("lidar_only", 40): (40, 40, 40),
+        ("imu", "auto"): (300, 300),
+        ("imu", 40): (40, 40),
+        ("lidar_only", "auto"): (100, 100),
+        ("lidar_only", 40): (40, 40),
     }
 
 

@@ -14,9 +14,6 @@ def test_config_rejects_bad_values():
         (dict(kind="voxel"), "now called 'voxel_hash'"),
         (dict(particles=0), "particles"),
         (dict(particles="many"), "particles must be an integer or 'auto'"),
-        (dict(scored_points="all"), "scored_points must be an integer or 'auto'"),
-        (dict(scored_points=0), "scored_points must be in"),
-        (dict(particles=10**6, scored_points=10**6), "point scores per frame"),
         (dict(match_tolerance=0.0), "match_tolerance must be > 0"),
         (dict(temperature=0.0), "temperature"),
         (dict(pose_estimate="median"), "pose_estimate"),
@@ -48,7 +45,7 @@ def test_config_changes_settings_by_name_and_keeps_the_other_defaults():
     )
     assert (c.scan.min_range, c.filter.scored_points, c.filter.ess_fraction) == (
         3.0,
-        "auto",
+        1000,
         0.5,
     )
     assert (c.filter.pose_estimate, c.backend, c.upkeep.prune_every) == (
@@ -57,10 +54,6 @@ def test_config_changes_settings_by_name_and_keeps_the_other_defaults():
         20,
     )
     assert c.filter.particle_count() == c.filter.particle_count(lidar_only=True) == 7
-    assert (c.filter.scored_point_count(), c.filter.scored_point_count(True)) == (
-        1000,
-        500,
-    )
     d = c.as_dict()
     assert d["filter"]["particles"] == 7
     assert d["motion"]["sigma_xyz_per_m"] == [0.02, 0.02, 0.01]

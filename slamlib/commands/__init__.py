@@ -23,10 +23,9 @@ def parameter_default(function, name: str):
     return inspect.signature(function).parameters[name].default
 
 
-def count(text: str):
-    """``--particles``' and ``--points``' value: ``auto`` (:data:`slamlib.slam3d.config.AUTO`: the count of the
-    filter's mode, :meth:`slamlib.slam3d.config.FilterConfig.particle_count` and
-    :meth:`~slamlib.slam3d.config.FilterConfig.scored_point_count`) or a whole number, checked by the caller."""
+def particles(text: str):
+    """``--particles``'s value: ``auto`` (:data:`slamlib.slam3d.config.AUTO`: the count of the filter's mode,
+    :meth:`slamlib.slam3d.config.FilterConfig.particle_count`) or a whole number, checked by the caller."""
     from slamlib.slam3d.config import AUTO
 
     return AUTO if text.strip().lower() == AUTO else int(text)

@@ -91,14 +91,13 @@ def add_arguments(parser) -> None:
         help="read a drive left half written by an interrupted slamlib synth, or with more scans than "
         "times, as far as it goes (refused by default)",
     )
-    from slamlib.commands import count, tilt_sigma
+    from slamlib.commands import particles as _particles
+    from slamlib.commands import tilt_sigma
     from slamlib.kernels import BACKENDS
     from slamlib.slam3d.config import (
         AUTO,
         IMU_PARTICLES,
-        IMU_SCORED_POINTS,
         LIDAR_ONLY_PARTICLES,
-        LIDAR_ONLY_SCORED_POINTS,
         MAP_KINDS,
         OLD_MAP_NAMES,
         AnnealConfig,
@@ -177,7 +176,7 @@ def add_arguments(parser) -> None:
     f = parser.add_argument_group("filter (steps 1, 8, 9, 11)")
     f.add_argument(
         "--particles",
-        type=count,
+        type=_particles,
         default=FilterConfig.particles,
         metavar="N|auto",
         help=f"number of particles (default {FilterConfig.particles}: {IMU_PARTICLES} with an IMU, "
@@ -185,11 +184,9 @@ def add_arguments(parser) -> None:
     )
     f.add_argument(
         "--points",
-        type=count,
+        type=int,
         default=FilterConfig.scored_points,
-        metavar="N|auto",
-        help=f"scan points scored per particle per frame (default {FilterConfig.scored_points}: "
-        f"{IMU_SCORED_POINTS} with an IMU, {LIDAR_ONLY_SCORED_POINTS} LIDAR-only)",
+        help=f"scan points scored per particle per frame (default {FilterConfig.scored_points})",
     )
     f.add_argument(
         "--temperature",
@@ -528,8 +525,7 @@ def main(args) -> int:
     lidar_only = cfg.motion.model != "imu"
     print(
         f"slamlib run: {source}: {drive.path} frames {drive.frames[0]}..{drive.frames[-1]} ({len(drive)}), "
-        f"{cfg.filter.particle_count(lidar_only)} particles x "
-        f"{cfg.filter.scored_point_count(lidar_only)} points, "
+        f"{cfg.filter.particle_count(lidar_only)} particles x {cfg.filter.scored_points} points, "
         f"map {cfg.map.kind}, backend {cfg.backend}"
         + (", LIDAR-only (constant velocity)" if lidar_only else "")
     )

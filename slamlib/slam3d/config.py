@@ -53,8 +53,6 @@ __all__ = [
     "AUTO",
     "IMU_PARTICLES",
     "LIDAR_ONLY_PARTICLES",
-    "IMU_SCORED_POINTS",
-    "LIDAR_ONLY_SCORED_POINTS",
     "MOTION_MODELS",
     "POSE_ESTIMATES",
     "ScanConfig",
@@ -75,18 +73,13 @@ __all__ = [
 ]
 
 #: A setting left to the data: ``deskew`` (the scans that were swept), ``scan_match`` (LIDAR-only), ``particles``
-#: and ``scored_points`` (by the mode).
+#: (by the mode).
 AUTO = "auto"
 #: ``FilterConfig.particles = "auto"`` with an IMU: the filter alone finds the pose (scan matching off).
 IMU_PARTICLES = 300
 #: ``FilterConfig.particles = "auto"`` LIDAR-only: scan matching climbs from step 9's pose to the peak, so the
 #: particles need only find its basin (why this many: "Why these defaults", ``book/defaults.md``).
 LIDAR_ONLY_PARTICLES = 100
-#: ``FilterConfig.scored_points = "auto"`` with an IMU: step 8's sample, the only measurement of the pose.
-IMU_SCORED_POINTS = 1000
-#: ``FilterConfig.scored_points = "auto"`` LIDAR-only: the weights need only tell the basin, the scan matcher's
-#: thousands of points find the peak (why this many: "Why these defaults", ``book/defaults.md``).
-LIDAR_ONLY_SCORED_POINTS = 500
 #: Map kinds (:func:`slamlib.maps.make_map`, the keys of :data:`slamlib.maps.MAP_TYPES`): hashed NDT voxels, exact
 #: points in a Morton-code BVH.
 MAP_KINDS = tuple(MAP_TYPES)
@@ -134,15 +127,6 @@ RENAMED = {
     "cv_damping": "constant_velocity.damping",
     "lidar_only_ground_share": "constant_velocity.ground_share",
 }
-
-
-def _count_or_auto(name: str, value, most: int) -> None:
-    """Check a count setting that may be ``"auto"`` (chosen by the mode): else an integer in ``[1, most]``."""
-    if isinstance(value, str):
-        if value != AUTO:
-            raise ValueError(f"{name} must be an integer or {AUTO!r}, got {value!r}")
-    else:
-        _integer(name, value, 1, most)
 
 
 def _finite(name: str, value) -> float:
@@ -528,10 +512,8 @@ class FilterConfig:
         Number of particles ``P``; ``"auto"`` (default): :data:`IMU_PARTICLES` (300) with an IMU,
         :data:`LIDAR_ONLY_PARTICLES` (100) LIDAR-only, where scan matching finishes the search
         (:meth:`particle_count`; the filter sets it at the first frame, when the mode is known).
-    scored_points : int or "auto"
+    scored_points : int
         Scan points sampled for scoring (step 8) per frame; step 10 merges the whole down-sampled scan.
-        ``"auto"`` (default): :data:`IMU_SCORED_POINTS` (1000) with an IMU, :data:`LIDAR_ONLY_SCORED_POINTS`
-        (500) LIDAR-only (:meth:`scored_point_count`).
     temperature : float
         Likelihood tempering: ``log L = score / (N * temperature)`` (:mod:`slamlib.slam3d.pipeline`).
     ess_fraction : float
@@ -542,21 +524,24 @@ class FilterConfig:
     """
 
     particles: int | str = AUTO
-    scored_points: int | str = AUTO
+    scored_points: int = 1000
     temperature: float = 0.02
     ess_fraction: float = DEFAULT_ESS_FRACTION
     pose_estimate: str = "best"
 
     def __post_init__(self):
-        _count_or_auto("particles", self.particles, MAX_PARTICLES)
-        _count_or_auto("scored_points", self.scored_points, MAX_SCORED_POINTS)
-        work = max(
-            self.particle_count(mode) * self.scored_point_count(mode)
-            for mode in (False, True)
-        )
-        if work > MAX_POINT_SCORES:
+        if isinstance(self.particles, str):
+            if self.particles != AUTO:
+                raise ValueError(
+                    f"particles must be an integer or {AUTO!r}, got {self.particles!r}"
+                )
+            p = max(IMU_PARTICLES, LIDAR_ONLY_PARTICLES)
+        else:
+            p = _integer("particles", self.particles, 1, MAX_PARTICLES)
+        n = _integer("scored_points", self.scored_points, 1, MAX_SCORED_POINTS)
+        if p * n > MAX_POINT_SCORES:
             raise ValueError(
-                f"particles x scored_points = {work:,} point scores per frame is more than "
+                f"particles x scored_points = {p * n:,} point scores per frame is more than "
                 f"{MAX_POINT_SCORES:,}; use fewer particles or points"
             )
         if not _finite("temperature", self.temperature) > 0:
@@ -576,13 +561,6 @@ class FilterConfig:
         if self.particles == AUTO:
             return LIDAR_ONLY_PARTICLES if lidar_only else IMU_PARTICLES
         return int(self.particles)
-
-    def scored_point_count(self, lidar_only: bool = False) -> int:
-        """``N`` of step 8 in the mode: ``scored_points`` when a number, else :data:`LIDAR_ONLY_SCORED_POINTS`
-        LIDAR-only and :data:`IMU_SCORED_POINTS` with an IMU."""
-        if self.scored_points == AUTO:
-            return LIDAR_ONLY_SCORED_POINTS if lidar_only else IMU_SCORED_POINTS
-        return int(self.scored_points)
 
 
 @dataclass(frozen=True)

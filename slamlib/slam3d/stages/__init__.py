@@ -54,8 +54,8 @@ def choose_stages(config, frame, T0):
     on unless ``config.polish.scan_match`` is False. With an IMU: :class:`ImuMotion`, the tilt prior when
     ``config.prior.tilt_sigma > 0``, scan matching only when ``config.polish.scan_match`` is True.
     """
+    points = config.filter.scored_points
     lidar_only = config.motion.model == "constant_velocity" or not has_imu(frame)
-    points = config.filter.scored_point_count(lidar_only)
     if lidar_only:
         motion = ConstantVelocity(config.motion, points)
     else:

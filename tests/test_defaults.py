@@ -670,26 +670,51 @@ def test_the_defaults_page_states_the_tolerance_and_scored_points_runs_as_commit
     )
 
 
-def test_the_defaults_page_states_the_lidar_only_benchmarks_as_committed():
-    """The LIDAR-only results ``book/defaults.md`` quotes for the settings of now are those of the committed
-    ``lidar_only`` and ``peers`` benchmarks."""
+def _committed_json(root, rev: str, path: str) -> dict:
+    """The JSON file ``path`` as committed in ``rev`` (skips where the checkout has no such history)."""
     import json
+    import subprocess
+
+    got = subprocess.run(
+        ["git", "-C", str(root), "show", f"{rev}:{path}"], capture_output=True, text=True
+    )
+    if got.returncode != 0:
+        pytest.skip(f"no git history with {rev}:{path} here")
+    return json.loads(got.stdout)
+
+
+def test_the_defaults_page_states_the_lidar_only_benchmarks_as_committed():
+    """The LIDAR-only results ``book/defaults.md`` quotes from before and after the particle count and
+    ``match_voxel`` changed are those of the ``lidar_only``, ``peers`` and ``stages`` benchmarks as committed then
+    (commits f15e99f and 8b85ece, named on the page)."""
     from pathlib import Path
 
     root = Path(__file__).resolve().parents[1]
     page = " ".join((root / "book" / "defaults.md").read_text().split())
-    results = root / "benchmarks" / "results"
-    lo = json.loads((results / "lidar_only.json").read_text())["routes"]
+    assert "commit f15e99f" in page and "commit 8b85ece" in page
+    res = "benchmarks/results"
+    before = _committed_json(root, "f15e99f", f"{res}/lidar_only.json")["routes"]
+    after = _committed_json(root, "8b85ece", f"{res}/lidar_only.json")["routes"]
     for route in ("07", "05", "00"):
-        slam = lo[route]["slamlib"]
-        assert f"{route}: " in page
-        assert f"to {slam['kitti_t_err_percent']:.4f} %" in page, route
+        t0 = before[route]["slamlib"]["kitti_t_err_percent"]
+        t1 = after[route]["slamlib"]["kitti_t_err_percent"]
+        assert f"{route}: {t0:.4f} to {t1:.4f} %" in page, route
     for route in ("05", "00"):
-        assert f"to {lo[route]['slamlib']['ate_rmse_m']:.2f} m" in page, route
-    pe = json.loads((results / "peers.json").read_text())["drives"]
-    ates = [d["slamlib_lidar_only"]["ate_rmse_m"] for d in pe.values()]
-    assert f"to {ates[0]:.3f}, {ates[1]:.3f} and {ates[2]:.3f} m" in page, ates
+        a0 = before[route]["slamlib"]["ate_rmse_m"]
+        a1 = after[route]["slamlib"]["ate_rmse_m"]
+        assert f"{route}: {a0:.2f} to {a1:.2f} m" in page, route
+    peers = [
+        _committed_json(root, rev, f"{res}/peers.json")["drives"]
+        for rev in ("f15e99f", "8b85ece")
+    ]
+    ates = [[d["slamlib_lidar_only"]["ate_rmse_m"] for d in p.values()] for p in peers]
+    said = [", ".join(f"{a:.3f}" for a in row[:2]) + f" and {row[2]:.3f}" for row in ates]
+    assert f"from {said[0]} m to {said[1]} m" in page, said
+    # "still below KISS-ICP's on each"
     assert all(
         d["slamlib_lidar_only"]["ate_rmse_m"] < d["kiss_icp"]["ate_rmse_m"]
-        for d in pe.values()
+        for d in peers[1].values()
     )
+    stages = _committed_json(root, "8b85ece", f"{res}/stages.json")["modes"]
+    assert f"then took {stages['lidar_only']['total_ms']:.1f} ms" in page
+    assert f"one with an IMU ({stages['imu']['total_ms']:.1f} ms)" in page

@@ -400,7 +400,7 @@ def test_the_defaults_have_their_values():
         AUTO,
         15,
     )
-    assert (c.polish.match_voxel, c.polish.match_tolerance) == (0.5, 1e-4)
+    assert (c.polish.match_voxel, c.polish.match_tolerance) == (0.5, 1e-5)
     assert (c.map.kind, c.upkeep.prune_every, c.upkeep.transient_span) == (
         "voxel_hash",
         20,

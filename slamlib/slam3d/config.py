@@ -671,8 +671,8 @@ class ScanMatchConfig:
     match_tolerance : float
         The iteration ends at the first Gauss-Newton step shorter than this (``|delta|`` of the rotation vector and
         the translation, radians and metres alike), without taking it: near the peak the steps shrink
-        geometrically, so the rest of the way is shorter still. Default 1e-4 (5 mm at 50 m, a tenth of a
-        millimetre in position), KISS-ICP's convergence criterion; why: "Why these defaults".
+        geometrically, so the rest of the way is about that short. Default 1e-5 (half a millimetre at 50 m); why
+        not KISS-ICP's 1e-4: "Why these defaults".
     """
 
     scan_match: str | bool = AUTO

@@ -740,3 +740,41 @@ def test_the_defaults_page_states_the_lidar_only_benchmarks_as_committed():
     stages = _committed_json(root, "8b85ece", f"{res}/stages.json")["modes"]
     assert f"then took {stages['lidar_only']['total_ms']:.1f} ms" in page
     assert f"one with an IMU ({stages['imu']['total_ms']:.1f} ms)" in page
+
+
+def test_the_defaults_page_states_the_fresh_lidar_only_check_as_committed():
+    """The fresh-seed LIDAR-only check on the defaults page: its seeds are the plan's, named before the run, and
+    its counts and ratios are those of the committed ``fresh_lidar_only/sweep.csv`` (one slamlib and one KISS-ICP
+    row per drive)."""
+    import csv
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    page = " ".join((root / "book" / "defaults.md").read_text().split())
+    folder = root / "benchmarks/results/fresh_lidar_only"
+    rows = list(csv.DictReader((folder / "sweep.csv").open()))
+    plan = " ".join((folder / "plan.md").read_text().split())
+    seeds = sorted({int(r["seed"]) for r in rows})
+    assert seeds == [60, 61] and "Seeds: **60 and 61**" in plan
+    assert "Two of them, 60 and 61, were named" in page
+    by = {(r["route"], r["seed"], r["method"]): r for r in rows}
+    drives = sorted({(r["route"], r["seed"]) for r in rows})
+    assert {r["route"] for r in rows} == {"00", "05", "07"} and len(by) == 2 * len(drives)
+    ratio = [
+        float(by[d + ("slamlib",)]["kitti_t_err_percent"])
+        / float(by[d + ("kiss_icp",)]["kitti_t_err_percent"])
+        for d in drives
+    ]
+    wins = sum(r < 1 for r in ratio)
+    ate_wins = sum(
+        float(by[d + ("slamlib",)]["ate_rmse_m"])
+        < float(by[d + ("kiss_icp",)]["ate_rmse_m"])
+        for d in drives
+    )
+    n = len(drives)
+    assert wins == n and f"below KISS-ICP's on all {n} of those drives" in page
+    assert (
+        f"at {min(ratio):.3f} to {max(ratio):.3f} times it (mean {np.mean(ratio):.3f})"
+        in page
+    )
+    assert f"and so was its ATE on {ate_wins} of them" in page

@@ -16,6 +16,7 @@ from slamlib.geometry import make_pose, rpy_to_matrix
 from slamlib.odometry import GRAVITY
 from slamlib.slam3d import Particles3D, ParticleSLAM3D, steps
 from slamlib.slam3d.config import TiltConfig
+from slamlib.slam3d.match import MATCH_TOLERANCE
 from slamlib.slam3d.preprocess import road_mask
 from slamlib.slam3d.stages import Annealing, NoPolish, NoPrior, ScanMatch, TiltPrior
 from slamlib.slam3d.stages.prior import (
@@ -468,16 +469,17 @@ def _fake_match(monkeypatch, matched):
     """``match_scan`` replaced by one that records its arguments and answers ``matched``."""
     calls = []
 
-    def fake(pose, points, world_map, iterations, road=None):
-        calls.append((pose, points, world_map, iterations, road))
+    def fake(pose, points, world_map, iterations, road=None, tolerance=None):
+        calls.append((pose, points, world_map, iterations, road, tolerance))
         return matched
 
     monkeypatch.setattr("slamlib.slam3d.stages.polish.match_scan", fake)
     return calls
 
 
-def test_scan_match_passes_the_road_only_when_asked(monkeypatch):
-    """``road=True`` (LIDAR-only) hands the match :func:`road_mask` of the scan; the default hands it none."""
+def test_scan_match_passes_the_road_only_when_asked_and_its_tolerance(monkeypatch):
+    """``road=True`` (LIDAR-only) hands the match :func:`road_mask` of the scan; the default hands it none. The
+    stage's ``tolerance`` (default :data:`MATCH_TOLERANCE`) reaches the match."""
     points, pose = _road_scan(), make_pose(np.eye(3), [1.0, 2.0, 0.0])
     particles = Particles3D(np.eye(3)[None], np.zeros((1, 3)))
     calls = _fake_match(monkeypatch, pose)
@@ -485,6 +487,9 @@ def test_scan_match_passes_the_road_only_when_asked(monkeypatch):
     ScanMatch(4)(pose, points, particles, "map")
     ScanMatch(4, road=True)(pose, points, particles, "map")
     assert calls[0][3] == 4 and calls[0][4] is None
+    assert calls[0][5] == MATCH_TOLERANCE  # the default, unless given
+    ScanMatch(4, tolerance=1e-3)(pose, points, particles, "map")
+    assert calls[2][5] == 1e-3
     mask = road_mask(points)
     assert mask[:300].all() and not mask[300:].all()  # the scan has a road plane and more
     assert calls[1][3] == 4 and calls[1][2] == "map"

@@ -288,7 +288,7 @@ def match_scan(
     for _ in range(iterations):
         damping = MATCH_DAMPING * max(float(np.trace(H)), np.finfo(float).tiny)
         delta = -np.linalg.solve(H + damping * np.eye(6), g)
-        if np.linalg.norm(delta) < tolerance:  # converged: the peak is about this step away
+        if np.linalg.norm(delta) < tolerance:  # the peak is about this step away
             break
         R2, t2 = so3_exp(delta[:3]) @ R, t + delta[3:]
         H2, g2, cost2 = _normal_equations_nb(R2, t2, pts, *args)

@@ -18,6 +18,7 @@ import inspect
 import pkgutil
 import types
 from dataclasses import MISSING, dataclass, fields
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -50,6 +51,9 @@ from slamlib.slam3d.config import (
     UpkeepConfig,
     VoxelHashParams,
 )
+
+#: The checkout: the book pages and committed results the page tests read.
+ROOT = Path(__file__).resolve().parents[1]
 
 
 # ---------------------------------------------------------------------------------------------------- the checker
@@ -581,22 +585,30 @@ def test_map_params_are_the_constructors():
         ]
 
 
+def _words(path) -> str:
+    """The text of ``path`` with its line breaks and runs of spaces as single spaces (prose reflows freely)."""
+    return " ".join(Path(path).read_text().split())
+
+
+def _dev_rows() -> dict[str, list[dict]]:
+    """The rows of ``benchmarks/results/lidar_only_dev/rows.jsonl``, by run name."""
+    import json
+    from collections import defaultdict
+
+    rows = defaultdict(list)
+    path = ROOT / "benchmarks/results/lidar_only_dev/rows.jsonl"
+    for line in path.read_text().splitlines():
+        row = json.loads(line)
+        rows[row["name"]].append(row)
+    return rows
+
+
 def test_the_defaults_page_states_the_lidar_only_development_runs_as_committed():
     """``book/defaults.md`` quotes the mean errors of ``benchmarks/results/lidar_only_dev`` that chose the LIDAR-only
     particle count and ``match_voxel``: each run's mean over its four drives, as written on the page, and the
     default's settings are those of the run the page calls the default."""
-    import json
-    from collections import defaultdict
-    from pathlib import Path
-
-    root = Path(__file__).resolve().parents[1]
-    page = " ".join((root / "book" / "defaults.md").read_text().split())
-    rows = defaultdict(list)
-    for line in (
-        (root / "benchmarks/results/lidar_only_dev/rows.jsonl").read_text().splitlines()
-    ):
-        r = json.loads(line)
-        rows[r["name"]].append(r)
+    page = _words(ROOT / "book" / "defaults.md")
+    rows = _dev_rows()
     dev = ("base", "mv05", "mv10", "mv05p150", "mv05p100", "kiss-odo")
     assert all(len(rows[k]) == 4 for k in dev)
     # the drives of slamlib bench peers, LIDAR-only: the thinning costs there, the particle count does not
@@ -625,19 +637,11 @@ def test_the_defaults_page_states_the_tolerance_and_scored_points_runs_as_commit
     ``lidar_only_dev`` runs and the benchmarks as committed in 8b85ece: the means, the count of drives that lost,
     each whole sequence and each peers drive; the defaults are not the settings it turned down."""
     import json
-    from collections import defaultdict
-    from pathlib import Path
 
-    root = Path(__file__).resolve().parents[1]
-    page = " ".join((root / "book" / "defaults.md").read_text().split())
+    page = _words(ROOT / "book" / "defaults.md")
     section = page[page.index("`ScanMatchConfig.match_tolerance`") :]
     section = section[: section.index("## ")]
-    rows = defaultdict(list)
-    for line in (
-        (root / "benchmarks/results/lidar_only_dev/rows.jsonl").read_text().splitlines()
-    ):
-        row = json.loads(line)
-        rows[row["name"]].append(row)
+    rows = _dev_rows()
     res = "benchmarks/results"
     for name in ("mv05p100", "tol4", "tol4sp500"):
         assert len(rows[name]) == 4, name
@@ -646,7 +650,7 @@ def test_the_defaults_page_states_the_tolerance_and_scored_points_runs_as_commit
     dev = {r["seed"]: r["t"] for r in rows["mv05p100"]}
     lost_dev = sum(r["t"] > dev[r["seed"]] for r in rows["tol4"])
     assert f"higher on {lost_dev} of the 4" in section
-    before = _committed_json(root, "8b85ece", f"{res}/lidar_only.json")["routes"]
+    before = _committed_json("8b85ece", f"{res}/lidar_only.json")["routes"]
     whole = {r["route"]: r["t"] for r in rows["whole-tol4"]}
     routes = ("07", "05", "00")
     for t in (
@@ -657,24 +661,22 @@ def test_the_defaults_page_states_the_tolerance_and_scored_points_runs_as_commit
     lost_whole = sum(
         whole[k] > before[k]["slamlib"]["kitti_t_err_percent"] for k in routes
     )
-    peers_before = _committed_json(root, "8b85ece", f"{res}/peers.json")["drives"]
+    peers_before = _committed_json("8b85ece", f"{res}/peers.json")["drives"]
     drives = (
         "default_drive()",
         "default_drive(realism=False)",
         "default_drive(full=True, realism=False)",
     )
-    old = [d["slamlib_lidar_only"]["ate_rmse_m"] for d in peers_before.values()]
     assert [n.split(" ")[0] for n in peers_before] == ["realistic", "default", "whole"]
-    for name, ates in (
-        ("8b85ece", old),
-        *(
-            (name, [{r["drive"]: r["ate"] for r in rows[name]}[d] for d in drives])
-            for name in ("peers-tol4-p1000", "peers-new")
-        ),
-    ):
-        assert f"{ates[0]:.3f}, {ates[1]:.3f} and {ates[2]:.3f} m" in section, name
-    new = [{r["drive"]: r["ate"] for r in rows["peers-tol4-p1000"]}[d] for d in drives]
-    lost_peers = sum(a > b for a, b in zip(new, old))
+    ates = {
+        "8b85ece": [d["slamlib_lidar_only"]["ate_rmse_m"] for d in peers_before.values()]
+    }
+    for name in ("peers-tol4-p1000", "peers-new"):
+        by_drive = {r["drive"]: r["ate"] for r in rows[name]}
+        ates[name] = [by_drive[d] for d in drives]
+    for name, a in ates.items():
+        assert f"{a[0]:.3f}, {a[1]:.3f} and {a[2]:.3f} m" in section, name
+    lost_peers = sum(a > b for a, b in zip(ates["peers-tol4-p1000"], ates["8b85ece"]))
     assert f"on {lost_dev + lost_whole + lost_peers} of the 10 drives" in section
     route00 = {
         name: {r["route"]: r["t"] for r in rows[name]}["00"]
@@ -682,7 +684,7 @@ def test_the_defaults_page_states_the_tolerance_and_scored_points_runs_as_commit
     }
     for name, t in route00.items():
         assert f"{t:.4f} %" in section, name
-    kiss00 = json.loads((root / res / "lidar_only.json").read_text())["routes"]["00"]
+    kiss00 = json.loads((ROOT / res / "lidar_only.json").read_text())["routes"]["00"]
     assert f"KISS-ICP's {kiss00['kiss_icp']['kitti_t_err_percent']:.4f} %" in section
     c = SLAM3DConfig()
     assert c.polish.match_tolerance == 1e-5 and c.filter.scored_points == 1000
@@ -692,13 +694,13 @@ def test_the_defaults_page_states_the_tolerance_and_scored_points_runs_as_commit
     )
 
 
-def _committed_json(root, rev: str, path: str) -> dict:
+def _committed_json(rev: str, path: str) -> dict:
     """The JSON file ``path`` as committed in ``rev`` (skips where the checkout has no such history)."""
     import json
     import subprocess
 
     got = subprocess.run(
-        ["git", "-C", str(root), "show", f"{rev}:{path}"], capture_output=True, text=True
+        ["git", "-C", str(ROOT), "show", f"{rev}:{path}"], capture_output=True, text=True
     )
     if got.returncode != 0:
         pytest.skip(f"no git history with {rev}:{path} here")
@@ -709,14 +711,11 @@ def test_the_defaults_page_states_the_lidar_only_benchmarks_as_committed():
     """The LIDAR-only results ``book/defaults.md`` quotes from before and after the particle count and
     ``match_voxel`` changed are those of the ``lidar_only``, ``peers`` and ``stages`` benchmarks as committed then
     (commits f15e99f and 8b85ece, named on the page)."""
-    from pathlib import Path
-
-    root = Path(__file__).resolve().parents[1]
-    page = " ".join((root / "book" / "defaults.md").read_text().split())
+    page = _words(ROOT / "book" / "defaults.md")
     assert "commit f15e99f" in page and "commit 8b85ece" in page
     res = "benchmarks/results"
-    before = _committed_json(root, "f15e99f", f"{res}/lidar_only.json")["routes"]
-    after = _committed_json(root, "8b85ece", f"{res}/lidar_only.json")["routes"]
+    before = _committed_json("f15e99f", f"{res}/lidar_only.json")["routes"]
+    after = _committed_json("8b85ece", f"{res}/lidar_only.json")["routes"]
     for route in ("07", "05", "00"):
         t0 = before[route]["slamlib"]["kitti_t_err_percent"]
         t1 = after[route]["slamlib"]["kitti_t_err_percent"]
@@ -726,7 +725,7 @@ def test_the_defaults_page_states_the_lidar_only_benchmarks_as_committed():
         a1 = after[route]["slamlib"]["ate_rmse_m"]
         assert f"{route}: {a0:.2f} to {a1:.2f} m" in page, route
     peers = [
-        _committed_json(root, rev, f"{res}/peers.json")["drives"]
+        _committed_json(rev, f"{res}/peers.json")["drives"]
         for rev in ("f15e99f", "8b85ece")
     ]
     ates = [[d["slamlib_lidar_only"]["ate_rmse_m"] for d in p.values()] for p in peers]
@@ -737,7 +736,7 @@ def test_the_defaults_page_states_the_lidar_only_benchmarks_as_committed():
         d["slamlib_lidar_only"]["ate_rmse_m"] < d["kiss_icp"]["ate_rmse_m"]
         for d in peers[1].values()
     )
-    stages = _committed_json(root, "8b85ece", f"{res}/stages.json")["modes"]
+    stages = _committed_json("8b85ece", f"{res}/stages.json")["modes"]
     assert f"then took {stages['lidar_only']['total_ms']:.1f} ms" in page
     assert f"one with an IMU ({stages['imu']['total_ms']:.1f} ms)" in page
 
@@ -747,13 +746,11 @@ def test_the_defaults_page_states_the_fresh_lidar_only_check_as_committed():
     its counts and ratios are those of the committed ``fresh_lidar_only/sweep.csv`` (one slamlib and one KISS-ICP
     row per drive)."""
     import csv
-    from pathlib import Path
 
-    root = Path(__file__).resolve().parents[1]
-    page = " ".join((root / "book" / "defaults.md").read_text().split())
-    folder = root / "benchmarks/results/fresh_lidar_only"
+    page = _words(ROOT / "book" / "defaults.md")
+    folder = ROOT / "benchmarks/results/fresh_lidar_only"
     rows = list(csv.DictReader((folder / "sweep.csv").open()))
-    plan = " ".join((folder / "plan.md").read_text().split())
+    plan = _words(folder / "plan.md")
     seeds = sorted({int(r["seed"]) for r in rows})
     assert seeds == [60, 61] and "Seeds: **60 and 61**" in plan
     assert "Two of them, 60 and 61, were named" in page

@@ -10,14 +10,25 @@ Conventions (used everywhere in slamlib):
 * A pose ``T_a_b`` is a 4x4 float64 homogeneous matrix that maps points from frame ``b`` into frame ``a``:
   ``p_a = T_a_b @ p_b`` (``p`` homogeneous). ``T_a_c = T_a_b @ T_b_c``.
 * Points are ``(N, 3)`` arrays (float32 for scans); batches of poses are ``(P, 4, 4)``.
+* A rotation vector ``phi`` (radians) is the axis times the angle: ``R = Exp(phi)`` (:func:`so3_exp`), ``phi =
+  Log(R)`` (:func:`so3_log`).
 
-References: KITTI raw data paper (Geiger et al., IJRR 2013), section on OXTS; pykitti ``utils.rotx/roty/rotz``.
+References: KITTI raw data paper (Geiger et al., IJRR 2013), section on OXTS; pykitti ``utils.rotx/roty/rotz``;
+for ``Exp`` and ``Log``, Barfoot, "State Estimation for Robotics" (2017), sec. 7.1.3, and Shepperd, "Quaternion from
+rotation matrix", J. Guidance and Control 1(3), 1978.
 The tests check these hand-written formulas against :class:`scipy.spatial.transform.Rotation`.
 """
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
+
+#: Below this angle (rad) :func:`so3_exp` uses the Taylor series of ``sin a / a`` and ``(1 - cos a) / a^2``: their
+#: closed forms lose digits to cancellation there, and the next series terms (``a^4 / 120``, ``a^4 / 720``) are
+#: below 1e-18.
+SMALL_ANGLE = 1e-4
 
 
 def rot_x(a: float) -> np.ndarray:
@@ -99,6 +110,70 @@ def invert_pose(T) -> np.ndarray:
     Rt = np.swapaxes(T[..., :3, :3], -1, -2)
     t = T[..., :3, 3]
     return make_pose(Rt, -np.einsum("...ij,...j->...i", Rt, t))
+
+
+def skew(v) -> np.ndarray:
+    """``[v]x (..., 3, 3)`` of ``v (..., 3)``: the matrix with ``[v]x u = v x u``."""
+    v = np.asarray(v, dtype=np.float64)
+    K = np.zeros(v.shape[:-1] + (3, 3))
+    K[..., 0, 1], K[..., 0, 2] = -v[..., 2], v[..., 1]
+    K[..., 1, 0], K[..., 1, 2] = v[..., 2], -v[..., 0]
+    K[..., 2, 0], K[..., 2, 1] = -v[..., 1], v[..., 0]
+    return K
+
+
+def so3_exp(phi) -> np.ndarray:
+    """Rodrigues' formula: the rotations ``R = Exp(phi) (..., 3, 3)`` of rotation vectors ``phi (..., 3)`` (rad).
+
+    ``R = I + (sin a / a) K + ((1 - cos a) / a^2) K^2`` with ``a = |phi|``, ``K = [phi]x`` (:func:`skew`); below
+    :data:`SMALL_ANGLE` the coefficients are their Taylor series ``1 - a^2/6`` and ``1/2 - a^2/24``.
+    """
+    phi = np.asarray(phi, dtype=np.float64)
+    a2 = (phi * phi).sum(axis=-1)
+    a = np.sqrt(a2)
+    small = a < SMALL_ANGLE
+    a_safe = np.where(small, 1.0, a)
+    c1 = np.where(small, 1.0 - a2 / 6.0, np.sin(a_safe) / a_safe)
+    c2 = np.where(small, 0.5 - a2 / 24.0, (1.0 - np.cos(a_safe)) / a_safe**2)
+    K = skew(phi)
+    return np.eye(3) + c1[..., None, None] * K + c2[..., None, None] * (K @ K)
+
+
+def so3_log(R) -> np.ndarray:
+    """The rotation vector ``phi = Log(R) (3,)`` (rad, ``|phi| <= pi``) of one rotation ``R (3, 3)``.
+
+    Through the unit quaternion ``(w, x, y, z)``, ``w >= 0``: ``phi = 2 atan2(|v|, w) v / |v|`` with ``v = (x, y,
+    z)``, accurate at every angle (the trace formula ``cos a = (tr R - 1) / 2`` loses the axis near ``a = pi`` and
+    the angle near 0). The quaternion is Shepperd's: it starts from the largest of ``4 w^2 = 1 + tr R`` and ``4
+    x^2 = 1 + 2 R_00 - tr R`` (and ``y``, ``z`` alike), so it never divides by a small number. Below ``|v| <``
+    :data:`SMALL_ANGLE` ``2 atan2(|v|, w) / |v|`` is its series ``2 / w (1 - |v|^2 / (3 w^2))``. Scalar
+    arithmetic: it runs once a frame, where numpy's per-call overhead would cost more than the math.
+    """
+    (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = np.asarray(
+        R, dtype=np.float64
+    ).tolist()
+    tr = r00 + r11 + r22
+    four_sq = (1.0 + tr, 1.0 + 2.0 * r00 - tr, 1.0 + 2.0 * r11 - tr, 1.0 + 2.0 * r22 - tr)
+    pick = max(range(4), key=four_sq.__getitem__)
+    big = 0.5 * math.sqrt(four_sq[pick])
+    k = 0.25 / big
+    # the off-diagonal differences and sums give the other three components from the largest
+    d_zy, d_xz, d_yx = (r21 - r12) * k, (r02 - r20) * k, (r10 - r01) * k
+    s_xy, s_xz, s_yz = (r01 + r10) * k, (r02 + r20) * k, (r12 + r21) * k
+    w, x, y, z = (
+        (big, d_zy, d_xz, d_yx),
+        (d_zy, big, s_xy, s_xz),
+        (d_xz, s_xy, big, s_yz),
+        (d_yx, s_xz, s_yz, big),
+    )[pick]
+    if w < 0.0:
+        w, x, y, z = -w, -x, -y, -z
+    s = math.sqrt(x * x + y * y + z * z)
+    if s < SMALL_ANGLE:
+        scale = 2.0 / w * (1.0 - s * s / (3.0 * w * w))
+    else:
+        scale = 2.0 * math.atan2(s, w) / s
+    return np.array([scale * x, scale * y, scale * z])
 
 
 def transform_points(T, points) -> np.ndarray:

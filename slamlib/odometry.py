@@ -30,9 +30,16 @@ Sola et al., "A micro Lie theory for state estimation in robotics" (2018), eq. (
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
-from slamlib.geometry import make_pose, matrix_to_rpy, rpy_to_matrix
+from slamlib.geometry import (
+    SMALL_ANGLE,
+    make_pose,
+    matrix_to_rpy,
+    rpy_to_matrix,
+    skew,
+    so3_exp,
+    so3_log,
+)
 
 __all__ = [
     "imu_increment",
@@ -48,28 +55,19 @@ __all__ = [
 GRAVITY = 9.81
 
 
-def _skew(v: np.ndarray) -> np.ndarray:
-    """``[v]x`` for ``v (..., 3)`` -> ``(..., 3, 3)``."""
-    K = np.zeros(v.shape[:-1] + (3, 3))
-    K[..., 0, 1], K[..., 0, 2] = -v[..., 2], v[..., 1]
-    K[..., 1, 0], K[..., 1, 2] = v[..., 2], -v[..., 0]
-    K[..., 2, 0], K[..., 2, 1] = -v[..., 1], v[..., 0]
-    return K
-
-
 def so3_left_jacobian(phi) -> np.ndarray:
     """Left Jacobian of SO(3), ``J(phi) (..., 3, 3)`` for rotation vectors ``phi (..., 3)`` (rad).
 
     ``J = I + (1 - cos a)/a^2 K + (a - sin a)/a^3 K^2`` with ``a = |phi|``, ``K = [phi]x``; Taylor series
-    ``(1/2 - a^2/24, 1/6 - a^2/120)`` below ``a < 1e-4`` to avoid cancellation.
+    ``(1/2 - a^2/24, 1/6 - a^2/120)`` below ``a <`` :data:`~slamlib.geometry.SMALL_ANGLE` to avoid cancellation.
     """
     phi = np.asarray(phi, dtype=np.float64)
     a = np.linalg.norm(phi, axis=-1)
-    small = a < 1e-4
+    small = a < SMALL_ANGLE
     a_safe = np.where(small, 1.0, a)
     c1 = np.where(small, 0.5 - a**2 / 24.0, (1.0 - np.cos(a_safe)) / a_safe**2)
     c2 = np.where(small, 1.0 / 6.0 - a**2 / 120.0, (a_safe - np.sin(a_safe)) / a_safe**3)
-    K = _skew(phi)
+    K = skew(phi)
     return np.eye(3) + c1[..., None, None] * K + c2[..., None, None] * (K @ K)
 
 
@@ -83,12 +81,7 @@ def imu_increments(v_prev, w_prev, v_cur, w_cur, dt) -> tuple[np.ndarray, np.nda
     )
     dt = np.asarray(dt, dtype=np.float64)[..., None]
     phi = w_bar * dt
-    dR = (
-        Rotation.from_rotvec(phi.reshape(-1, 3))
-        .as_matrix()
-        .reshape(phi.shape[:-1] + (3, 3))
-    )
-    rpy = matrix_to_rpy(dR)
+    rpy = matrix_to_rpy(so3_exp(phi))
     trans = np.einsum("...ij,...j->...i", so3_left_jacobian(phi), v_bar * dt)
     return rpy, trans
 
@@ -160,6 +153,6 @@ def twist_between(T_a, T_b, dt: float) -> tuple[np.ndarray, np.ndarray]:
     T_rel = np.linalg.solve(
         np.asarray(T_a, dtype=np.float64), np.asarray(T_b, dtype=np.float64)
     )
-    phi = Rotation.from_matrix(T_rel[:3, :3]).as_rotvec()
+    phi = so3_log(T_rel[:3, :3])
     v = np.linalg.solve(so3_left_jacobian(phi), T_rel[:3, 3])
     return v / dt, phi / dt

@@ -13,6 +13,9 @@ from slamlib.geometry import (
     rot_y,
     rot_z,
     rpy_to_matrix,
+    skew,
+    so3_exp,
+    so3_log,
     transform_points,
 )
 
@@ -144,3 +147,56 @@ def test_float32_inputs_are_computed_in_float64():
     np.testing.assert_allclose(
         invert_pose(T32), invert_pose(T32.astype(np.float64)), rtol=0, atol=1e-12
     )
+
+
+def _rotation_vectors(rng, n):
+    """Rotation vectors over every angle from 0 to pi: random axes and angles, tiny angles (the series branch),
+    angles just past the series' threshold, and half turns about random and coordinate axes."""
+    axes = rng.normal(size=(n, 3))
+    axes /= np.linalg.norm(axes, axis=1)[:, None]
+    angles = rng.uniform(0.0, np.pi, n)
+    angles[:20] = 10.0 ** rng.uniform(-12, -4.5, 20)
+    angles[20:40] = 10.0 ** rng.uniform(-4, -3, 20)
+    angles[40:60] = np.pi
+    axes[60:63], angles[60:63] = np.eye(3), np.pi
+    return axes * angles[:, None]
+
+
+def test_so3_exp_matches_scipy_at_every_angle():
+    phi = _rotation_vectors(np.random.default_rng(5), 2000)
+    np.testing.assert_allclose(
+        so3_exp(phi), Rotation.from_rotvec(phi).as_matrix(), rtol=0, atol=2e-15
+    )
+    # one vector in, one matrix out; the zero vector is the identity
+    np.testing.assert_allclose(
+        so3_exp(phi[100]), Rotation.from_rotvec(phi[100]).as_matrix(), atol=2e-15
+    )
+    np.testing.assert_array_equal(so3_exp(np.zeros(3)), np.eye(3))
+
+
+def test_so3_log_inverts_exp_and_matches_scipy_at_every_angle():
+    phi = _rotation_vectors(np.random.default_rng(6), 2000)
+    R = Rotation.from_rotvec(phi).as_matrix()
+    logs = np.array([so3_log(r) for r in R])
+    # a half turn's vector is +-phi: both are right, scipy and Log may pick either
+    half = np.isclose(np.linalg.norm(phi, axis=1), np.pi)
+    np.testing.assert_allclose(logs[~half], phi[~half], rtol=0, atol=4e-15)
+    np.testing.assert_allclose(
+        logs[~half], Rotation.from_matrix(R[~half]).as_rotvec(), rtol=0, atol=4e-15
+    )
+    np.testing.assert_allclose(np.abs(logs[half]), np.abs(phi[half]), rtol=0, atol=1e-7)
+    np.testing.assert_allclose(so3_exp(logs), R, rtol=0, atol=4e-15)
+    # tiny angles keep their digits relative to the angle (the series branch)
+    tiny = np.linalg.norm(phi, axis=1) < 1e-6
+    assert tiny.sum() >= 10
+    np.testing.assert_allclose(logs[tiny], phi[tiny], rtol=1e-9, atol=0)
+    np.testing.assert_array_equal(so3_log(np.eye(3)), np.zeros(3))
+
+
+def test_skew_is_the_cross_product():
+    rng = np.random.default_rng(7)
+    v, u = rng.normal(size=(2, 50, 3))
+    np.testing.assert_allclose(
+        np.einsum("nij,nj->ni", skew(v), u), np.cross(v, u), atol=1e-14
+    )
+    np.testing.assert_allclose(skew(v[0]) @ u[0], np.cross(v[0], u[0]), atol=1e-14)

@@ -261,3 +261,30 @@ def test_real_oxts_sample_is_within_the_ranges():
 
     p = read_oxts_packet(sample_raw_paths()["oxts_packet"])
     assert 48 < p.lat < 50
+
+
+# ------------------------------------------------------------------ the packet type and projection, against pykitti
+def test_packet_type_and_pose_are_pykittis():
+    """slamlib writes pykitti's ``OxtsPacket`` and ``pose_from_oxts_packet`` itself (pykitti's package import
+    costs start-up): the same fields in the same order, and the same poses on packets over the whole globe."""
+    import pykitti.utils as pk
+
+    from slamlib.kitti.oxts import OxtsPacket, enu_pose_from_packet, mercator_scale
+
+    assert OxtsPacket._fields == pk.OxtsPacket._fields
+    rng = np.random.default_rng(11)
+    for _ in range(200):
+        values = rng.uniform(-1.0, 1.0, 30)
+        values[0] = rng.uniform(-85.0, 85.0)  # lat
+        values[1] = rng.uniform(-180.0, 180.0)  # lon
+        values[2] = rng.uniform(-100.0, 3000.0)  # alt
+        values[3:6] = rng.uniform(-math.pi, math.pi, 3)  # roll, pitch, yaw
+        ours, theirs = OxtsPacket(*values), pk.OxtsPacket(*values)
+        scale = mercator_scale(rng.uniform(-85.0, 85.0))
+        R, t = pk.pose_from_oxts_packet(theirs, scale)
+        expected = pk.transform_from_rot_trans(R, t)
+        got = enu_pose_from_packet(ours, scale)
+        np.testing.assert_allclose(got[:3, :3], expected[:3, :3], rtol=0, atol=1e-15)
+        # metres from the Mercator origin, up to 2e7: equal to a few ulp
+        np.testing.assert_allclose(got[:3, 3], expected[:3, 3], rtol=1e-14, atol=1e-9)
+        np.testing.assert_array_equal(got[3], [0.0, 0.0, 0.0, 1.0])

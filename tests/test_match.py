@@ -7,10 +7,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from slamlib.geometry import make_pose, rpy_to_matrix
+from slamlib.geometry import make_pose, rpy_to_matrix, so3_exp
 from slamlib.maps import MortonBVHMap, VoxelHashMap
 from slamlib.slam3d import SLAM3DConfig, run_drive, steps
-from slamlib.slam3d.match import match_scan, normal_equations, so3_exp
+from slamlib.slam3d.match import match_scan, normal_equations
 
 
 def _room(rng, n=20000):
@@ -327,16 +327,6 @@ def test_leaves_the_pose_alone_where_it_cannot_match():
     np.testing.assert_array_equal(match_scan(T, world, _map(world), 0), T)
     # no points
     np.testing.assert_array_equal(match_scan(T, world[:0], _map(world), 5), T)
-
-
-def test_so3_exp_is_rodrigues():
-    from scipy.spatial.transform import Rotation
-
-    rng = np.random.default_rng(5)
-    for w in (rng.normal(0, 1, 3), rng.normal(0, 1e-7, 3), np.zeros(3)):
-        np.testing.assert_allclose(
-            so3_exp(w), Rotation.from_rotvec(w).as_matrix(), atol=1e-12
-        )
 
 
 def test_pipeline_matches_lidar_only_by_default_and_with_an_imu_when_asked(tmp_path):

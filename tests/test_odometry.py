@@ -6,9 +6,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
-from slamlib.geometry import make_pose, rpy_to_matrix
+from slamlib.geometry import make_pose, rpy_to_matrix, skew
 from slamlib.odometry import (
-    _skew,
     dead_reckon,
     imu_increment,
     imu_increments,
@@ -100,12 +99,6 @@ def _c1_c2(a):
     return c1, c2
 
 
-def test_skew_is_the_cross_product():
-    v, u = np.array([0.3, -1.2, 2.5]), np.array([-0.7, 0.4, 1.1])
-    np.testing.assert_allclose(_skew(v) @ u, np.cross(v, u), atol=1e-15)
-    np.testing.assert_allclose(_skew(np.stack([v, u]))[1] @ v, np.cross(u, v), atol=1e-15)
-
-
 @pytest.mark.parametrize("a", [0.0, 1e-6, 5e-5, 9.9e-5, 2e-4, 1e-2, 0.5, 2.0, 3.0])
 def test_left_jacobian_coefficients(a):
     # phi = (x, x, 0): J[0, 2] = c1 * x (K^2[0, 2] = 0) and J[0, 1] = c2 * x^2 (K[0, 1] = 0), so each
@@ -118,7 +111,7 @@ def test_left_jacobian_coefficients(a):
     if a > 0:
         assert J[0, 2] / x == pytest.approx(c1, rel=rtol, abs=0)
         assert J[0, 1] / x**2 == pytest.approx(c2, rel=rtol, abs=0)
-    K = _skew(np.array([x, x, 0.0]))
+    K = skew(np.array([x, x, 0.0]))
     np.testing.assert_allclose(J, np.eye(3) + c1 * K + c2 * K @ K, rtol=0, atol=1e-12)
 
 

@@ -754,3 +754,27 @@ def test_slamlib_run_loop_closure_writes_its_poses_and_closures(
     assert "slam_loop_closed" in info["metrics"]
     printed = capsys.readouterr().out
     assert "+ loop closure" in printed and "1 local maps, 0 verified closures" in printed
+
+
+def test_the_run_commands_start_imports_no_heavy_library_it_does_not_use():
+    """What `slamlib run` imports before its first frame (the command, the filter, the readers, the default drive's
+    cache key) leaves out pykitti's package (pandas with it), scipy.spatial and scipy.interpolate: together about half
+    a second of every warm start-up on the 2-core machine (`slamlib bench startup`). They are imported where they
+    are used: a drive's camera calibration, a TUM file, the generator's splines and its scene."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys\n"
+        "from slamlib.cli import build_parser\n"
+        "build_parser()\n"
+        "import slamlib.commands.run, slamlib.kitti, slamlib.slam3d, slamlib.synth\n"
+        "from slamlib.synth.drive import resolve_route\n"
+        "resolve_route('07', (0, 300))\n"
+        "heavy = ('pykitti', 'pandas', 'scipy.spatial', 'scipy.interpolate', 'open3d')\n"
+        "print(sorted(m for m in sys.modules if m.startswith(heavy)))\n"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True
+    )
+    assert done.stdout.strip() == "[]", done.stdout

@@ -27,6 +27,10 @@ Poses follow pykitti (``pykitti.utils.pose_from_oxts_packet``): a Mercator proje
 which gives ``T_enu_imu`` in a local east-north-up frame. slamlib's world frame is the IMU pose of the
 drive's first frame: ``T_w_imu[i] = inv(T_enu_imu[0]) @ T_enu_imu[i]`` (so ``T_w_imu[0] = I``).
 
+The packet type and the projection are written here rather than imported from pykitti, which the tests check
+them against (``tests/test_kitti_oxts.py``): importing ``pykitti.utils`` runs ``pykitti/__init__.py``, which loads
+all of pykitti's readers and pandas with them, a fifth of a second of every ``slamlib run``'s start-up.
+
 Reference: Geiger et al., "Vision meets Robotics: The KITTI Dataset", IJRR 2013; pykitti 0.3.1 ``utils.py``.
 """
 
@@ -34,12 +38,13 @@ from __future__ import annotations
 
 import math
 import os
+from collections import namedtuple
 from collections.abc import Sequence
 
 import numpy as np
-from pykitti.utils import OxtsPacket, pose_from_oxts_packet, transform_from_rot_trans
 
 from slamlib.errors import DataFormatError
+from slamlib.geometry import make_pose, rpy_to_matrix
 
 __all__ = [
     "OXTS_FIELDS",
@@ -53,11 +58,28 @@ __all__ = [
     "write_oxts_packet",
     "mercator_scale",
     "enu_pose_from_packet",
+    "EARTH_RADIUS_M",
     "poses_from_packets",
 ]
 
 #: The 30 OXTS field names in file order (pykitti's ``OxtsPacket`` namedtuple fields).
-OXTS_FIELDS: tuple[str, ...] = tuple(OxtsPacket._fields)
+OXTS_FIELDS: tuple[str, ...] = (
+    *("lat", "lon", "alt", "roll", "pitch", "yaw", "vn", "ve", "vf", "vl", "vu"),
+    *("ax", "ay", "az", "af", "al", "au", "wx", "wy", "wz", "wf", "wl", "wu"),
+    *(
+        "pos_accuracy",
+        "vel_accuracy",
+        "navstat",
+        "numsats",
+        "posmode",
+        "velmode",
+        "orimode",
+    ),
+)
+#: One OXTS packet, the 30 fields by name: pykitti's ``OxtsPacket`` (same name, same fields, same order).
+OxtsPacket = namedtuple("OxtsPacket", OXTS_FIELDS)
+#: The earth radius (m) of pykitti's and KITTI's devkit Mercator projection (WGS84's equatorial radius).
+EARTH_RADIUS_M = 6378137.0
 #: The last five fields are integers (flags and counts).
 N_INT_FIELDS = 5
 assert len(OXTS_FIELDS) == 30
@@ -231,11 +253,17 @@ def mercator_scale(lat_deg: float) -> float:
 
 
 def enu_pose_from_packet(packet: OxtsPacket, scale: float) -> np.ndarray:
-    """4x4 ``T_enu_imu`` of one packet (pykitti's Mercator convention, absolute, no origin shift)."""
-    R, t = pose_from_oxts_packet(packet, scale)
-    return transform_from_rot_trans(
-        np.asarray(R, dtype=np.float64), np.asarray(t, dtype=np.float64)
+    """4x4 ``T_enu_imu`` of one packet (pykitti's Mercator convention, absolute, no origin shift): ``R = Rz(yaw)
+    Ry(pitch) Rx(roll)`` and ``t = (s lon pi r / 180, s r ln tan((90 + lat) pi / 360), alt)``, ``r`` =
+    :data:`EARTH_RADIUS_M`, ``s = scale``."""
+    t = (
+        scale * packet.lon * math.pi * EARTH_RADIUS_M / 180.0,
+        scale
+        * EARTH_RADIUS_M
+        * math.log(math.tan((90.0 + packet.lat) * math.pi / 360.0)),
+        packet.alt,
     )
+    return make_pose(rpy_to_matrix((packet.roll, packet.pitch, packet.yaw)), t)
 
 
 def poses_from_packets(

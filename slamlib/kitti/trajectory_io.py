@@ -21,7 +21,6 @@ import math
 import os
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from slamlib.errors import DataFormatError, bom_error
 
@@ -138,6 +137,10 @@ def read_tum(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
     T = np.zeros((a.shape[0], 4, 4))
     T[:, 3, 3] = 1.0
     if a.shape[0]:
+        from scipy.spatial.transform import (
+            Rotation,
+        )  # here: scipy.spatial costs 0.2 s of start-up
+
         T[:, :3, :3] = Rotation.from_quat(a[:, 4:8]).as_matrix()
         T[:, :3, 3] = a[:, 1:4]
     return a[:, 0].copy(), T
@@ -157,6 +160,10 @@ def write_tum(path: str | os.PathLike, timestamps, poses, header: bool = False) 
         raise ValueError(
             "refusing to write a trajectory with non-finite (NaN / inf) timestamps"
         )
+    from scipy.spatial.transform import (
+        Rotation,
+    )  # here: scipy.spatial costs 0.2 s of start-up
+
     q = Rotation.from_matrix(T[:, :3, :3]).as_quat() if T.shape[0] else np.zeros((0, 4))
     with open(path, "w", encoding="ascii") as f:
         if header:

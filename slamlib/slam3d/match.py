@@ -52,18 +52,16 @@ Only the voxel hash map is matched (the Morton map's nearest-neighbour term has 
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 from numba import njit, prange
 
+from slamlib.geometry import so3_exp
 from slamlib.kernels.device import NO_BLOCK, make_point_functions
 from slamlib.maps.base import KIND_VOXEL_HASH
 
 __all__ = [
     "match_scan",
     "normal_equations",
-    "so3_exp",
     "MATCH_DAMPING",
     "MATCH_TOLERANCE",
 ]
@@ -252,16 +250,6 @@ def normal_equations(
         *_lookup_args(lookup),
         *_block_cache(len(pts)),
     )
-
-
-def so3_exp(omega) -> np.ndarray:
-    """Rodrigues' formula: the rotation (3, 3) of the rotation vector ``omega`` (3,) radians."""
-    w = np.asarray(omega, dtype=np.float64)
-    th = float(np.linalg.norm(w))
-    K = np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
-    if th < 1e-12:
-        return np.eye(3) + K
-    return np.eye(3) + math.sin(th) / th * K + (1.0 - math.cos(th)) / th**2 * (K @ K)
 
 
 def match_scan(

@@ -43,6 +43,7 @@ from dataclasses import asdict, dataclass, fields
 import numpy as np
 
 from slamlib.geometry import matrix_to_rpy, rot_z
+from slamlib.kitti.oxts import EARTH_RADIUS_M as EARTH_RADIUS
 from slamlib.synth.routes import Route
 
 __all__ = [
@@ -56,7 +57,6 @@ __all__ = [
     "latlon_from_mercator",
 ]
 
-EARTH_RADIUS = 6378137.0
 #: (lat, lon, alt) of the first packet of 2011_09_26_drive_0001 (Karlsruhe).
 KARLSRUHE = (49.015003823272, 8.4342971002335, 116.43032836914)
 

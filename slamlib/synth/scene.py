@@ -25,7 +25,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 __all__ = ["Scene", "build_scene", "IMU_HEIGHT"]
 
@@ -224,6 +223,9 @@ def build_scene(
     p = np.vstack([p[0] + steps[::-1] * u0, p, p[-1] + steps * u1])
     road = p.copy()
     road[:, 2] -= IMU_HEIGHT
+    # imported here, not at the top: scipy.spatial costs 0.2 s of `slamlib run`'s start-up
+    from scipy.spatial import cKDTree
+
     tree = cKDTree(road[:, :2])
     b = _Builder()
 

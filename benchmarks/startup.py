@@ -19,7 +19,10 @@ Reported per mode and cache, medians and bests (``min``) over the repeats:
 
 Beside them, ``kiss_icp``: a fresh interpreter that imports KISS-ICP 1.3.0 (through :mod:`slamlib.peers`) and
 registers the first :data:`STARTUP_FRAMES` frames of the same drive, timed from the process's start: the start-up
-of a peer without a compile step.
+of a peer without a compile step. And ``numba_floor``: a fresh interpreter that imports numpy and Numba and calls
+one trivial kernel (``x + 1.0``) from a warm cache, timed the same way: what any Numba program pays before its
+first result, whatever its kernels. On its first call Numba builds its CPU target, importing its own lowering
+registries and, through them, ``scipy.linalg`` (its BLAS check), and loads the kernel from the cache.
 """
 
 from __future__ import annotations
@@ -53,6 +56,51 @@ frames = KittiRawDrive(basedir, date, drive, frames=range(STARTUP_FRAMES))
 kiss_icp_poses(frames, deskew=True)
 print(time.perf_counter() - t0)
 """
+
+
+FLOOR_KERNEL = """
+from numba import njit
+
+
+@njit(cache=True)
+def plus_one(x):
+    return x + 1.0
+"""
+
+FLOOR_SCRIPT = """
+import sys, time
+t0 = time.perf_counter()
+import numpy as np
+sys.path.insert(0, sys.argv[1])
+from floor_kernel import plus_one
+plus_one(np.float64(1.0))
+print(time.perf_counter() - t0)
+"""
+
+
+def _timed_script(script: str, args: list[str], env: dict | None = None) -> dict:
+    """A fresh interpreter running ``script`` (which prints its own seconds from its start as its last word):
+    the process's wall time and that start-up."""
+    t0 = time.perf_counter()
+    done = subprocess.run(
+        [sys.executable, "-c", script, *args],
+        capture_output=True,
+        text=True,
+        check=True,
+        env=env,
+    )
+    return {
+        "wall_s": time.perf_counter() - t0,
+        "startup_s": float(done.stdout.split()[-1]),
+    }
+
+
+def _numba_floor(tmp: Path, repeat: int) -> dict:
+    """:data:`FLOOR_SCRIPT` ``repeat`` times on a warm cache (one untimed run compiles the kernel first)."""
+    (tmp / "floor_kernel.py").write_text(FLOOR_KERNEL, encoding="utf-8")
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp / "numba-floor")}
+    _timed_script(FLOOR_SCRIPT, [str(tmp)], env)
+    return _summary([_timed_script(FLOOR_SCRIPT, [str(tmp)], env) for _ in range(repeat)])
 
 
 def _slamlib_run(args: list[str], cache: str, out: str) -> dict:
@@ -116,23 +164,16 @@ def run(quick: bool = False) -> dict:
                 f"{rows[mode]['warm']['steady_fps_median']:.1f} frames/s, warm overhead "
                 f"{rows[mode]['warm']['overhead_s_median']:.2f} s"
             )
-        kiss = []
-        for _ in range(repeat):
-            t0 = time.perf_counter()
-            done = subprocess.run(
-                [sys.executable, "-c", KISS_SCRIPT, str(basedir), date, str(drive)],
-                capture_output=True,
-                text=True,
-                check=True,
-            )
-            kiss.append(
-                {
-                    "wall_s": time.perf_counter() - t0,
-                    "startup_s": float(done.stdout.split()[-1]),
-                }
-            )
+        kiss = [
+            _timed_script(KISS_SCRIPT, [str(basedir), date, str(drive)])
+            for _ in range(repeat)
+        ]
         rows["kiss_icp"] = _summary(kiss)
+        rows["numba_floor"] = _numba_floor(Path(tmp), repeat)
     print(f"KISS-ICP: start-up {rows['kiss_icp']['startup_s_median']:.2f} s (median)")
+    print(
+        f"Numba alone (import, one cached kernel): {rows['numba_floor']['startup_s_median']:.2f} s (median)"
+    )
     return {
         "drive": f"default drive (route 07, key frames 0:{DEFAULT_FRAMES[1]}), frames 0:{n}",
         "frames": n,

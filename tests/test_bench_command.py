@@ -160,7 +160,7 @@ def test_benchmarks_chapter_lists_every_benchmark():
 
 def test_the_readme_states_the_committed_start_up():
     """The README's cold and warm start-up of `slamlib run` are the committed `slamlib bench startup` medians (IMU
-    mode), to the tenth of a second, with the date of that run: one number per fact."""
+    mode) and Numba's floor, to the tenth of a second, with the date of that run: one number per fact."""
     import re
 
     result = paths.load_bench_result("startup")
@@ -174,3 +174,18 @@ def test_the_readme_states_the_committed_start_up():
     assert float(found.group(1)) == round(rows["cold"]["startup_s_median"], 1)
     assert float(found.group(2)) == round(rows["warm"]["startup_s_median"], 1)
     assert result["machine"]["utc"][:10] in text
+    floor = re.search(r"of which ([\d.]+) s is Numba's own import and first call", text)
+    assert floor, "the README's Numba floor"
+    assert float(floor.group(1)) == round(
+        result["rows"]["numba_floor"]["startup_s_median"], 1
+    )
+
+
+def test_the_start_up_benchmarks_numba_floor_times_a_fresh_warm_call(tmp_path):
+    """``bench startup``'s Numba floor: fresh interpreters calling one cached kernel, the compile left out."""
+    from benchmarks.startup import _numba_floor
+
+    row = _numba_floor(tmp_path, 2)
+    assert row["repeat"] == 2
+    assert list((tmp_path / "numba-floor").rglob("*.nbi")), "the kernel was cached"
+    assert 0 < row["startup_s_min"] <= row["startup_s_median"] < row["wall_s_median"]

@@ -77,3 +77,25 @@ def test_the_profile_needs_the_first_frame():
     with pytest.raises(ValueError, match="first frame"):
         with StageProfile().attached(slam):
             pass
+
+
+def test_an_attached_loop_closer_is_timed_as_its_own_stage():
+    """With a loop closer attached, its frames and its final optimisation are ``loop_closure``'s calls, and the
+    closer's methods are its own again after the block; without one, the stage stays at zero."""
+    from slamlib.loops import LoopCloser
+
+    frames, _ = simulate(6)
+    slam = ParticleSLAM3D(tiny_config())
+    closer = LoopCloser()
+    closer.add_frame(0, slam.register_frame(frames[0]), slam.last["points"])
+    profile = StageProfile()
+    with profile.attached(slam, closer):
+        for k, f in enumerate(frames[1:], start=1):
+            closer.add_frame(k, slam.register_frame(f), slam.last["points"])
+        closer.finish()
+    assert profile.calls["loop_closure"] == 6  # 5 frames and the finish
+    assert profile.seconds["loop_closure"] > 0
+    assert profile.calls["bookkeeping"] == 5
+    assert not any(getattr(v, "__wrapped__", None) for v in vars(closer).values())
+    _, plain, _, _ = _profiled(tiny_config(), frames)
+    assert plain.ms_per_frame()["loop_closure"] == 0.0

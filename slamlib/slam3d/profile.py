@@ -27,6 +27,9 @@ name               what it times
 ``merge``          step 10 (:func:`~slamlib.slam3d.steps.merge_scan`)
 ``upkeep``         map pruning and transient eviction (``upkeep``)
 ``bookkeeping``    the rest of ``register_frame``
+``loop_closure``   the loop closer's work, when one is attached (``closer.add_frame``, ``closer.finish``): local
+                   maps, loop candidates, their verification, the pose graph; outside ``register_frame``, as in
+                   ``slamlib run --loop-closure`` (:func:`~slamlib.slam3d.run.run_drive`)
 =================  ==========================================================================================
 
 Timing uses ``time.perf_counter``; the wrappers add about a microsecond per call. The profile patches the module
@@ -62,6 +65,7 @@ STAGES = (
     "merge",
     "upkeep",
     "bookkeeping",
+    "loop_closure",
 )
 #: The functions of :mod:`slamlib.slam3d.steps` timed while attached, and their stage.
 STEP_FUNCTIONS = {
@@ -106,9 +110,10 @@ class StageProfile:
         return wrapper
 
     @contextmanager
-    def attached(self, slam):
-        """Time ``slam``'s stages inside the ``with`` block. ``slam`` must have registered its first frame (the
-        stages that depend on the data are chosen then)."""
+    def attached(self, slam, closer=None):
+        """Time ``slam``'s stages inside the ``with`` block, and those of ``closer`` (a
+        :class:`slamlib.loops.LoopCloser` fed by the caller) as ``loop_closure``. ``slam`` must have registered its
+        first frame (the stages that depend on the data are chosen then)."""
         if slam.motion is None:
             raise ValueError(
                 "attach the profile after the first frame: the filter's stages are chosen on it"
@@ -136,6 +141,9 @@ class StageProfile:
         wrap(slam, "_learn", "learn")
         wrap(slam, "upkeep", "upkeep")
         wrap(slam, "register_frame", "bookkeeping")
+        if closer is not None:
+            wrap(closer, "add_frame", "loop_closure")
+            wrap(closer, "finish", "loop_closure")
         timed_frame = slam.register_frame
 
         def counted(frame):

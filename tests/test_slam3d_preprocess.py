@@ -82,3 +82,38 @@ def test_crop_and_downsample_equals_crop_then_downsample():
             crop_and_downsample(pts, lo, hi, h),
             voxel_downsample(crop_range(pts, lo, hi), h),
         )
+
+
+def test_a_scan_and_the_matchers_points_load_one_crop_kernel():
+    """Step 2 crops a scan's (N, 4) rows and the matcher thins step 2's (M, 3) points: both reach the kernel as the
+    same array type (float32, C order), so a LIDAR-only run loads one compiled kernel, not two."""
+    from slamlib.slam3d.preprocess import _crop_downsample_nb, crop_and_downsample
+    from slamlib.slam3d.steps import read_scan
+
+    rng = np.random.default_rng(3)
+    scan = np.hstack(
+        [rng.uniform(-30, 30, (5000, 3)), rng.uniform(0, 1, (5000, 1))]
+    ).astype(np.float32)
+    points = read_scan(scan)
+    assert points.shape[1] == 3 and points.flags.c_contiguous
+    before = set(_crop_downsample_nb.signatures)
+    thinned = crop_and_downsample(points, voxel_size=0.5)
+    assert set(_crop_downsample_nb.signatures) == before
+    np.testing.assert_array_equal(thinned, voxel_downsample(points, 0.5))
+
+
+def test_crop_and_downsample_keeps_the_first_columns_when_asked():
+    """``columns=3``: the same rows as without, x, y, z only; on the kernel's path, the reference path (a voxel
+    index beyond the packed range) and an empty input alike."""
+    from slamlib.slam3d.preprocess import crop_and_downsample
+
+    rng = np.random.default_rng(4)
+    scan = rng.uniform(-40, 40, (3000, 4)).astype(np.float32)
+    far = scan.copy()
+    far[7, :3] = 1e7  # 1e7 voxels of 1 m: beyond the 2**20 of a packed key
+    for points, voxel in ((scan, 0.5), (far, 1.0), (scan[:0], 0.5)):
+        whole = crop_and_downsample(points, 2.0, 1e8, voxel)
+        xyz = crop_and_downsample(points, 2.0, 1e8, voxel, columns=3)
+        assert xyz.shape == (len(whole), 3)
+        np.testing.assert_array_equal(xyz, whole[:, :3])
+    assert len(crop_and_downsample(far, 2.0, 1e8, 1.0)) > 0

@@ -106,9 +106,14 @@ def voxel_downsample(points, voxel_size: float) -> np.ndarray:
 
 
 def crop_and_downsample(
-    points, min_range: float = 0.0, max_range: float = np.inf, voxel_size: float = 0.0
+    points,
+    min_range: float = 0.0,
+    max_range: float = np.inf,
+    voxel_size: float = 0.0,
+    columns: int | None = None,
 ) -> np.ndarray:
-    """:func:`crop_range` then :func:`voxel_downsample`, in one pass: the same points in the same order.
+    """:func:`crop_range` then :func:`voxel_downsample`, in one pass: the same points in the same order, with their
+    first ``columns`` columns only when given (step 2 keeps x, y, z of a scan's rows, gathered once).
 
     One Numba loop over the points (:func:`_crop_downsample_nb`): a point outside ``[min_range, max_range]`` is
     skipped; otherwise its voxel ``floor(p / voxel_size)`` is packed into a key (:mod:`slamlib.maps.codes`) and
@@ -120,17 +125,21 @@ def crop_and_downsample(
     pts = np.asarray(points)
     if pts.ndim != 2 or pts.shape[1] < 3:
         raise ValueError(f"points must have shape (N, 3) or (N, 4), got {pts.shape}")
+    cols = slice(None) if columns is None else slice(0, int(columns))
     if len(pts) == 0:
-        return pts
+        return pts[:, cols]
     h = float(voxel_size) if voxel_size > 0 else 0.0
     log2_capacity = max(4, int(np.ceil(np.log2(2 * len(pts)))))
-    # the x, y, z columns as a strided view: Numba reads the scan in place (a contiguous copy cost a third more)
+    # the whole rows, read in place (a contiguous copy of x, y, z cost a third more): the kernel reads columns 0-2,
+    # and a scan's (N, 4) rows and the matcher's (M, 3) points are then one array type, one kernel to load
     keep = _crop_downsample_nb(
-        pts[:, :3], float(min_range) ** 2, float(max_range) ** 2, h, log2_capacity
+        pts, float(min_range) ** 2, float(max_range) ** 2, h, log2_capacity
     )
     if len(keep) == 1 and keep[0] == _OUT_OF_RANGE:
-        return voxel_downsample(crop_range(pts, min_range, max_range), voxel_size)
-    return pts[keep]
+        return voxel_downsample(crop_range(pts, min_range, max_range), voxel_size)[
+            :, cols
+        ]
+    return pts[keep, cols]
 
 
 #: :func:`_crop_downsample_nb`'s answer when a voxel index leaves the packed key range.
@@ -140,9 +149,9 @@ _OUT_OF_RANGE = -1
 @njit(cache=True)
 def _crop_downsample_nb(xyz, min_r2, max_r2, h, log2_capacity):
     """Indexes (input order) of the first point in range of each occupied voxel (``h = 0``: every point in
-    range); ``[-1]`` when a voxel index leaves ``[0, 2**21)`` after the offset. A module-level kernel: its helpers
-    are globals, which Numba's cache key leaves out (a closure's cells are in it, and a jitted function in a cell
-    made every run compile it again)."""
+    range) of ``xyz (N, >= 3)``, x, y, z its first three columns; ``[-1]`` when a voxel index leaves ``[0, 2**21)``
+    after the offset. A module-level kernel: its helpers are globals, which Numba's cache key leaves out (a
+    closure's cells are in it, and a jitted function in a cell made every run compile it again)."""
     n = xyz.shape[0]
     keep = np.empty(n, np.int64)
     keys = np.full(np.int64(1) << log2_capacity, EMPTY_KEY, np.int64)

@@ -171,8 +171,10 @@ def read_scan(
     if scan.ndim != 2 or scan.shape[1] not in (3, 4):
         raise ValueError(f"scan must have shape (N, 3) or (N, 4), got {scan.shape}")
     c = scan_config
-    # one O(N) pass
-    pts = crop_and_downsample(scan[:, :3], c.min_range, c.max_range, c.downsample_voxel)
+    # one O(N) pass over the whole rows (the matcher's thinning then loads the same kernel), x, y, z kept
+    pts = crop_and_downsample(
+        scan, c.min_range, c.max_range, c.downsample_voxel, columns=3
+    )
     pts = np.asarray(pts, dtype=np.float32)
     if T_body_velo is not None:
         T = np.asarray(T_body_velo, dtype=np.float64)

@@ -25,8 +25,9 @@ import math
 
 import numpy as np
 
-#: Below this angle (rad) :func:`so3_exp` uses the Taylor series of ``sin a / a`` and ``(1 - cos a) / a^2``: their
-#: closed forms lose digits to cancellation there, and the next series terms (``a^4 / 120``, ``a^4 / 720``) are
+#: Below this angle (rad) the rotation formulas switch to Taylor series, whose closed forms lose digits to
+#: cancellation there: :func:`so3_exp` (``sin a / a``, ``(1 - cos a) / a^2``), :func:`so3_log` (``atan2(s, w) /
+#: s``) and :func:`slamlib.odometry.so3_left_jacobian`. The terms the series leave out are of order ``a^4 / 120``,
 #: below 1e-18.
 SMALL_ANGLE = 1e-4
 

@@ -200,3 +200,6 @@ def test_skew_is_the_cross_product():
         np.einsum("nij,nj->ni", skew(v), u), np.cross(v, u), atol=1e-14
     )
     np.testing.assert_allclose(skew(v[0]) @ u[0], np.cross(v[0], u[0]), atol=1e-14)
+    v, u = np.array([0.3, -1.2, 2.5]), np.array([-0.7, 0.4, 1.1])
+    np.testing.assert_allclose(skew(v) @ u, np.cross(v, u), atol=1e-15)
+    np.testing.assert_allclose(skew(np.stack([v, u]))[1] @ v, np.cross(u, v), atol=1e-15)

@@ -530,14 +530,14 @@ class FilterConfig:
     pose_estimate: str = "best"
 
     def __post_init__(self):
-        if isinstance(self.particles, str):
-            if self.particles != AUTO:
-                raise ValueError(
-                    f"particles must be an integer or {AUTO!r}, got {self.particles!r}"
-                )
-            p = max(IMU_PARTICLES, LIDAR_ONLY_PARTICLES)
-        else:
-            p = _integer("particles", self.particles, 1, MAX_PARTICLES)
+        if not isinstance(self.particles, str):
+            _integer("particles", self.particles, 1, MAX_PARTICLES)
+        elif self.particles != AUTO:
+            raise ValueError(
+                f"particles must be an integer or {AUTO!r}, got {self.particles!r}"
+            )
+        # the most particles either mode will carry
+        p = max(self.particle_count(lidar_only) for lidar_only in (False, True))
         n = _integer("scored_points", self.scored_points, 1, MAX_SCORED_POINTS)
         if p * n > MAX_POINT_SCORES:
             raise ValueError(

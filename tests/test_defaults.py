@@ -632,6 +632,30 @@ def test_the_defaults_page_states_the_lidar_only_development_runs_as_committed()
     )
 
 
+def test_the_defaults_page_states_the_scan_match_iterations_runs_as_committed():
+    """``book/defaults.md``'s section on ``scan_match_iterations`` quotes ``lidar_only.json`` as committed in
+    074c905 (5 steps) and c93f47d (15): route 05's error in each, and the other two routes' moves."""
+    page = _words(ROOT / "book" / "defaults.md")
+    section = page[page.index("`ScanMatchConfig.scan_match_iterations`") :]
+    section = section[: section.index("## ")]
+    res = "benchmarks/results/lidar_only.json"
+    five, fifteen = (
+        _committed_json(rev, res)
+        for rev in ("074c9055f6b9ecaf4e7b042b1d313dfefd8933d1", "c93f47d")
+    )
+    assert five["config"]["filter"]["scan_match_iterations"] == 5
+    t = {
+        route: [
+            d["routes"][route]["slamlib"]["kitti_t_err_percent"] for d in (five, fifteen)
+        ]
+        for route in ("07", "05", "00")
+    }
+    assert f"{t['05'][0]:.4f} % with 5 steps" in section
+    assert f"{t['05'][1]:.4f} % with 15" in section and "committed in c93f47d" in section
+    for route in ("07", "00"):
+        assert f"route {route} from {t[route][0]:.4f} to {t[route][1]:.4f} %" in section
+
+
 def test_the_defaults_page_states_the_tolerance_and_scored_points_runs_as_committed():
     """``book/defaults.md``'s section on ``match_tolerance`` (and the 500 scored points tried there) quotes the
     ``lidar_only_dev`` runs and the benchmarks as committed in 8b85ece: the means, the count of drives that lost,

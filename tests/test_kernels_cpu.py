@@ -695,6 +695,38 @@ def test_shared_point_math_python_and_numba_builds_agree_bit_for_bit():
         )
 
 
+def test_corner_weight_gradient_is_the_derivative_of_the_trilinear_weight():
+    """``corner_weight_gradient`` (scan matching's Newton step) is the trilinear weight's gradient with respect to
+    the world point: central differences of ``voxel_cell`` + ``corner_weight`` inside one block agree, the eight
+    corners' gradients sum to zero (the weights sum to one), and the Python and njit builds agree bit for bit."""
+    from slamlib.kernels import cpu
+    from slamlib.kernels.device import PY
+
+    NB = cpu._F
+    rng = np.random.default_rng(22)
+    inv_h, h = 2.0, 1e-6
+    for wx, wy, wz in rng.uniform(-20, 20, (50, 3)):
+        ux0, uy0, uz0, fx, fy, fz, ok = PY["voxel_cell"](wx, wy, wz, inv_h)
+        assert ok
+        if min(fx, fy, fz, 1 - fx, 1 - fy, 1 - fz) < 1e-4:
+            continue  # a difference across a block boundary takes other corners
+        total = np.zeros(3)
+        for k in range(8):
+            grad = PY["corner_weight_gradient"](fx, fy, fz, k, inv_h)
+            assert grad == NB["corner_weight_gradient"](fx, fy, fz, k, inv_h)
+            numeric = []
+            for e in np.eye(3) * h:
+                w = [
+                    PY["corner_weight"](*PY["voxel_cell"](*(p + s * e), inv_h)[3:6], k)
+                    for s in (1, -1)
+                    for p in [np.array([wx, wy, wz])]
+                ]
+                numeric.append((w[0] - w[1]) / (2 * h))
+            np.testing.assert_allclose(grad, numeric, rtol=1e-6, atol=1e-9)
+            total += grad
+        np.testing.assert_allclose(total, 0.0, atol=1e-12)
+
+
 # ------------------------------------------------------------------ small inputs, value by value
 # Chunk boundaries, messages, dtypes and the edges of the key range, against the reference and the definitions.
 # Fast on purpose: `make mutate` runs these kernels as Python (NUMBA_DISABLE_JIT=1).

@@ -237,7 +237,7 @@ def add_arguments(parser) -> None:
         "--scan-match",
         default=AUTO,
         **tri,
-        help="after step 9, Gauss-Newton the best pose to the map score's nearest peak on the scan "
+        help="after step 9, move the best pose by Newton steps to the map score's nearest peak on the scan "
         "thinned to one point per 0.5 m cube (ScanMatchConfig.match_voxel) "
         "and move the particles with it (ScanMatchConfig.scan_match; default auto: LIDAR-only)",
     )

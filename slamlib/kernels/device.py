@@ -89,6 +89,10 @@ def make_point_functions(deco: Callable = _identity) -> dict:
         Hash slot (int64, -1 if absent) of corner ``k = 4 dx + 2 dy + dz`` (0..7) of that block.
     ``corner_weight(fx, fy, fz, k)``
         Its trilinear weight ``w_x w_y w_z`` (``f`` for the upper corner along an axis, ``1 - f`` for the lower).
+    ``corner_weight_gradient(fx, fy, fz, k, inv_h)``
+        That weight's gradient with respect to the world point (1/m), a 3-tuple: ``d w / d x = +-inv_h w_y w_z``
+        (``+`` for the upper corner along x), and likewise along y and z. Scan matching's Newton step uses it
+        (:mod:`slamlib.slam3d.match`).
     ``slot_term(wx, wy, wz, s, mean, icov, m_max)``
         ``T_c(p)`` of the voxel in slot ``s``, ``-0.5 m_max`` for ``s < 0``. A kernel whose neighbouring
         queries share a block looks its 8 slots up once (``corner_slot``) and sums ``corner_weight * slot_term``
@@ -260,6 +264,19 @@ def make_point_functions(deco: Callable = _identity) -> dict:
 
     corner_weight = deco(corner_weight)
 
+    def corner_weight_gradient(fx, fy, fz, k, inv_h):
+        upper_x, upper_y, upper_z = (k >> 2) == 1, ((k >> 1) & 1) == 1, (k & 1) == 1
+        wgx = fx if upper_x else 1.0 - fx
+        wgy = fy if upper_y else 1.0 - fy
+        wgz = fz if upper_z else 1.0 - fz
+        return (
+            (inv_h if upper_x else -inv_h) * wgy * wgz,
+            (inv_h if upper_y else -inv_h) * wgx * wgz,
+            (inv_h if upper_z else -inv_h) * wgx * wgy,
+        )
+
+    corner_weight_gradient = deco(corner_weight_gradient)
+
     def slot_term(wx, wy, wz, s, mean, icov, m_max):
         if s < 0:
             return -0.5 * m_max
@@ -380,6 +397,7 @@ def make_point_functions(deco: Callable = _identity) -> dict:
             "voxel_cell": voxel_cell,
             "corner_slot": corner_slot,
             "corner_weight": corner_weight,
+            "corner_weight_gradient": corner_weight_gradient,
             "slot_term": slot_term,
             "cells_per_axis": cells_per_axis,
             "cell_block": cell_block,

@@ -96,7 +96,7 @@ MAX_SCORED_POINTS = 1_000_000
 MAX_POINT_SCORES = 10_000_000_000
 #: Most annealing rounds per frame (each one costs a whole scoring pass).
 MAX_ANNEAL_ROUNDS = 100
-#: Most Gauss-Newton steps of the scan matcher per frame (``ScanMatchConfig.scan_match_iterations``; each a pass
+#: Most Newton steps of the scan matcher per frame (``ScanMatchConfig.scan_match_iterations``; each a pass
 #: over the matched points, ``ScanMatchConfig.match_voxel``).
 MAX_SCAN_MATCH_ITERATIONS = 100
 #: Most frames the LIDAR-only velocity is averaged over (``ConstantVelocityConfig.window``; 10 frames = 1 s at
@@ -653,14 +653,14 @@ class ScanMatchConfig:
     Attributes
     ----------
     scan_match : "auto", True or False
-        After step 9, move the best particle's pose to the nearest peak of the map score with Gauss-Newton on the
+        After step 9, move the best particle's pose to the nearest peak of the map score by Newton steps on the
         down-sampled scan thinned to ``match_voxel`` (:func:`slamlib.slam3d.match.match_scan`), and the particles
         with it (the improved proposal of Grisetti et al. 2007). ``"auto"`` (default): on LIDAR-only, where the
         constant-velocity prior leaves the filter the most to find, off with an IMU; True / False force it. Voxel
         hash map only (other maps are left as they are).
     scan_match_iterations : int
-        Most Gauss-Newton steps per frame (each one only if it lowers the cost; the iteration also stops once a step
-        is tiny). Default 15; why: "Why these defaults" (``book/defaults.md``).
+        Most Newton steps per frame (each one only if it lowers the cost; the iteration also stops once a step is
+        tiny). Default 15; why: "Why these defaults" (``book/defaults.md``).
     match_voxel : float
         The scan is matched on its points thinned to one per cube of this edge (metres; 0 = every down-sampled
         point, :func:`slamlib.slam3d.preprocess.voxel_downsample` order). KISS-ICP registers a scan thinned
@@ -669,9 +669,9 @@ class ScanMatchConfig:
         the dense returns near the car no longer outweigh the rest. Default 0.5 m, the map's voxel edge (why:
         "Why these defaults").
     match_tolerance : float
-        The iteration ends at the first Gauss-Newton step shorter than this (``|delta|`` of the rotation vector and
-        the translation, radians and metres alike), without taking it: near the peak the steps shrink
-        geometrically, so the rest of the way is about that short. Default 1e-5 (half a millimetre at 50 m); why
+        The iteration ends at the first step shorter than this (``|delta|`` of the rotation vector and the
+        translation, radians and metres alike), without taking it: near the peak the steps shrink faster than
+        geometrically, so the rest of the way is shorter still. Default 1e-5 (half a millimetre at 50 m); why
         not KISS-ICP's 1e-4: "Why these defaults".
     """
 

@@ -1,7 +1,7 @@
 """The polish stage: step 9's pose sharpened by scan matching, the particles moved with it.
 
 Annealing sharpens the particle search; scan matching finishes it with a local optimiser. :class:`ScanMatch`
-moves the pose of step 9 by a few Gauss-Newton steps to the nearest peak of the same map score, computed on the
+moves the pose of step 9 by a few Newton steps to the nearest peak of the same map score, computed on the
 down-sampled scan thinned to one point per ``ScanMatchConfig.match_voxel`` cube rather than step 8's sample
 (:func:`slamlib.slam3d.match.match_scan`), and every particle by the same correction ``C = T_matched T^-1``
 (applied in the world frame) before step 11 resamples them: the particles are then drawn around the scan-matched
@@ -34,7 +34,7 @@ class NoPolish:
 
 
 class ScanMatch:
-    """Scan matching of step 9's pose (module docstring): at most ``iterations`` Gauss-Newton steps on the points
+    """Scan matching of step 9's pose (module docstring): at most ``iterations`` Newton steps on the points
     thinned to one per ``voxel`` cube (0: all), ending at the first step shorter than ``tolerance``; ``road``: the
     road's points hold height and tilt only (LIDAR-only). ``n_matched`` counts the frames matched."""
 

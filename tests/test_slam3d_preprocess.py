@@ -87,7 +87,7 @@ def test_crop_and_downsample_equals_crop_then_downsample():
 def test_a_scan_and_the_matchers_points_load_one_crop_kernel():
     """Step 2 crops a scan's (N, 4) rows and the matcher thins step 2's (M, 3) points: both reach the kernel as the
     same array type (float32, C order), so a LIDAR-only run loads one compiled kernel, not two."""
-    from slamlib.slam3d.preprocess import _crop_downsample_nb, crop_and_downsample
+    from slamlib.slam3d.preprocess import _crop_keys_nb, crop_and_downsample
     from slamlib.slam3d.steps import read_scan
 
     rng = np.random.default_rng(3)
@@ -96,10 +96,38 @@ def test_a_scan_and_the_matchers_points_load_one_crop_kernel():
     ).astype(np.float32)
     points = read_scan(scan)
     assert points.shape[1] == 3 and points.flags.c_contiguous
-    before = set(_crop_downsample_nb.signatures)
+    before = set(_crop_keys_nb.signatures)
     thinned = crop_and_downsample(points, voxel_size=0.5)
-    assert set(_crop_downsample_nb.signatures) == before
+    assert set(_crop_keys_nb.signatures) == before
     np.testing.assert_array_equal(thinned, voxel_downsample(points, 0.5))
+
+
+def test_crop_and_downsample_grows_its_hash_set_when_most_points_are_distinct(
+    monkeypatch,
+):
+    """The hash set starts sized for a quarter of the points to be distinct; where nearly all are (a voxel far
+    smaller than their spacing) it fills, grows fourfold until they fit, and the result is still the reference's."""
+    import slamlib.slam3d.preprocess as pre
+
+    rng = np.random.default_rng(5)
+    pts = rng.uniform(-10, 10, (5000, 3)).astype(np.float32)
+    sizes = []
+    inner = pre._first_of_each_key_nb
+    monkeypatch.setattr(
+        pre,
+        "_first_of_each_key_nb",
+        lambda key_of, log2, dedupe: sizes.append(log2) or inner(key_of, log2, dedupe),
+    )
+    got = pre.crop_and_downsample(pts, 0.0, np.inf, 1e-3)
+    np.testing.assert_array_equal(got, pre.voxel_downsample(pts, 1e-3))
+    assert len(got) == len(pts)
+    # 2**12 slots hold 2048 keys at half load, too few for 5000; 2**14 hold 8192
+    assert sizes == [12, 14]
+    sizes.clear()
+    pre.crop_and_downsample(
+        pts, 0.0, np.inf, 2.0
+    )  # 1000 voxels of 2 m: the first size holds them
+    assert sizes == [12]
 
 
 def test_crop_and_downsample_keeps_the_first_columns_when_asked():
@@ -117,3 +145,61 @@ def test_crop_and_downsample_keeps_the_first_columns_when_asked():
         assert xyz.shape == (len(whole), 3)
         np.testing.assert_array_equal(xyz, whole[:, :3])
     assert len(crop_and_downsample(far, 2.0, 1e8, 1.0)) > 0
+
+
+def _road_and_walls(rng, n_road=300, n_above=100):
+    road = np.c_[rng.uniform(-20, 20, (n_road, 2)), np.full(n_road, -1.7)]
+    above = np.c_[rng.uniform(-20, 20, (n_above, 2)), rng.uniform(0.0, 3.0, n_above)]
+    return np.r_[road, above].astype(np.float32), n_road
+
+
+def test_sample_thinned_draws_as_thinning_then_sampling_does():
+    """``sample_thinned`` is ``sample_points(thin_ground(...))`` in distribution: over many draws each point above
+    the road is chosen with probability n / (A + k), each road point with n / (A + k) * k / G, for both; every
+    draw is n distinct points of the scan."""
+    from slamlib.slam3d.preprocess import sample_thinned, thin_ground
+
+    rng = np.random.default_rng(8)
+    pts, n_road = _road_and_walls(rng)
+    share, n, draws = 0.2, 60, 4000
+    n_above = len(pts) - n_road
+    k = int(share / (1 - share) * n_above)
+    want = np.r_[
+        np.full(n_road, n / (n_above + k) * k / n_road),
+        np.full(n_above, n / (n_above + k)),
+    ]
+    index = {tuple(p): i for i, p in enumerate(pts)}
+    for draw in (
+        lambda r: sample_thinned(pts, share, n, r),
+        lambda r: sample_points(thin_ground(pts, share, r), n, r),
+    ):
+        counts = np.zeros(len(pts))
+        r = np.random.default_rng(9)
+        for _ in range(draws):
+            chosen = [index[tuple(p)] for p in draw(r)]
+            assert len(chosen) == n == len(set(chosen))
+            counts[chosen] += 1
+        freq = counts / draws
+        # group means against the exact inclusion probabilities (binomial standard errors, 4 sigma)
+        for group in (slice(0, n_road), slice(n_road, None)):
+            p, m = want[group][0], len(freq[group])
+            assert abs(freq[group].mean() - p) < 4 * np.sqrt(p * (1 - p) / (draws * m))
+        assert np.corrcoef(freq, want)[0, 1] > 0.9
+
+
+def test_sample_thinned_edge_cases_are_thin_ground_and_sample_points():
+    """The whole pool when ``n`` reaches it, the plain sample for ``share >= 1`` or too few points above the road:
+    the very arrays ``thin_ground`` / ``sample_points`` give from the same generator state."""
+    from slamlib.slam3d.preprocess import sample_thinned, thin_ground
+
+    rng = np.random.default_rng(10)
+    pts, n_road = _road_and_walls(rng)
+    few_above = pts[: n_road + 5]
+    for args, reference in (
+        ((pts, 0.2, 10_000), lambda r: thin_ground(pts, 0.2, r)),
+        ((pts, 1.0, 50), lambda r: sample_points(pts, 50, r)),
+        ((few_above, 0.2, 50), lambda r: sample_points(few_above, 50, r)),
+        ((pts[:0], 0.2, 50), lambda r: pts[:0]),
+    ):
+        got = sample_thinned(*args, np.random.default_rng(11))
+        np.testing.assert_array_equal(got, reference(np.random.default_rng(11)))

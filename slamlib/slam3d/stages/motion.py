@@ -34,7 +34,7 @@ from slamlib.geometry import matrix_to_rpy
 from slamlib.odometry import increment_matrix, twist_between
 from slamlib.slam3d import steps
 from slamlib.slam3d.config import MotionConfig
-from slamlib.slam3d.preprocess import sample_points, thin_ground
+from slamlib.slam3d.preprocess import sample_points, sample_thinned
 from slamlib.slam3d.stages.tuning import FixedSpread, SelfTuning
 
 __all__ = ["ConstantVelocity", "ImuMotion", "has_imu", "held_twist"]
@@ -174,9 +174,9 @@ class ConstantVelocity:
             self.tuning.learn(self.predicted, measured_increment(previous_pose, pose), dt)
 
     def scoring_sample(self, points, rng):
-        """Step 8's points: the road thinned to ``ground_share`` of them, then ``scored_points`` drawn."""
-        pool = thin_ground(points, self.held.ground_share, rng)
-        return sample_points(pool, self.scored_points, rng)
+        """Step 8's points: ``scored_points`` drawn with the road thinned to ``ground_share`` of them
+        (:func:`~slamlib.slam3d.preprocess.sample_thinned`)."""
+        return sample_thinned(points, self.held.ground_share, self.scored_points, rng)
 
     def record(self, imu) -> None:
         """After a frame: keep the held twist (``previous``)."""

@@ -2,10 +2,11 @@
 
 KISS-ICP (Vizzo et al., "KISS-ICP: In Defense of Point-to-Point ICP", RA-L 2023; ``pip install kiss-icp``, MIT
 licence) registers each full scan against a local voxel map with point-to-point ICP and an adaptive threshold.
-It uses the LIDAR only. slamlib runs in each of its modes (:data:`MODES`): the default (LIDAR + IMU) and
-LIDAR-only (constant-velocity motion, scan matching on). All of them run on the same frames, one after the other
-in one process, and are scored with the same metrics (:func:`slamlib.metrics.trajectory_metrics`) against the same
-ground truth, on three drives:
+It uses the LIDAR only. slamlib runs in each of its modes (:data:`MODES`): the default (LIDAR + IMU), LIDAR-only
+(constant-velocity motion, scan matching on) and the default with loop closure (``slamlib run --loop-closure``: a
+:class:`slamlib.loops.LoopCloser` fed every frame inside the frame's timing, its re-anchored poses scored). All of
+them run on the same frames, one after the other in one process, and are scored with the same metrics
+(:func:`slamlib.metrics.trajectory_metrics`) against the same ground truth, on three drives:
 
 * the **realistic default drive** (``default_drive()``: swept scans, traffic, wandering IMU biases; what
   ``slamlib run`` uses), where KISS-ICP de-skews the swept scans and its poses are moved to the frames' pose times,
@@ -35,7 +36,13 @@ HELP = "KISS-ICP (LIDAR-only ICP odometry) beside slamlib's particle SLAM on the
 REPEATS = 3
 #: slamlib's modes: the name of its rows, and the settings (:meth:`SLAM3DConfig.of`) added to the defaults. The
 #: default mode keeps the name ``slamlib`` of the earlier results.
-MODES = {"slamlib": {}, "slamlib_lidar_only": {"model": "constant_velocity"}}
+MODES = {
+    "slamlib": {},
+    "slamlib_lidar_only": {"model": "constant_velocity"},
+    "slamlib_loop_closure": {},
+}
+#: The modes run with ``run_drive(loop_closure=True)``: their rows score the loop-closed poses.
+LOOP_CLOSURE_MODES = ("slamlib_loop_closure",)
 
 INSTALL_HINT = "slamlib bench peers needs KISS-ICP: pip install kiss-icp (or pip install -e '.[peers]')"
 
@@ -75,8 +82,11 @@ def _compare(drive, repeats: int = 1) -> dict:
     for r in range(repeats):
         poses = {}
         for mode, settings in MODES.items():
-            run = run_drive(drive, SLAM3DConfig.of(**settings), progress=False)
-            poses[mode] = np.asarray(run.poses)
+            closing = mode in LOOP_CLOSURE_MODES
+            run = run_drive(
+                drive, SLAM3DConfig.of(**settings), progress=False, loop_closure=closing
+            )
+            poses[mode] = np.asarray(run.loop_closed if closing else run.poses)
             medians[mode].append(float(np.median(run.frame_seconds[1:])))
             if mode == "slamlib":
                 slam = run  # the default mode's run: the ground truth and dead reckoning
@@ -151,6 +161,7 @@ def run(quick: bool = False) -> dict:
         drives["whole route (full=True)"] = _compare(KittiRawDrive(*whole), repeats)
     return {
         "modes": MODES,
+        "loop_closure_modes": list(LOOP_CLOSURE_MODES),
         "kiss_icp_version": version("kiss-icp"),
         "numba_threads": int(numba.get_num_threads()),
         "drives": drives,

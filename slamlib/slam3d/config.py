@@ -664,9 +664,9 @@ class ScanMatchConfig:
     match_voxel : float
         The scan is matched on its points thinned to one per cube of this edge (metres; 0 = every down-sampled
         point, :func:`slamlib.slam3d.preprocess.voxel_downsample` order). KISS-ICP registers a scan thinned
-        three times coarser than the map it builds (Vizzo et al. 2023, Sec. III-B) for the same reason: the
-        Gauss-Newton sums over a few thousand well-spread points fix six numbers as well as over all of them, and
-        the dense returns near the car no longer outweigh the rest. Default 0.5 m, the map's voxel edge (why:
+        three times coarser than the map it builds (Vizzo et al. 2023, Sec. III-B) for the same reason: the normal
+        equations summed over a few thousand well-spread points fix six numbers as well as over all of them, and the
+        dense returns near the car no longer outweigh the rest. Default 0.5 m, the map's voxel edge (why:
         "Why these defaults").
     match_tolerance : float
         The iteration ends at the first step shorter than this (``|delta|`` of the rotation vector and the

@@ -191,6 +191,16 @@ def test_scan_non_finite_points(drive_dir, bad, open_drive):
     assert "point index 5" in str(err)
 
 
+def test_scan_non_finite_points_are_counted_by_point(drive_dir, open_drive):
+    """Three bad values in two points: the message counts points, and names the first."""
+    p = _scan_path(drive_dir, 2)
+    scan = np.fromfile(p, dtype="<f4").reshape(-1, 4)
+    scan[7, 0], scan[7, 3], scan[9, 2] = np.nan, np.inf, -np.inf
+    scan.tofile(p)
+    err = _expect(lambda: _read_all(open_drive), "0000000002.bin", match="nan/inf")
+    assert "2 point(s)" in str(err) and "point index 7" in str(err)
+
+
 def test_fewer_scans_than_packets(drive_dir, open_drive):
     _scan_path(drive_dir, 3).unlink()
     match = r"fewer Velodyne scans than the 4 OXTS packets.*first: 0000000003.bin"

@@ -63,20 +63,13 @@ def whole_route_name(route: str) -> str:
     return f"realistic whole route {route} (full=True)"
 
 
-def _kiss_icp(drive, swept: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _kiss_icp(drive, swept: bool) -> tuple[np.ndarray, np.ndarray]:
     """KISS-ICP over ``drive`` (:func:`slamlib.peers.kiss_icp_poses`; ``swept`` scans de-skewed, the poses moved to
-    the frames' pose times, as in ``slamlib sweep``); body poses ``(F, 4, 4)``, per-frame registration seconds
-    ``(F,)`` and the points of every 25th scan (read again, outside the timing)."""
+    the frames' pose times, as in ``slamlib sweep``): body poses ``(F, 4, 4)`` and per-frame registration seconds
+    ``(F,)``."""
     from slamlib.peers import kiss_icp_poses
 
-    poses, seconds = kiss_icp_poses(
-        drive, drive.T_velo_imu, deskew=swept, pose_times=swept
-    )
-    return (
-        poses,
-        seconds,
-        np.asarray([len(drive[k].scan) for k in range(0, len(drive), 25)]),
-    )
+    return kiss_icp_poses(drive, drive.T_velo_imu, deskew=swept, pose_times=swept)
 
 
 def _compare(drive, repeats: int = 1) -> dict:
@@ -90,15 +83,13 @@ def _compare(drive, repeats: int = 1) -> dict:
     swept = steps.should_deskew(drive[0])
     # every scan read once, untimed, so that it is in the page cache: slamlib reads each scan inside its frame's
     # time (step 2), KISS-ICP outside its registration call, and a scan read from disk would cost the first method
-    # alone (the whole routes are GBs)
-    for k in range(len(drive)):
-        drive[k].scan  # noqa: B018
+    # alone (the whole routes are GBs); the points of every 25th scan for the result
+    n_points = [len(drive[k].scan) for k in range(len(drive))][::25]
 
     methods = (*MODES, "kiss_icp")
     medians = {m: [] for m in methods}
-    means = {
-        m: [] for m in methods
-    }  # the loop closer's work comes in bursts, which medians hide
+    # the means too: the loop closer's work comes in bursts, which medians hide
+    means = {m: [] for m in methods}
     spread = dict.fromkeys(
         methods, 0.0
     )  # largest difference of a repeat's poses from the first's
@@ -115,7 +106,7 @@ def _compare(drive, repeats: int = 1) -> dict:
             means[mode].append(float(np.mean(run.frame_seconds[1:])))
             if mode == "slamlib":
                 slam = run  # the default mode's run: the ground truth and dead reckoning
-        poses["kiss_icp"], kiss_seconds, n_points = _kiss_icp(drive, swept)
+        poses["kiss_icp"], kiss_seconds = _kiss_icp(drive, swept)
         medians["kiss_icp"].append(float(np.median(kiss_seconds[1:])))
         means["kiss_icp"].append(float(np.mean(kiss_seconds[1:])))
         if r == 0:

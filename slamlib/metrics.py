@@ -15,7 +15,10 @@ Metres and radians unless a name says otherwise.
   path length ``L in {100, 200, ..., 800}`` m starting every 10th frame; the last frame is the first whose
   cumulative distance exceeds the start's by more than ``L`` (``lastFrameFromSegmentLength``);
   ``E = inv(inv(P_f) P_l) inv(G_f) G_l``; translational error ``|trans(E)| / L`` (reported in %) and
-  rotational error ``angle(E) / L`` (reported in deg/m), averaged over all segments of all lengths.
+  rotational error ``angle(E) / L`` (reported in deg/m), averaged over all segments of all lengths. The
+  translational error splits exactly into a vertical and a horizontal part (``|e|^2 = v^2 + h^2``): the error of the
+  segment's end in the ground truth's world axes, ``e = R_G,f (t(inv(G_f) G_l) - t(inv(P_f) P_l))``, ``v`` its
+  component along the world's up (height: a tilt the estimate took for level), ``h`` the rest.
 
 References
 ----------
@@ -277,7 +280,9 @@ class KittiOdometryResult:
     ``t_err_percent``: mean over all segments of ``|trans(E)| / L * 100``; ``r_err_deg_per_m``: mean of
     ``angle(E) / L`` in deg/m. ``per_length``: ``{L: (t_err_percent, r_err_deg_per_m, n_segments)}`` for each
     length with at least one segment. Segment arrays (M,): ``first``, ``last``, ``length`` (m), ``t_err``
-    (fraction, m/m), ``r_err`` (rad/m), ``speed`` (m/s, assuming 10 Hz as the devkit).
+    (fraction, m/m), ``r_err`` (rad/m), ``speed`` (m/s, assuming 10 Hz as the devkit). The translational error's
+    parts (module docstring): ``t_err_vertical_percent`` and ``t_err_horizontal_percent`` the means of
+    ``|v| / L`` and ``|h| / L`` in %, ``t_err_vertical`` per segment (fraction, signed: + the estimate ends too low).
     """
 
     t_err_percent: float
@@ -290,6 +295,9 @@ class KittiOdometryResult:
     t_err: np.ndarray = field(repr=False)
     r_err: np.ndarray = field(repr=False)
     speed: np.ndarray = field(repr=False)
+    t_err_vertical_percent: float = float("nan")
+    t_err_horizontal_percent: float = float("nan")
+    t_err_vertical: np.ndarray = field(default=None, repr=False)
 
 
 def kitti_odometry_error(
@@ -298,13 +306,16 @@ def kitti_odometry_error(
     lengths=KITTI_LENGTHS,
     step: int = 10,
     rigid_inverse: bool = False,
+    up=(0.0, 0.0, 1.0),
 ) -> KittiOdometryResult:
     """KITTI odometry translational (%) and rotational (deg/m) error, as ``evaluate_odometry.cpp``.
 
     For each first frame ``f = 0, step, 2 step, ...`` and length ``L``: ``l`` = the first frame with
     ``d_l > d_f + L`` (``d`` = ground-truth cumulative distance; segments running past the end are
     skipped), ``E = inv(inv(P_f) P_l) @ inv(G_f) G_l``, ``t_err = |trans(E)| / L``,
-    ``r_err = arccos(clip((trace R_E - 1)/2)) / L``. Averages are over all segments of all lengths.
+    ``r_err = arccos(clip((trace R_E - 1)/2)) / L``. Averages are over all segments of all lengths. ``up`` (3,) is
+    the world's up in the ground truth's world frame (its z axis by default; a KITTI odometry ground truth in camera
+    axes has ``(0, -1, 0)``), for the vertical part of the translational error (module docstring).
     Vectorised: one ``searchsorted`` for all segment ends and batched 4x4 products (~10 ms for 4,541 poses).
 
     Precision note: the devkit computes in double except ``rotationError``/``trajectoryDistances`` (float32);
@@ -337,6 +348,13 @@ def kitti_odometry_error(
     E = _relative_errors(est, gt, first, last, rigid_inverse)
     t_err = np.linalg.norm(E[:, :3, 3], axis=1) / length
     r_err = rotation_angle(E[:, :3, :3]) / length
+    # |trans(E)| = |t_dG - t_dP|, that difference in the start's ground-truth body axes: turned into the world's
+    inv = invert_pose if rigid_inverse else np.linalg.inv
+    diff = (inv(gt[first]) @ gt[last])[:, :3, 3] - (inv(est[first]) @ est[last])[:, :3, 3]
+    e_world = np.einsum("mij,mj->mi", gt[first, :3, :3], diff)
+    up = np.asarray(up, dtype=np.float64) / np.linalg.norm(up)
+    t_vertical = (e_world @ up) / length
+    t_horizontal = np.sqrt(np.maximum(t_err**2 - t_vertical**2, 0.0))
     speed = length / (0.1 * (last - first + 1))
     per_length = {}
     for Lk in L:
@@ -358,6 +376,9 @@ def kitti_odometry_error(
         t_err=t_err,
         r_err=r_err,
         speed=speed,
+        t_err_vertical_percent=float(np.abs(t_vertical).mean() * 100.0),
+        t_err_horizontal_percent=float(t_horizontal.mean() * 100.0),
+        t_err_vertical=t_vertical,
     )
 
 
@@ -367,7 +388,8 @@ def trajectory_metrics(estimate, ground_truth) -> dict:
     ``ate_rmse_m``, ``ate_max_m``, ``final_error_m`` (:func:`absolute_trajectory_error`, no alignment);
     with more than 10 poses ``rpe_10f_trans_rmse_m`` and ``rpe_10f_rot_rmse_deg`` (:func:`relative_pose_error`
     over 10 frames); for paths longer than 100 m the KITTI metric ``kitti_t_err_percent``,
-    ``kitti_r_err_deg_per_m`` and ``kitti_segments`` (:func:`kitti_odometry_error`).
+    ``kitti_r_err_deg_per_m``, ``kitti_segments`` and the translational error's vertical and horizontal parts
+    ``kitti_t_err_vertical_percent``, ``kitti_t_err_horizontal_percent`` (:func:`kitti_odometry_error`).
     """
     ate = absolute_trajectory_error(estimate, ground_truth)
     out = {
@@ -387,6 +409,8 @@ def trajectory_metrics(estimate, ground_truth) -> dict:
             kitti_t_err_percent=k.t_err_percent,
             kitti_r_err_deg_per_m=k.r_err_deg_per_m,
             kitti_segments=k.n_segments,
+            kitti_t_err_vertical_percent=k.t_err_vertical_percent,
+            kitti_t_err_horizontal_percent=k.t_err_horizontal_percent,
         )
     return out
 

@@ -621,3 +621,51 @@ def test_json_safe_turns_non_finite_numbers_into_null():
         "h": True,
         "i": "text",
     }
+
+
+def _curving_road(n=600, step=1.0):
+    """A level road that turns (yaw 0.005 rad per metre) with poses every ``step`` metres."""
+    yaw = 0.005 * np.arange(n) * step
+    R = Rotation.from_euler("z", yaw[:, None]).as_matrix()
+    t = np.cumsum(step * np.column_stack([np.cos(yaw), np.sin(yaw), np.zeros(n)]), axis=0)
+    return make_pose(R, t)
+
+
+def test_kitti_error_splits_exactly_into_its_vertical_and_horizontal_parts():
+    """|e|^2 = v^2 + h^2 per segment; a climb at 0.3 % shows in the vertical part alone, a sideways drift in the
+    horizontal part alone, whatever the world's axes (``up``)."""
+    gt = _curving_road()
+    d = trajectory_distances(gt)
+    climbing = gt.copy()
+    climbing[:, 2, 3] += 0.003 * d  # the estimate climbs 3 mm per metre the truth drives
+    k = kitti_odometry_error(climbing, gt)
+    assert k.t_err_vertical_percent == pytest.approx(0.3, rel=0.02)
+    assert k.t_err_horizontal_percent < 1e-9
+    assert np.all(k.t_err_vertical < 0)  # the estimate ends too high
+    sideways = gt.copy()
+    sideways[:, 1, 3] += 0.002 * d
+    k = kitti_odometry_error(sideways, gt)
+    assert k.t_err_vertical_percent < 1e-12 and k.t_err_horizontal_percent > 0.05
+    # a random estimate: the parts make the whole, segment by segment
+    rng = np.random.default_rng(3)
+    noisy = gt.copy()
+    noisy[:, :3, 3] += np.cumsum(rng.normal(scale=0.05, size=(len(gt), 3)), axis=0)
+    k = kitti_odometry_error(noisy, gt)
+    h = np.sqrt(k.t_err**2 - k.t_err_vertical**2)
+    assert np.mean(h) * 100 == pytest.approx(k.t_err_horizontal_percent, rel=1e-12)
+    assert np.all(np.abs(k.t_err_vertical) <= k.t_err + 1e-15)
+    # the same trajectories in camera axes (up = -y): the same parts
+    cam = np.eye(4)
+    cam[:3, :3] = np.array([[1.0, 0, 0], [0, 0, -1], [0, 1, 0]])  # world z -> camera -y
+    k_cam = kitti_odometry_error(cam @ noisy, cam @ gt, up=(0.0, -1.0, 0.0))
+    assert k_cam.t_err_vertical_percent == pytest.approx(
+        k.t_err_vertical_percent, rel=1e-9
+    )
+    assert k_cam.t_err_horizontal_percent == pytest.approx(
+        k.t_err_horizontal_percent, rel=1e-9
+    )
+    from slamlib.metrics import trajectory_metrics
+
+    m = trajectory_metrics(climbing, gt)
+    assert m["kitti_t_err_vertical_percent"] == pytest.approx(0.3, rel=0.02)
+    assert m["kitti_t_err_horizontal_percent"] < 1e-9

@@ -87,6 +87,7 @@ def test_sweep_on_a_dask_cluster_writes_one_tidy_row_per_run(cluster, tmp_path):
         assert row["frames"] == 6 and math.isfinite(row["ate_rmse_m"]) and row["fps"] > 0
         # a 6-frame drive is far shorter than 100 m
         assert math.isnan(row["kitti_t_err_percent"])
+        assert math.isnan(row["kitti_t_err_vertical_percent"])
         assert math.isnan(row["dead_reckoning_kitti_t_err_percent"])
         # dead reckoning: slamlib's IMU-only twin, on the raw layout (the odometry layout has no IMU)
         assert math.isfinite(row["dead_reckoning_ate_rmse_m"]) == (
@@ -106,6 +107,11 @@ def test_sweep_on_a_dask_cluster_writes_one_tidy_row_per_run(cluster, tmp_path):
     np.testing.assert_allclose(
         [r["ate_rmse_m"] for r in back], [r["ate_rmse_m"] for r in rows], rtol=1e-12
     )
+    # a row journalled before the height columns existed is written with them empty
+    old = {k: v for k, v in rows[0].items() if "_t_err_vertical" not in k}
+    back = read_table(write_table([old], tmp_path / "old.csv"))[0]
+    assert math.isnan(back["kitti_t_err_vertical_percent"])
+    assert back["ate_rmse_m"] == pytest.approx(rows[0]["ate_rmse_m"], rel=1e-12)
 
 
 def test_a_sweep_closes_loops_and_runs_kiss_slam_on_the_same_drive(cluster, tmp_path):

@@ -12,8 +12,9 @@ Examples::
     slamlib sweep --out sweeps/x --scheduler tcp://10.0.0.5:8786                  # on an existing Dask cluster
 
 Writes ``OUT/sweep.csv`` (one row per run: route, frames, seed, layout, method, settings, path length, KITTI
-translational and rotational error, ATE RMSE, dead reckoning's KITTI error, frames/s, seconds) and
-``OUT/sweep.png`` (KITTI error per route and method). Drives are generated once into ``--data`` and reused.
+translational and rotational error, ATE RMSE, the translational error's vertical and horizontal parts, dead
+reckoning's KITTI error, frames/s, seconds) and ``OUT/sweep.png`` (KITTI error per route and method). Drives are
+generated once into ``--data`` and reused.
 See :mod:`slamlib.experiments.sweep`.
 """
 
@@ -425,12 +426,14 @@ def main(args) -> int:
         if created and out.is_dir() and not any(out.iterdir()):
             out.rmdir()
     print(
-        f"{'route':>8s} {'seed':>4s} {'layout':>8s} {'method':>9s} {'settings':>18s} {'t_err %':>8s} {'ATE m':>7s}"
+        f"{'route':>8s} {'seed':>4s} {'layout':>8s} {'method':>9s} {'settings':>18s} {'t_err %':>8s} "
+        f"{'height %':>8s} {'ATE m':>7s}"
     )
     for r in rows:
         print(
             f"{r['route']:>8s} {r['seed']:4d} {r['layout']:>8s} {r['method']:>9s} {r['settings']:>18s} "
-            f"{r['kitti_t_err_percent']:8.3f} {r['ate_rmse_m']:7.3f}"
+            f"{r['kitti_t_err_percent']:8.3f} {r.get('kitti_t_err_vertical_percent', float('nan')):8.3f} "
+            f"{r['ate_rmse_m']:7.3f}"
         )
     print(
         f"wrote {out / 'sweep.csv'}, {out / 'sweep.json'} (command, machine, versions) and {out / 'sweep.png'}"

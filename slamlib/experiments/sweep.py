@@ -64,7 +64,8 @@ METHODS = ("slamlib", "kiss_icp", "slamlib_loop_closure", "kiss_slam")
 SLAMLIB_METHODS = ("slamlib", "slamlib_loop_closure")
 LAYOUTS = ("raw", "odometry")
 #: The columns of a sweep's table, in order (``drive`` is :meth:`DriveOptions.label`, empty for a still town seen by
-#: unswept scans; ``settings`` is the slamlib settings as JSON, empty for KISS-ICP).
+#: unswept scans; ``settings`` is the slamlib settings as JSON, empty for KISS-ICP; the KITTI error's vertical and
+#: horizontal parts are :func:`slamlib.metrics.kitti_odometry_error`'s, empty in tables written before them).
 COLUMNS = (
     "route",
     "frames",
@@ -77,6 +78,8 @@ COLUMNS = (
     "kitti_t_err_percent",
     "kitti_r_err_deg_per_m",
     "ate_rmse_m",
+    "kitti_t_err_vertical_percent",
+    "kitti_t_err_horizontal_percent",
     "dead_reckoning_kitti_t_err_percent",
     "dead_reckoning_ate_rmse_m",
     "fps",
@@ -297,6 +300,10 @@ def run_task(task: SweepTask, base: str) -> dict:
         kitti_t_err_percent=m.get("kitti_t_err_percent", float("nan")),
         kitti_r_err_deg_per_m=m.get("kitti_r_err_deg_per_m", float("nan")),
         ate_rmse_m=m["ate_rmse_m"],
+        kitti_t_err_vertical_percent=m.get("kitti_t_err_vertical_percent", float("nan")),
+        kitti_t_err_horizontal_percent=m.get(
+            "kitti_t_err_horizontal_percent", float("nan")
+        ),
         dead_reckoning_kitti_t_err_percent=m_dr.get("kitti_t_err_percent", float("nan")),
         dead_reckoning_ate_rmse_m=m_dr.get("ate_rmse_m", float("nan")),
         fps=len(poses) / seconds,
@@ -519,8 +526,9 @@ def write_table(rows, path) -> Path:
         for r in rows:
             w.writerow(
                 {
-                    k: ("" if isinstance(r[k], float) and not np.isfinite(r[k]) else r[k])
-                    for k in COLUMNS
+                    # rows journalled before a column was added have no value for it
+                    k: ("" if isinstance(v, float) and not np.isfinite(v) else v)
+                    for k, v in ((k, r.get(k, float("nan"))) for k in COLUMNS)
                 }
             )
     return path

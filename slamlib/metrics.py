@@ -214,15 +214,17 @@ class RPEResult:
     last: np.ndarray = field(repr=False)
 
 
-def _relative_errors(est, gt, first, last, rigid_inverse: bool = False):
-    """Error poses ``E = inv(inv(P_f) P_l) @ inv(G_f) G_l`` (M, 4, 4).
-
-    Inverses are general 4x4 inverses (the devkit's ``Matrix::inv``) or, with ``rigid_inverse``,
-    ``[R^T, -R^T t]``; they differ only when the files' rotations are not exactly orthonormal.
-    """
+def _segment_motions(est, gt, first, last, rigid_inverse: bool = False):
+    """The motions ``(inv(P_f) P_l, inv(G_f) G_l)`` (M, 4, 4) each of the estimate and the ground truth, and the
+    inverse they were taken with: general 4x4 inverses (the devkit's ``Matrix::inv``) or, with ``rigid_inverse``,
+    ``[R^T, -R^T t]``; they differ only when the files' rotations are not exactly orthonormal."""
     inv = invert_pose if rigid_inverse else np.linalg.inv
-    d_gt = inv(gt[first]) @ gt[last]
-    d_est = inv(est[first]) @ est[last]
+    return inv(est[first]) @ est[last], inv(gt[first]) @ gt[last], inv
+
+
+def _relative_errors(est, gt, first, last, rigid_inverse: bool = False):
+    """Error poses ``E = inv(inv(P_f) P_l) @ inv(G_f) G_l`` (M, 4, 4) (:func:`_segment_motions`)."""
+    d_est, d_gt, inv = _segment_motions(est, gt, first, last, rigid_inverse)
     return inv(d_est) @ d_gt
 
 
@@ -345,12 +347,12 @@ def kitti_odometry_error(
         raise ValueError(
             f"trajectory ({d[-1]:.1f} m) is shorter than the shortest segment ({L.min():g} m)"
         )
-    E = _relative_errors(est, gt, first, last, rigid_inverse)
+    d_est, d_gt, inv = _segment_motions(est, gt, first, last, rigid_inverse)
+    E = inv(d_est) @ d_gt
     t_err = np.linalg.norm(E[:, :3, 3], axis=1) / length
     r_err = rotation_angle(E[:, :3, :3]) / length
     # |trans(E)| = |t_dG - t_dP|, that difference in the start's ground-truth body axes: turned into the world's
-    inv = invert_pose if rigid_inverse else np.linalg.inv
-    diff = (inv(gt[first]) @ gt[last])[:, :3, 3] - (inv(est[first]) @ est[last])[:, :3, 3]
+    diff = d_gt[:, :3, 3] - d_est[:, :3, 3]
     e_world = np.einsum("mij,mj->mi", gt[first, :3, :3], diff)
     up = np.asarray(up, dtype=np.float64) / np.linalg.norm(up)
     t_vertical = (e_world @ up) / length

@@ -632,6 +632,42 @@ def test_the_defaults_page_states_the_lidar_only_development_runs_as_committed()
     )
 
 
+def test_the_defaults_page_states_the_imu_scan_match_development_runs_as_committed():
+    """``book/defaults.md``'s section on scan matching with an IMU quotes ``benchmarks/results/route07_dev``: each
+    setting's mean error at IMU x1 and x2 and its losses to KISS-ICP, and the defaults are the setting with none."""
+    import json
+
+    page = _words(ROOT / "book" / "defaults.md")
+    section = page[page.index("## With an IMU: `ScanMatchConfig.scan_match`") :]
+    section = section[: section.index("## ", 3)]
+    folder = ROOT / "benchmarks" / "results" / "route07_dev"
+    rows = [json.loads(line) for line in (folder / "rows.jsonl").read_text().splitlines()]
+    kiss = {r["seed"]: r["t"] for r in rows if r["method"] == "kiss_icp"}
+    assert f"(mean {np.mean(list(kiss.values())):.4f} %)" in section
+
+    def of(settings):
+        runs = [r for r in rows if r["method"] == "slamlib" and r["settings"] == settings]
+        assert len(runs) == 8, settings
+        means = [
+            np.mean([r["t"] for r in runs if r["imu_noise"] == x]) for x in (1.0, 2.0)
+        ]
+        return means, sum(r["t"] > kiss[r["seed"]] for r in runs)
+
+    (off1, off2), off_losses = of({"scan_match": False})
+    assert (
+        f"{off1:.4f} % at x1 and {off2:.4f} % at x2, and {off_losses} of the 8" in section
+    )
+    (on1, on2), on_losses = of({"scan_match": True})
+    assert on_losses == 0 and f"{on1:.4f} and {on2:.4f} %, no run above" in section
+    for p, tail in ((200, "% with {} runs above"), (100, "% with {}:")):
+        (m1, m2), losses = of({"scan_match": True, "particles": p})
+        assert losses > 0 and f"{m1:.4f} and {m2:.4f} {tail.format(losses)}" in section, p
+    # the defaults are the setting with no loss
+    c = SLAM3DConfig()
+    assert c.polish.scan_match == "auto"
+    assert f"With it and {c.filter.particle_count(lidar_only=False)} particles" in section
+
+
 def test_the_defaults_page_states_the_scan_match_iterations_runs_as_committed():
     """``book/defaults.md``'s section on ``scan_match_iterations`` quotes ``lidar_only.json`` as committed in
     074c905 (5 steps) and c93f47d (15): route 05's error in each, and the other two routes' moves."""

@@ -394,7 +394,9 @@ def test_leaves_the_pose_alone_where_it_cannot_match():
     np.testing.assert_array_equal(match_scan(T, world[:0], _map(world), 5), T)
 
 
-def test_pipeline_matches_lidar_only_by_default_and_with_an_imu_when_asked(tmp_path):
+def test_pipeline_matches_every_frame_by_default_in_both_modes_and_none_when_off(
+    tmp_path,
+):
     from slamlib.kitti import KittiOdometrySequence, KittiRawDrive
     from slamlib.synth import Hdl64, write_drive, write_sequence
 
@@ -413,14 +415,15 @@ def test_pipeline_matches_lidar_only_by_default_and_with_an_imu_when_asked(tmp_p
         ).slam.n_matched
         == 0
     )
+    # with an IMU: on by default as well, off only when asked
     assert (
-        run_drive(raw, SLAM3DConfig.of(particles=50), progress=False).slam.n_matched == 0
+        run_drive(raw, SLAM3DConfig.of(particles=50), progress=False).slam.n_matched == 5
     )
     assert (
         run_drive(
-            raw, SLAM3DConfig.of(particles=50, scan_match=True), progress=False
+            raw, SLAM3DConfig.of(particles=50, scan_match=False), progress=False
         ).slam.n_matched
-        == 5
+        == 0
     )
 
 

@@ -168,7 +168,9 @@ def test_stages_are_chosen_once_from_the_settings_and_the_first_frame():
     imu.register_frame(_frame(scan))
     chosen = (imu.motion, imu.prior, imu.polish)
     assert isinstance(imu.motion, ImuMotion)
-    assert isinstance(imu.prior, NoPrior) and isinstance(imu.polish, NoPolish)
+    assert isinstance(imu.prior, NoPrior)
+    # scan matching on by default with an IMU too, the road's points not held
+    assert isinstance(imu.polish, ScanMatch) and not imu.polish.road
     # the tilt prior that weighs itself; a frame without an accelerometer leaves it nothing to hold to
     auto = ParticleSLAM3D(config.with_(tilt_sigma="auto"))
     auto.register_frame(_frame(scan))
@@ -188,7 +190,12 @@ def test_stages_are_chosen_once_from_the_settings_and_the_first_frame():
     )
     tilted.register_frame(_frame(scan, specific_force=np.array([0.0, 0.0, 9.81])))
     assert isinstance(tilted.prior, TiltPrior) and tilted.prior.sigma == 0.003
-    assert isinstance(tilted.polish, ScanMatch) and not tilted.polish.road
+    assert isinstance(tilted.polish, ScanMatch) and not tilted.polish.road  # forced
+    # left to "auto", the tilt prior turns scan matching off: the matcher would undo its pull
+    prior_only = ParticleSLAM3D(config.with_(tilt_sigma=0.003))
+    prior_only.register_frame(_frame(scan, specific_force=np.array([0.0, 0.0, 9.81])))
+    assert isinstance(prior_only.prior, TiltPrior)
+    assert isinstance(prior_only.polish, NoPolish)
     assert (
         tilted.search.rounds == 2 and tilted.search.shrink == AnnealConfig().anneal_shrink
     )

@@ -114,6 +114,41 @@ def test_sweep_on_a_dask_cluster_writes_one_tidy_row_per_run(cluster, tmp_path):
     assert back["ate_rmse_m"] == pytest.approx(rows[0]["ate_rmse_m"], rel=1e-12)
 
 
+def test_a_sweep_finishes_each_drive_before_the_next_and_can_discard_it(
+    cluster, tmp_path
+):
+    tasks = sweep_tasks(
+        ["loop"],
+        [0, 1, 2],
+        ["raw"],
+        ["slamlib"],
+        [{"particles": 20}, {"particles": 30}],
+        (0, 4),
+    )
+    data = tmp_path / "data"
+    on_disk = []  # drive folders present as each run's row arrives
+
+    def count(task, row):
+        on_disk.append(sum(1 for p in data.iterdir() if p.is_dir()))
+
+    rows = run_sweep(
+        tasks,
+        data,
+        scheduler=cluster.scheduler_address,
+        progress=False,
+        on_row=count,
+        discard_drives=True,
+    )
+    assert all(r is not None for r in rows) and len(on_disk) == len(tasks) == 6
+    # one worker: a drive's two runs go before the next drive is generated, and each
+    # drive is gone after its last run (all three generated first would show 3)
+    assert max(on_disk) <= 2, on_disk
+    assert not [p for p in data.iterdir() if p.is_dir()]
+    # kept by default
+    run_sweep(tasks[:2], data, scheduler=cluster.scheduler_address, progress=False)
+    assert [p.name for p in data.iterdir() if p.is_dir()] == [tasks[0].drive_key()]
+
+
 def test_a_sweep_closes_loops_and_runs_kiss_slam_on_the_same_drive(cluster, tmp_path):
     """``slamlib_loop_closure`` is slamlib's filter with the back end: on a drive too short for a loop the back
     end has nothing to correct, so its row is slamlib's. Likewise KISS-SLAM's is KISS-ICP's, its odometry."""
@@ -428,7 +463,7 @@ def test_sweep_command_keeps_finished_rows_and_resumes_after_a_failed_task(
     calls = []
 
     def fake_run_sweep(tasks, data, done=None, on_row=None, **kw):
-        calls.append((len(tasks), dict(done or {})))
+        calls.append((len(tasks), dict(done or {}), kw["discard_drives"]))
         rows = [
             dict(
                 {k: 0.5 for k in COLUMNS},
@@ -463,7 +498,9 @@ def test_sweep_command_keeps_finished_rows_and_resumes_after_a_failed_task(
         "the same command runs only the rest"
     )
     assert sorted(p.name for p in out.iterdir()) == [JOURNAL]
-    assert main(argv) == 0
+    # the rest, removing each drive once its runs are done (--discard-drives reaches the sweep)
+    assert main(argv + ["--discard-drives"]) == 0
+    assert [c[2] for c in calls] == [False, True]
     assert "resuming: 1 runs already done" in capsys.readouterr().out
     assert sorted(p.name for p in out.iterdir()) == [
         "sweep.csv",

@@ -180,7 +180,7 @@ def add_arguments(parser) -> None:
         default=FilterConfig.particles,
         metavar="N|auto",
         help=f"number of particles (default {FilterConfig.particles}: {IMU_PARTICLES} with an IMU, "
-        f"{LIDAR_ONLY_PARTICLES} LIDAR-only, where scan matching finishes the search)",
+        f"{LIDAR_ONLY_PARTICLES} LIDAR-only)",
     )
     f.add_argument(
         "--points",
@@ -239,7 +239,8 @@ def add_arguments(parser) -> None:
         **tri,
         help="after step 9, move the best pose by Newton steps to the map score's nearest peak on the scan "
         "thinned to one point per 0.5 m cube (ScanMatchConfig.match_voxel) "
-        "and move the particles with it (ScanMatchConfig.scan_match; default auto: LIDAR-only)",
+        "and move the particles with it (ScanMatchConfig.scan_match; default auto: on, except with the "
+        "tilt prior, whose pull it would undo)",
     )
     for old in (
         "--no-deskew",

@@ -137,7 +137,7 @@ def add_arguments(parser) -> None:
         action=argparse.BooleanOptionalAction,
         default=None,
         help="slamlib scan-matches its best pose after step 9, or never (ScanMatchConfig.scan_match; "
-        "default: LIDAR-only runs)",
+        "default: on, except with the tilt prior)",
     )
     parser.add_argument(
         "--set",
@@ -186,6 +186,12 @@ def add_arguments(parser) -> None:
         "$SLAMLIB_CACHE/sweep)",
     )
     parser.add_argument(
+        "--discard-drives",
+        action="store_true",
+        help="remove each generated drive from --data once its runs are done: the disk then holds about "
+        "one drive per worker (a 1,000-frame raw drive is 1.6 GB), and a later sweep generates them again",
+    )
+    parser.add_argument(
         "--scheduler",
         default=None,
         metavar="ADDRESS",
@@ -232,6 +238,7 @@ def _run_resumable(tasks, data, args, journal: Path) -> list:
             progress=not args.no_progress,
             done=done,
             on_row=lambda task, row: append_journal(journal, task, row),
+            discard_drives=args.discard_drives,
         )
     except SweepTaskError as exc:
         n = len(read_journal(journal))

@@ -34,6 +34,7 @@ import hashlib
 import json
 import logging
 import time
+from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -46,6 +47,9 @@ __all__ = [
     "drive_task",
     "run_task",
     "run_sweep",
+    "discard_drive",
+    "RUN_PRIORITY",
+    "DRIVE_PRIORITY",
     "SweepTaskError",
     "task_key",
     "append_journal",
@@ -387,6 +391,7 @@ def run_sweep(
     progress: bool = True,
     done: dict | None = None,
     on_row=None,
+    discard_drives: bool = False,
 ) -> list[dict]:
     """Run ``tasks`` on Dask: one :func:`drive_task` per distinct drive, then every :func:`run_task` after its drive.
 
@@ -396,6 +401,11 @@ def run_sweep(
     is called as each task finishes (:func:`append_journal`). Returns the rows in the order of ``tasks``. A failing
     task does not stop the others; at the end the first one (in ``tasks``' order) raises :class:`SweepTaskError`
     naming it, every finished row having reached ``on_row``.
+
+    The runs go before the drives not yet generated (Dask task priorities), so a worker finishes the drives it has
+    before it starts another. ``discard_drives``: each drive's folder is removed from ``data_dir`` once its last
+    run is done (:func:`discard_drive`), so the disk holds about one drive per worker, not the whole sweep's (a
+    1,000-frame raw drive is 1.6 GB); a later sweep generates what it needs again.
     """
     from distributed import Client, as_completed
     from tqdm.auto import tqdm
@@ -416,12 +426,25 @@ def run_sweep(
             key = tasks[i].drive_key()
             if key not in drives:
                 drives[key] = client.submit(
-                    drive_task, tasks[i], data_dir, key=f"drive-{key}", pure=False
+                    drive_task,
+                    tasks[i],
+                    data_dir,
+                    key=f"drive-{key}",
+                    pure=False,
+                    priority=DRIVE_PRIORITY,
                 )
         runs = {
-            client.submit(run_task, tasks[i], drives[tasks[i].drive_key()], pure=False): i
+            client.submit(
+                run_task,
+                tasks[i],
+                drives[tasks[i].drive_key()],
+                pure=False,
+                priority=RUN_PRIORITY,
+            ): i
             for i in todo
         }
+        # runs left per drive, to discard each drive after its last
+        left = Counter(tasks[i].drive_key() for i in todo)
         failed = []
         with tqdm(
             total=len(tasks),
@@ -432,6 +455,10 @@ def run_sweep(
         ) as bar:
             for fut in as_completed(list(runs)):
                 i = runs[fut]
+                key = tasks[i].drive_key()
+                left[key] -= 1
+                if discard_drives and not left[key]:
+                    discard_drive(data_dir, key)
                 try:
                     rows[i] = fut.result()
                 except Exception as exc:  # the other tasks go on: their rows are kept
@@ -450,6 +477,27 @@ def run_sweep(
             cluster.close()
             # workers stopped mid-write (Ctrl-C, a failure) leave temporaries: cleaned now their processes are gone
             _clean_drives(data_dir, [tasks[i] for i in todo])
+
+
+#: Dask priorities (higher first): a generated drive's runs before the next drive, so drives do not pile up.
+RUN_PRIORITY = 1
+DRIVE_PRIORITY = 0
+
+
+def discard_drive(data_dir, key: str) -> None:
+    """Remove the drive ``key`` (:meth:`SweepTask.drive_key`) from ``data_dir``, once any process still writing it
+    (a second sweep sharing ``--data``) is done."""
+    import shutil
+
+    from slamlib.atomic import folder_lock
+    from slamlib.synth.writer import drive_dir
+
+    base = Path(data_dir) / key
+    for folder in (drive_dir(base, "2011_09_26", 1), base / "sequences" / "00"):
+        if folder.is_dir():
+            with folder_lock(folder, wait=True, what="--data"):
+                shutil.rmtree(folder)
+    shutil.rmtree(base, ignore_errors=True)
 
 
 def _local_cluster(workers: int | None):

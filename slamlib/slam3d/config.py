@@ -72,10 +72,11 @@ __all__ = [
     "RENAMED",
 ]
 
-#: A setting left to the data: ``deskew`` (the scans that were swept), ``scan_match`` (LIDAR-only), ``particles``
-#: (by the mode).
+#: A setting left to the data: ``deskew`` (the scans that were swept), ``scan_match`` (on without the tilt prior),
+#: ``particles`` (by the mode).
 AUTO = "auto"
-#: ``FilterConfig.particles = "auto"`` with an IMU: the filter alone finds the pose (scan matching off).
+#: ``FilterConfig.particles = "auto"`` with an IMU: with scan matching on, the fewest particles tried (100, 200, 300)
+#: that lost no development run to KISS-ICP ("Why these defaults", ``book/defaults.md``).
 IMU_PARTICLES = 300
 #: ``FilterConfig.particles = "auto"`` LIDAR-only: scan matching climbs from step 9's pose to the peak, so the
 #: particles need only find its basin (why this many: "Why these defaults", ``book/defaults.md``).
@@ -510,7 +511,7 @@ class FilterConfig:
     ----------
     particles : int or "auto"
         Number of particles ``P``; ``"auto"`` (default): :data:`IMU_PARTICLES` (300) with an IMU,
-        :data:`LIDAR_ONLY_PARTICLES` (100) LIDAR-only, where scan matching finishes the search
+        :data:`LIDAR_ONLY_PARTICLES` (100) LIDAR-only
         (:meth:`particle_count`; the filter sets it at the first frame, when the mode is known).
     scored_points : int
         Scan points sampled for scoring (step 8) per frame; step 10 merges the whole down-sampled scan.
@@ -655,8 +656,11 @@ class ScanMatchConfig:
     scan_match : "auto", True or False
         After step 9, move the best particle's pose to the nearest peak of the map score by Newton steps on the
         down-sampled scan thinned to ``match_voxel`` (:func:`slamlib.slam3d.match.match_scan`), and the particles
-        with it (the improved proposal of Grisetti et al. 2007). ``"auto"`` (default): on LIDAR-only, where the
-        constant-velocity prior leaves the filter the most to find, off with an IMU; True / False force it. Voxel
+        with it (the improved proposal of Grisetti et al. 2007). ``"auto"`` (default): on in both modes (LIDAR-only
+        with the road's points holding height and tilt only, :class:`slamlib.slam3d.stages.ScanMatch`), except
+        with the tilt prior (``TiltConfig.tilt_sigma`` not 0), whose pull toward gravity the matcher, climbing
+        the map score alone, would undo; True forces it, False turns it off (the filter alone). Why on with an
+        IMU: "Why these defaults". Voxel
         hash map only (other maps are left as they are).
     scan_match_iterations : int
         Most Newton steps per frame (each one only if it lowers the cost; the iteration also stops once a step is
@@ -682,7 +686,7 @@ class ScanMatchConfig:
 
     def __post_init__(self):
         object.__setattr__(
-            self, "scan_match", _tri_state("scan_match", self.scan_match, "LIDAR-only")
+            self, "scan_match", _tri_state("scan_match", self.scan_match, "on")
         )
         _integer(
             "scan_match_iterations",

@@ -22,7 +22,7 @@ name               what it times
 ``resample``       step 11, and the resampling inside annealing rounds
 ``anneal``         the annealing rounds' own time, their weighing, perturbing and resampling counted above
 ``pick``           step 9 (:func:`~slamlib.slam3d.steps.pick_best_particle`)
-``scan_match``     the polish of step 9's pose (``polish``: scan matching, LIDAR-only by default)
+``scan_match``     the polish of step 9's pose (``polish``: scan matching, on by default)
 ``learn``          self-tuning and the tilt prior's calibration from the chosen pose
 ``merge``          step 10 (:func:`~slamlib.slam3d.steps.merge_scan`)
 ``upkeep``         map pruning and transient eviction (``upkeep``)

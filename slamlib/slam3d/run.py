@@ -563,7 +563,7 @@ def _write_results(
     info["n_skipped_frames"] = skipped
     # ScanConfig.deskew auto: the frames whose scans were swept
     info["n_deskewed_frames"] = int(sum(f.n_deskewed for f in run.filters()))
-    # ScanMatchConfig.scan_match auto: every LIDAR-only frame
+    # ScanMatchConfig.scan_match auto: every frame after the first, unless the tilt prior is on
     info["n_matched_frames"] = int(sum(f.n_matched for f in run.filters()))
     info["segment_starts"] = [int(run.frame_indices[k]) for k in run.segment_starts]
     warnings = []

@@ -50,9 +50,11 @@ def choose_stages(config, frame, T0):
     """The data-dependent stages for a drive whose first frame is ``frame``: ``(motion, prior, polish)``.
 
     LIDAR-only (:class:`ConstantVelocity`) when ``config.motion.model == "constant_velocity"`` or the frame has no
-    IMU values (the KITTI odometry layout); then there is no tilt prior (no accelerometer) and scan matching is
-    on unless ``config.polish.scan_match`` is False. With an IMU: :class:`ImuMotion`, the tilt prior when
-    ``config.prior.tilt_sigma > 0``, scan matching only when ``config.polish.scan_match`` is True.
+    IMU values (the KITTI odometry layout); then there is no tilt prior (no accelerometer) and the scan matcher
+    holds the road's points to height and tilt. With an IMU: :class:`ImuMotion`, the tilt prior when
+    ``config.prior.tilt_sigma`` is not 0. Scan matching (``config.polish.scan_match``): True on, False off,
+    ``"auto"`` on unless the tilt prior is, whose pull toward gravity the matcher would undo: its cost is the map
+    score alone, so it climbs back to the roll and pitch the map was built with.
     """
     points = config.filter.scored_points
     lidar_only = config.motion.model == "constant_velocity" or not has_imu(frame)
@@ -60,13 +62,10 @@ def choose_stages(config, frame, T0):
         motion = ConstantVelocity(config.motion, points)
     else:
         motion = ImuMotion(config.motion, points, T0)
-    prior = (
-        TiltPrior(config.prior)
-        if config.prior.tilt_sigma and not lidar_only
-        else NoPrior()
-    )
+    tilt = bool(config.prior.tilt_sigma) and not lidar_only
+    prior = TiltPrior(config.prior) if tilt else NoPrior()
     match = config.polish.scan_match
-    match = lidar_only if match == AUTO else match
+    match = not tilt if match == AUTO else match
     polish = (
         ScanMatch(
             config.polish.scan_match_iterations,

@@ -8,7 +8,9 @@ down-sampled scan thinned to one point per ``ScanMatchConfig.match_voxel`` cube 
 pose, the *improved proposal* of Grisetti, Stachniss & Burgard (IEEE T-RO 2007). LIDAR-only this matters most:
 the constant-velocity prior is weak, and the map's pull toward the truth has to do what the IMU does otherwise;
 there the road's points keep only the vertical row of the Jacobian (:func:`slamlib.slam3d.preprocess.road_mask`),
-so the LIDAR's rings on the road cannot pull a moving scan back.
+so the LIDAR's rings on the road cannot pull a moving scan back. With an IMU it is on too: the particles' tilt
+walks by step 6's noise between resamplings, and a pitch off by a few milliradians climbs or sinks the drive's
+height; the matcher's climb takes the pitch the whole scan fits best ("Why these defaults", ``book/defaults.md``).
 Voxel hash map only (other maps are left as they are). :class:`NoPolish` keeps step 9's pose.
 """
 

@@ -124,6 +124,7 @@ def kiss_icp_poses(
     deskew: bool = False,
     pose_times: bool = False,
     sweep_period: float = SWEEP_PERIOD_S,
+    max_threads: int = 0,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Run KISS-ICP (its default configuration) over ``frames`` (each with ``.scan`` (N, 4), Velodyne frame).
 
@@ -134,6 +135,7 @@ def kiss_icp_poses(
     pose time (``frame.scan_time_offset_s``, 0 when absent) along KISS-ICP's last motion ``D`` taken as one sweep of
     ``sweep_period`` s: ``P @ Exp(f Log D)``, ``f`` = :func:`pose_time_fraction`. For swept scans compared with
     ground truth stamped elsewhere (a KITTI raw drive's OXTS poses); not for scans cast from one instant.
+    ``max_threads``: the threads of its registration (``registration.max_num_threads``; 0, its default, all cores).
 
     Returns ``(poses (F, 4, 4) body, seconds (F,))``: the poses and each frame's registration time (the
     ``register_frame`` call alone). Raises ``ImportError`` with :data:`INSTALL_HINT` when KISS-ICP is missing.
@@ -146,6 +148,7 @@ def kiss_icp_poses(
 
     config = load_config(None)
     config.data.deskew = bool(deskew)
+    config.registration.max_num_threads = int(max_threads)
     odometry = KissICP(config)
     T_velo_imu, T_imu_velo = _calibration(frames, T_velo_imu)
     poses, seconds = [], []
@@ -192,14 +195,15 @@ def kiss_slam_poses(
     deskew: bool = False,
     pose_times: bool = False,
     sweep_period: float = SWEEP_PERIOD_S,
+    max_threads: int = 0,
 ) -> tuple[np.ndarray, np.ndarray, list]:
     """Run KISS-SLAM 0.0.2 (its default configuration) over ``frames`` (``.scan`` (N, 4), Velodyne frame), as its
     own pipeline does: ``process_scan`` per frame, then the last local map closed, dropped, and the frame-by-frame
     pose graph optimised (``fine_grained_optimization``).
 
-    ``T_velo_imu``, ``deskew``, ``pose_times`` and ``sweep_period`` as :func:`kiss_icp_poses`'s; the motion each
-    optimised pose is moved along is the one from the frame before, ``D_k = P_{k-1}^{-1} P_k`` (the identity for
-    the first frame), KISS-ICP's ``last_delta`` on the optimised trajectory.
+    ``T_velo_imu``, ``deskew``, ``pose_times``, ``sweep_period`` and ``max_threads`` as :func:`kiss_icp_poses`'s;
+    the motion each optimised pose is moved along is the one from the frame before, ``D_k = P_{k-1}^{-1} P_k`` (the
+    identity for the first frame), KISS-ICP's ``last_delta`` on the optimised trajectory.
 
     Returns ``(poses (F, 4, 4) body, seconds (F,), closures)``: each frame's ``process_scan`` time (the final
     optimisation spread evenly over the frames, so that ``1 / median`` and the mean both count it) and the closures
@@ -217,6 +221,7 @@ def kiss_slam_poses(
 
     config = load_config(None)
     config.odometry.preprocessing.deskew = bool(deskew)
+    config.odometry.registration.max_num_threads = int(max_threads)
     T_velo_imu, T_imu_velo = _calibration(frames, T_velo_imu)
     seconds, offsets = [], []
     with _quiet_output():

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 
 import numpy as np
 import pytest
@@ -114,9 +115,9 @@ def test_sweep_on_a_dask_cluster_writes_one_tidy_row_per_run(cluster, tmp_path):
     assert back["ate_rmse_m"] == pytest.approx(rows[0]["ate_rmse_m"], rel=1e-12)
 
 
-def test_a_sweep_finishes_each_drive_before_the_next_and_can_discard_it(
-    cluster, tmp_path
-):
+def _drives_on_disk_per_row(scheduler, data) -> list[int]:
+    """Run a one-worker sweep of 3 drives x 2 runs with ``--discard-drives``; the number of drive folders in ``data``
+    as each run's row arrives."""
     tasks = sweep_tasks(
         ["loop"],
         [0, 1, 2],
@@ -125,8 +126,7 @@ def test_a_sweep_finishes_each_drive_before_the_next_and_can_discard_it(
         [{"particles": 20}, {"particles": 30}],
         (0, 4),
     )
-    data = tmp_path / "data"
-    on_disk = []  # drive folders present as each run's row arrives
+    on_disk = []
 
     def count(task, row):
         on_disk.append(sum(1 for p in data.iterdir() if p.is_dir()))
@@ -134,19 +134,96 @@ def test_a_sweep_finishes_each_drive_before_the_next_and_can_discard_it(
     rows = run_sweep(
         tasks,
         data,
-        scheduler=cluster.scheduler_address,
+        scheduler=scheduler,
         progress=False,
         on_row=count,
         discard_drives=True,
     )
     assert all(r is not None for r in rows) and len(on_disk) == len(tasks) == 6
-    # one worker: a drive's two runs go before the next drive is generated, and each
-    # drive is gone after its last run (all three generated first would show 3)
-    assert max(on_disk) <= 2, on_disk
+    # each drive is gone after its last run
     assert not [p for p in data.iterdir() if p.is_dir()]
+    return on_disk
+
+
+def test_a_sweep_finishes_each_drive_before_the_next_and_can_discard_it(
+    cluster, tmp_path
+):
+    data = tmp_path / "data"
+    on_disk = _drives_on_disk_per_row(cluster.scheduler_address, data)
+    # one worker: a drive's two runs go before the next drive is generated (all three
+    # generated first would show 3)
+    assert max(on_disk) <= 2, on_disk
     # kept by default
-    run_sweep(tasks[:2], data, scheduler=cluster.scheduler_address, progress=False)
+    tasks = sweep_tasks(["loop"], [0], ["raw"], ["slamlib"], [{"particles": 20}], (0, 4))
+    run_sweep(tasks, data, scheduler=cluster.scheduler_address, progress=False)
     assert [p.name for p in data.iterdir() if p.is_dir()] == [tasks[0].drive_key()]
+
+
+@pytest.mark.filterwarnings(
+    "ignore:Port .* is already in use"
+)  # the module's cluster has it
+@pytest.mark.parametrize("priorities", [True, False], ids=["priorities", "inverted"])
+def test_without_dask_queuing_the_priorities_still_put_a_drives_runs_first(
+    priorities, tmp_path, monkeypatch
+):
+    """A scheduler without Dask's queuing (``worker-saturation: inf``) sends every ready task to the worker at
+    once, which runs them by their priority: the runs' is higher than the drives'."""
+    import dask
+    from distributed import LocalCluster
+
+    from slamlib.experiments import sweep
+
+    if not priorities:  # the check can fail: drives first, all three are on disk at once
+        monkeypatch.setattr(sweep, "RUN_PRIORITY", sweep.DRIVE_PRIORITY - 1)
+    with dask.config.set({"distributed.scheduler.worker-saturation": float("inf")}):
+        with LocalCluster(
+            n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None
+        ) as c:
+            on_disk = _drives_on_disk_per_row(c.scheduler_address, tmp_path / "data")
+    assert (max(on_disk) <= 2) == priorities, on_disk
+
+
+def test_threads_per_run_shares_the_cores_out_among_the_workers():
+    from slamlib.experiments.sweep import threads_per_run
+
+    assert [threads_per_run(w, cores=8) for w in (1, 2, 3, 8, 16)] == [8, 4, 2, 1, 1]
+    assert threads_per_run(None, cores=8) == 1  # one worker per core
+    assert threads_per_run(None) == 1
+
+
+def test_each_run_uses_the_threads_it_is_given(cluster, tmp_path, monkeypatch):
+    """slamlib's Numba loops and KISS-ICP's registration run on the sweep's ``threads`` in the worker; without
+    them (another scheduler), on the worker's own."""
+    import numba
+
+    import slamlib.peers
+    import slamlib.slam3d
+
+    if numba.config.NUMBA_NUM_THREADS < 2:
+        pytest.skip("one Numba thread: nothing to limit")
+    seen = []
+    run_drive, kiss = slamlib.slam3d.run_drive, slamlib.peers.kiss_icp_poses
+
+    def spy_run_drive(*a, **kw):
+        seen.append(("slamlib", numba.get_num_threads()))
+        return run_drive(*a, **kw)
+
+    def spy_kiss(*a, **kw):
+        seen.append(("kiss_icp", kw["max_threads"]))
+        return kiss(*a, **kw)
+
+    # the cluster's worker runs in this process
+    monkeypatch.setattr(slamlib.slam3d, "run_drive", spy_run_drive)
+    monkeypatch.setattr(slamlib.peers, "kiss_icp_poses", spy_kiss)
+    tasks = sweep_tasks(
+        ["loop"], [0], ["raw"], ["slamlib", "kiss_icp"], [{"particles": 20}], (0, 4)
+    )
+    address = cluster.scheduler_address
+    run_sweep(tasks, tmp_path / "data", scheduler=address, progress=False, threads=1)
+    assert sorted(seen) == [("kiss_icp", 1), ("slamlib", 1)]
+    seen.clear()
+    run_sweep(tasks, tmp_path / "data", scheduler=address, progress=False, threads=2)
+    assert sorted(seen) == [("kiss_icp", 2), ("slamlib", 2)]
 
 
 def test_a_sweep_closes_loops_and_runs_kiss_slam_on_the_same_drive(cluster, tmp_path):
@@ -443,6 +520,7 @@ def test_the_sweep_command_writes_its_table_plot_and_provenance(
         info["generator_version"] == GENERATOR_VERSION
         and info["scheduler"] == cluster.scheduler_address
     )
+    assert info["threads_per_run"] is None  # another scheduler's workers keep their own
     assert info["machine"]["cores"] >= 1 and info["seconds"] > 0
     assert (
         out / "sweep.png"
@@ -463,7 +541,7 @@ def test_sweep_command_keeps_finished_rows_and_resumes_after_a_failed_task(
     calls = []
 
     def fake_run_sweep(tasks, data, done=None, on_row=None, **kw):
-        calls.append((len(tasks), dict(done or {}), kw["discard_drives"]))
+        calls.append((len(tasks), dict(done or {}), kw["discard_drives"], kw["threads"]))
         rows = [
             dict(
                 {k: 0.5 for k in COLUMNS},
@@ -499,8 +577,13 @@ def test_sweep_command_keeps_finished_rows_and_resumes_after_a_failed_task(
     )
     assert sorted(p.name for p in out.iterdir()) == [JOURNAL]
     # the rest, removing each drive once its runs are done (--discard-drives reaches the sweep)
-    assert main(argv + ["--discard-drives"]) == 0
+    assert main(argv + ["--discard-drives", "--workers", "1"]) == 0
     assert [c[2] for c in calls] == [False, True]
+    # on the local cluster the cores are shared out among the workers (one per core by default)
+    assert [c[3] for c in calls] == [1, os.cpu_count()]
+    assert (
+        json.loads((out / "sweep.json").read_text())["threads_per_run"] == os.cpu_count()
+    )
     assert "resuming: 1 runs already done" in capsys.readouterr().out
     assert sorted(p.name for p in out.iterdir()) == [
         "sweep.csv",

@@ -203,6 +203,15 @@ def add_arguments(parser) -> None:
         default=None,
         help="worker processes of the local cluster (default: one per core)",
     )
+    parser.add_argument(
+        "--threads-per-run",
+        type=int,
+        default=None,
+        metavar="N",
+        help="threads each run (slamlib's Numba, KISS-ICP's registration) and each drive's generation may use "
+        "(default with the local cluster: the cores divided among the workers, at least 1, so that each run's "
+        "frames/s is its own; with --scheduler: the workers' own settings)",
+    )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
@@ -239,6 +248,7 @@ def _run_resumable(tasks, data, args, journal: Path) -> list:
             done=done,
             on_row=lambda task, row: append_journal(journal, task, row),
             discard_drives=args.discard_drives,
+            threads=args.threads_per_run,
         )
     except SweepTaskError as exc:
         n = len(read_journal(journal))
@@ -351,6 +361,12 @@ def main(args) -> int:
         settings = [dict(s, **extra) for s in settings]
     if args.workers is not None and args.workers < 1:
         _fail(f"--workers must be >= 1, got {args.workers}")
+    if args.threads_per_run is not None and args.threads_per_run < 1:
+        _fail(f"--threads-per-run must be >= 1, got {args.threads_per_run}")
+    if args.threads_per_run is None and args.scheduler is None:
+        from slamlib.experiments.sweep import threads_per_run
+
+        args.threads_per_run = threads_per_run(args.workers)
     frames = set()
     for route in routes:
         try:
@@ -412,6 +428,7 @@ def main(args) -> int:
         "command": "slamlib " + " ".join(shlex.quote(a) for a in args.argv),
         "machine": describe(),
         "workers": args.workers,
+        "threads_per_run": args.threads_per_run,
         "scheduler": args.scheduler,
         "generator_version": GENERATOR_VERSION,
         "kiss_icp_version": _version("kiss-icp"),

@@ -50,6 +50,8 @@ __all__ = [
     "discard_drive",
     "RUN_PRIORITY",
     "DRIVE_PRIORITY",
+    "threads_per_run",
+    "use_threads",
     "SweepTaskError",
     "task_key",
     "append_journal",
@@ -209,20 +211,20 @@ def sweep_tasks(
     return tasks
 
 
-def drive_task(task: SweepTask, data_dir) -> str:
+def drive_task(task: SweepTask, data_dir, threads: int | None = None) -> str:
     """Generate ``task``'s synthetic drive into ``data_dir`` unless a complete one is there; returns its folder.
 
     Raw layout: :func:`slamlib.synth.write_drive`; odometry layout: :func:`slamlib.synth.write_sequence`; both with
-    the task's :class:`DriveOptions`. Another process writing the same drive (a second sweep sharing ``--data``)
-    is waited for, and its drive used.
+    the task's :class:`DriveOptions`, on at most ``threads`` threads (:func:`use_threads`). Another process
+    writing the same drive (a second sweep sharing ``--data``) is waited for, and its drive used.
     """
     from slamlib.atomic import folder_lock
     from slamlib.synth import GENERATOR_VERSION, write_drive, write_sequence
-    from slamlib.synth.writer import drive_dir, read_marker
+    from slamlib.synth.writer import read_marker
 
     base = Path(data_dir) / task.drive_key()
     raw = task.layout == "raw"
-    folder = drive_dir(base, "2011_09_26", 1) if raw else base / "sequences" / "00"
+    folder = _drive_folders(base)[task.layout]
 
     def missing() -> bool:
         marker = read_marker(folder)
@@ -230,6 +232,7 @@ def drive_task(task: SweepTask, data_dir) -> str:
 
     if not missing():
         return str(base)
+    use_threads(threads)
     with folder_lock(folder, wait=True, what="--data"):
         if missing():
             write = write_drive if raw else write_sequence
@@ -246,6 +249,41 @@ def drive_task(task: SweepTask, data_dir) -> str:
     return str(base)
 
 
+def threads_per_run(workers: int | None = None, cores: int | None = None) -> int:
+    """The threads each run of a sweep gets when ``workers`` worker processes (default: one per core) share
+    ``cores`` cores (default: this machine's): ``cores // workers``, at least 1.
+
+    Each worker runs one task at a time, so the workers' threads then add up to the cores. Left to their own
+    defaults, every run's Numba (and KISS-ICP's) would take every core; on a shared machine their threads then
+    wait on each other at each parallel loop's barrier, and a run's frames/s measures its neighbours more than
+    itself.
+    """
+    import os
+
+    cores = cores or os.cpu_count() or 1
+    return max(1, cores // (workers or cores))
+
+
+def use_threads(threads: int | None) -> None:
+    """Numba's parallel loops called from this thread use at most ``threads`` threads (``numba.set_num_threads``,
+    capped at ``NUMBA_NUM_THREADS``); None leaves them as they are."""
+    if threads is None:
+        return
+    import numba
+
+    numba.set_num_threads(max(1, min(int(threads), numba.config.NUMBA_NUM_THREADS)))
+
+
+def _drive_folders(base: Path) -> dict[str, Path]:
+    """The folder each layout writes a drive's frames to under ``base`` (its lock and marker are beside them)."""
+    from slamlib.synth.writer import drive_dir
+
+    return {
+        "raw": drive_dir(base, "2011_09_26", 1),
+        "odometry": base / "sequences" / "00",
+    }
+
+
 def _frames_of(task: SweepTask, base: str):
     from slamlib.kitti import KittiOdometrySequence, KittiRawDrive
 
@@ -254,10 +292,13 @@ def _frames_of(task: SweepTask, base: str):
     return KittiOdometrySequence(base, 0)
 
 
-def run_task(task: SweepTask, base: str) -> dict:
-    """Run ``task`` on its drive folder ``base`` (from :func:`drive_task`); returns one row of :data:`COLUMNS`."""
+def run_task(task: SweepTask, base: str, threads: int | None = None) -> dict:
+    """Run ``task`` on its drive folder ``base`` (from :func:`drive_task`) on at most ``threads`` threads
+    (:func:`use_threads`; KISS-ICP's ``max_num_threads`` likewise, 0 = its default, all cores); returns one row
+    of :data:`COLUMNS`."""
     from slamlib.metrics import trajectory_distances, trajectory_metrics
 
+    use_threads(threads)
     frames = _frames_of(task, base)
     row = {
         "route": task.route,
@@ -287,7 +328,7 @@ def run_task(task: SweepTask, base: str) -> dict:
         # the peers de-skew swept scans, their poses then moved to the frames' pose times
         swept = task.drive.distortion
         peer = kiss_icp_poses if task.method == "kiss_icp" else kiss_slam_poses
-        poses = peer(frames, deskew=swept, pose_times=swept)[0]
+        poses = peer(frames, deskew=swept, pose_times=swept, max_threads=threads or 0)[0]
         gt = (
             frames.ground_truth_poses()
             if task.layout == "odometry"
@@ -392,6 +433,7 @@ def run_sweep(
     done: dict | None = None,
     on_row=None,
     discard_drives: bool = False,
+    threads: int | None = None,
 ) -> list[dict]:
     """Run ``tasks`` on Dask: one :func:`drive_task` per distinct drive, then every :func:`run_task` after its drive.
 
@@ -404,8 +446,12 @@ def run_sweep(
 
     The runs go before the drives not yet generated (Dask task priorities), so a worker finishes the drives it has
     before it starts another. ``discard_drives``: each drive's folder is removed from ``data_dir`` once its last
-    run is done (:func:`discard_drive`), so the disk holds about one drive per worker, not the whole sweep's (a
-    1,000-frame raw drive is 1.6 GB); a later sweep generates what it needs again.
+    run is done (:func:`discard_drive`), so the disk holds about one drive per worker, not the whole sweep's
+    (``slamlib sweep --discard-drives`` says how large a drive is); a later sweep generates what it needs again.
+
+    ``threads``: the threads each task may use (:func:`use_threads`, and KISS-ICP's). Default: on the local cluster,
+    :func:`threads_per_run` (the cores shared out among the workers, so that frames/s measure each run, not its
+    neighbours); on another ``scheduler``, the workers' own settings.
     """
     from distributed import Client, as_completed
     from tqdm.auto import tqdm
@@ -419,6 +465,8 @@ def run_sweep(
     cluster = None
     if scheduler is None:
         cluster = _local_cluster(workers)
+        if threads is None:
+            threads = threads_per_run(workers)
     client = Client(scheduler if scheduler is not None else cluster)
     try:
         drives = {}
@@ -429,6 +477,7 @@ def run_sweep(
                     drive_task,
                     tasks[i],
                     data_dir,
+                    threads,
                     key=f"drive-{key}",
                     pure=False,
                     priority=DRIVE_PRIORITY,
@@ -438,6 +487,7 @@ def run_sweep(
                 run_task,
                 tasks[i],
                 drives[tasks[i].drive_key()],
+                threads,
                 pure=False,
                 priority=RUN_PRIORITY,
             ): i
@@ -490,10 +540,9 @@ def discard_drive(data_dir, key: str) -> None:
     import shutil
 
     from slamlib.atomic import folder_lock
-    from slamlib.synth.writer import drive_dir
 
     base = Path(data_dir) / key
-    for folder in (drive_dir(base, "2011_09_26", 1), base / "sequences" / "00"):
+    for folder in _drive_folders(base).values():
         if folder.is_dir():
             with folder_lock(folder, wait=True, what="--data"):
                 shutil.rmtree(folder)
@@ -551,11 +600,9 @@ def _clean_drives(data_dir: str, tasks) -> None:
     where another process holds a drive's lock (a second sweep sharing ``--data``)."""
     from slamlib.atomic import clean_stale, folder_lock
     from slamlib.errors import FolderBusyError
-    from slamlib.synth.writer import drive_dir
 
     for key in dict.fromkeys(t.drive_key() for t in tasks):
-        base = Path(data_dir) / key
-        for folder in (drive_dir(base, "2011_09_26", 1), base / "sequences" / "00"):
+        for folder in _drive_folders(Path(data_dir) / key).values():
             if folder.parent.is_dir():
                 try:
                     # a worker the cluster stopped may take a moment to exit and free its lock

@@ -192,8 +192,7 @@ def test_threads_per_run_shares_the_cores_out_among_the_workers():
 
 
 def test_each_run_uses_the_threads_it_is_given(cluster, tmp_path, monkeypatch):
-    """slamlib's Numba loops and KISS-ICP's registration run on the sweep's ``threads`` in the worker; without
-    them (another scheduler), on the worker's own."""
+    """slamlib's Numba loops and KISS-ICP's registration run on the sweep's ``threads`` in the worker."""
     import numba
 
     import slamlib.peers

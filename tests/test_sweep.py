@@ -191,6 +191,18 @@ def test_threads_per_run_shares_the_cores_out_among_the_workers():
     assert threads_per_run(None) == 1
 
 
+def test_sweep_threads_is_the_one_rule_for_the_local_cluster_and_another_scheduler():
+    import os
+
+    from slamlib.experiments.sweep import sweep_threads, threads_per_run
+
+    assert sweep_threads(3, None, 2) == 3  # given: kept, on any scheduler
+    assert sweep_threads(3, "tcp://127.0.0.1:1", None) == 3
+    assert sweep_threads(None, None, 1) == threads_per_run(1) == os.cpu_count()
+    assert sweep_threads(None, None, None) == 1
+    assert sweep_threads(None, "tcp://127.0.0.1:1", 1) is None  # the workers' own
+
+
 def test_each_run_uses_the_threads_it_is_given(cluster, tmp_path, monkeypatch):
     """slamlib's Numba loops and KISS-ICP's registration run on the sweep's ``threads`` in the worker."""
     import numba

@@ -363,10 +363,11 @@ def main(args) -> int:
         _fail(f"--workers must be >= 1, got {args.workers}")
     if args.threads_per_run is not None and args.threads_per_run < 1:
         _fail(f"--threads-per-run must be >= 1, got {args.threads_per_run}")
-    if args.threads_per_run is None and args.scheduler is None:
-        from slamlib.experiments.sweep import threads_per_run
+    from slamlib.experiments.sweep import sweep_threads
 
-        args.threads_per_run = threads_per_run(args.workers)
+    args.threads_per_run = sweep_threads(
+        args.threads_per_run, args.scheduler, args.workers
+    )
     frames = set()
     for route in routes:
         try:

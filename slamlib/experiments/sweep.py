@@ -51,6 +51,7 @@ __all__ = [
     "RUN_PRIORITY",
     "DRIVE_PRIORITY",
     "threads_per_run",
+    "sweep_threads",
     "use_threads",
     "SweepTaskError",
     "task_key",
@@ -264,9 +265,26 @@ def threads_per_run(workers: int | None = None, cores: int | None = None) -> int
     return max(1, cores // (workers or cores))
 
 
+def sweep_threads(
+    threads: int | None = None, scheduler: str | None = None, workers: int | None = None
+) -> int | None:
+    """The threads each task of a sweep uses: ``threads`` when given; otherwise, on the local cluster
+    (``scheduler`` None), :func:`threads_per_run` of its ``workers``; on another scheduler None, the workers'
+    own settings. :func:`run_sweep` uses it, and ``slamlib sweep`` records its value in ``sweep.json``."""
+    if threads is not None:
+        return int(threads)
+    if scheduler is None:
+        return threads_per_run(workers)
+    return None
+
+
 def use_threads(threads: int | None) -> None:
     """Numba's parallel loops called from this thread use at most ``threads`` threads (``numba.set_num_threads``,
-    capped at ``NUMBA_NUM_THREADS``); None leaves them as they are."""
+    capped at ``NUMBA_NUM_THREADS``); None leaves them as they are.
+
+    The setting belongs to the calling thread and stays after the task: on a Dask worker, later tasks on the same
+    worker thread inherit it. Every sweep task sets its own, so sweeps do not leak into each other; a user's own
+    tasks on the same workers should call this too (``use_threads(None)`` does not restore the default)."""
     if threads is None:
         return
     import numba
@@ -449,9 +467,10 @@ def run_sweep(
     run is done (:func:`discard_drive`), so the disk holds about one drive per worker, not the whole sweep's
     (``slamlib sweep --discard-drives`` says how large a drive is); a later sweep generates what it needs again.
 
-    ``threads``: the threads each task may use (:func:`use_threads`, and KISS-ICP's). Default: on the local cluster,
-    :func:`threads_per_run` (the cores shared out among the workers, so that frames/s measure each run, not its
-    neighbours); on another ``scheduler``, the workers' own settings.
+    ``threads``: the threads each task may use (:func:`use_threads`, and KISS-ICP's), resolved by
+    :func:`sweep_threads`: on the local cluster, the cores shared out among the workers, so that frames/s measure
+    each run, not its neighbours; on another ``scheduler``, the workers' own settings. The setting stays on each
+    worker thread after the sweep (:func:`use_threads`).
     """
     from distributed import Client, as_completed
     from tqdm.auto import tqdm
@@ -463,10 +482,9 @@ def run_sweep(
     if not todo:
         return rows
     cluster = None
+    threads = sweep_threads(threads, scheduler, workers)
     if scheduler is None:
         cluster = _local_cluster(workers)
-        if threads is None:
-            threads = threads_per_run(workers)
     client = Client(scheduler if scheduler is not None else cluster)
     try:
         drives = {}

@@ -754,6 +754,56 @@ def test_the_defaults_page_states_the_tolerance_and_scored_points_runs_as_commit
     )
 
 
+def test_the_defaults_page_states_the_match_gate_runs_as_committed():
+    """``book/defaults.md``'s section on ``match_gate`` quotes ``benchmarks/results/match_gate_dev``: the leaps'
+    distances, each run's error and ATE without the gate, with the default one and with the chi-square gate, the
+    frames rejected, the largest corrections kept, and the default lies between what the runs kept and the leaps."""
+    import json
+
+    page = _words(ROOT / "book" / "defaults.md")
+    section = page[page.index("`ScanMatchConfig.match_gate`") :]
+    section = section[: section.index("## ")]
+    rows: dict[str, list[dict]] = {}
+    path = ROOT / "benchmarks/results/match_gate_dev/rows.jsonl"
+    for line in path.read_text().splitlines():
+        row = json.loads(line)
+        rows.setdefault(row["name"], []).append(row)
+    before, gate, kiss, chi2 = (rows[n] for n in ("before", "gate30", "kiss", "chi2"))
+    assert [len(v) for v in (before, gate, kiss, chi2)] == [4] * 4
+    assert len(rows["raw-nogate"]) == 8
+
+    def listed(values, digits):
+        *head, last = (f"{v:.{digits}f}" for v in values)
+        return ", ".join(head) + f" and {last}"
+
+    for runs in (before, gate, kiss, chi2):
+        assert listed([r["t"] for r in runs], 4) + " %" in section, runs[0]["name"]
+    for runs in (before, gate):
+        assert "(ATE " + listed([r["ate"] for r in runs], 3) + " m)" in section
+    c = SLAM3DConfig().polish.match_gate
+    leaps = sorted(r["max_distance"] for r in before if r["max_distance"] > c)
+    assert f"those leaps were {leaps[0]:.0f} and {leaps[1]:.0f}" in section
+    assert (
+        max(r["median_distance"] for r in gate) < 2 and "each run was under 2." in section
+    )
+    kept = max(r["kept_max_distance"] for r in gate)
+    raw = max(r["max_distance"] for r in rows["raw-nogate"])
+    assert (
+        f"kept was {kept:.1f} spreads" in section
+        and f"the largest was {raw:.1f}" in section
+    )
+    assert max(kept, raw) < c < leaps[0] and f"the default, {c:.0f}," in section
+    rejected = sum(r["rejected"] for r in gate)
+    assert f"rejecting {rejected} frames in all" in section and rejected == 2
+    # the gate changed only the two runs that failed, and left the raw drives' runs as they were
+    changed = [a["seed"] for a, b in zip(before, gate) if a["t"] != b["t"]]
+    assert changed == [r["seed"] for r in before if r["max_distance"] > c]
+    assert all(r["rejected_at_30"] == 0 for r in rows["raw-nogate"])
+    worse = sum(a["t"] > b["t"] for a, b in zip(chi2, before))
+    assert f"{worse} of the four runs got worse" in section
+    assert all(g["t"] < k["t"] for g, k in zip(gate, kiss))
+
+
 def _committed_json(rev: str, path: str) -> dict:
     """The JSON file ``path`` as committed in ``rev`` (skips where the checkout has no such history)."""
     import json

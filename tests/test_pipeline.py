@@ -175,8 +175,11 @@ def test_stages_are_chosen_once_from_the_settings_and_the_first_frame():
     auto = ParticleSLAM3D(config.with_(tilt_sigma="auto"))
     auto.register_frame(_frame(scan))
     assert isinstance(auto.prior, TiltPrior) and auto.prior.auto and auto.prior.up is None
+    assert imu.polish.gate == config.polish.match_gate > 0  # the gate is on by default
     imu.register_frame(_frame(scan))
     assert (imu.motion, imu.prior, imu.polish) == chosen  # the same objects: chosen once
+    # the polish measured the match against the frame's spread (the gate's distance)
+    assert np.isfinite(imu.polish.last_distance)
     assert isinstance(imu.search, Annealing) and imu.search.rounds == 0
 
     lidar = ParticleSLAM3D(config)

@@ -15,6 +15,7 @@ def test_config_rejects_bad_values():
         (dict(particles=0), "particles"),
         (dict(particles="many"), "particles must be an integer or 'auto'"),
         (dict(match_tolerance=0.0), "match_tolerance must be > 0"),
+        (dict(match_gate=-1.0), "match_gate must be >= 0"),
         (dict(temperature=0.0), "temperature"),
         (dict(pose_estimate="median"), "pose_estimate"),
         (dict(min_range=5.0, max_range=4.0), "min_range"),

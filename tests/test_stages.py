@@ -522,11 +522,55 @@ def test_scan_match_moves_every_particle_by_the_matched_correction_and_counts_fr
     assert stage.n_matched == 2
 
 
+def test_correction_distance_is_the_body_frame_correction_in_spreads():
+    """``D = pose^-1 matched`` in step 6's coordinates (body x, y, z, roll, pitch, yaw) over ``sigma``: a move of
+    0.3 m forward and 0.02 rad of yaw, in the body frame of a pose turned by 0.5 rad, is (3, 0, 0, 0, 0, 4)
+    spreads of (0.1 m, 5 mrad) away, 5 in all; the world-frame offset of the same move is not what counts."""
+    from slamlib.slam3d.stages.polish import correction_distance
+
+    pose = make_pose(rpy_to_matrix([0.0, 0.0, 0.5]), [3.0, -1.0, 0.2])
+    D = make_pose(rpy_to_matrix([0.0, 0.0, 0.02]), [0.3, 0.0, 0.0])
+    sigma = [0.1, 0.1, 0.1, 0.005, 0.005, 0.005]
+    assert correction_distance(pose, pose @ D, sigma) == pytest.approx(5.0, rel=1e-9)
+    assert correction_distance(pose, pose, sigma) == pytest.approx(0.0, abs=1e-12)
+    # the same world-frame offset applied on the world's side is another body-frame move
+    assert correction_distance(pose, D @ pose, sigma) != pytest.approx(5.0, rel=1e-3)
+
+
+def test_scan_match_gate_keeps_step_9s_pose_when_the_match_leaps_beyond_the_spreads(
+    monkeypatch,
+):
+    """A match within ``gate`` spreads is taken; one beyond leaves the pose and the particles as they were and
+    counts as rejected; ``gate`` 0, or no ``sigma``, takes every match."""
+    pose = make_pose(rpy_to_matrix([0.0, 0.0, 0.5]), [3.0, -1.0, 0.2])
+    particles = Particles3D(pose[None, :3, :3].copy(), pose[None, :3, 3].copy())
+    sigma = np.array([0.1, 0.1, 0.1, 0.005, 0.005, 0.005])
+    near = pose @ make_pose(np.eye(3), [0.3, 0.0, 0.0])  # 3 spreads
+    leap = pose @ make_pose(rpy_to_matrix([0.0, 0.0, 0.25]), [0.0, 0.6, 0.0])  # ~50
+    stage = ScanMatch(3, gate=10.0)
+    _fake_match(monkeypatch, near)
+    got, moved = stage(pose, _road_scan(), particles, None, sigma)
+    assert got is near and stage.n_rejected == 0
+    assert stage.last_distance == pytest.approx(3.0)
+    _fake_match(monkeypatch, leap)
+    got, moved = stage(pose, _road_scan(), particles, None, sigma)
+    assert got is pose and moved is particles
+    assert stage.n_rejected == 1 and stage.n_matched == 2 and stage.last_distance > 10
+    for ungated, sig in (
+        (ScanMatch(3, gate=0.0), sigma),
+        (ScanMatch(3, gate=10.0), None),
+    ):
+        got, _ = ungated(pose, _road_scan(), particles, None, sig)
+        assert got is leap and ungated.n_rejected == 0
+
+
 def test_no_polish_keeps_the_pose_and_the_particles():
     pose, particles = np.eye(4), Particles3D(np.eye(3)[None], np.zeros((1, 3)))
     stage = NoPolish()
     got_pose, got_particles = stage(pose, _road_scan(), particles, None)
     assert got_pose is pose and got_particles is particles and stage.n_matched == 0
+    assert stage(pose, _road_scan(), particles, None, np.ones(6))[0] is pose
+    assert stage.n_rejected == 0
 
 
 def _annealing(monkeypatch, collapsed_calls, collapse_ess=0.5, collapse_rounds=3):

@@ -104,6 +104,7 @@ def add_arguments(parser) -> None:
         FilterConfig,
         MapConfig,
         MotionConfig,
+        ScanMatchConfig,
         SLAM3DConfig,
         TiltConfig,
         UpkeepConfig,
@@ -239,8 +240,10 @@ def add_arguments(parser) -> None:
         **tri,
         help="after step 9, move the best pose by Newton steps to the map score's nearest peak on the scan "
         "thinned to one point per 0.5 m cube (ScanMatchConfig.match_voxel) "
-        "and move the particles with it (ScanMatchConfig.scan_match; default auto: on, except with the "
-        "tilt prior, whose pull it would undo)",
+        "and move the particles with it, unless that moves the pose more than "
+        f"{ScanMatchConfig.match_gate:g} of step 6's spreads "
+        "(ScanMatchConfig.match_gate: a leap to a wrong peak) (ScanMatchConfig.scan_match; default auto: "
+        "on, except with the tilt prior, whose pull it would undo)",
     )
     for old in (
         "--no-deskew",

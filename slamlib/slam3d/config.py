@@ -100,6 +100,15 @@ MAX_ANNEAL_ROUNDS = 100
 #: Most Newton steps of the scan matcher per frame (``ScanMatchConfig.scan_match_iterations``; each a pass
 #: over the matched points, ``ScanMatchConfig.match_voxel``).
 MAX_SCAN_MATCH_ITERATIONS = 100
+#: The scan match's validation gate (``ScanMatchConfig.match_gate``), in step 6's spreads. Were the corrections
+#: Gaussian with the spread's deviations, 5.3 would pass all but one in ten thousand (the chi-square quantile of
+#: 6 degrees of freedom); they are not: the spread is the motion's uncertainty, and the climb's own steps add a
+#: heavier tail. On the route 07 development drives (scene seeds 0-3, with and without the IMU) every correction
+#: outside two leaps was at most 18.9 spreads; the leaps, which broke two LIDAR-only runs, were 114 and 353
+#: (``book/defaults.md``, "The scan match's gate"). Too low a gate rejects a true correction, and the next frame
+#: then needs a larger one; too high a gate lets a smaller leap through. 30 is 1.6 times the first, a quarter of
+#: the second.
+MATCH_GATE = 30.0
 #: Most frames the LIDAR-only velocity is averaged over (``ConstantVelocityConfig.window``; 10 frames = 1 s at
 #: 10 Hz).
 MAX_CV_WINDOW = 10
@@ -677,12 +686,20 @@ class ScanMatchConfig:
         translation, radians and metres alike), without taking it: near the peak the steps shrink faster than
         geometrically, so the rest of the way is shorter still. Default 1e-5 (half a millimetre at 50 m); why
         not KISS-ICP's 1e-4: "Why these defaults".
+    match_gate : float
+        The farthest the match may move step 9's pose, in step 6's spreads: the correction ``c`` (body x, y, z,
+        roll, pitch, yaw, as step 6's noise) is kept when ``sqrt(sum_a (c_a / sigma_a)^2) <= match_gate`` with
+        ``sigma`` the frame's spread, otherwise step 9's pose stands (a validation gate, Bar-Shalom & Fortmann,
+        "Tracking and Data Association", 1988, sec. 2.3). The cloud spans the motion's uncertainty, so its best
+        particle is already within a few spreads of the truth; a Newton climb that ends far outside it has
+        followed a wrong peak (moving cars, a repeated facade). Default :data:`MATCH_GATE`; 0: no gate.
     """
 
     scan_match: str | bool = AUTO
     scan_match_iterations: int = 15
     match_voxel: float = 0.5
     match_tolerance: float = MATCH_TOLERANCE
+    match_gate: float = MATCH_GATE
 
     def __post_init__(self):
         object.__setattr__(
@@ -701,6 +718,10 @@ class ScanMatchConfig:
         if not _finite("match_tolerance", self.match_tolerance) > 0:
             raise ValueError(
                 f"match_tolerance must be > 0 (radians and metres), got {self.match_tolerance}"
+            )
+        if not _finite("match_gate", self.match_gate) >= 0:
+            raise ValueError(
+                f"match_gate must be >= 0 (spreads; 0 = no gate), got {self.match_gate}"
             )
 
 

@@ -180,7 +180,7 @@ class ParticleSLAM3D:
         # 6-8 again, finer (annealing); 9: the best particle, sharpened (scan matching)
         moved, log_w = self.search(moved, log_w, sample, sigma, start_rounds)
         pose, best = steps.pick_best_particle(moved, log_w, self.pose_estimate)
-        pose, moved = self.polish(pose, points, moved, self.map)
+        pose, moved = self.polish(pose, points, moved, self.map, sigma)
         self._learn(pose, dt)  # what 9 found tunes 5, 6 and 8's prior
         steps.merge_scan(self.map, pose, points, be)  # 10
         self._record(pose, imu, points, dt, sample=sample, sigma=sigma, best=best)
@@ -308,6 +308,11 @@ class ParticleSLAM3D:
     def n_matched(self) -> int:
         """Frames whose pose was scan-matched after step 9 (the polish stage)."""
         return 0 if self.polish is None else self.polish.n_matched
+
+    @property
+    def n_match_rejected(self) -> int:
+        """Frames whose scan match the gate rejected (``ScanMatchConfig.match_gate``): step 9's pose stood."""
+        return 0 if self.polish is None else self.polish.n_rejected
 
     @property
     def n_annealed(self) -> int:

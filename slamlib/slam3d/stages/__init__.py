@@ -72,6 +72,7 @@ def choose_stages(config, frame, T0):
             road=lidar_only,
             voxel=config.polish.match_voxel,
             tolerance=config.polish.match_tolerance,
+            gate=config.polish.match_gate,
         )
         if match
         else NoPolish()

@@ -12,25 +12,45 @@ so the LIDAR's rings on the road cannot pull a moving scan back. With an IMU it 
 walks by step 6's noise between resamplings, and a pitch off by a few milliradians climbs or sinks the drive's
 height; the matcher's climb takes the pitch the whole scan fits best ("Why these defaults", ``book/defaults.md``).
 Voxel hash map only (other maps are left as they are). :class:`NoPolish` keeps step 9's pose.
+
+The gate
+--------
+The Newton climb is local: started near a wrong peak of the score (a car driving alongside, a repeated facade) it
+ends there, and the frame's scan is merged into the map at that pose, which corrupts the map for the frames after.
+Step 6 drew the particles from the motion's uncertainty, so step 9's pose is already within a few spreads of the
+truth. The match's correction ``D = T^-1 T_matched``, in step 6's coordinates ``c = (t_D, rpy(R_D))`` (body frame),
+is kept only when its normalised distance ``d = sqrt(sum_a (c_a / sigma_a)^2)`` is at most ``gate``: the validation
+gate of a tracking filter (Bar-Shalom & Fortmann, "Tracking and Data Association", 1988, sec. 2.3), with the
+frame's spread ``sigma`` for the prediction's standard deviations. A rejected match leaves step 9's pose.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from slamlib.geometry import matrix_to_rpy
 from slamlib.slam3d.match import MATCH_TOLERANCE, match_scan
 from slamlib.slam3d.preprocess import crop_and_downsample, road_mask
 from slamlib.slam3d.steps import Particles3D
 
-__all__ = ["NoPolish", "ScanMatch"]
+__all__ = ["NoPolish", "ScanMatch", "correction_distance"]
+
+
+def correction_distance(pose, matched, sigma) -> float:
+    """``d = sqrt(sum_a (c_a / sigma_a)^2)``: how far ``matched`` lies from ``pose`` (both ``T_world_body``
+    (4, 4)) in step 6's spreads ``sigma`` (6,) (body x, y, z in metres, roll, pitch, yaw in radians), with
+    ``c = (t_D, rpy(R_D))`` of the body-frame correction ``D = pose^-1 matched`` (module docstring, "The gate")."""
+    D = np.linalg.inv(pose) @ matched
+    c = np.concatenate([D[:3, 3], matrix_to_rpy(D[:3, :3])])
+    return float(np.sqrt(np.sum((c / np.asarray(sigma, dtype=np.float64)) ** 2)))
 
 
 class NoPolish:
     """Step 9's pose as it is."""
 
-    n_matched = 0
+    n_matched = n_rejected = 0
 
-    def __call__(self, pose, points, particles, world_map):
+    def __call__(self, pose, points, particles, world_map, sigma=None):
         """``(pose, particles)`` unchanged."""
         return pose, particles
 
@@ -38,7 +58,10 @@ class NoPolish:
 class ScanMatch:
     """Scan matching of step 9's pose (module docstring): at most ``iterations`` Newton steps on the points
     thinned to one per ``voxel`` cube (0: all), ending at the first step shorter than ``tolerance``; ``road``: the
-    road's points hold height and tilt only (LIDAR-only). ``n_matched`` counts the frames matched."""
+    road's points hold height and tilt only (LIDAR-only); ``gate``: the farthest a kept match may move the pose, in
+    step 6's spreads (0: no gate; module docstring, "The gate"). ``n_matched`` counts the frames matched,
+    ``n_rejected`` those whose match the gate rejected, ``last_distance`` the last frame's
+    :func:`correction_distance`."""
 
     def __init__(
         self,
@@ -46,22 +69,30 @@ class ScanMatch:
         road: bool = False,
         voxel: float = 0.0,
         tolerance: float = MATCH_TOLERANCE,
+        gate: float = 0.0,
     ):
         self.iterations, self.road, self.voxel = int(iterations), bool(road), float(voxel)
-        self.tolerance = float(tolerance)
-        self.n_matched = 0
+        self.tolerance, self.gate = float(tolerance), float(gate)
+        self.n_matched = self.n_rejected = 0
+        self.last_distance = float("nan")
 
-    def __call__(self, pose, points, particles, world_map):
+    def __call__(self, pose, points, particles, world_map, sigma=None):
         """``(matched pose (4, 4), particles moved by C = T_matched pose^-1)`` for the body-frame ``points``
-        (thinned to one per ``voxel`` cube first when ``voxel > 0``)."""
+        (thinned to one per ``voxel`` cube first when ``voxel > 0``); ``(pose, particles)`` unchanged when the
+        match moved the pose more than ``gate`` of the frame's spreads ``sigma`` (6,) (None: no gate)."""
         if self.voxel > 0:
             points = crop_and_downsample(points, voxel_size=self.voxel)
         road = road_mask(points) if self.road else None
         matched = match_scan(
             pose, points, world_map, self.iterations, road, self.tolerance
         )
-        C = matched @ np.linalg.inv(pose)
         self.n_matched += 1
+        if sigma is not None:
+            self.last_distance = correction_distance(pose, matched, sigma)
+            if 0 < self.gate < self.last_distance:
+                self.n_rejected += 1
+                return pose, particles
+        C = matched @ np.linalg.inv(pose)
         moved = Particles3D(
             np.einsum("ij,pjk->pik", C[:3, :3], particles.R),
             particles.t @ C[:3, :3].T + C[:3, 3],

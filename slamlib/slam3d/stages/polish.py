@@ -28,9 +28,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from slamlib.geometry import matrix_to_rpy
 from slamlib.slam3d.match import MATCH_TOLERANCE, match_scan
 from slamlib.slam3d.preprocess import crop_and_downsample, road_mask
+from slamlib.slam3d.stages.motion import measured_increment
 from slamlib.slam3d.steps import Particles3D
 
 __all__ = ["NoPolish", "ScanMatch", "correction_distance"]
@@ -39,9 +39,10 @@ __all__ = ["NoPolish", "ScanMatch", "correction_distance"]
 def correction_distance(pose, matched, sigma) -> float:
     """``d = sqrt(sum_a (c_a / sigma_a)^2)``: how far ``matched`` lies from ``pose`` (both ``T_world_body``
     (4, 4)) in step 6's spreads ``sigma`` (6,) (body x, y, z in metres, roll, pitch, yaw in radians), with
-    ``c = (t_D, rpy(R_D))`` of the body-frame correction ``D = pose^-1 matched`` (module docstring, "The gate")."""
-    D = np.linalg.inv(pose) @ matched
-    c = np.concatenate([D[:3, 3], matrix_to_rpy(D[:3, :3])])
+    ``c = (t_D, rpy(R_D))`` of the body-frame correction ``D = pose^-1 matched``
+    (:func:`~slamlib.slam3d.stages.motion.measured_increment`; module docstring, "The gate")."""
+    rpy, dp = measured_increment(pose, matched)
+    c = np.concatenate([dp, rpy])
     return float(np.sqrt(np.sum((c / np.asarray(sigma, dtype=np.float64)) ** 2)))
 
 

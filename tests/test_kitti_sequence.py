@@ -285,6 +285,9 @@ def test_cli_runs_an_odometry_sequence(odo, tmp_path):
         info["config"]["polish"]["scan_match"] == "auto"
         and info["n_matched_frames"] == N - 1
     )
+    # the gate: none rejected on a short clean drive, the largest kept correction within it
+    assert info["n_match_rejected_frames"] == 0
+    assert 0 < info["match_max_kept_distance"] <= info["config"]["polish"]["match_gate"]
     r = _run(
         "--odometry-dir",
         str(odo),

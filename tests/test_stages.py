@@ -541,7 +541,8 @@ def test_scan_match_gate_keeps_step_9s_pose_when_the_match_leaps_beyond_the_spre
     monkeypatch,
 ):
     """A match within ``gate`` spreads is taken; one beyond leaves the pose and the particles as they were and
-    counts as rejected; ``gate`` 0, or no ``sigma``, takes every match."""
+    counts as rejected; ``gate`` 0, or no ``sigma``, takes every match. ``max_kept_distance`` is the largest
+    correction taken."""
     pose = make_pose(rpy_to_matrix([0.0, 0.0, 0.5]), [3.0, -1.0, 0.2])
     particles = Particles3D(pose[None, :3, :3].copy(), pose[None, :3, 3].copy())
     sigma = np.array([0.1, 0.1, 0.1, 0.005, 0.005, 0.005])
@@ -556,6 +557,8 @@ def test_scan_match_gate_keeps_step_9s_pose_when_the_match_leaps_beyond_the_spre
     got, moved = stage(pose, _road_scan(), particles, None, sigma)
     assert got is pose and moved is particles
     assert stage.n_rejected == 1 and stage.n_matched == 2 and stage.last_distance > 10
+    # the largest kept correction is the near one's: the rejected leap does not count
+    assert stage.max_kept_distance == pytest.approx(3.0)
     for ungated, sig in (
         (ScanMatch(3, gate=0.0), sigma),
         (ScanMatch(3, gate=10.0), None),
@@ -570,7 +573,7 @@ def test_no_polish_keeps_the_pose_and_the_particles():
     got_pose, got_particles = stage(pose, _road_scan(), particles, None)
     assert got_pose is pose and got_particles is particles and stage.n_matched == 0
     assert stage(pose, _road_scan(), particles, None, np.ones(6))[0] is pose
-    assert stage.n_rejected == 0
+    assert stage.n_rejected == 0 and stage.max_kept_distance == 0.0
 
 
 def _annealing(monkeypatch, collapsed_calls, collapse_ess=0.5, collapse_rounds=3):

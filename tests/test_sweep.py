@@ -18,6 +18,7 @@ from slamlib.experiments.sweep import (
     sweep_tasks,
     write_table,
 )
+from slamlib.slam3d.config import MATCH_GATE
 
 
 def test_tasks_are_the_cross_product_with_kiss_icp_once_per_drive():
@@ -97,6 +98,13 @@ def test_sweep_on_a_dask_cluster_writes_one_tidy_row_per_run(cluster, tmp_path):
         assert row["settings"] == (
             '{"particles": 40}' if task.method == "slamlib" else ""
         )
+        # the scan match's gate: slamlib's counts (matched every frame after the first), empty for
+        # KISS-ICP
+        gate = row["match_rejected_frames"], row["match_max_kept_distance"]
+        if task.method == "slamlib":
+            assert gate[0] == 0 and 0 < gate[1] < MATCH_GATE, gate
+        else:
+            assert all(math.isnan(g) for g in gate), gate
     # the same seed gives the same drive: slamlib's result on it does not depend on which worker ran it
     again = run_sweep(
         tasks[:1], tmp_path / "data", scheduler=cluster.scheduler_address, progress=False

@@ -72,7 +72,9 @@ SLAMLIB_METHODS = ("slamlib", "slamlib_loop_closure")
 LAYOUTS = ("raw", "odometry")
 #: The columns of a sweep's table, in order (``drive`` is :meth:`DriveOptions.label`, empty for a still town seen by
 #: unswept scans; ``settings`` is the slamlib settings as JSON, empty for KISS-ICP; the KITTI error's vertical and
-#: horizontal parts are :func:`slamlib.metrics.kitti_odometry_error`'s, empty in tables written before them).
+#: horizontal parts are :func:`slamlib.metrics.kitti_odometry_error`'s, empty in tables written before them;
+#: ``match_rejected_frames`` and ``match_max_kept_distance``, slamlib's only, are the scan match's gate's
+#: :attr:`~slamlib.slam3d.ParticleSLAM3D.n_match_rejected` and ``match_max_kept_distance``, empty in older tables).
 COLUMNS = (
     "route",
     "frames",
@@ -91,6 +93,8 @@ COLUMNS = (
     "dead_reckoning_ate_rmse_m",
     "fps",
     "seconds",
+    "match_rejected_frames",
+    "match_max_kept_distance",
 )
 
 
@@ -340,6 +344,11 @@ def run_task(task: SweepTask, base: str, threads: int | None = None) -> dict:
         )
         poses = run.loop_closed if closing else run.poses
         gt, dr = run.ground_truth, run.dead_reckoning
+        # the scan match's gate (ScanMatchConfig.match_gate): how often it closed, and how near it came
+        gate = dict(
+            match_rejected_frames=sum(f.n_match_rejected for f in run.filters()),
+            match_max_kept_distance=max(f.match_max_kept_distance for f in run.filters()),
+        )
     else:
         from slamlib.peers import kiss_icp_poses, kiss_slam_poses
 
@@ -353,7 +362,7 @@ def run_task(task: SweepTask, base: str, threads: int | None = None) -> dict:
             else frames.ground_truth_poses("imu")
         )
         gt = np.linalg.inv(gt[0])[None] @ gt
-        dr = None
+        dr, gate = None, {}
     seconds = time.perf_counter() - t0
     m = trajectory_metrics(poses, gt)
     # slamlib's runs only: the IMU-only twin
@@ -371,6 +380,8 @@ def run_task(task: SweepTask, base: str, threads: int | None = None) -> dict:
         dead_reckoning_ate_rmse_m=m_dr.get("ate_rmse_m", float("nan")),
         fps=len(poses) / seconds,
         seconds=seconds,
+        match_rejected_frames=gate.get("match_rejected_frames", float("nan")),
+        match_max_kept_distance=gate.get("match_max_kept_distance", float("nan")),
     )
     return {k: row[k] for k in COLUMNS}
 

@@ -315,6 +315,13 @@ class ParticleSLAM3D:
         return 0 if self.polish is None else self.polish.n_rejected
 
     @property
+    def match_max_kept_distance(self) -> float:
+        """The largest correction a kept scan match made, in step 6's spreads
+        (:func:`~slamlib.slam3d.stages.polish.correction_distance`; 0 before one): how near the gate came to
+        closing."""
+        return 0.0 if self.polish is None else float(self.polish.max_kept_distance)
+
+    @property
     def n_annealed(self) -> int:
         """Annealing rounds run (the search stage), over all frames."""
         return self.search.n_rounds

@@ -414,7 +414,7 @@ def save_run(
       pruned on the way, :meth:`ParticleSLAM3D.map_points`), world frame;
     * ``metrics.json``: frames/s, settings, ``n_deskewed_frames`` (scans step 2 de-skewed), ``n_matched_frames``
       (poses scan-matched after step 9), ``n_match_rejected_frames`` (matches the gate rejected),
-      ``n_skipped_frames``
+      ``match_max_kept_distance`` (the largest correction a kept match made, in step 6's spreads), ``n_skipped_frames``
       (frames skipped for scoring, with a ``warnings`` entry when there were any; :mod:`slamlib.slam3d.pipeline`)
       and, with ground truth, :func:`evaluate` (ATE, RPE, KITTI metric). Always valid JSON: a non-finite number
       is written ``null`` (:func:`slamlib.metrics.json_safe`);
@@ -568,6 +568,9 @@ def _write_results(
     info["n_matched_frames"] = int(sum(f.n_matched for f in run.filters()))
     # ScanMatchConfig.match_gate: matches that would have moved the pose beyond the frame's spreads
     info["n_match_rejected_frames"] = int(sum(f.n_match_rejected for f in run.filters()))
+    info["match_max_kept_distance"] = max(
+        f.match_max_kept_distance for f in run.filters()
+    )
     info["segment_starts"] = [int(run.frame_indices[k]) for k in run.segment_starts]
     warnings = []
     if skipped:

@@ -50,6 +50,7 @@ class NoPolish:
     """Step 9's pose as it is."""
 
     n_matched = n_rejected = 0
+    max_kept_distance = 0.0
 
     def __call__(self, pose, points, particles, world_map, sigma=None):
         """``(pose, particles)`` unchanged."""
@@ -62,7 +63,8 @@ class ScanMatch:
     road's points hold height and tilt only (LIDAR-only); ``gate``: the farthest a kept match may move the pose, in
     step 6's spreads (0: no gate; module docstring, "The gate"). ``n_matched`` counts the frames matched,
     ``n_rejected`` those whose match the gate rejected, ``last_distance`` the last frame's
-    :func:`correction_distance`."""
+    :func:`correction_distance` and ``max_kept_distance`` the largest of a kept match (0 before one; how near the
+    gate came to closing on a run)."""
 
     def __init__(
         self,
@@ -76,6 +78,7 @@ class ScanMatch:
         self.tolerance, self.gate = float(tolerance), float(gate)
         self.n_matched = self.n_rejected = 0
         self.last_distance = float("nan")
+        self.max_kept_distance = 0.0
 
     def __call__(self, pose, points, particles, world_map, sigma=None):
         """``(matched pose (4, 4), particles moved by C = T_matched pose^-1)`` for the body-frame ``points``
@@ -93,6 +96,7 @@ class ScanMatch:
             if 0 < self.gate < self.last_distance:
                 self.n_rejected += 1
                 return pose, particles
+            self.max_kept_distance = max(self.max_kept_distance, self.last_distance)
         C = matched @ np.linalg.inv(pose)
         moved = Particles3D(
             np.einsum("ij,pjk->pik", C[:3, :3], particles.R),

@@ -804,6 +804,76 @@ def test_the_defaults_page_states_the_match_gate_runs_as_committed():
     assert all(g["t"] < k["t"] for g, k in zip(gate, kiss))
 
 
+def test_the_defaults_page_states_the_start_line_runs_as_committed():
+    """``book/defaults.md``'s section on ``start_line`` quotes the committed runs: route 00's two failed LIDAR-only
+    fresh runs (``fresh2`` seed 75, ``fresh3`` seed 84) and KISS-ICP's on them, the same drives with the line
+    (``start_line_dev/spent00_on``), and the development drives with and without it and KISS-ICP's
+    (``dev_x2_on``, ``dev_x2_off``); what the page concludes from them holds, and the default is off."""
+    import json
+
+    from slamlib.experiments.sweep import read_table
+
+    page = _words(ROOT / "book" / "defaults.md")
+    section = page[page.index("`ConstantVelocityConfig.start_line`") :]
+    section = section[: section.index("## ")]
+    results = ROOT / "benchmarks/results"
+
+    def runs(folder, route, seeds, method="slamlib"):
+        rows = read_table(results / folder / "sweep.csv")
+        return [
+            next(
+                r
+                for r in rows
+                if (r["route"], r["seed"], r["method"]) == (route, s, method)
+            )
+            for s in seeds
+        ]
+
+    def listed(rows, key, digits):
+        *head, last = (f"{r[key]:.{digits}f}" for r in rows)
+        return ", ".join(head) + f" and {last}"
+
+    failed = runs("fresh2/odometry", "00", [75]) + runs("fresh3/odometry", "00", [84])
+    kiss = runs("fresh2/odometry", "00", [75], "kiss_icp") + runs(
+        "fresh3/odometry", "00", [84], "kiss_icp"
+    )
+    mended = runs("start_line_dev/spent00_on", "00", [75, 84])
+    for rows in (failed, kiss, mended):
+        text = f"{listed(rows, 'kitti_t_err_percent', 4)} % (ATE {listed(rows, 'ate_rmse_m', 3)} m)"
+        assert text in section, text
+    # mended: below KISS-ICP's on both, where both had failed far above it
+    assert all(
+        m["kitti_t_err_percent"] < k["kitti_t_err_percent"] for m, k in zip(mended, kiss)
+    )
+    assert all(f["ate_rmse_m"] > 5 * k["ate_rmse_m"] for f, k in zip(failed, kiss))
+    seeds = [0, 1, 2, 3]
+    on = runs("start_line_dev/dev_x2_on", "07", seeds)
+    off = runs("start_line_dev/dev_x2_off", "07", seeds)
+    dev_kiss = runs("start_line_dev/dev_x2_off", "07", seeds, "kiss_icp")
+    for rows, after in ((on, " % with it"), (off, " % without"), (dev_kiss, " %")):
+        assert listed(rows, "kitti_t_err_percent", 4) + after in section
+    # it cost a little on each development drive; seed 2 was level with KISS-ICP to four decimals
+    # (slamlib a hair above), and the line widened that small loss
+    assert all(
+        a["kitti_t_err_percent"] > b["kitti_t_err_percent"] for a, b in zip(on, off)
+    )
+    t = {
+        n: rows[2]["kitti_t_err_percent"]
+        for n, rows in (("on", on), ("off", off), ("kiss", dev_kiss))
+    }
+    assert t["kiss"] < t["off"] < t["on"] and round(t["off"], 4) == round(t["kiss"], 4), t
+    assert "on seed 2, where slamlib was already level with KISS-ICP" in section
+    # the runs' settings: the line on by name, or off by name (then the default)
+    for folder in ("spent00_on", "dev_x2_on", "dev_x2_off"):
+        info = json.loads(
+            (results / "start_line_dev" / folder / "sweep.json").read_text()
+        )
+        want = "true" if folder.endswith("_on") else "false"
+        assert f"--set constant_velocity.start_line={want} " in info["command"], info
+    assert SLAM3DConfig().motion.constant_velocity.start_line is False
+    assert "off by default for now" in section
+
+
 def _committed_json(rev: str, path: str) -> dict:
     """The JSON file ``path`` as committed in ``rev`` (skips where the checkout has no such history)."""
     import json

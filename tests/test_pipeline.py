@@ -208,6 +208,13 @@ def test_stages_are_chosen_once_from_the_settings_and_the_first_frame():
     assert isinstance(off.prior, NoPrior) and isinstance(off.polish, NoPolish)
 
 
+def test_the_start_line_setting_reaches_the_search_stage():
+    """``ConstantVelocityConfig.start_line`` is the search stage's ``start_line`` (off by default)."""
+    assert ParticleSLAM3D(SLAM3DConfig()).search.start_line is False
+    on = SLAM3DConfig.of(**{"constant_velocity.start_line": True})
+    assert ParticleSLAM3D(on).search.start_line is True
+
+
 def test_resampling_and_annealing_are_counted_apart():
     scan = _scan()
     slam = ParticleSLAM3D(

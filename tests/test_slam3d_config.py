@@ -91,6 +91,7 @@ def test_min_range_above_max_range_is_refused():
         (dict(tilt_sigma="strong"), "tilt_sigma"),
         (dict(collapse_ess=1.5), "collapse_ess"),
         (dict(collapse_rounds=-1), "collapse_rounds"),
+        ({"constant_velocity.start_line": "yes"}, "start_line must be"),
         (dict(voxel_size=-1), "voxel_size"),
         (dict(voxel_hash={"voxel_size": math.inf}), "voxel_size"),
         (dict(sigma_xyz_per_m=(-0.1, 0, 0)), "sigma_xyz_per_m"),
@@ -127,6 +128,11 @@ def test_settings_by_stage_group_nested_group_and_dotted_name():
     )
     cv = c.motion.constant_velocity
     assert (cv.window, cv.ground_share, cv.start_rounds) == (3, 0.5, 8)
+    assert (
+        cv.start_line is False
+    )  # the forward line at the start: an option, off by default
+    on = SLAM3DConfig.of(**{"constant_velocity.start_line": True})
+    assert on.motion.constant_velocity.start_line is True
     assert c.map.morton_bvh.radius == 0.2 and c.map.params == c.map.voxel_hash.__dict__
     # the constructor's default
     assert SLAM3DConfig.of(kind="morton_bvh").map.make().radius == 0.3

@@ -576,6 +576,76 @@ def test_no_polish_keeps_the_pose_and_the_particles():
     assert stage.n_rejected == 0 and stage.max_kept_distance == 0.0
 
 
+def test_forward_line_stratifies_the_forward_spread_on_the_clouds_mean_pose():
+    """``P`` poses on the mean pose's forward axis (body x), at ``spread`` times the standard normal's quantiles
+    ``(i + 1/2) / P``: symmetric about the mean position, ordered, their spread ``spread`` to within the
+    stratification's shortfall, and all with the mean rotation (here the one rotation the cloud is turned by, its
+    particles' small yaws either side of it cancelling)."""
+    from statistics import NormalDist
+
+    from slamlib.slam3d.stages.search import forward_line
+
+    P, yaw = 100, 0.5
+    rng = np.random.default_rng(3)
+    yaws = yaw + np.r_[1, -1] * 0.01  # two particles either side of the mean yaw
+    R = np.array([rpy_to_matrix([0.0, 0.0, y]) for y in np.resize(yaws, P)])
+    t = np.array([3.0, -1.0, 0.2]) + rng.normal(0.0, 0.1, (P, 3))
+    line = forward_line(Particles3D(R, t), 1.5)
+    np.testing.assert_allclose(
+        line.R, np.repeat(rpy_to_matrix([0, 0, yaw])[None], P, 0), atol=1e-12
+    )
+    forward = np.array([np.cos(yaw), np.sin(yaw), 0.0])
+    offsets = (line.t - t.mean(axis=0)) @ forward
+    np.testing.assert_allclose(
+        line.t - t.mean(axis=0), offsets[:, None] * forward, atol=1e-12
+    )
+    assert offsets[0] == pytest.approx(1.5 * NormalDist().inv_cdf(0.5 / P))
+    np.testing.assert_allclose(offsets, -offsets[::-1], atol=1e-12)
+    assert np.all(np.diff(offsets) > 0) and 0.95 * 1.5 < offsets.std() < 1.5
+
+
+def test_a_start_search_with_the_line_weighs_the_line_first_and_ends_at_a_narrow_peak():
+    """A score with a narrow peak (0.1 m wide in x, 10 mrad in yaw) at 0.83 m forward beside a broad basin at 0 (a
+    start at speed, the road's rings pulling toward no motion): with ``start_line`` the search's first weighing is
+    :func:`forward_line` of the drawn cloud, and the search ends at the peak; without it the first weighing is the
+    drawn cloud perturbed (the start rounds as before)."""
+    from slamlib.slam3d.stages.search import forward_line
+
+    PEAK, WIDTH, BASIN = 0.83, 0.05, 0.5
+
+    def score(particles):  # the peak is as narrow in yaw (5 mrad) as in x
+        x, yaw = particles.t[:, 0], np.arctan2(particles.R[:, 1, 0], particles.R[:, 0, 0])
+        peak = -(((x - PEAK) / WIDTH) ** 2) - (yaw / 0.005) ** 2
+        return np.maximum(peak, -1.0 - (x / BASIN) ** 2) * 10.0
+
+    def normalised(log_w):
+        return log_w - np.logaddexp.reduce(log_w)
+
+    P, sigma = 100, np.array([1.5, 0.1, 0.05, 0.005, 0.005, 0.03])
+    start = Particles3D(np.repeat(np.eye(3)[None], P, 0), np.zeros((P, 3)))
+    drawn = steps.perturb_with_noise(
+        start, sigma, np.random.default_rng(0), backend="numpy"
+    )
+    for start_line in (True, False):
+        weighed = []
+
+        def weigh(particles, log_weights, sample):
+            weighed.append(particles)
+            return normalised(log_weights + score(particles))
+
+        # no rounds after the start search, as by default (AnnealConfig.anneal_rounds 0)
+        search = Annealing(
+            0, 0.5, weigh, np.random.default_rng(1), "numpy", 0.0, 0, start_line
+        )
+        log_w = normalised(score(drawn))
+        particles, log_w = search(drawn, log_w, None, sigma, start_rounds=8)
+        assert len(weighed) == 8 + start_line
+        line = forward_line(drawn, sigma[0])
+        assert np.array_equal(weighed[0].t, line.t) == start_line
+        if start_line:
+            assert abs(particles.t[np.argmax(log_w), 0] - PEAK) < WIDTH
+
+
 def _annealing(monkeypatch, collapsed_calls, collapse_ess=0.5, collapse_rounds=3):
     """An :class:`Annealing` of 1 round (shrink 0.5) whose weighing collapses the weights onto one particle for its
     first ``collapsed_calls`` calls and leaves them uniform after; step 6's spreads recorded in ``sigmas``."""

@@ -264,6 +264,11 @@ class ConstantVelocityConfig:
         the sequence starts (15 m/s forward, 1 and 0.5 m/s sideways and up; 0.05, 0.05, 0.3 rad/s in roll,
         pitch, yaw), narrowed by ``start_rounds`` annealing rounds that halve it.
     start_rounds : int
+    start_line : bool
+        The start search first weighs ``P`` poses on a line along the forward axis, the forward spread's normal
+        quantiles (:func:`slamlib.slam3d.stages.search.forward_line`): the speed is the start's one large unknown,
+        and independent draws in six dimensions can miss the score's narrow peak at it. Off by default for now:
+        it mended both failed starts found, but cost a little on every development drive ("Why these defaults").
     window : int
         Frames the held twist spans (the motion from the pose ``window`` frames back to the last one, over their
         time: one frame's estimate is noisy, and held it carries its noise into the next frame). 1: the last frame.
@@ -281,12 +286,15 @@ class ConstantVelocityConfig:
     angular_accel: tuple = (0.2, 0.2, 0.5)
     start_speed: tuple = (15.0, 1.0, 0.5, 0.05, 0.05, 0.3)
     start_rounds: int = 8
+    start_line: bool = False
     window: int = 1
     damping: tuple = (1.0, 1.0, 1.0, 1.0, 1.0, 1.0)
     ground_share: float = 0.1
 
     def __post_init__(self):
         _integer("start_rounds", self.start_rounds, 0, MAX_ANNEAL_ROUNDS)
+        if not isinstance(self.start_line, (bool, np.bool_)):
+            raise ValueError(f"start_line must be True or False, got {self.start_line!r}")
         _integer("window", self.window, 1, MAX_CV_WINDOW)
         damping = np.asarray(self.damping, dtype=np.float64)
         if damping.shape != (6,) or not np.all((damping >= 0) & (damping <= 1)):

@@ -124,6 +124,7 @@ class ParticleSLAM3D:
             self.backend,
             f.collapse_ess,
             f.collapse_rounds,
+            cfg.motion.constant_velocity.start_line,
         )
         self.upkeep = MapUpkeep(cfg.upkeep)
 

@@ -604,46 +604,70 @@ def test_forward_line_stratifies_the_forward_spread_on_the_clouds_mean_pose():
     assert np.all(np.diff(offsets) > 0) and 0.95 * 1.5 < offsets.std() < 1.5
 
 
-def test_a_start_search_with_the_line_weighs_the_line_first_and_ends_at_a_narrow_peak():
+def test_a_start_search_with_the_line_keeps_whichever_search_scores_higher():
     """A score with a narrow peak (0.1 m wide in x, 10 mrad in yaw) at 0.83 m forward beside a broad basin at 0 (a
-    start at speed, the road's rings pulling toward no motion): with ``start_line`` the search's first weighing is
-    :func:`forward_line` of the drawn cloud, and the search ends at the peak; without it the first weighing is the
-    drawn cloud perturbed (the start rounds as before)."""
+    start at speed, the road's rings pulling toward no motion), on 16 seeded starts. With ``start_line`` the search
+    runs from the drawn cloud (its first weighing as without the line) and then from :func:`forward_line` of it,
+    and keeps the one whose best particle ``score`` ranks higher. So its best score is never below the search
+    without the line, equal to it (the same particles and weights: the line's search draws from its own stream)
+    wherever the drawn search is kept, and it reaches the peak more often; on a tie the drawn search is kept."""
     from slamlib.slam3d.stages.search import forward_line
 
     PEAK, WIDTH, BASIN = 0.83, 0.05, 0.5
 
-    def score(particles):  # the peak is as narrow in yaw (5 mrad) as in x
+    def true_score(
+        particles, sample=None
+    ):  # the peak is as narrow in yaw (5 mrad) as in x
         x, yaw = particles.t[:, 0], np.arctan2(particles.R[:, 1, 0], particles.R[:, 0, 0])
         peak = -(((x - PEAK) / WIDTH) ** 2) - (yaw / 0.005) ** 2
         return np.maximum(peak, -1.0 - (x / BASIN) ** 2) * 10.0
+
+    def level_score(particles, sample=None):
+        return np.zeros(len(particles.t))
 
     def normalised(log_w):
         return log_w - np.logaddexp.reduce(log_w)
 
     P, sigma = 100, np.array([1.5, 0.1, 0.05, 0.005, 0.005, 0.03])
     start = Particles3D(np.repeat(np.eye(3)[None], P, 0), np.zeros((P, 3)))
-    drawn = steps.perturb_with_noise(
-        start, sigma, np.random.default_rng(0), backend="numpy"
-    )
-    for start_line in (True, False):
+
+    def search(drawn, seed, start_line, score):
         weighed = []
 
         def weigh(particles, log_weights, sample):
             weighed.append(particles)
-            return normalised(log_weights + score(particles))
+            return normalised(log_weights + true_score(particles))
 
         # no rounds after the start search, as by default (AnnealConfig.anneal_rounds 0)
-        search = Annealing(
-            0, 0.5, weigh, np.random.default_rng(1), "numpy", 0.0, 0, start_line
+        stage = Annealing(
+            0, 0.5, weigh, np.random.default_rng(seed), "numpy", 0.0, 0, start_line, score
         )
-        log_w = normalised(score(drawn))
-        particles, log_w = search(drawn, log_w, None, sigma, start_rounds=8)
-        assert len(weighed) == 8 + start_line
-        line = forward_line(drawn, sigma[0])
-        assert np.array_equal(weighed[0].t, line.t) == start_line
-        if start_line:
-            assert abs(particles.t[np.argmax(log_w), 0] - PEAK) < WIDTH
+        got = stage(drawn, normalised(true_score(drawn)), None, sigma, start_rounds=8)
+        return got, weighed, stage
+
+    at_peak = {False: 0, True: 0}
+    for draw_seed in range(4):
+        drawn = steps.perturb_with_noise(
+            start, sigma, np.random.default_rng(draw_seed), backend="numpy"
+        )
+        for seed in range(4):
+            (off, off_w), off_weighed, _ = search(drawn, seed, False, None)
+            assert len(off_weighed) == 8
+            (on, on_w), weighed, stage = search(drawn, seed, True, true_score)
+            assert len(weighed) == 8 + 1 + 8 and np.array_equal(
+                weighed[0].t, off_weighed[0].t
+            )
+            assert np.array_equal(weighed[8].t, forward_line(drawn, sigma[0]).t)
+            assert true_score(on).max() >= true_score(off).max()
+            if not stage.n_line_wins:
+                assert np.array_equal(on.t, off.t) and np.array_equal(on_w, off_w)
+            for line, (particles, log_w) in ((False, (off, off_w)), (True, (on, on_w))):
+                at_peak[line] += abs(particles.t[np.argmax(log_w), 0] - PEAK) < WIDTH
+            (kept, kept_w), _, stage = search(drawn, seed, True, level_score)
+            assert stage.n_line_wins == 0 and np.array_equal(kept.t, off.t)
+    assert at_peak[True] >= at_peak[False] + 8, at_peak
+    with pytest.raises(ValueError, match="start_line needs score"):
+        Annealing(0, 0.5, None, np.random.default_rng(1), "numpy", 0.0, 0, True)
 
 
 def _annealing(monkeypatch, collapsed_calls, collapse_ess=0.5, collapse_rounds=3):
@@ -667,6 +691,18 @@ def _annealing(monkeypatch, collapsed_calls, collapse_ess=0.5, collapse_rounds=3
         1, 0.5, weigh, np.random.default_rng(0), "numpy", collapse_ess, collapse_rounds
     )
     return search, sigmas
+
+
+def test_the_rounds_after_a_start_search_go_on_from_its_last_spread(monkeypatch):
+    """At a start the ``start_rounds`` rounds halve the spread (``START_SHRINK``); the frame's regular round and
+    the further rounds while the weights collapse then shrink it on from there, not from step 6's (wide) start
+    spread again."""
+    search, sigmas = _annealing(monkeypatch, collapsed_calls=99, collapse_rounds=2)
+    P = 10
+    particles = Particles3D(np.repeat(np.eye(3)[None], P, axis=0), np.zeros((P, 3)))
+    search(particles, np.full(P, -np.log(P)), None, np.ones(6), start_rounds=3)
+    np.testing.assert_allclose(sigmas, 0.5 ** np.arange(1, 3 + 1 + 2 + 1))
+    assert search.n_rounds == 3 + 1 + 2 and search.n_collapse_rounds == 2
 
 
 @pytest.mark.parametrize(

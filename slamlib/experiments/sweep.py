@@ -344,11 +344,6 @@ def run_task(task: SweepTask, base: str, threads: int | None = None) -> dict:
         )
         poses = run.loop_closed if closing else run.poses
         gt, dr = run.ground_truth, run.dead_reckoning
-        # the scan match's gate (ScanMatchConfig.match_gate): how often it closed, and how near it came
-        gate = dict(
-            match_rejected_frames=sum(f.n_match_rejected for f in run.filters()),
-            match_max_kept_distance=max(f.match_max_kept_distance for f in run.filters()),
-        )
     else:
         from slamlib.peers import kiss_icp_poses, kiss_slam_poses
 
@@ -362,8 +357,17 @@ def run_task(task: SweepTask, base: str, threads: int | None = None) -> dict:
             else frames.ground_truth_poses("imu")
         )
         gt = np.linalg.inv(gt[0])[None] @ gt
-        dr, gate = None, {}
+        dr = run = None
     seconds = time.perf_counter() - t0
+    # the scan match's gate (ScanMatchConfig.match_gate), slamlib's runs only: how often it closed, how near it came
+    gate = (
+        dict(
+            match_rejected_frames=run.n_match_rejected,
+            match_max_kept_distance=run.match_max_kept_distance,
+        )
+        if run is not None
+        else {}
+    )
     m = trajectory_metrics(poses, gt)
     # slamlib's runs only: the IMU-only twin
     m_dr = trajectory_metrics(dr, gt) if dr is not None else {}

@@ -125,6 +125,7 @@ class ParticleSLAM3D:
             f.collapse_ess,
             f.collapse_rounds,
             cfg.motion.constant_velocity.start_line,
+            self.score,
         )
         self.upkeep = MapUpkeep(cfg.upkeep)
 
@@ -228,11 +229,16 @@ class ParticleSLAM3D:
         self.last["resampled"] = resampled
         self.n_resampled += int(resampled)
 
+    def score(self, particles, sample) -> np.ndarray:
+        """Steps 7 + 8's scores ``(P,)`` of ``particles`` against the map, kept as the frame's last scores."""
+        scores = steps.score_particles(particles, sample, self.map, self.backend)
+        self.last["scores"] = scores
+        return scores
+
     def weigh(self, particles, log_weights, sample) -> np.ndarray:
         """Steps 7 + 8 and the weight update: ``log_w + score / (N * temperature)`` (tempering, module docstring),
         plus the prior stage's term, normalised."""
-        scores = steps.score_particles(particles, sample, self.map, self.backend)
-        self.last["scores"] = scores
+        scores = self.score(particles, sample)
         log_w = log_weights + scores / (len(sample) * self.config.filter.temperature)
         return normalise_log_weights(self.prior.weigh(particles, log_w))
 

@@ -100,6 +100,26 @@ class SLAMRun:
         """Frames per second of the SLAM loop."""
         return len(self.poses) / self.seconds if self.seconds > 0 else float("nan")
 
+    @property
+    def n_deskewed(self) -> int:
+        """Frames whose swept scans step 2 de-skewed, over every segment (``ScanConfig.deskew``)."""
+        return int(sum(f.n_deskewed for f in self.filters()))
+
+    @property
+    def n_matched(self) -> int:
+        """Frames whose best pose was scan-matched after step 9, over every segment."""
+        return int(sum(f.n_matched for f in self.filters()))
+
+    @property
+    def n_match_rejected(self) -> int:
+        """Scan matches the gate rejected (``ScanMatchConfig.match_gate``), over every segment."""
+        return int(sum(f.n_match_rejected for f in self.filters()))
+
+    @property
+    def match_max_kept_distance(self) -> float:
+        """The largest correction a kept scan match made, in step 6's spreads, over every segment."""
+        return float(max(f.match_max_kept_distance for f in self.filters()))
+
 
 #: Frames a run takes to reach its steady pace: the first builds the map only, the second is the first scored one
 #: (the move and score kernels run, compiled or loaded from Numba's cache, for the first time).
@@ -563,14 +583,12 @@ def _write_results(
     skipped = int(sum(getattr(f, "n_skipped_frames", 0) for f in run.filters()))
     info["n_skipped_frames"] = skipped
     # ScanConfig.deskew auto: the frames whose scans were swept
-    info["n_deskewed_frames"] = int(sum(f.n_deskewed for f in run.filters()))
+    info["n_deskewed_frames"] = run.n_deskewed
     # ScanMatchConfig.scan_match auto: every frame after the first, unless the tilt prior is on
-    info["n_matched_frames"] = int(sum(f.n_matched for f in run.filters()))
+    info["n_matched_frames"] = run.n_matched
     # ScanMatchConfig.match_gate: matches that would have moved the pose beyond the frame's spreads
-    info["n_match_rejected_frames"] = int(sum(f.n_match_rejected for f in run.filters()))
-    info["match_max_kept_distance"] = max(
-        f.match_max_kept_distance for f in run.filters()
-    )
+    info["n_match_rejected_frames"] = run.n_match_rejected
+    info["match_max_kept_distance"] = run.match_max_kept_distance
     info["segment_starts"] = [int(run.frame_indices[k]) for k in run.segment_starts]
     warnings = []
     if skipped:

@@ -7,7 +7,7 @@ and weighs again (steps 7 + 8). The result is still a particle filter (a sequenc
 resampling stages on the same posterior), just with a sharper proposal. ``AnnealConfig.anneal_rounds`` rounds
 shrink the spread by ``anneal_shrink`` each; the motion stage may ask for more at the start of a LIDAR-only drive,
 where no motion is known yet: ``start_rounds`` rounds first, the ``k``-th shrinking the (wide) spread by
-``START_SHRINK**k``.
+``START_SHRINK**k``, and the frame's regular rounds shrink on from the last of them.
 No rounds: the particles and weights pass through unchanged.
 
 The start's line
@@ -17,11 +17,14 @@ spread is metres forward and centimetres in the other directions. Along the forw
 peak at the true motion, as wide as the scan resolves (a few tenths of a metre), beside broad basins: the road's
 rings and the traffic moving with the car favour no motion at all. A hundred independent draws in six dimensions
 rarely land in the narrow peak, and the halving rounds then settle in a basin; the filter holds the wrong speed,
-its first frames' spread too narrow to leave it (on a drive that starts at 8 m/s: 0.3 m a frame backwards, 23 m
-lost before the match pulled it out). So with ``start_line`` the start search first weighs a line instead
+its first frames' spread too narrow to leave it, until the scan match pulls it out (``book/defaults.md``, "The
+LIDAR-only start"). So with ``start_line`` the start search runs a second time from a line
 (:func:`forward_line`): ``P`` poses along the cloud's mean forward axis at the quantiles of the forward spread, the
 same normal distribution stratified (one draw per ``1/P`` of probability), which puts a pose every few centimetres
-near the speeds a car has; the rounds then search the other five dimensions around what it found.
+near the speeds a car has; its rounds then search the other five dimensions around what it found. Of the two
+searches the stage keeps the one whose best particle scores higher (on a tie the drawn one): replacing the drawn
+cloud by the line instead would search the other five dimensions from half the spread only, and lose what the
+draws find there. The second search costs ``1 + start_rounds`` weighings, at one frame of the drive.
 
 Rounds when the weights collapse
 --------------------------------
@@ -39,7 +42,11 @@ from statistics import NormalDist
 
 import numpy as np
 
-from slamlib.resampling import effective_sample_size, weights_from_log_weights
+from slamlib.resampling import (
+    effective_sample_size,
+    uniform_log_weights,
+    weights_from_log_weights,
+)
 from slamlib.slam3d import steps
 from slamlib.slam3d.steps import Particles3D
 
@@ -72,9 +79,13 @@ class Annealing:
 
     ``weigh(particles, log_weights, sample) -> log_weights`` is the filter's steps 7 + 8 (with the prior's term);
     ``rng`` and ``backend`` are the filter's; ``collapse_ess`` and ``collapse_rounds`` the further rounds while the
-    weights collapse (:class:`~slamlib.slam3d.config.AnnealConfig`); ``start_line``: a start search begins by
-    weighing :func:`forward_line` (module docstring; ``ConstantVelocityConfig.start_line``). ``n_rounds`` counts
-    the rounds run, ``n_collapse_rounds`` the further ones among them.
+    weights collapse (:class:`~slamlib.slam3d.config.AnnealConfig`); ``start_line``: a start search is run twice,
+    from the drawn cloud and from :func:`forward_line`, and the one whose best particle scores higher by
+    ``score(particles, sample) -> (P,)`` (the filter's step 8, needed with ``start_line``) is kept (module
+    docstring; ``ConstantVelocityConfig.start_line``). The search from the line draws from its own stream
+    (``rng``'s, jumped ahead), so that where the drawn search wins the filter's stream is as without the line.
+    ``n_rounds`` counts the rounds run, ``n_collapse_rounds`` the further ones among them, ``n_line_wins`` the
+    starts the line's search won.
     """
 
     def __init__(
@@ -87,9 +98,16 @@ class Annealing:
         collapse_ess: float,
         collapse_rounds: int,
         start_line: bool = False,
+        score=None,
     ):
         self.rounds, self.shrink = int(rounds), float(shrink)
         self.start_line = bool(start_line)
+        if self.start_line and score is None:
+            raise ValueError(
+                "start_line needs score(particles, sample) to choose between the two searches"
+            )
+        self.score = score
+        self.line_rng = np.random.Generator(rng.bit_generator.jumped())
         self.weigh, self.rng, self.backend = weigh, rng, backend
         self.collapse_ess, self.collapse_rounds = (
             float(collapse_ess),
@@ -97,41 +115,63 @@ class Annealing:
         )
         self.n_rounds = 0
         self.n_collapse_rounds = 0
+        self.n_line_wins = 0
 
     def __call__(self, particles, log_weights, sample, sigma, start_rounds: int = 0):
-        """The particles and log-weights after ``start_rounds`` start rounds (first the line, with
-        ``start_line``) and then ``rounds`` rounds."""
-        if start_rounds > 0 and self.start_line:
-            particles = forward_line(particles, sigma[0])
-            uniform = np.full(len(particles.t), -np.log(len(particles.t)))
-            log_weights = self.weigh(particles, uniform, sample)
+        """The particles and log-weights after ``start_rounds`` start rounds and then ``rounds`` rounds; with
+        ``start_line`` at a start (``start_rounds > 0``), the better of that search and the same search from
+        :func:`forward_line` (module docstring, "The start's line")."""
+        drawn = self._search(
+            particles, log_weights, sample, sigma, start_rounds, self.rng
+        )
+        if not (start_rounds > 0 and self.start_line):
+            return drawn
+        line = forward_line(particles, sigma[0])
+        lined = self._search(
+            line,
+            self.weigh(line, uniform_log_weights(len(line.t)), sample),
+            sample,
+            sigma,
+            start_rounds,
+            self.line_rng,
+        )
+        better = self.score(lined[0], sample).max() > self.score(drawn[0], sample).max()
+        self.n_line_wins += int(better)
+        winner = lined if better else drawn
+        self.score(
+            winner[0], sample
+        )  # scored last, so that the filter reports the winner's scores
+        return winner
+
+    def _search(self, particles, log_weights, sample, sigma, start_rounds, rng):
+        """``start_rounds`` start rounds, ``rounds`` rounds, then the rounds while the weights collapse; each
+        round's spread shrinks from the one before, so the rounds after a start go on from where it ended."""
+        ended = START_SHRINK**start_rounds  # 1 without a start
         shrinks = [START_SHRINK**k for k in range(1, start_rounds + 1)] + [
-            self.shrink
-        ] * self.rounds
+            ended * self.shrink**k for k in range(1, self.rounds + 1)
+        ]
         for shrink in shrinks:
             particles, log_weights = self._round(
-                particles, log_weights, sample, sigma * shrink
+                particles, log_weights, sample, sigma * shrink, rng
             )
-        shrink = self.shrink ** (self.rounds + 1)
+        shrink = ended * self.shrink ** (self.rounds + 1)
         for _ in range(self.collapse_rounds):
             if effective_sample_size(weights_from_log_weights(log_weights)) >= (
                 self.collapse_ess * len(log_weights)
             ):
                 break
             particles, log_weights = self._round(
-                particles, log_weights, sample, sigma * shrink
+                particles, log_weights, sample, sigma * shrink, rng
             )
             self.n_collapse_rounds += 1
             shrink *= self.shrink
         return particles, log_weights
 
-    def _round(self, particles, log_weights, sample, sigma):
+    def _round(self, particles, log_weights, sample, sigma, rng):
         """One round: resample, perturb with ``sigma``, weigh."""
         particles, log_weights, _ = steps.resample_particles(
-            particles, log_weights, self.rng, ROUND_ESS_FRACTION, self.backend
+            particles, log_weights, rng, ROUND_ESS_FRACTION, self.backend
         )
-        particles = steps.perturb_with_noise(
-            particles, sigma, self.rng, backend=self.backend
-        )
+        particles = steps.perturb_with_noise(particles, sigma, rng, backend=self.backend)
         self.n_rounds += 1
         return particles, self.weigh(particles, log_weights, sample)

@@ -964,3 +964,11 @@ def test_fresh_morton_map_layout():
         CPU.score_particles(I, z, np.zeros((3, 3), np.float32), lk),
         -1.5 * 0.5**2 / 0.25**2,
     )
+
+
+def test_a_maps_resolution_is_its_voxel_edge_or_its_lookup_radius():
+    """:attr:`Map3D.resolution`: the scale below which two poses score against the same elements, a voxel hash's
+    edge and a Morton BVH's lookup radius, as configured (the start search's line uses it,
+    :mod:`slamlib.slam3d.stages.search`)."""
+    assert make_map("voxel_hash", voxel_size=0.4).resolution == 0.4
+    assert make_map("morton_bvh", radius=0.25).resolution == 0.25

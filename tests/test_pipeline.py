@@ -209,10 +209,15 @@ def test_stages_are_chosen_once_from_the_settings_and_the_first_frame():
 
 
 def test_the_start_line_setting_reaches_the_search_stage():
-    """``ConstantVelocityConfig.start_line`` is the search stage's ``start_line`` (off by default)."""
+    """``ConstantVelocityConfig.start_line`` is the search stage's ``start_line`` (off by default), with the filter's
+    score and its map's resolution."""
     assert ParticleSLAM3D(SLAM3DConfig()).search.start_line is False
     on = SLAM3DConfig.of(**{"constant_velocity.start_line": True})
-    assert ParticleSLAM3D(on).search.start_line is True
+    slam = ParticleSLAM3D(on)
+    assert slam.search.start_line is True
+    # the line's search is kept only beyond the map's resolution, with the filter's score
+    assert slam.search.resolution == slam.map.resolution == on.map.params["voxel_size"]
+    assert slam.search.score == slam.score
 
 
 def test_resampling_and_annealing_are_counted_apart():
@@ -1010,7 +1015,7 @@ def test_lidar_only_scores_a_sample_with_the_road_thinned():
 
 def test_lidar_only_start_rounds_halve_the_spread(monkeypatch):
     """The LIDAR-only start frame's annealing rounds perturb with ``sigma / 2, sigma / 4, ...`` (``0.5**k``) after
-    step 6's ``sigma``; annealing rounds then use ``anneal_shrink``."""
+    step 6's ``sigma``; the frame's annealing round then shrinks on from the last of them by ``anneal_shrink``."""
     sigmas = []
     real = steps.perturb_with_noise
     monkeypatch.setattr(
@@ -1034,7 +1039,7 @@ def test_lidar_only_start_rounds_halve_the_spread(monkeypatch):
     slam.register_frame(_imu_frame(scan, **still))
     slam.register_frame(_imu_frame(scan, **still))
     assert len(sigmas) == 5
-    for got, k in zip(sigmas[1:], (0.5, 0.25, 0.125, 0.3)):
+    for got, k in zip(sigmas[1:], (0.5, 0.25, 0.125, 0.125 * 0.3)):
         np.testing.assert_allclose(got, sigmas[0] * k, rtol=1e-15)
 
 

@@ -608,9 +608,11 @@ def test_a_start_search_with_the_line_keeps_whichever_search_scores_higher():
     """A score with a narrow peak (0.1 m wide in x, 10 mrad in yaw) at 0.83 m forward beside a broad basin at 0 (a
     start at speed, the road's rings pulling toward no motion), on 16 seeded starts. With ``start_line`` the search
     runs from the drawn cloud (its first weighing as without the line) and then from :func:`forward_line` of it,
-    and keeps the one whose best particle ``score`` ranks higher. So its best score is never below the search
-    without the line, equal to it (the same particles and weights: the line's search draws from its own stream)
-    wherever the drawn search is kept, and it reaches the peak more often; on a tie the drawn search is kept."""
+    and keeps the line's where its best particle ``score`` ranks higher and lies farther than ``resolution`` from the
+    drawn search's best. So its best score is never below the search without the line, equal to it (the same
+    particles and weights: the line's search draws from its own stream) wherever the drawn search is kept, and it
+    reaches the peak more often; on a tie, or with the two ends nearer than ``resolution``, the drawn search is
+    kept."""
     from slamlib.slam3d.stages.search import forward_line
 
     PEAK, WIDTH, BASIN = 0.83, 0.05, 0.5
@@ -631,7 +633,7 @@ def test_a_start_search_with_the_line_keeps_whichever_search_scores_higher():
     P, sigma = 100, np.array([1.5, 0.1, 0.05, 0.005, 0.005, 0.03])
     start = Particles3D(np.repeat(np.eye(3)[None], P, 0), np.zeros((P, 3)))
 
-    def search(drawn, seed, start_line, score):
+    def search(drawn, seed, start_line, score, resolution=0.0):
         weighed = []
 
         def weigh(particles, log_weights, sample):
@@ -640,7 +642,16 @@ def test_a_start_search_with_the_line_keeps_whichever_search_scores_higher():
 
         # no rounds after the start search, as by default (AnnealConfig.anneal_rounds 0)
         stage = Annealing(
-            0, 0.5, weigh, np.random.default_rng(seed), "numpy", 0.0, 0, start_line, score
+            0,
+            0.5,
+            weigh,
+            np.random.default_rng(seed),
+            "numpy",
+            0.0,
+            0,
+            start_line,
+            score,
+            resolution,
         )
         got = stage(drawn, normalised(true_score(drawn)), None, sigma, start_rounds=8)
         return got, weighed, stage
@@ -664,6 +675,9 @@ def test_a_start_search_with_the_line_keeps_whichever_search_scores_higher():
             for line, (particles, log_w) in ((False, (off, off_w)), (True, (on, on_w))):
                 at_peak[line] += abs(particles.t[np.argmax(log_w), 0] - PEAK) < WIDTH
             (kept, kept_w), _, stage = search(drawn, seed, True, level_score)
+            assert stage.n_line_wins == 0 and np.array_equal(kept.t, off.t)
+            # two ends nearer than the map's resolution are one optimum: the drawn one is kept
+            (kept, kept_w), _, stage = search(drawn, seed, True, true_score, 2 * PEAK)
             assert stage.n_line_wins == 0 and np.array_equal(kept.t, off.t)
     assert at_peak[True] >= at_peak[False] + 8, at_peak
     with pytest.raises(ValueError, match="start_line needs score"):

@@ -214,6 +214,12 @@ class Map3D(ABC):
         """Draw a new :attr:`version` (the arrays behind :meth:`lookup` changed)."""
         self._version = next(_VERSIONS)
 
+    @property
+    @abstractmethod
+    def resolution(self) -> float:
+        """Metres: the scale below which two poses score against the same map elements (a voxel's edge, a
+        lookup radius); optima of the score closer than this are one structure, seen from about the same pose."""
+
     @abstractmethod
     def merge(self, points_world: np.ndarray) -> None:
         """Add ``points_world`` (N, 3) float32, world frame, metres, to the map (step 10)."""

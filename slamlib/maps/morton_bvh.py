@@ -158,6 +158,11 @@ class MortonBVHMap(Map3D):
         """The stored points (M, 3) float32 in Morton order, world frame."""
         return self._points.copy()
 
+    @property
+    def resolution(self) -> float:
+        """The lookup radius, metres (:meth:`Map3D.resolution`)."""
+        return self.radius
+
     def __len__(self) -> int:
         return int(self._codes.size)
 

@@ -371,6 +371,11 @@ class VoxelHashMap(Map3D):
         return int(sum(a.nbytes for a in self._buffers()))
 
     @property
+    def resolution(self) -> float:
+        """The voxel's edge, metres (:meth:`Map3D.resolution`)."""
+        return self.voxel_size
+
+    @property
     def n_dropped(self) -> int:
         return int(self._state[2])
 

@@ -265,10 +265,10 @@ class ConstantVelocityConfig:
         pitch, yaw), narrowed by ``start_rounds`` annealing rounds that halve it.
     start_rounds : int
     start_line : bool
-        The start search first weighs ``P`` poses on a line along the forward axis, the forward spread's normal
-        quantiles (:func:`slamlib.slam3d.stages.search.forward_line`): the speed is the start's one large unknown,
-        and independent draws in six dimensions can miss the score's narrow peak at it. Off by default for now:
-        it mended both failed starts found, but cost a little on every development drive ("Why these defaults").
+        The start search runs a second time from ``P`` poses on a line along the forward axis, the forward
+        spread's normal quantiles (:func:`slamlib.slam3d.stages.search.forward_line`), and the filter keeps the
+        search whose best particle scores higher: the speed is the start's one large unknown, and independent
+        draws in six dimensions can miss the score's narrow peak at it ("Why these defaults").
     window : int
         Frames the held twist spans (the motion from the pose ``window`` frames back to the last one, over their
         time: one frame's estimate is noisy, and held it carries its noise into the next frame). 1: the last frame.

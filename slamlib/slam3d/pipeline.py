@@ -126,6 +126,7 @@ class ParticleSLAM3D:
             f.collapse_rounds,
             cfg.motion.constant_velocity.start_line,
             self.score,
+            self.map.resolution,
         )
         self.upkeep = MapUpkeep(cfg.upkeep)
 

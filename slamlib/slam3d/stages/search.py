@@ -21,10 +21,15 @@ its first frames' spread too narrow to leave it, until the scan match pulls it o
 LIDAR-only start"). So with ``start_line`` the start search runs a second time from a line
 (:func:`forward_line`): ``P`` poses along the cloud's mean forward axis at the quantiles of the forward spread, the
 same normal distribution stratified (one draw per ``1/P`` of probability), which puts a pose every few centimetres
-near the speeds a car has; its rounds then search the other five dimensions around what it found. Of the two
-searches the stage keeps the one whose best particle scores higher (on a tie the drawn one): replacing the drawn
-cloud by the line instead would search the other five dimensions from half the spread only, and lose what the
-draws find there. The second search costs ``1 + start_rounds`` weighings, at one frame of the drive.
+near the speeds a car has; its rounds then search the other five dimensions around what it found. The stage
+keeps the line's search only where it found another optimum than the drawn search did, and a better one: its best
+particle scores higher and lies farther from the drawn search's best than the map's resolution (a voxel's edge),
+below which the two are one optimum of the score, seen from about the same pose, and differ only by the searches'
+noise. Otherwise it keeps the drawn search, and the filter's run is the one without the line: the line's search
+draws from its own stream. Replacing the drawn cloud by the line instead would search the other five dimensions
+from half the spread only and lose what the draws find there; keeping the higher score alone would trade the drawn
+search's answer for a sample of the same optimum. The second search costs ``1 + start_rounds`` weighings, at one
+frame of the drive.
 
 Rounds when the weights collapse
 --------------------------------
@@ -80,12 +85,13 @@ class Annealing:
     ``weigh(particles, log_weights, sample) -> log_weights`` is the filter's steps 7 + 8 (with the prior's term);
     ``rng`` and ``backend`` are the filter's; ``collapse_ess`` and ``collapse_rounds`` the further rounds while the
     weights collapse (:class:`~slamlib.slam3d.config.AnnealConfig`); ``start_line``: a start search is run twice,
-    from the drawn cloud and from :func:`forward_line`, and the one whose best particle scores higher by
-    ``score(particles, sample) -> (P,)`` (the filter's step 8, needed with ``start_line``) is kept (module
-    docstring; ``ConstantVelocityConfig.start_line``). The search from the line draws from its own stream
-    (``rng``'s, jumped ahead), so that where the drawn search wins the filter's stream is as without the line.
-    ``n_rounds`` counts the rounds run, ``n_collapse_rounds`` the further ones among them, ``n_line_wins`` the
-    starts the line's search won.
+    from the drawn cloud and from :func:`forward_line`, and the line's is kept where its best particle scores
+    higher by ``score(particles, sample) -> (P,)`` (the filter's step 8, needed with ``start_line``) and lies more
+    than ``resolution`` metres from the drawn search's best (the map's, :attr:`slamlib.maps.base.Map3D.resolution`),
+    else the drawn one (module docstring; ``ConstantVelocityConfig.start_line``). The search from the line draws
+    from its own stream (``rng``'s, jumped ahead), so that where the drawn search is kept the filter's stream is as
+    without the line. ``n_rounds`` counts the rounds run, ``n_collapse_rounds`` the further ones among them,
+    ``n_line_wins`` the starts where the line's search was kept.
     """
 
     def __init__(
@@ -99,6 +105,7 @@ class Annealing:
         collapse_rounds: int,
         start_line: bool = False,
         score=None,
+        resolution: float = 0.0,
     ):
         self.rounds, self.shrink = int(rounds), float(shrink)
         self.start_line = bool(start_line)
@@ -106,7 +113,7 @@ class Annealing:
             raise ValueError(
                 "start_line needs score(particles, sample) to choose between the two searches"
             )
-        self.score = score
+        self.score, self.resolution = score, float(resolution)
         self.line_rng = np.random.Generator(rng.bit_generator.jumped())
         self.weigh, self.rng, self.backend = weigh, rng, backend
         self.collapse_ess, self.collapse_rounds = (
@@ -135,7 +142,14 @@ class Annealing:
             start_rounds,
             self.line_rng,
         )
-        better = self.score(lined[0], sample).max() > self.score(drawn[0], sample).max()
+        line_scores, drawn_scores = (
+            self.score(lined[0], sample),
+            self.score(drawn[0], sample),
+        )
+        apart = np.linalg.norm(
+            lined[0].t[np.argmax(line_scores)] - drawn[0].t[np.argmax(drawn_scores)]
+        )
+        better = line_scores.max() > drawn_scores.max() and apart > self.resolution
         self.n_line_wins += int(better)
         winner = lined if better else drawn
         self.score(

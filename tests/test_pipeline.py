@@ -209,10 +209,11 @@ def test_stages_are_chosen_once_from_the_settings_and_the_first_frame():
 
 
 def test_the_start_line_setting_reaches_the_search_stage():
-    """``ConstantVelocityConfig.start_line`` is the search stage's ``start_line`` (off by default), with the filter's
+    """``ConstantVelocityConfig.start_line`` is the search stage's ``start_line`` (on by default), with the filter's
     score and its map's resolution."""
-    assert ParticleSLAM3D(SLAM3DConfig()).search.start_line is False
-    on = SLAM3DConfig.of(**{"constant_velocity.start_line": True})
+    off = SLAM3DConfig.of(**{"constant_velocity.start_line": False})
+    assert ParticleSLAM3D(off).search.start_line is False
+    on = SLAM3DConfig()
     slam = ParticleSLAM3D(on)
     assert slam.search.start_line is True
     # the line's search is kept only beyond the map's resolution, with the filter's score
@@ -774,23 +775,26 @@ def test_anneal_rounds_each_resample_once():
     assert slam.n_annealed == 6 and slam.n_resampled == 0
 
 
-def test_lidar_only_start_frame_runs_the_start_rounds():
-    """LIDAR-only, the second frame adds ``start_rounds`` halving rounds (here 2, no annealing, step 11 off):
-    ``n_annealed`` is 2; the third frame (not a start) adds none."""
+@pytest.mark.parametrize("start_line, rounds", [(False, 2), (True, 2 + 2)])
+def test_lidar_only_start_frame_runs_the_start_rounds(start_line, rounds):
+    """LIDAR-only, the second frame adds ``start_rounds`` halving rounds (here 2, no annealing, step 11 off), and
+    with the start line as many again for the search from the line: ``n_annealed`` is 2 or 4; the third frame (not
+    a start) adds none."""
     scan = _ring_scan()
     slam = ParticleSLAM3D(
         SLAM3DConfig(
             filter=FilterConfig(particles=20, scored_points=100, ess_fraction=0.0),
             motion=MotionConfig(
-                model="constant_velocity", constant_velocity=_cv(start_rounds=2)
+                model="constant_velocity",
+                constant_velocity=_cv(start_rounds=2, start_line=start_line),
             ),
         )
     )
     slam.register_frame(_imu_frame(scan, v=(0.0, 0.0, 0.0), w=(0.0, 0.0, 0.0)))
     slam.register_frame(_imu_frame(scan, v=(0.0, 0.0, 0.0), w=(0.0, 0.0, 0.0)))
-    assert slam.n_annealed == 2
+    assert slam.n_annealed == rounds
     slam.register_frame(_imu_frame(scan, v=(0.0, 0.0, 0.0), w=(0.0, 0.0, 0.0)))
-    assert slam.n_annealed == 2 and slam.n_resampled == 0
+    assert slam.n_annealed == rounds and slam.n_resampled == 0
 
 
 # ------------------------------------------------------------------ construction, counters, the first frames, pruning
@@ -1014,8 +1018,9 @@ def test_lidar_only_scores_a_sample_with_the_road_thinned():
 
 
 def test_lidar_only_start_rounds_halve_the_spread(monkeypatch):
-    """The LIDAR-only start frame's annealing rounds perturb with ``sigma / 2, sigma / 4, ...`` (``0.5**k``) after
-    step 6's ``sigma``; the frame's annealing round then shrinks on from the last of them by ``anneal_shrink``."""
+    """The LIDAR-only start frame's annealing rounds (without the line's search) perturb with ``sigma / 2,
+    sigma / 4, ...`` (``0.5**k``) after step 6's ``sigma``; the frame's annealing round then shrinks on from the
+    last of them by ``anneal_shrink``."""
     sigmas = []
     real = steps.perturb_with_noise
     monkeypatch.setattr(
@@ -1031,7 +1036,8 @@ def test_lidar_only_start_rounds_halve_the_spread(monkeypatch):
             filter=FilterConfig(particles=20, scored_points=100),
             search=AnnealConfig(anneal_rounds=1, anneal_shrink=0.3),
             motion=MotionConfig(
-                model="constant_velocity", constant_velocity=_cv(start_rounds=3)
+                model="constant_velocity",
+                constant_velocity=_cv(start_rounds=3, start_line=False),
             ),
         )
     )

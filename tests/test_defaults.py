@@ -811,7 +811,7 @@ def test_the_defaults_page_states_the_start_line_runs_as_committed():
     with the first version, without the line and KISS-ICP's (``dev_x2_on``, ``dev_x2_off``, ``dev_x1_off``), and
     with the default's (``dev_x2_apart``, ``dev_x1_apart``). What the page concludes from them holds: the first
     version cost on each development drive, the default's mends both failed runs and leaves every development run
-    as it was without the line, to the last digit; and the line is on by default."""
+    as it was without the line, to the last digit; and the line is off by default (a straight street)."""
     import json
 
     from slamlib.experiments.sweep import read_table
@@ -888,7 +888,8 @@ def test_the_defaults_page_states_the_start_line_runs_as_committed():
         want = "false" if folder.endswith("_off") else "true"
         assert f"--set constant_velocity.start_line={want} " in info["command"], info
     config = SLAM3DConfig()
-    assert config.motion.constant_velocity.start_line is True
+    assert config.motion.constant_velocity.start_line is False
+    assert "It is off by default" in section
     voxel = config.map.params["voxel_size"]
     assert f"(a voxel's edge, {voxel} m)" in section
     assert (

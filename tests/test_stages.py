@@ -604,15 +604,15 @@ def test_forward_line_stratifies_the_forward_spread_on_the_clouds_mean_pose():
     assert np.all(np.diff(offsets) > 0) and 0.95 * 1.5 < offsets.std() < 1.5
 
 
-def test_a_start_search_with_the_line_keeps_whichever_search_scores_higher():
+def test_a_start_search_with_the_line_keeps_a_higher_optimum_farther_from_standing_still():
     """A score with a narrow peak (0.1 m wide in x, 10 mrad in yaw) at 0.83 m forward beside a broad basin at 0 (a
     start at speed, the road's rings pulling toward no motion), on 16 seeded starts. With ``start_line`` the search
     runs from the drawn cloud (its first weighing as without the line) and then from :func:`forward_line` of it,
-    and keeps the line's where its best particle ``score`` ranks higher and lies farther than ``resolution`` from the
-    drawn search's best. So its best score is never below the search without the line, equal to it (the same
-    particles and weights: the line's search draws from its own stream) wherever the drawn search is kept, and it
-    reaches the peak more often; on a tie, or with the two ends nearer than ``resolution``, the drawn search is
-    kept."""
+    and keeps the line's where its best particle ``score`` ranks higher, lies farther than ``resolution`` from the
+    drawn search's best and farther from ``standstill`` than it. So its best score is never below the search without
+    the line, equal to it (the same particles and weights: the line's search draws from its own stream) wherever
+    the drawn search is kept, and it reaches the peak more often; on a tie, or with the two ends nearer than
+    ``resolution``, the drawn search is kept."""
     from slamlib.slam3d.stages.search import forward_line
 
     PEAK, WIDTH, BASIN = 0.83, 0.05, 0.5
@@ -633,7 +633,7 @@ def test_a_start_search_with_the_line_keeps_whichever_search_scores_higher():
     P, sigma = 100, np.array([1.5, 0.1, 0.05, 0.005, 0.005, 0.03])
     start = Particles3D(np.repeat(np.eye(3)[None], P, 0), np.zeros((P, 3)))
 
-    def search(drawn, seed, start_line, score, resolution=0.0):
+    def search(drawn, seed, start_line, score, resolution=0.0, standstill=np.zeros(3)):
         weighed = []
 
         def weigh(particles, log_weights, sample):
@@ -653,7 +653,8 @@ def test_a_start_search_with_the_line_keeps_whichever_search_scores_higher():
             score,
             resolution,
         )
-        got = stage(drawn, normalised(true_score(drawn)), None, sigma, start_rounds=8)
+        start_w = normalised(true_score(drawn))
+        got = stage(drawn, start_w, None, sigma, start_rounds=8, standstill=standstill)
         return got, weighed, stage
 
     at_peak = {False: 0, True: 0}
@@ -682,6 +683,77 @@ def test_a_start_search_with_the_line_keeps_whichever_search_scores_higher():
     assert at_peak[True] >= at_peak[False] + 8, at_peak
     with pytest.raises(ValueError, match="start_line needs score"):
         Annealing(0, 0.5, None, np.random.default_rng(1), "numpy", 0.0, 0, True)
+
+
+@pytest.mark.parametrize(
+    "drawn_x, line_x, standstill_x, kept",
+    [
+        (
+            0.0,
+            1.0,
+            0.0,
+            "line",
+        ),  # route 00: the line found the peak the drawn search missed
+        (
+            1.0,
+            0.0,
+            0.0,
+            "drawn",
+        ),  # the straight street: the line's higher end is no motion
+        (
+            1.0,
+            0.0,
+            3.0,
+            "line",
+        ),  # the same ends, standing still beyond them: the line's is farther
+        (
+            1.0,
+            1.2,
+            0.0,
+            "drawn",
+        ),  # one optimum: the ends nearer than the map's resolution
+        (0.0, 1.0, 2.0, "drawn"),  # the line's end higher but nearer standing still
+    ],
+)
+def test_the_start_line_keeps_the_lines_end_only_higher_apart_and_farther_from_standing_still(
+    monkeypatch, drawn_x, line_x, standstill_x, kept
+):
+    """The choice between the two start searches, on given ends: the line's search is kept where its best particle
+    scores higher than the drawn search's, lies farther than ``resolution`` from it and farther from ``standstill``
+    (module docstring, "The start's line"). The score prefers the line's end in every case here, as the rings'
+    no-motion basin does on the straight street: the score alone cannot tell route 00's start from the street's."""
+    P, resolution = 4, 0.5
+
+    def cloud(x):
+        return Particles3D(
+            np.repeat(np.eye(3)[None], P, 0), np.tile([x, 0.0, 0.0], (P, 1))
+        )
+
+    def score(particles, sample=None):  # the line's end scores 5 above the drawn one's
+        return np.where(np.isclose(particles.t[:, 0], line_x), 0.0, -5.0)
+
+    stage = Annealing(
+        0,
+        0.5,
+        lambda p, w, s: w,
+        np.random.default_rng(1),
+        "numpy",
+        0.0,
+        0,
+        True,
+        score,
+        resolution,
+    )
+    ends = {id(stage.rng): cloud(drawn_x), id(stage.line_rng): cloud(line_x)}
+    log_w = np.full(P, -np.log(P))
+    monkeypatch.setattr(
+        stage,
+        "_search",
+        lambda particles, w, sample, sigma, rounds, rng: (ends[id(rng)], w),
+    )
+    got, _ = stage(cloud(0.0), log_w, None, np.ones(6), 2, np.array([standstill_x, 0, 0]))
+    want = line_x if kept == "line" else drawn_x
+    assert np.all(got.t[:, 0] == want) and stage.n_line_wins == int(kept == "line")
 
 
 def _annealing(monkeypatch, collapsed_calls, collapse_ess=0.5, collapse_rounds=3):

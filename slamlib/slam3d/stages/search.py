@@ -18,17 +18,22 @@ peak at the true motion, as wide as the scan resolves (a few tenths of a metre),
 rings and the traffic moving with the car favour no motion at all. A hundred independent draws in six dimensions
 rarely land in the narrow peak, and the halving rounds then settle in a basin; the filter holds the wrong speed,
 its first frames' spread too narrow to leave it, until the scan match pulls it out (``book/defaults.md``, "The
-LIDAR-only start"). So with ``start_line`` the start search runs a second time from a line
-(:func:`forward_line`): ``P`` poses along the cloud's mean forward axis at the quantiles of the forward spread, the
-same normal distribution stratified (one draw per ``1/P`` of probability), which puts a pose every few centimetres
-near the speeds a car has; its rounds then search the other five dimensions around what it found. The stage
-keeps the line's search only where it found another optimum than the drawn search did, and a better one: its best
-particle scores higher and lies farther from the drawn search's best than the map's resolution (a voxel's edge),
-below which the two are one optimum of the score, seen from about the same pose, and differ only by the searches'
-noise. Otherwise it keeps the drawn search, and the filter's run is the one without the line: the line's search
-draws from its own stream. Replacing the drawn cloud by the line instead would search the other five dimensions
-from half the spread only and lose what the draws find there; keeping the higher score alone would trade the drawn
-search's answer for a sample of the same optimum. The second search costs ``1 + start_rounds`` weighings, at one
+LIDAR-only start"). So with ``start_line`` the start search runs a second time from a line (:func:`forward_line`):
+``P`` poses along the cloud's mean forward axis at the quantiles of the forward spread, the same normal distribution
+stratified (one draw per ``1/P`` of probability), which puts a pose every few centimetres near the speeds a car has;
+its rounds then search the other five dimensions around what it found. The stage keeps the line's search only where
+it found another optimum than the drawn search did, a better one, and one farther from standing still: its best
+particle scores higher, lies farther from the drawn search's best than the map's resolution (a voxel's edge), below
+which the two are one optimum of the score, seen from about the same pose, and differ only by the searches' noise,
+and lies farther from the last pose (no motion) than the drawn search's best. The score alone cannot choose between
+two optima: the rings and the traffic that move with the car score no motion higher than the true motion on a street
+whose walls run along the car (the test suite's straight street), and lower on a street with structure across it
+(route 00's starts). The bias is always toward no motion, so a higher score farther from it is the structure's
+evidence against the bias, while a higher score nearer to it may be the bias alone. Otherwise it keeps the drawn
+search, and the filter's run is the one without the line: the line's search draws from its own stream. Replacing the
+drawn cloud by the line instead would search the other five dimensions from half the spread only and lose what the
+draws find there; keeping the higher score alone would trade the drawn search's answer for a sample of the same
+optimum, or, on the street, for the rings' basin. The second search costs ``1 + start_rounds`` weighings, at one
 frame of the drive.
 
 Rounds when the weights collapse
@@ -83,14 +88,15 @@ class Annealing:
     """``rounds`` annealing rounds per frame, each shrinking step 6's spread by ``shrink`` (module docstring).
 
     ``weigh(particles, log_weights, sample) -> log_weights`` is the filter's steps 7 + 8 (with the prior's term);
-    ``rng`` and ``backend`` are the filter's; ``collapse_ess`` and ``collapse_rounds`` the further rounds while the
-    weights collapse (:class:`~slamlib.slam3d.config.AnnealConfig`); ``start_line``: a start search is run twice,
-    from the drawn cloud and from :func:`forward_line`, and the line's is kept where its best particle scores
-    higher by ``score(particles, sample) -> (P,)`` (the filter's step 8, needed with ``start_line``) and lies more
-    than ``resolution`` metres from the drawn search's best (the map's, :attr:`slamlib.maps.base.Map3D.resolution`),
-    else the drawn one (module docstring; ``ConstantVelocityConfig.start_line``). The search from the line draws
-    from its own stream (``rng``'s, jumped ahead), so that where the drawn search is kept the filter's stream is as
-    without the line. ``n_rounds`` counts the rounds run, ``n_collapse_rounds`` the further ones among them,
+    ``rng`` and ``backend`` are the filter's; ``collapse_ess`` and ``collapse_rounds`` the further rounds while
+    the weights collapse (:class:`~slamlib.slam3d.config.AnnealConfig`); ``start_line``: a start search is run
+    twice, from the drawn cloud and from :func:`forward_line`, and the line's is kept where its best particle
+    scores higher by ``score(particles, sample) -> (P,)`` (the filter's step 8, needed with ``start_line``) and
+    lies more than ``resolution`` metres from the drawn search's best (the map's,
+    :attr:`slamlib.maps.base.Map3D.resolution`) and farther from ``standstill`` than it, else the drawn one
+    (module docstring; ``ConstantVelocityConfig.start_line``). The search from the line draws from its own
+    stream (``rng``'s, jumped ahead), so that where the drawn search is kept the filter's stream is as without
+    the line. ``n_rounds`` counts the rounds run, ``n_collapse_rounds`` the further ones among them,
     ``n_line_wins`` the starts where the line's search was kept.
     """
 
@@ -124,10 +130,19 @@ class Annealing:
         self.n_collapse_rounds = 0
         self.n_line_wins = 0
 
-    def __call__(self, particles, log_weights, sample, sigma, start_rounds: int = 0):
+    def __call__(
+        self,
+        particles,
+        log_weights,
+        sample,
+        sigma,
+        start_rounds: int = 0,
+        standstill=None,
+    ):
         """The particles and log-weights after ``start_rounds`` start rounds and then ``rounds`` rounds; with
         ``start_line`` at a start (``start_rounds > 0``), the better of that search and the same search from
-        :func:`forward_line` (module docstring, "The start's line")."""
+        :func:`forward_line` (module docstring, "The start's line"). ``standstill``: the position (3,) in the
+        world frame, metres, of no motion (the last pose's), needed with ``start_line``."""
         drawn = self._search(
             particles, log_weights, sample, sigma, start_rounds, self.rng
         )
@@ -146,10 +161,13 @@ class Annealing:
             self.score(lined[0], sample),
             self.score(drawn[0], sample),
         )
-        apart = np.linalg.norm(
-            lined[0].t[np.argmax(line_scores)] - drawn[0].t[np.argmax(drawn_scores)]
+        line_best = lined[0].t[np.argmax(line_scores)]
+        drawn_best = drawn[0].t[np.argmax(drawn_scores)]
+        moved = np.linalg.norm(line_best - standstill) > np.linalg.norm(
+            drawn_best - standstill
         )
-        better = line_scores.max() > drawn_scores.max() and apart > self.resolution
+        apart = np.linalg.norm(line_best - drawn_best) > self.resolution
+        better = line_scores.max() > drawn_scores.max() and apart and moved
         self.n_line_wins += int(better)
         winner = lined if better else drawn
         self.score(

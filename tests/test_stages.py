@@ -576,6 +576,13 @@ def test_no_polish_keeps_the_pose_and_the_particles():
     assert stage.n_rejected == 0 and stage.max_kept_distance == 0.0
 
 
+def pose_at(position):
+    """``T_world_body`` (4, 4) at ``position`` (3,), unrotated."""
+    T = np.eye(4)
+    T[:3, 3] = position
+    return T
+
+
 def test_forward_line_stratifies_the_forward_spread_on_the_clouds_mean_pose():
     """``P`` poses on the mean pose's forward axis (body x), at ``spread`` times the standard normal's quantiles
     ``(i + 1/2) / P``: symmetric about the mean position, ordered, their spread ``spread`` to within the
@@ -607,12 +614,12 @@ def test_forward_line_stratifies_the_forward_spread_on_the_clouds_mean_pose():
 def test_a_start_search_with_the_line_keeps_a_higher_optimum_farther_from_standing_still():
     """A score with a narrow peak (0.1 m wide in x, 10 mrad in yaw) at 0.83 m forward beside a broad basin at 0 (a
     start at speed, the road's rings pulling toward no motion), on 16 seeded starts. With ``start_line`` the search
-    runs from the drawn cloud (its first weighing as without the line) and then from :func:`forward_line` of it,
-    and keeps the line's where its best particle ``score`` ranks higher, lies farther than ``resolution`` from the
-    drawn search's best and farther from ``standstill`` than it. So its best score is never below the search without
-    the line, equal to it (the same particles and weights: the line's search draws from its own stream) wherever
-    the drawn search is kept, and it reaches the peak more often; on a tie, or with the two ends nearer than
-    ``resolution``, the drawn search is kept."""
+    runs from the drawn cloud (its first weighing as without the line) and then from :func:`forward_line` of it, and
+    keeps the line's where its best particle ``score`` ranks higher, lies farther than ``resolution`` from the drawn
+    search's best and farther from the last pose (standing still) than it. So its best score is never below the
+    search without the line, equal to it (the same particles and weights: the line's search draws from its own
+    stream) wherever the drawn search is kept, and it reaches the peak more often; on a tie, or with the two ends
+    nearer than ``resolution``, the drawn search is kept."""
     from slamlib.slam3d.stages.search import forward_line
 
     PEAK, WIDTH, BASIN = 0.83, 0.05, 0.5
@@ -654,7 +661,7 @@ def test_a_start_search_with_the_line_keeps_a_higher_optimum_farther_from_standi
             resolution,
         )
         start_w = normalised(true_score(drawn))
-        got = stage(drawn, start_w, None, sigma, start_rounds=8, standstill=standstill)
+        got = stage(drawn, start_w, None, sigma, 8, pose_at(standstill))
         return got, weighed, stage
 
     at_peak = {False: 0, True: 0}
@@ -719,7 +726,7 @@ def test_the_start_line_keeps_the_lines_end_only_higher_apart_and_farther_from_s
     monkeypatch, drawn_x, line_x, standstill_x, kept
 ):
     """The choice between the two start searches, on given ends: the line's search is kept where its best particle
-    scores higher than the drawn search's, lies farther than ``resolution`` from it and farther from ``standstill``
+    scores higher than the drawn search's, lies farther than ``resolution`` from it and farther from the last pose
     (module docstring, "The start's line"). The score prefers the line's end in every case here, as the rings'
     no-motion basin does on the straight street: the score alone cannot tell route 00's start from the street's."""
     P, resolution = 4, 0.5
@@ -751,7 +758,7 @@ def test_the_start_line_keeps_the_lines_end_only_higher_apart_and_farther_from_s
         "_search",
         lambda particles, w, sample, sigma, rounds, rng: (ends[id(rng)], w),
     )
-    got, _ = stage(cloud(0.0), log_w, None, np.ones(6), 2, np.array([standstill_x, 0, 0]))
+    got, _ = stage(cloud(0.0), log_w, None, np.ones(6), 2, pose_at([standstill_x, 0, 0]))
     want = line_x if kept == "line" else drawn_x
     assert np.all(got.t[:, 0] == want) and stage.n_line_wins == int(kept == "line")
 

@@ -181,9 +181,7 @@ class ParticleSLAM3D:
         sample = self.motion.scoring_sample(points, rng)
         log_w = self.weigh(moved, self.log_weights, sample)  # 7 + 8
         # 6-8 again, finer (annealing); 9: the best particle, sharpened (scan matching)
-        moved, log_w = self.search(
-            moved, log_w, sample, sigma, start_rounds, poses[-1][:3, 3]
-        )
+        moved, log_w = self.search(moved, log_w, sample, sigma, start_rounds, poses[-1])
         pose, best = steps.pick_best_particle(moved, log_w, self.pose_estimate)
         pose, moved = self.polish(pose, points, moved, self.map, sigma)
         self._learn(pose, dt)  # what 9 found tunes 5, 6 and 8's prior

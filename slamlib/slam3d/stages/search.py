@@ -93,7 +93,7 @@ class Annealing:
     twice, from the drawn cloud and from :func:`forward_line`, and the line's is kept where its best particle
     scores higher by ``score(particles, sample) -> (P,)`` (the filter's step 8, needed with ``start_line``) and
     lies more than ``resolution`` metres from the drawn search's best (the map's,
-    :attr:`slamlib.maps.base.Map3D.resolution`) and farther from ``standstill`` than it, else the drawn one
+    :attr:`slamlib.maps.base.Map3D.resolution`) and farther from ``last_pose``'s position than it, else the drawn one
     (module docstring; ``ConstantVelocityConfig.start_line``). The search from the line draws from its own
     stream (``rng``'s, jumped ahead), so that where the drawn search is kept the filter's stream is as without
     the line. ``n_rounds`` counts the rounds run, ``n_collapse_rounds`` the further ones among them,
@@ -131,18 +131,12 @@ class Annealing:
         self.n_line_wins = 0
 
     def __call__(
-        self,
-        particles,
-        log_weights,
-        sample,
-        sigma,
-        start_rounds: int = 0,
-        standstill=None,
+        self, particles, log_weights, sample, sigma, start_rounds=0, last_pose=None
     ):
         """The particles and log-weights after ``start_rounds`` start rounds and then ``rounds`` rounds; with
         ``start_line`` at a start (``start_rounds > 0``), the better of that search and the same search from
-        :func:`forward_line` (module docstring, "The start's line"). ``standstill``: the position (3,) in the
-        world frame, metres, of no motion (the last pose's), needed with ``start_line``."""
+        :func:`forward_line` (module docstring, "The start's line"). ``last_pose``: the last frame's
+        ``T_world_body`` (4, 4), whose position is standing still; needed with ``start_line``."""
         drawn = self._search(
             particles, log_weights, sample, sigma, start_rounds, self.rng
         )
@@ -163,6 +157,7 @@ class Annealing:
         )
         line_best = lined[0].t[np.argmax(line_scores)]
         drawn_best = drawn[0].t[np.argmax(drawn_scores)]
+        standstill = last_pose[:3, 3]
         moved = np.linalg.norm(line_best - standstill) > np.linalg.norm(
             drawn_best - standstill
         )

@@ -214,18 +214,26 @@ def test_constant_velocity_noise_is_wider_by_the_acceleration_terms():
     )
 
 
-def test_lidar_only_run_follows_a_constant_velocity_street(tmp_path):
+@pytest.mark.parametrize("start_line", [False, True])
+def test_lidar_only_run_follows_a_constant_velocity_street(tmp_path, start_line):
     """On the straight route (10 m/s) the constant-velocity model is exact after two frames: LIDAR-only SLAM must
-    follow the ground truth closely, and it must do better than holding still (what the first frame predicts)."""
+    follow the ground truth closely, and it must do better than holding still (what the first frame predicts). With
+    the start's line too: on this street, its walls along the car, the scan's own rings score no motion above the
+    true motion, and the line's search ends there (``slamlib.slam3d.stages.search``, "The start's line")."""
     write_sequence(tmp_path, "straight", 0, frames=20, seed=3, lidar=FAST, progress=False)
     seq = KittiOdometrySequence(tmp_path, 0)
-    run = run_drive(seq, SLAM3DConfig.of(particles=100), progress=False)
+    config = SLAM3DConfig.of(
+        particles=100, **{"constant_velocity.start_line": start_line}
+    )
+    run = run_drive(seq, config, progress=False)
     assert run.slam.lidar_only and run.dead_reckoning is None
     m = evaluate(run)
     assert "dead_reckoning" not in m
     travelled = np.linalg.norm(run.ground_truth[-1, :3, 3])
     assert travelled > 15
     assert m["slam"]["ate_rmse_m"] < 0.02 * travelled, m["slam"]
+    # the drawn search found the true motion: the line's search, ending at no motion, is not kept
+    assert run.n_start_lines_kept == 0
 
 
 def test_lidar_only_flag_on_a_raw_drive_ignores_the_imu(odo):
@@ -288,6 +296,7 @@ def test_cli_runs_an_odometry_sequence(odo, tmp_path):
     # the gate: none rejected on a short clean drive, the largest kept correction within it
     assert info["n_match_rejected_frames"] == 0
     assert 0 < info["match_max_kept_distance"] <= info["config"]["polish"]["match_gate"]
+    assert info["n_start_lines_kept"] == 0  # the start line is off by default
     r = _run(
         "--odometry-dir",
         str(odo),

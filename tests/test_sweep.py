@@ -100,9 +100,13 @@ def test_sweep_on_a_dask_cluster_writes_one_tidy_row_per_run(cluster, tmp_path):
         )
         # the scan match's gate: slamlib's counts (matched every frame after the first), empty for
         # KISS-ICP
-        gate = row["match_rejected_frames"], row["match_max_kept_distance"]
-        if task.method == "slamlib":
-            assert gate[0] == 0 and 0 < gate[1] < MATCH_GATE, gate
+        gate = (
+            row["match_rejected_frames"],
+            row["match_max_kept_distance"],
+            row["start_lines_kept"],
+        )
+        if task.method == "slamlib":  # start_line off by default: no line kept
+            assert gate[0] == 0 and 0 < gate[1] < MATCH_GATE and gate[2] == 0, gate
         else:
             assert all(math.isnan(g) for g in gate), gate
     # the same seed gives the same drive: slamlib's result on it does not depend on which worker ran it

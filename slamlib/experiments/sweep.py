@@ -74,7 +74,9 @@ LAYOUTS = ("raw", "odometry")
 #: unswept scans; ``settings`` is the slamlib settings as JSON, empty for KISS-ICP; the KITTI error's vertical and
 #: horizontal parts are :func:`slamlib.metrics.kitti_odometry_error`'s, empty in tables written before them;
 #: ``match_rejected_frames`` and ``match_max_kept_distance``, slamlib's only, are the scan match's gate's
-#: :attr:`~slamlib.slam3d.ParticleSLAM3D.n_match_rejected` and ``match_max_kept_distance``, empty in older tables).
+#: :attr:`~slamlib.slam3d.ParticleSLAM3D.n_match_rejected` and ``match_max_kept_distance``, empty in older tables;
+#: ``start_lines_kept``, slamlib's only, the starts where ``ConstantVelocityConfig.start_line``'s search was kept,
+#: :attr:`~slamlib.slam3d.ParticleSLAM3D.n_start_lines_kept`, empty in older tables).
 COLUMNS = (
     "route",
     "frames",
@@ -95,6 +97,7 @@ COLUMNS = (
     "seconds",
     "match_rejected_frames",
     "match_max_kept_distance",
+    "start_lines_kept",
 )
 
 
@@ -359,11 +362,13 @@ def run_task(task: SweepTask, base: str, threads: int | None = None) -> dict:
         gt = np.linalg.inv(gt[0])[None] @ gt
         dr = run = None
     seconds = time.perf_counter() - t0
-    # the scan match's gate (ScanMatchConfig.match_gate), slamlib's runs only: how often it closed, how near it came
-    gate = (
+    # slamlib's runs only: the scan match's gate (ScanMatchConfig.match_gate: how often it closed, how near it
+    # came) and the starts where the start line's search was kept
+    counts = (
         dict(
             match_rejected_frames=run.n_match_rejected,
             match_max_kept_distance=run.match_max_kept_distance,
+            start_lines_kept=run.n_start_lines_kept,
         )
         if run is not None
         else {}
@@ -384,8 +389,9 @@ def run_task(task: SweepTask, base: str, threads: int | None = None) -> dict:
         dead_reckoning_ate_rmse_m=m_dr.get("ate_rmse_m", float("nan")),
         fps=len(poses) / seconds,
         seconds=seconds,
-        match_rejected_frames=gate.get("match_rejected_frames", float("nan")),
-        match_max_kept_distance=gate.get("match_max_kept_distance", float("nan")),
+        match_rejected_frames=counts.get("match_rejected_frames", float("nan")),
+        match_max_kept_distance=counts.get("match_max_kept_distance", float("nan")),
+        start_lines_kept=counts.get("start_lines_kept", float("nan")),
     )
     return {k: row[k] for k in COLUMNS}
 

@@ -330,6 +330,12 @@ class ParticleSLAM3D:
         return 0.0 if self.polish is None else float(self.polish.max_kept_distance)
 
     @property
+    def n_start_lines_kept(self) -> int:
+        """Start frames where the start line's search was kept over the drawn one's
+        (``ConstantVelocityConfig.start_line``; :class:`~slamlib.slam3d.stages.Annealing`)."""
+        return self.search.n_line_wins
+
+    @property
     def n_annealed(self) -> int:
         """Annealing rounds run (the search stage), over all frames."""
         return self.search.n_rounds

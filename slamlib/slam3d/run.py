@@ -100,25 +100,34 @@ class SLAMRun:
         """Frames per second of the SLAM loop."""
         return len(self.poses) / self.seconds if self.seconds > 0 else float("nan")
 
+    def _over_segments(self, name: str, reduce=sum):
+        """``reduce`` (sum, max) of every segment's filter's attribute ``name``."""
+        return reduce(getattr(f, name) for f in self.filters())
+
     @property
     def n_deskewed(self) -> int:
         """Frames whose swept scans step 2 de-skewed, over every segment (``ScanConfig.deskew``)."""
-        return int(sum(f.n_deskewed for f in self.filters()))
+        return int(self._over_segments("n_deskewed"))
 
     @property
     def n_matched(self) -> int:
         """Frames whose best pose was scan-matched after step 9, over every segment."""
-        return int(sum(f.n_matched for f in self.filters()))
+        return int(self._over_segments("n_matched"))
 
     @property
     def n_match_rejected(self) -> int:
         """Scan matches the gate rejected (``ScanMatchConfig.match_gate``), over every segment."""
-        return int(sum(f.n_match_rejected for f in self.filters()))
+        return int(self._over_segments("n_match_rejected"))
 
     @property
     def match_max_kept_distance(self) -> float:
         """The largest correction a kept scan match made, in step 6's spreads, over every segment."""
-        return float(max(f.match_max_kept_distance for f in self.filters()))
+        return float(self._over_segments("match_max_kept_distance", max))
+
+    @property
+    def n_start_lines_kept(self) -> int:
+        """Segment starts where the start line's search was kept (``ConstantVelocityConfig.start_line``)."""
+        return int(self._over_segments("n_start_lines_kept"))
 
 
 #: Frames a run takes to reach its steady pace: the first builds the map only, the second is the first scored one
@@ -589,6 +598,8 @@ def _write_results(
     # ScanMatchConfig.match_gate: matches that would have moved the pose beyond the frame's spreads
     info["n_match_rejected_frames"] = run.n_match_rejected
     info["match_max_kept_distance"] = run.match_max_kept_distance
+    # ConstantVelocityConfig.start_line: the starts where the line's search was kept
+    info["n_start_lines_kept"] = run.n_start_lines_kept
     info["segment_starts"] = [int(run.frame_indices[k]) for k in run.segment_starts]
     warnings = []
     if skipped:

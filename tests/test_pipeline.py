@@ -209,10 +209,11 @@ def test_stages_are_chosen_once_from_the_settings_and_the_first_frame():
 
 
 def test_the_start_line_setting_reaches_the_search_stage():
-    """``ConstantVelocityConfig.start_line`` is the search stage's ``start_line`` (off by default), with the filter's
+    """``ConstantVelocityConfig.start_line`` is the search stage's ``start_line`` (on by default), with the filter's
     score and its map's resolution."""
-    assert ParticleSLAM3D(SLAM3DConfig()).search.start_line is False
-    on = SLAM3DConfig.of(**{"constant_velocity.start_line": True})
+    off = SLAM3DConfig.of(**{"constant_velocity.start_line": False})
+    assert ParticleSLAM3D(off).search.start_line is False
+    on = SLAM3DConfig()
     slam = ParticleSLAM3D(on)
     assert slam.search.start_line is True
     # the line's search is kept only beyond the map's resolution, with the filter's score

@@ -34,7 +34,8 @@ def _profiled(config, frames, lidar_only=False):
 )
 def test_every_stage_is_timed_by_its_own_time(settings, timed, untimed):
     """Over 7 frames: the stages the mode runs each have calls; the weighing runs once per frame plus once
-    per annealing round (inside ``anneal``, counted under ``weigh``; LIDAR-only the start search's rounds too);
+    per annealing round (inside ``anneal``, counted under ``weigh``; LIDAR-only the start search's rounds too, and
+    the start line's first weighing);
     the stages' own times add up to the frames' wall time (less the profile's overhead outside the frames)."""
     frames, _ = simulate(8)
     slam, profile, _, wall = _profiled(tiny_config(**settings), frames)
@@ -47,7 +48,9 @@ def test_every_stage_is_timed_by_its_own_time(settings, timed, untimed):
     # every annealing round weighs once (LIDAR-only, the start search's rounds too)
     rounds = settings.get("anneal_rounds", 0)
     assert slam.search.n_rounds >= 7 * rounds
-    assert profile.calls["weigh"] == 7 + slam.search.n_rounds
+    lines = slam.search.n_line_searches
+    assert lines == int("model" in settings)  # LIDAR-only, one start
+    assert profile.calls["weigh"] == 7 + slam.search.n_rounds + lines
     assert profile.calls["bookkeeping"] == 7
     assert all(s >= 0 for s in profile.seconds.values()), profile.seconds
     total = sum(profile.seconds.values())

@@ -128,11 +128,9 @@ def test_settings_by_stage_group_nested_group_and_dotted_name():
     )
     cv = c.motion.constant_velocity
     assert (cv.window, cv.ground_share, cv.start_rounds) == (3, 0.5, 8)
-    assert (
-        cv.start_line is False
-    )  # the forward line at the start: an option, off by default
-    on = SLAM3DConfig.of(**{"constant_velocity.start_line": True})
-    assert on.motion.constant_velocity.start_line is True
+    assert cv.start_line is True  # the forward line at the start, on by default
+    off = SLAM3DConfig.of(**{"constant_velocity.start_line": False})
+    assert off.motion.constant_velocity.start_line is False
     assert c.map.morton_bvh.radius == 0.2 and c.map.params == c.map.voxel_hash.__dict__
     # the constructor's default
     assert SLAM3DConfig.of(kind="morton_bvh").map.make().radius == 0.3

@@ -105,7 +105,7 @@ def test_sweep_on_a_dask_cluster_writes_one_tidy_row_per_run(cluster, tmp_path):
             row["match_max_kept_distance"],
             row["start_lines_kept"],
         )
-        if task.method == "slamlib":  # start_line off by default: no line kept
+        if task.method == "slamlib":  # a slow start: the drawn search kept
             assert gate[0] == 0 and 0 < gate[1] < MATCH_GATE and gate[2] == 0, gate
         else:
             assert all(math.isnan(g) for g in gate), gate

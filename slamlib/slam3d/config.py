@@ -267,11 +267,11 @@ class ConstantVelocityConfig:
     start_line : bool
         The start search runs a second time from ``P`` poses on a line along the forward axis, the forward
         spread's normal quantiles (:func:`slamlib.slam3d.stages.search.forward_line`), and the filter keeps that
-        search where it found another and better optimum: its best particle scores higher and lies farther than
-        the map's resolution from the first search's. The speed is the start's one large unknown, and independent
-        draws in six dimensions can miss the score's narrow peak at it. Off by default: where the scan's own rings
-        score no motion above the true one (a straight street), the line's search picks no motion ("Why these
-        defaults").
+        search where it found another and better optimum, one farther from standing still: its best particle
+        scores higher, lies farther than the map's resolution from the first search's and farther from the last
+        pose. The speed is the start's one large unknown, and independent draws in six dimensions can miss the
+        score's narrow peak at it. The last condition holds where the scan's own rings score no motion above the
+        true one (a straight street): the bias is toward no motion ("Why these defaults").
     window : int
         Frames the held twist spans (the motion from the pose ``window`` frames back to the last one, over their
         time: one frame's estimate is noisy, and held it carries its noise into the next frame). 1: the last frame.
@@ -289,7 +289,7 @@ class ConstantVelocityConfig:
     angular_accel: tuple = (0.2, 0.2, 0.5)
     start_speed: tuple = (15.0, 1.0, 0.5, 0.05, 0.05, 0.3)
     start_rounds: int = 8
-    start_line: bool = False
+    start_line: bool = True
     window: int = 1
     damping: tuple = (1.0, 1.0, 1.0, 1.0, 1.0, 1.0)
     ground_share: float = 0.1

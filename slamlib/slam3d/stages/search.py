@@ -97,7 +97,7 @@ class Annealing:
     (module docstring; ``ConstantVelocityConfig.start_line``). The search from the line draws from its own
     stream (``rng``'s, jumped ahead), so that where the drawn search is kept the filter's stream is as without
     the line. ``n_rounds`` counts the rounds run, ``n_collapse_rounds`` the further ones among them,
-    ``n_line_wins`` the starts where the line's search was kept.
+    ``n_line_searches`` the starts searched from the line too, ``n_line_wins`` those where the line's search was kept.
     """
 
     def __init__(
@@ -128,6 +128,7 @@ class Annealing:
         )
         self.n_rounds = 0
         self.n_collapse_rounds = 0
+        self.n_line_searches = 0
         self.n_line_wins = 0
 
     def __call__(
@@ -143,6 +144,7 @@ class Annealing:
         if not (start_rounds > 0 and self.start_line):
             return drawn
         line = forward_line(particles, sigma[0])
+        self.n_line_searches += 1
         lined = self._search(
             line,
             self.weigh(line, uniform_log_weights(len(line.t)), sample),

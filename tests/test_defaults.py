@@ -807,11 +807,13 @@ def test_the_defaults_page_states_the_match_gate_runs_as_committed():
 def test_the_defaults_page_states_the_start_line_runs_as_committed():
     """``book/defaults.md``'s section on ``start_line`` quotes the committed runs: route 00's two failed LIDAR-only
     fresh runs (``fresh2`` seed 75, ``fresh3`` seed 84) and KISS-ICP's on them; the same drives with the line's
-    first version (``start_line_dev/spent00_on``) and with the default's (``spent00_apart``); the development drives
-    with the first version, without the line and KISS-ICP's (``dev_x2_on``, ``dev_x2_off``, ``dev_x1_off``), and
-    with the default's (``dev_x2_apart``, ``dev_x1_apart``). What the page concludes from them holds: the first
-    version cost on each development drive, the default's mends both failed runs and leaves every development run
-    as it was without the line, to the last digit; and the line is off by default (a straight street)."""
+    first version (``start_line_dev/spent00_on``), the second (``spent00_apart``) and the default's, the third
+    (``spent00_farther``); the development drives with the first version, without the line and KISS-ICP's
+    (``dev_x2_on``, ``dev_x2_off``, ``dev_x1_off``), and with the second and third (``dev_x2_apart``, ``dev_x1_apart``,
+    ``dev_x2_farther``, ``dev_x1_farther``). What the page concludes from them holds: the first version cost on each
+    development drive, the second and third mend both failed runs alike and leave every development run as it was
+    without the line, to the last digit; and the line is on by default (the third version, which holds on the
+    straight street: ``tests/test_kitti_sequence.py``)."""
     import json
 
     from slamlib.experiments.sweep import read_table
@@ -845,6 +847,7 @@ def test_the_defaults_page_states_the_start_line_runs_as_committed():
     )
     first = runs("start_line_dev/spent00_on", "00", [75, 84])
     mended = runs("start_line_dev/spent00_apart", "00", [75, 84])
+    assert t_err(runs("start_line_dev/spent00_farther", "00", [75, 84])) == t_err(mended)
     for rows in (failed, kiss, first, mended):
         text = f"{listed(rows, 'kitti_t_err_percent', 4)} % (ATE {listed(rows, 'ate_rmse_m', 3)} m)"
         assert text in section, text
@@ -869,8 +872,12 @@ def test_the_defaults_page_states_the_start_line_runs_as_committed():
     kiss_x1 = runs("start_line_dev/dev_x1_off", "07", seeds, "kiss_icp")
     assert f"{listed(off_x1, 'kitti_t_err_percent', 4)} % without the line" in section
     assert f"KISS-ICP's {listed(kiss_x1, 'kitti_t_err_percent', 4)} %" in section
-    for folder, without in (("dev_x2_apart", off), ("dev_x1_apart", off_x1)):
-        assert t_err(runs(f"start_line_dev/{folder}", "07", seeds)) == t_err(without)
+    for version in ("apart", "farther"):
+        for folder, without in (
+            (f"dev_x2_{version}", off),
+            (f"dev_x1_{version}", off_x1),
+        ):
+            assert t_err(runs(f"start_line_dev/{folder}", "07", seeds)) == t_err(without)
     assert "the run with the line is the run without it to the last digit" in section
     # the runs' settings: the line on by name, or off by name
     for folder in (
@@ -881,6 +888,9 @@ def test_the_defaults_page_states_the_start_line_runs_as_committed():
         "dev_x2_apart",
         "dev_x1_apart",
         "dev_x1_off",
+        "spent00_farther",
+        "dev_x2_farther",
+        "dev_x1_farther",
     ):
         info = json.loads(
             (results / "start_line_dev" / folder / "sweep.json").read_text()
@@ -888,8 +898,12 @@ def test_the_defaults_page_states_the_start_line_runs_as_committed():
         want = "false" if folder.endswith("_off") else "true"
         assert f"--set constant_velocity.start_line={want} " in info["command"], info
     config = SLAM3DConfig()
-    assert config.motion.constant_velocity.start_line is False
-    assert "It is off by default" in section
+    assert config.motion.constant_velocity.start_line is True
+    assert "The default, the third version" in section
+    assert (
+        "the eight development runs are again the runs without the line to the last digit"
+        in section
+    )
     voxel = config.map.params["voxel_size"]
     assert f"(a voxel's edge, {voxel} m)" in section
     assert (

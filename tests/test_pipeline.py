@@ -216,9 +216,9 @@ def test_the_start_line_setting_reaches_the_search_stage():
     on = SLAM3DConfig()
     slam = ParticleSLAM3D(on)
     assert slam.search.start_line is True
-    # the line's search is kept only beyond the map's resolution, with the filter's score
+    # the line's search is kept only beyond the map's resolution, by the filter's last scores
     assert slam.search.resolution == slam.map.resolution == on.map.params["voxel_size"]
-    assert slam.search.score == slam.score
+    assert slam.search.last is slam.last
 
 
 def test_resampling_and_annealing_are_counted_apart():

@@ -640,12 +640,15 @@ def test_a_start_search_with_the_line_keeps_a_higher_optimum_farther_from_standi
     P, sigma = 100, np.array([1.5, 0.1, 0.05, 0.005, 0.005, 0.03])
     start = Particles3D(np.repeat(np.eye(3)[None], P, 0), np.zeros((P, 3)))
 
-    def search(drawn, seed, start_line, score, resolution=0.0, standstill=np.zeros(3)):
-        weighed = []
+    def search(drawn, seed, start_line, score=true_score, resolution=0.0):
+        weighed, last = [], {}
 
-        def weigh(particles, log_weights, sample):
+        def weigh(
+            particles, log_weights, sample
+        ):  # records the raw scores, as the filter's
             weighed.append(particles)
-            return normalised(log_weights + true_score(particles))
+            last["scores"] = score(particles)
+            return normalised(log_weights + last["scores"])
 
         # no rounds after the start search, as by default (AnnealConfig.anneal_rounds 0)
         stage = Annealing(
@@ -657,11 +660,12 @@ def test_a_start_search_with_the_line_keeps_a_higher_optimum_farther_from_standi
             0.0,
             0,
             start_line,
-            score,
+            last,
             resolution,
         )
-        start_w = normalised(true_score(drawn))
-        got = stage(drawn, start_w, None, sigma, 8, pose_at(standstill))
+        got = stage(drawn, normalised(score(drawn)), None, sigma, 8, np.eye(4))
+        # the stage leaves the kept search's scores as the last ones
+        assert start_line is False or np.array_equal(last["scores"], score(got[0]))
         return got, weighed, stage
 
     at_peak = {False: 0, True: 0}
@@ -670,9 +674,9 @@ def test_a_start_search_with_the_line_keeps_a_higher_optimum_farther_from_standi
             start, sigma, np.random.default_rng(draw_seed), backend="numpy"
         )
         for seed in range(4):
-            (off, off_w), off_weighed, _ = search(drawn, seed, False, None)
+            (off, off_w), off_weighed, _ = search(drawn, seed, False)
             assert len(off_weighed) == 8
-            (on, on_w), weighed, stage = search(drawn, seed, True, true_score)
+            (on, on_w), weighed, stage = search(drawn, seed, True)
             assert len(weighed) == 8 + 1 + 8 and np.array_equal(
                 weighed[0].t, off_weighed[0].t
             )
@@ -682,13 +686,15 @@ def test_a_start_search_with_the_line_keeps_a_higher_optimum_farther_from_standi
                 assert np.array_equal(on.t, off.t) and np.array_equal(on_w, off_w)
             for line, (particles, log_w) in ((False, (off, off_w)), (True, (on, on_w))):
                 at_peak[line] += abs(particles.t[np.argmax(log_w), 0] - PEAK) < WIDTH
+            # a level score: a tie, the drawn search kept
+            (level_off, _), _, _ = search(drawn, seed, False, level_score)
             (kept, kept_w), _, stage = search(drawn, seed, True, level_score)
-            assert stage.n_line_wins == 0 and np.array_equal(kept.t, off.t)
+            assert stage.n_line_wins == 0 and np.array_equal(kept.t, level_off.t)
             # two ends nearer than the map's resolution are one optimum: the drawn one is kept
             (kept, kept_w), _, stage = search(drawn, seed, True, true_score, 2 * PEAK)
             assert stage.n_line_wins == 0 and np.array_equal(kept.t, off.t)
     assert at_peak[True] >= at_peak[False] + 8, at_peak
-    with pytest.raises(ValueError, match="start_line needs score"):
+    with pytest.raises(ValueError, match="start_line needs the filter's last scores"):
         Annealing(0, 0.5, None, np.random.default_rng(1), "numpy", 0.0, 0, True)
 
 
@@ -736,9 +742,10 @@ def test_the_start_line_keeps_the_lines_end_only_higher_apart_and_farther_from_s
             np.repeat(np.eye(3)[None], P, 0), np.tile([x, 0.0, 0.0], (P, 1))
         )
 
-    def score(particles, sample=None):  # the line's end scores 5 above the drawn one's
+    def score(particles):  # the line's end scores 5 above the drawn one's
         return np.where(np.isclose(particles.t[:, 0], line_x), 0.0, -5.0)
 
+    last = {}
     stage = Annealing(
         0,
         0.5,
@@ -748,19 +755,21 @@ def test_the_start_line_keeps_the_lines_end_only_higher_apart_and_farther_from_s
         0.0,
         0,
         True,
-        score,
+        last,
         resolution,
     )
     ends = {id(stage.rng): cloud(drawn_x), id(stage.line_rng): cloud(line_x)}
     log_w = np.full(P, -np.log(P))
-    monkeypatch.setattr(
-        stage,
-        "_search",
-        lambda particles, w, sample, sigma, rounds, rng: (ends[id(rng)], w),
-    )
+
+    def searched(particles, w, sample, sigma, rounds, rng):  # its last weighing's scores
+        last["scores"] = score(ends[id(rng)])
+        return ends[id(rng)], w
+
+    monkeypatch.setattr(stage, "_search", searched)
     got, _ = stage(cloud(0.0), log_w, None, np.ones(6), 2, pose_at([standstill_x, 0, 0]))
     want = line_x if kept == "line" else drawn_x
     assert np.all(got.t[:, 0] == want) and stage.n_line_wins == int(kept == "line")
+    np.testing.assert_array_equal(last["scores"], score(got))  # the kept search's
 
 
 def _annealing(monkeypatch, collapsed_calls, collapse_ess=0.5, collapse_rounds=3):

@@ -125,7 +125,7 @@ class ParticleSLAM3D:
             f.collapse_ess,
             f.collapse_rounds,
             cfg.motion.constant_velocity.start_line,
-            self.score,
+            self.last,
             self.map.resolution,
         )
         self.upkeep = MapUpkeep(cfg.upkeep)

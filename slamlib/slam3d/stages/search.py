@@ -91,13 +91,15 @@ class Annealing:
     ``rng`` and ``backend`` are the filter's; ``collapse_ess`` and ``collapse_rounds`` the further rounds while
     the weights collapse (:class:`~slamlib.slam3d.config.AnnealConfig`); ``start_line``: a start search is run
     twice, from the drawn cloud and from :func:`forward_line`, and the line's is kept where its best particle
-    scores higher by ``score(particles, sample) -> (P,)`` (the filter's step 8, needed with ``start_line``) and
-    lies more than ``resolution`` metres from the drawn search's best (the map's,
-    :attr:`slamlib.maps.base.Map3D.resolution`) and farther from ``last_pose``'s position than it, else the drawn one
-    (module docstring; ``ConstantVelocityConfig.start_line``). The search from the line draws from its own
-    stream (``rng``'s, jumped ahead), so that where the drawn search is kept the filter's stream is as without
-    the line. ``n_rounds`` counts the rounds run, ``n_collapse_rounds`` the further ones among them,
-    ``n_line_searches`` the starts searched from the line too, ``n_line_wins`` those where the line's search was kept.
+    scores higher, lies more than ``resolution`` metres from the drawn search's best (the map's,
+    :attr:`slamlib.maps.base.Map3D.resolution`) and farther from ``last_pose``'s position than it, else the drawn
+    one (module docstring; ``ConstantVelocityConfig.start_line``). The scores are the raw step-8 scores each
+    weighing leaves in ``last["scores"]`` (the filter's record of the frame, needed with ``start_line``), read
+    after each search, so that no particle is weighed twice; the stage leaves the kept search's there. The search
+    from the line draws from its own stream (``rng``'s, jumped ahead), so that where the drawn search is kept the
+    filter's stream is as without the line. ``n_rounds`` counts the rounds run, ``n_collapse_rounds`` the further
+    ones among them, ``n_line_searches`` the starts searched from the line too, ``n_line_wins`` those where the
+    line's search was kept.
     """
 
     def __init__(
@@ -110,16 +112,16 @@ class Annealing:
         collapse_ess: float,
         collapse_rounds: int,
         start_line: bool = False,
-        score=None,
+        last: dict | None = None,
         resolution: float = 0.0,
     ):
         self.rounds, self.shrink = int(rounds), float(shrink)
         self.start_line = bool(start_line)
-        if self.start_line and score is None:
+        if self.start_line and last is None:
             raise ValueError(
-                "start_line needs score(particles, sample) to choose between the two searches"
+                "start_line needs the filter's last scores to choose between the two searches"
             )
-        self.score, self.resolution = score, float(resolution)
+        self.last, self.resolution = last, float(resolution)
         self.line_rng = np.random.Generator(rng.bit_generator.jumped())
         self.weigh, self.rng, self.backend = weigh, rng, backend
         self.collapse_ess, self.collapse_rounds = (
@@ -143,6 +145,9 @@ class Annealing:
         )
         if not (start_rounds > 0 and self.start_line):
             return drawn
+        drawn_scores = self.last[
+            "scores"
+        ]  # of the search's last weighing: its particles'
         line = forward_line(particles, sigma[0])
         self.n_line_searches += 1
         lined = self._search(
@@ -153,10 +158,7 @@ class Annealing:
             start_rounds,
             self.line_rng,
         )
-        line_scores, drawn_scores = (
-            self.score(lined[0], sample),
-            self.score(drawn[0], sample),
-        )
+        line_scores = self.last["scores"]
         line_best = lined[0].t[np.argmax(line_scores)]
         drawn_best = drawn[0].t[np.argmax(drawn_scores)]
         standstill = last_pose[:3, 3]
@@ -166,11 +168,8 @@ class Annealing:
         apart = np.linalg.norm(line_best - drawn_best) > self.resolution
         better = line_scores.max() > drawn_scores.max() and apart and moved
         self.n_line_wins += int(better)
-        winner = lined if better else drawn
-        self.score(
-            winner[0], sample
-        )  # scored last, so that the filter reports the winner's scores
-        return winner
+        self.last["scores"] = line_scores if better else drawn_scores  # the kept search's
+        return lined if better else drawn
 
     def _search(self, particles, log_weights, sample, sigma, start_rounds, rng):
         """``start_rounds`` start rounds, ``rounds`` rounds, then the rounds while the weights collapse; each

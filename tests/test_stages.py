@@ -611,12 +611,12 @@ def test_forward_line_stratifies_the_forward_spread_on_the_clouds_mean_pose():
     assert np.all(np.diff(offsets) > 0) and 0.95 * 1.5 < offsets.std() < 1.5
 
 
-def test_a_start_search_with_the_line_keeps_a_higher_optimum_farther_from_standing_still():
+def test_a_start_search_with_the_line_keeps_a_higher_optimum_off_standing_still():
     """A score with a narrow peak (0.1 m wide in x, 10 mrad in yaw) at 0.83 m forward beside a broad basin at 0 (a
     start at speed, the road's rings pulling toward no motion), on 16 seeded starts. With ``start_line`` the search
     runs from the drawn cloud (its first weighing as without the line) and then from :func:`forward_line` of it, and
-    keeps the line's where its best particle ``score`` ranks higher, lies farther than ``resolution`` from the drawn
-    search's best and farther from the last pose (standing still) than it. So its best score is never below the
+    keeps the line's where its best particle ``score`` ranks higher and lies farther than ``resolution`` from the
+    drawn search's best and from the last pose (standing still). So its best score is never below the
     search without the line, equal to it (the same particles and weights: the line's search draws from its own
     stream) wherever the drawn search is kept, and it reaches the peak more often; on a tie, or with the two ends
     nearer than ``resolution``, the drawn search is kept."""
@@ -698,41 +698,30 @@ def test_a_start_search_with_the_line_keeps_a_higher_optimum_farther_from_standi
         Annealing(0, 0.5, None, np.random.default_rng(1), "numpy", 0.0, 0, True)
 
 
+# (the drawn search's end, the line's, standing still: metres forward; the search kept), resolution 0.5 m
+START_ENDS = {
+    "route 00: the line found the peak the drawn search missed": (0.0, 1.0, 0.0, "line"),
+    "the straight street: the line's higher end is no motion": (1.0, 0.0, 0.0, "drawn"),
+    "the same ends, standing still beyond them": (1.0, 0.0, 3.0, "line"),
+    "the drawn search overshot: the line's end nearer standing still": (
+        1.84,
+        0.83,
+        0.0,
+        "line",
+    ),
+    "one optimum: the ends nearer than the map's resolution": (1.0, 1.2, 0.0, "drawn"),
+    "the line's end within the resolution of standing still": (1.0, 0.3, 0.0, "drawn"),
+}
+
+
 @pytest.mark.parametrize(
-    "drawn_x, line_x, standstill_x, kept",
-    [
-        (
-            0.0,
-            1.0,
-            0.0,
-            "line",
-        ),  # route 00: the line found the peak the drawn search missed
-        (
-            1.0,
-            0.0,
-            0.0,
-            "drawn",
-        ),  # the straight street: the line's higher end is no motion
-        (
-            1.0,
-            0.0,
-            3.0,
-            "line",
-        ),  # the same ends, standing still beyond them: the line's is farther
-        (
-            1.0,
-            1.2,
-            0.0,
-            "drawn",
-        ),  # one optimum: the ends nearer than the map's resolution
-        (0.0, 1.0, 2.0, "drawn"),  # the line's end higher but nearer standing still
-    ],
+    "drawn_x, line_x, standstill_x, kept", START_ENDS.values(), ids=START_ENDS.keys()
 )
-def test_the_start_line_keeps_the_lines_end_only_higher_apart_and_farther_from_standing_still(
+def test_the_start_line_keeps_the_lines_end_only_higher_apart_and_off_standing_still(
     monkeypatch, drawn_x, line_x, standstill_x, kept
 ):
     """The choice between the two start searches, on given ends: the line's search is kept where its best particle
-    scores higher than the drawn search's, lies farther than ``resolution`` from it and farther from the last pose
+    scores higher than the drawn search's and lies farther than ``resolution`` both from it and from the last pose
     (module docstring, "The start's line"). The score prefers the line's end in every case here, as the rings'
     no-motion basin does on the straight street: the score alone cannot tell route 00's start from the street's."""
     P, resolution = 4, 0.5

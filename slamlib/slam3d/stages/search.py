@@ -22,19 +22,20 @@ LIDAR-only start"). So with ``start_line`` the start search runs a second time f
 ``P`` poses along the cloud's mean forward axis at the quantiles of the forward spread, the same normal distribution
 stratified (one draw per ``1/P`` of probability), which puts a pose every few centimetres near the speeds a car has;
 its rounds then search the other five dimensions around what it found. The stage keeps the line's search only where
-it found another optimum than the drawn search did, a better one, and one farther from standing still: its best
+it found another optimum than the drawn search did, a better one, and not the one at standing still: its best
 particle scores higher, lies farther from the drawn search's best than the map's resolution (a voxel's edge), below
 which the two are one optimum of the score, seen from about the same pose, and differ only by the searches' noise,
-and lies farther from the last pose (no motion) than the drawn search's best. The score alone cannot choose between
-two optima: the rings and the traffic that move with the car score no motion higher than the true motion on a street
-whose walls run along the car (the test suite's straight street), and lower on a street with structure across it
-(route 00's starts). The bias is always toward no motion, so a higher score farther from it is the structure's
-evidence against the bias, while a higher score nearer to it may be the bias alone. Otherwise it keeps the drawn
-search, and the filter's run is the one without the line: the line's search draws from its own stream. Replacing the
-drawn cloud by the line instead would search the other five dimensions from half the spread only and lose what the
-draws find there; keeping the higher score alone would trade the drawn search's answer for a sample of the same
-optimum, or, on the street, for the rings' basin. The second search costs ``1 + start_rounds`` weighings, at one
-frame of the drive.
+and lies farther than that from the last pose (no motion). The score alone cannot choose between two optima: the
+rings and the traffic that move with the car make an optimum at no motion, which scores above the true motion on a
+street whose walls run along the car (the test suite's straight street) and below it on a street with structure
+across it (route 00's starts). That optimum always lies at standing still, so a higher score there may be the bias
+alone, while a higher score elsewhere is the structure's; where the drawn search overshot, to twice the true motion
+(route 00, seed 103 of the fifth fresh sweep), the line's optimum is nearer to standing still than the drawn one's
+and still the true one. Otherwise the stage keeps the drawn search, and the filter's run is the one without the
+line: the line's search draws from its own stream. Replacing the drawn cloud by the line instead would search the
+other five dimensions from half the spread only and lose what the draws find there; keeping the higher score alone
+would trade the drawn search's answer for a sample of the same optimum, or, on the street, for the rings' optimum.
+The second search costs ``1 + start_rounds`` weighings, at one frame of the drive.
 
 Rounds when the weights collapse
 --------------------------------
@@ -91,9 +92,9 @@ class Annealing:
     ``rng`` and ``backend`` are the filter's; ``collapse_ess`` and ``collapse_rounds`` the further rounds while
     the weights collapse (:class:`~slamlib.slam3d.config.AnnealConfig`); ``start_line``: a start search is run
     twice, from the drawn cloud and from :func:`forward_line`, and the line's is kept where its best particle
-    scores higher, lies more than ``resolution`` metres from the drawn search's best (the map's,
-    :attr:`slamlib.maps.base.Map3D.resolution`) and farther from ``last_pose``'s position than it, else the drawn
-    one (module docstring; ``ConstantVelocityConfig.start_line``). The scores are the raw step-8 scores each
+    scores higher and lies more than ``resolution`` metres both from the drawn search's best (the map's,
+    :attr:`slamlib.maps.base.Map3D.resolution`) and from ``last_pose``'s position, else the drawn one (module
+    docstring; ``ConstantVelocityConfig.start_line``). The scores are the raw step-8 scores each
     weighing leaves in ``last["scores"]`` (the filter's record of the frame, needed with ``start_line``), read
     after each search, so that no particle is weighed twice; the stage leaves the kept search's there. The search
     from the line draws from its own stream (``rng``'s, jumped ahead), so that where the drawn search is kept the
@@ -161,12 +162,10 @@ class Annealing:
         line_scores = self.last["scores"]
         line_best = lined[0].t[np.argmax(line_scores)]
         drawn_best = drawn[0].t[np.argmax(drawn_scores)]
-        standstill = last_pose[:3, 3]
-        moved = np.linalg.norm(line_best - standstill) > np.linalg.norm(
-            drawn_best - standstill
-        )
+        # two optima, unless within the map's resolution of each other; the line's not the rings' at standstill
         apart = np.linalg.norm(line_best - drawn_best) > self.resolution
-        better = line_scores.max() > drawn_scores.max() and apart and moved
+        moving = np.linalg.norm(line_best - last_pose[:3, 3]) > self.resolution
+        better = line_scores.max() > drawn_scores.max() and apart and moving
         self.n_line_wins += int(better)
         self.last["scores"] = line_scores if better else drawn_scores  # the kept search's
         return lined if better else drawn

@@ -759,6 +759,11 @@ def test_the_start_line_keeps_the_lines_end_only_higher_apart_and_off_standing_s
     want = line_x if kept == "line" else drawn_x
     assert np.all(got.t[:, 0] == want) and stage.n_line_wins == int(kept == "line")
     np.testing.assert_array_equal(last["scores"], score(got))  # the kept search's
+    # the choice recorded: both ends, their scores, standing still and which was kept
+    start = stage.last_start
+    assert start["kept"] == kept and start["standstill"][0] == standstill_x
+    assert (start["drawn"][0], start["line"][0]) == (drawn_x, line_x)
+    assert start["line_score"] - start["drawn_score"] == 5.0
 
 
 def _annealing(monkeypatch, collapsed_calls, collapse_ess=0.5, collapse_rounds=3):

@@ -100,7 +100,8 @@ class Annealing:
     from the line draws from its own stream (``rng``'s, jumped ahead), so that where the drawn search is kept the
     filter's stream is as without the line. ``n_rounds`` counts the rounds run, ``n_collapse_rounds`` the further
     ones among them, ``n_line_searches`` the starts searched from the line too, ``n_line_wins`` those where the
-    line's search was kept.
+    line's search was kept; ``last_start`` records the last such choice: both searches' best positions
+    (``drawn``, ``line``, (3,) world frame, m), their raw scores, ``standstill`` and which was ``kept``.
     """
 
     def __init__(
@@ -133,6 +134,7 @@ class Annealing:
         self.n_collapse_rounds = 0
         self.n_line_searches = 0
         self.n_line_wins = 0
+        self.last_start: dict | None = None
 
     def __call__(
         self, particles, log_weights, sample, sigma, start_rounds=0, last_pose=None
@@ -167,6 +169,14 @@ class Annealing:
         moving = np.linalg.norm(line_best - last_pose[:3, 3]) > self.resolution
         better = line_scores.max() > drawn_scores.max() and apart and moving
         self.n_line_wins += int(better)
+        self.last_start = dict(
+            drawn=drawn_best.copy(),
+            line=line_best.copy(),
+            drawn_score=float(drawn_scores.max()),
+            line_score=float(line_scores.max()),
+            standstill=last_pose[:3, 3].copy(),
+            kept="line" if better else "drawn",
+        )
         self.last["scores"] = line_scores if better else drawn_scores  # the kept search's
         return lined if better else drawn
 

@@ -807,13 +807,16 @@ def test_the_defaults_page_states_the_match_gate_runs_as_committed():
 def test_the_defaults_page_states_the_start_line_runs_as_committed():
     """``book/defaults.md``'s section on ``start_line`` quotes the committed runs: route 00's two failed LIDAR-only
     fresh runs (``fresh2`` seed 75, ``fresh3`` seed 84) and KISS-ICP's on them; the same drives with the line's
-    first version (``start_line_dev/spent00_on``), the second (``spent00_apart``) and the default's, the third
-    (``spent00_farther``); the development drives with the first version, without the line and KISS-ICP's
-    (``dev_x2_on``, ``dev_x2_off``, ``dev_x1_off``), and with the second and third (``dev_x2_apart``, ``dev_x1_apart``,
-    ``dev_x2_farther``, ``dev_x1_farther``). What the page concludes from them holds: the first version cost on each
-    development drive, the second and third mend both failed runs alike and leave every development run as it was
-    without the line, to the last digit; and the line is on by default (the third version, which holds on the
-    straight street: ``tests/test_kitti_sequence.py``)."""
+    first version (``start_line_dev/spent00_on``), the second (``spent00_apart``), the third (``spent00_farther``)
+    and the default's, the fourth (``spent00_off_still``, with ``fresh5``'s failed seed 103); the development drives
+    with the first version, without the line and KISS-ICP's (``dev_x2_on``, ``dev_x2_off``, ``dev_x1_off``), and
+    with the later ones (``dev_x2_apart`` ... ``dev_x1_off_still``); the searches' ends at the failed starts
+    (``start_ends.json``). What the page concludes from them holds: the first version cost on each development
+    drive, the later ones leave every development run as it was without the line, to the last digit, the second
+    and third mend the first two failed runs alike, the fourth all three; the recorded ends are those the page
+    quotes, and the recorded choices follow the fourth version's rule, which the third's refused on seed 103; and
+    the line is on by default (the fourth version, which holds on the straight street:
+    ``tests/test_kitti_sequence.py``)."""
     import json
 
     from slamlib.experiments.sweep import read_table
@@ -872,7 +875,7 @@ def test_the_defaults_page_states_the_start_line_runs_as_committed():
     kiss_x1 = runs("start_line_dev/dev_x1_off", "07", seeds, "kiss_icp")
     assert f"{listed(off_x1, 'kitti_t_err_percent', 4)} % without the line" in section
     assert f"KISS-ICP's {listed(kiss_x1, 'kitti_t_err_percent', 4)} %" in section
-    for version in ("apart", "farther"):
+    for version in ("apart", "farther", "off_still"):
         for folder, without in (
             (f"dev_x2_{version}", off),
             (f"dev_x1_{version}", off_x1),
@@ -897,13 +900,57 @@ def test_the_defaults_page_states_the_start_line_runs_as_committed():
         )
         want = "false" if folder.endswith("_off") else "true"
         assert f"--set constant_velocity.start_line={want} " in info["command"], info
+    for folder in ("spent00_off_still", "dev_x2_off_still", "dev_x1_off_still"):
+        info = json.loads(
+            (results / "start_line_dev" / folder / "sweep.json").read_text()
+        )
+        assert "--set" not in info["command"], info  # the default's
     config = SLAM3DConfig()
     assert config.motion.constant_velocity.start_line is True
-    assert "The default, the third version" in section
+    # the fourth version: all three failed route 00 runs mended, below KISS-ICP's
+    spent = runs("start_line_dev/spent00_off_still", "00", [75, 84, 103])
+    spent_kiss = kiss + runs("fresh5/odometry", "00", [103], "kiss_icp")
     assert (
-        "the eight development runs are again the runs without the line to the last digit"
+        runs("fresh5/odometry", "00", [103])[0]["ate_rmse_m"]
+        > 5 * spent_kiss[2]["ate_rmse_m"]
+    )
+    text = f"{listed(spent, 'kitti_t_err_percent', 4)} % (ATE {listed(spent, 'ate_rmse_m', 3)} m)"
+    assert f"route 00's three failed runs end at {text}" in section, text
+    assert f"KISS-ICP's were {listed(spent_kiss, 'kitti_t_err_percent', 4)} %" in section
+    assert all(a < b for a, b in zip(t_err(spent), t_err(spent_kiss)))
+    # the searches' ends at the failed starts, as quoted, and the choices by the fourth version's rule
+    ends = json.loads((results / "start_line_dev/start_ends.json").read_text())["rows"]
+    at = {(r["route"], r["seed"]): r for r in ends}
+    failed_starts = [at["00", s] for s in (75, 84, 103)]
+    forward = {k: [r[k][0] for r in failed_starts] for k in ("drawn", "line", "truth")}
+    assert (
+        "ended moving backwards, at {:.4f} and {:.4f} m".format(*forward["drawn"][:2])
         in section
     )
+    assert f"it overshot, to {forward['drawn'][2]:.4f} m" in section
+    assert (
+        "({:.4f}, {:.4f} and {:.4f} m, the truth {:.4f}, {:.4f} and {:.4f} m)".format(
+            *forward["line"], *forward["truth"]
+        )
+        in section
+    )
+    voxel = config.map.params["voxel_size"]
+    for r in ends:
+        drawn, line, still = (np.array(r[k]) for k in ("drawn", "line", "standstill"))
+        rule = (
+            r["line_score"] > r["drawn_score"]
+            and np.linalg.norm(line - drawn) > voxel
+            and np.linalg.norm(line - still) > voxel
+        )
+        assert r["kept"] == ("line" if rule else "drawn"), r
+    assert [r["kept"] for r in failed_starts] == ["line"] * 3
+    # the third version's condition refused seed 103's: the true motion nearer standing still
+    assert abs(forward["line"][2]) < abs(forward["drawn"][2])
+    slow = at["07", 0]
+    assert (
+        slow["kept"] == "drawn" and f"({slow['truth'][0]:.4f} m on seed 0's)" in section
+    )
+    assert "so the default, the fourth version, keeps" in section
     voxel = config.map.params["voxel_size"]
     assert f"(a voxel's edge, {voxel} m)" in section
     assert (

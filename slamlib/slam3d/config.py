@@ -267,11 +267,11 @@ class ConstantVelocityConfig:
     start_line : bool
         The start search runs a second time from ``P`` poses on a line along the forward axis, the forward
         spread's normal quantiles (:func:`slamlib.slam3d.stages.search.forward_line`), and the filter keeps that
-        search where it found another and better optimum, one farther from standing still: its best particle
-        scores higher, lies farther than the map's resolution from the first search's and farther from the last
-        pose. The speed is the start's one large unknown, and independent draws in six dimensions can miss the
-        score's narrow peak at it. The last condition holds where the scan's own rings score no motion above the
-        true one (a straight street): the bias is toward no motion ("Why these defaults").
+        search where it found another and better optimum, not the one at standing still: its best particle scores
+        higher and lies farther than the map's resolution both from the first search's and from the last pose.
+        The speed is the start's one large unknown, and independent draws in six dimensions can miss the score's
+        narrow peak at it. The last condition holds where the scan's own rings score no motion above the true one
+        (a straight street): their optimum sits at standing still ("Why these defaults").
     window : int
         Frames the held twist spans (the motion from the pose ``window`` frames back to the last one, over their
         time: one frame's estimate is noisy, and held it carries its noise into the next frame). 1: the last frame.

@@ -29,13 +29,14 @@ and lies farther than that from the last pose (no motion). The score alone canno
 rings and the traffic that move with the car make an optimum at no motion, which scores above the true motion on a
 street whose walls run along the car (the test suite's straight street) and below it on a street with structure
 across it (route 00's starts). That optimum always lies at standing still, so a higher score there may be the bias
-alone, while a higher score elsewhere is the structure's; where the drawn search overshot, to twice the true motion
-(route 00, seed 103 of the fifth fresh sweep), the line's optimum is nearer to standing still than the drawn one's
-and still the true one. Otherwise the stage keeps the drawn search, and the filter's run is the one without the
-line: the line's search draws from its own stream. Replacing the drawn cloud by the line instead would search the
-other five dimensions from half the spread only and lose what the draws find there; keeping the higher score alone
-would trade the drawn search's answer for a sample of the same optimum, or, on the street, for the rings' optimum.
-The second search costs ``1 + start_rounds`` weighings, at one frame of the drive.
+alone, while a higher score elsewhere is the structure's; where the drawn search overshot, to more than twice the
+true motion (route 00, seed 103 of the fifth fresh sweep; ``start_line_dev/start_ends.json``), the line's optimum is
+nearer to standing still than the drawn one's and still the true one. Otherwise the stage keeps the drawn search,
+and the filter's run is the one without the line: the line's search draws from its own stream. Replacing the drawn
+cloud by the line instead would search the other five dimensions from half the spread only and lose what the draws
+find there; keeping the higher score alone would trade the drawn search's answer for a sample of the same optimum,
+or, on the street, for the rings' optimum. The second search costs ``1 + start_rounds`` weighings, at one frame of
+the drive.
 
 Rounds when the weights collapse
 --------------------------------

@@ -149,9 +149,8 @@ class Annealing:
         )
         if not (start_rounds > 0 and self.start_line):
             return drawn
-        drawn_scores = self.last[
-            "scores"
-        ]  # of the search's last weighing: its particles'
+        # the search's last weighing: its particles' scores
+        drawn_scores = self.last["scores"]
         line = forward_line(particles, sigma[0])
         self.n_line_searches += 1
         lined = self._search(
@@ -165,20 +164,23 @@ class Annealing:
         line_scores = self.last["scores"]
         line_best = lined[0].t[np.argmax(line_scores)]
         drawn_best = drawn[0].t[np.argmax(drawn_scores)]
+        line_top, drawn_top = float(line_scores.max()), float(drawn_scores.max())
+        standstill = last_pose[:3, 3]
         # two optima, unless within the map's resolution of each other; the line's not the rings' at standstill
         apart = np.linalg.norm(line_best - drawn_best) > self.resolution
-        moving = np.linalg.norm(line_best - last_pose[:3, 3]) > self.resolution
-        better = line_scores.max() > drawn_scores.max() and apart and moving
+        moving = np.linalg.norm(line_best - standstill) > self.resolution
+        better = line_top > drawn_top and apart and moving
         self.n_line_wins += int(better)
         self.last_start = dict(
             drawn=drawn_best.copy(),
             line=line_best.copy(),
-            drawn_score=float(drawn_scores.max()),
-            line_score=float(line_scores.max()),
-            standstill=last_pose[:3, 3].copy(),
+            drawn_score=drawn_top,
+            line_score=line_top,
+            standstill=standstill.copy(),
             kept="line" if better else "drawn",
         )
-        self.last["scores"] = line_scores if better else drawn_scores  # the kept search's
+        # the kept search's scores, as if it had been the only one
+        self.last["scores"] = line_scores if better else drawn_scores
         return lined if better else drawn
 
     def _search(self, particles, log_weights, sample, sigma, start_rounds, rng):

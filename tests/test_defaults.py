@@ -816,7 +816,8 @@ def test_the_defaults_page_states_the_start_line_runs_as_committed():
     and third mend the first two failed runs alike, the fourth all three; the recorded ends are those the page
     quotes, and the recorded choices follow the fourth version's rule, which the third's refused on seed 103; and
     the line is on by default (the fourth version, which holds on the straight street:
-    ``tests/test_kitti_sequence.py``)."""
+    ``tests/test_kitti_sequence.py``); on ``fresh6``'s LIDAR-only seeds, named before their run, every run is at
+    most KISS-ICP's, the line's search kept at none of their starts, as the page says."""
     import json
 
     from slamlib.experiments.sweep import read_table
@@ -951,12 +952,36 @@ def test_the_defaults_page_states_the_start_line_runs_as_committed():
         slow["kept"] == "drawn" and f"({slow['truth'][0]:.4f} m on seed 0's)" in section
     )
     assert "so the default, the fourth version, keeps" in section
-    voxel = config.map.params["voxel_size"]
     assert f"(a voxel's edge, {voxel} m)" in section
     assert (
         f"`1 + start_rounds` weighings ({1 + config.motion.constant_velocity.start_rounds})"
         in section
     )
+    # the fourth version on seeds named before their run (fresh6/plan.md): every LIDAR-only run at most
+    # KISS-ICP's, the line's search kept at no start
+    fresh6 = ROOT / "benchmarks/results/fresh6"
+    info = json.loads((fresh6 / "odometry/sweep.json").read_text())
+    assert "--set" not in info["command"] and "110,111,112,113,114,115" in info["command"]
+    assert (
+        "--seeds 110,111,112,113,114,115 --layouts odometry"
+        in (fresh6 / "plan.md").read_text()
+    )
+    rows = read_table(fresh6 / "odometry/sweep.csv")
+    pairs = {
+        (r["route"], r["seed"]): {
+            m["method"]: m
+            for m in rows
+            if m["route"] == r["route"] and m["seed"] == r["seed"]
+        }
+        for r in rows
+    }
+    assert all(
+        p["slamlib"]["kitti_t_err_percent"] <= p["kiss_icp"]["kitti_t_err_percent"]
+        for p in pairs.values()
+    )
+    kept = sum(p["slamlib"]["start_lines_kept"] for p in pairs.values())
+    assert kept == 0 and "kept at none of their starts" in section
+    assert f"at most KISS-ICP's on all {len(pairs)} runs" in section
 
 
 def _committed_json(rev: str, path: str) -> dict:

@@ -10,7 +10,12 @@ import pytest
 from slamlib.geometry import make_pose, rpy_to_matrix, so3_exp
 from slamlib.maps import MortonBVHMap, VoxelHashMap
 from slamlib.slam3d import SLAM3DConfig, run_drive, steps
-from slamlib.slam3d.match import gradient_jacobian, match_scan, normal_equations
+from slamlib.slam3d.match import (
+    gradient_jacobian,
+    match_scan,
+    normal_equations,
+    tilt_equations,
+)
 
 
 def _room(rng, n=20000):
@@ -313,6 +318,59 @@ def test_a_plane_alone_brings_back_height_roll_and_pitch():
     assert np.abs(found[2, :3] - [0, 0, 1]).max() < 2e-3
 
 
+def test_gravity_terms_gradient_is_the_derivative_of_its_cost():
+    """Gravity's term ``0.5 w |R^T g_w - u|^2``: ``g`` is its derivative under ``R <- Exp(omega) R`` (central
+    differences), ``H`` its Gauss-Newton matrix ``w J^T J`` with ``J`` that of the residual, and neither touches
+    the translation."""
+    R = rpy_to_matrix([0.02, -0.015, 0.7])
+    world_up = np.array([0.003, -0.002, 1.0])
+    world_up /= np.linalg.norm(world_up)
+    up = np.array([0.01, 0.004, 1.0])
+    up /= np.linalg.norm(up)
+    w = 2.5e5
+    H, g, E = tilt_equations(R, up, world_up, w)
+
+    def residual(step):
+        return (so3_exp(step) @ R).T @ world_up - up
+
+    assert E == pytest.approx(0.5 * w * residual(np.zeros(3)) @ residual(np.zeros(3)))
+    h = 1e-7
+    J = np.array([(residual(h * e) - residual(-h * e)) / (2 * h) for e in np.eye(3)]).T
+
+    def cost(step):
+        return 0.5 * w * residual(step) @ residual(step)
+
+    numeric = [(cost(h * e) - cost(-h * e)) / (2 * h) for e in np.eye(3)]
+    np.testing.assert_allclose(g[:3], numeric, rtol=1e-5)
+    np.testing.assert_allclose(H[:3, :3], w * J.T @ J, rtol=1e-6, atol=1e-9 * w)
+    assert not g[3:].any() and not H[3:].any() and not H[:, 3:].any()
+    assert np.all(np.linalg.eigvalsh(H[:3, :3]) > -1e-9 * w)  # a cost's matrix: PSD
+
+
+def test_gravity_term_holds_the_tilt_a_tilted_map_pulls_away():
+    """A room mapped with a roll error of 10 mrad (the map's tilt drift): the match on the map alone climbs to the
+    map's roll; with gravity's term it ends between the map's roll and gravity's, nearer gravity the more the term
+    weighs."""
+    rng = np.random.default_rng(3)
+    room = _room(rng).astype(np.float64)
+    tilt = 0.01
+    m = _map((room @ rpy_to_matrix([tilt, 0.0, 0.0]).T).astype(np.float32))
+    scan = room.astype(np.float32)
+
+    def roll(T):
+        return float(np.arctan2(T[2, 1], T[2, 2]))
+
+    alone = match_scan(np.eye(4), scan, m, iterations=20)
+    assert roll(alone) == pytest.approx(tilt, abs=1.5e-3)
+    up = np.array([0.0, 0.0, 1.0])  # gravity says the body is level
+    rolls = [
+        roll(match_scan(np.eye(4), scan, m, iterations=20, tilt=(up, up, w)))
+        for w in (1e6, 1e7, 1e8, 1e10)
+    ]
+    assert roll(alone) > rolls[0] > rolls[1] > rolls[2] > rolls[3], rolls
+    assert abs(rolls[3]) < 1e-4
+
+
 def _rings(rng, height=1.73, per_ring=3000):
     """Road returns of a spinning LIDAR at ``height`` m: circles around the sensor, one per laser (body frame)."""
     radii = height / np.tan(np.radians([6.0, 7.5, 9.0, 11.0, 13.5, 17.0, 22.0]))
@@ -425,6 +483,11 @@ def test_pipeline_matches_every_frame_by_default_in_both_modes_and_none_when_off
         ).slam.n_matched
         == 0
     )
+    # with the tilt prior: off, unless the match's cost carries the prior too
+    tilt = dict(particles=50, tilt_sigma="auto")
+    assert run_drive(raw, SLAM3DConfig.of(**tilt), progress=False).slam.n_matched == 0
+    held = run_drive(raw, SLAM3DConfig.of(**tilt, match_tilt=True), progress=False).slam
+    assert held.n_matched == 5 and held.polish.prior is held.prior
 
 
 @pytest.mark.parametrize(
@@ -437,8 +500,9 @@ def test_pipeline_matches_every_frame_by_default_in_both_modes_and_none_when_off
         dict(scan_match_iterations=10**6),
         dict(match_voxel=-0.5),
         dict(match_voxel=float("nan")),
+        dict(match_tilt="yes"),
     ],
 )
 def test_config_rejects_bad_scan_match_settings(bad):
-    with pytest.raises(ValueError, match="scan_match|match_voxel"):
+    with pytest.raises(ValueError, match="scan_match|match_voxel|match_tilt"):
         SLAM3DConfig.of(**bad)

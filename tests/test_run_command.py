@@ -335,6 +335,20 @@ def test_slamlib_run_tilt_sigma_auto_and_self_tuning_reach_the_filter(
     assert exc.value.code == 2
 
 
+def test_slamlib_run_match_tilt_reaches_the_filter(cli_drive, tmp_path):
+    """``--match-tilt`` with the tilt prior is recorded, and the scan match then runs on every frame after the
+    first (``auto``), where without it the prior turns the match off."""
+    from slamlib.cli import main
+
+    args, _ = cli_drive
+    for flag, out in (([], tmp_path / "a"), (["--match-tilt"], tmp_path / "b")):
+        assert main(args + ["--tilt-sigma", "0.005", *flag, "--out", str(out)]) == 0
+    off, on = (json.loads((tmp_path / d / "metrics.json").read_text()) for d in "ab")
+    assert off["config"]["polish"]["match_tilt"] is False
+    assert on["config"]["polish"]["match_tilt"] is True
+    assert off["n_matched_frames"] == 0 < on["n_matched_frames"]
+
+
 #: ``slamlib run`` options that tune the filter: the run examples of the README and the book carry none (the
 #: defaults tune themselves; issue "one default for every drive").
 TUNING_OPTIONS = {
@@ -348,6 +362,7 @@ TUNING_OPTIONS = {
     "--points",
     "--temperature",
     "--scan-match",
+    "--match-tilt",
     "--deskew",
 }
 
@@ -614,6 +629,7 @@ def test_slamlib_run_help_groups_the_options_by_stage(capsys):
         ("--tilt-sigma", "prior stage"),
         ("--anneal-rounds", "search stage"),
         ("--scan-match", "polish stage"),
+        ("--match-tilt", "polish stage"),
     ):
         section = text.split(group, 1)[1].split("\n\n", 1)[0]
         assert option in section, (option, group)

@@ -243,7 +243,13 @@ def add_arguments(parser) -> None:
         "and move the particles with it, unless that moves the pose more than "
         f"{ScanMatchConfig.match_gate:g} of step 6's spreads "
         "(ScanMatchConfig.match_gate: a leap to a wrong peak) (ScanMatchConfig.scan_match; default auto: "
-        "on, except with the tilt prior, whose pull it would undo)",
+        "on, except with the tilt prior, whose pull it would undo, unless --match-tilt)",
+    )
+    po.add_argument(
+        "--match-tilt",
+        action="store_true",
+        help="with --tilt-sigma, the scan match's cost holds the tilt prior too, weighed as step 8 weighs it, "
+        "and --scan-match auto is on (ScanMatchConfig.match_tilt; default off)",
     )
     for old in (
         "--no-deskew",
@@ -456,6 +462,7 @@ def main(args) -> int:
             temperature=args.temperature,
             deskew=args.deskew,
             scan_match=args.scan_match,
+            match_tilt=args.match_tilt,
             tilt_sigma=args.tilt_sigma,
             transient_span=args.transient_span,
             self_tuning=args.self_tuning,

@@ -704,6 +704,10 @@ class ScanMatchConfig:
         "Tracking and Data Association", 1988, sec. 2.3). The cloud spans the motion's uncertainty, so its best
         particle is already within a few spreads of the truth; a Newton climb that ends far outside it has
         followed a wrong peak (moving cars, a repeated facade). Default :data:`MATCH_GATE`; 0: no gate.
+    match_tilt : bool
+        With the tilt prior on (``TiltConfig.tilt_sigma`` not 0), the match's cost carries it too, weighed as step
+        8 weighs it (:mod:`slamlib.slam3d.match`, "Gravity's term"), and ``scan_match = "auto"`` is then on.
+        Default False (the match on the map score alone).
     """
 
     scan_match: str | bool = AUTO
@@ -711,11 +715,14 @@ class ScanMatchConfig:
     match_voxel: float = 0.5
     match_tolerance: float = MATCH_TOLERANCE
     match_gate: float = MATCH_GATE
+    match_tilt: bool = False
 
     def __post_init__(self):
         object.__setattr__(
             self, "scan_match", _tri_state("scan_match", self.scan_match, "on")
         )
+        if not isinstance(self.match_tilt, (bool, np.bool_)):
+            raise ValueError(f"match_tilt must be True or False, got {self.match_tilt!r}")
         _integer(
             "scan_match_iterations",
             self.scan_match_iterations,

@@ -63,6 +63,21 @@ zero): the step may move them up and down, through ``v_z``, ``omega_x`` and ``om
 road does not count. They hold the pose to the road's plane and leave yaw and the horizontal position to what
 stands above it.
 
+Gravity's term
+--------------
+With an accelerometer the filter knows which way is up (:mod:`slamlib.slam3d.stages.prior`), and step 8 weighs the
+particles by it; a match on the map score alone would climb back to the tilt the map was built with. So the cost
+may carry the same term (``tilt``): for the measured up ``u`` (body frame, less its fitted bias) and the world's
+up ``g_w``,
+
+    E_g(R) = 0.5 w |R^T g_w - u|^2,   r = R^T g_w - u,   d r / d omega = R^T [g_w]_x,
+
+(``R <- Exp(omega) R`` turns ``R^T g_w`` by ``-R^T [omega]_x g_w``), which adds ``w J^T J`` to the rotation block of
+``H`` and ``w J^T r`` to ``g`` (Gauss-Newton: the term's own curvature, second order in a residual of
+milliradians, is left out). ``w = N * temperature / sigma^2`` puts it on the map term's scale: step 8 weighs a
+scan of ``N`` points by ``score / (N * temperature)`` and the prior by ``|r|^2 / (2 sigma^2)``, and the match's
+cost is step 8's negative log-weight times ``N * temperature``, so both pick the same pose.
+
 Only the voxel hash map is matched (the Morton map's nearest-neighbour term has no per-voxel Gaussian);
 :func:`match_scan` returns the pose unchanged for any other map.
 """
@@ -72,7 +87,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from slamlib.geometry import so3_exp
+from slamlib.geometry import skew, so3_exp
 from slamlib.kernels.device import NO_BLOCK, make_point_functions
 from slamlib.maps.base import KIND_VOXEL_HASH
 
@@ -80,6 +95,7 @@ __all__ = [
     "match_scan",
     "normal_equations",
     "gradient_jacobian",
+    "tilt_equations",
     "MATCH_DAMPING",
     "MATCH_TOLERANCE",
 ]
@@ -349,8 +365,31 @@ def gradient_jacobian(pose, points, lookup, road=None) -> np.ndarray:
     return H + K
 
 
+def tilt_equations(
+    R, up, world_up, weight: float
+) -> tuple[np.ndarray, np.ndarray, float]:
+    """``(H (6, 6), g (6,), E_g)`` of gravity's term (module docstring, "Gravity's term") at the rotation ``R``
+    (3, 3) ``R_world_body``: ``E_g = 0.5 weight |R^T world_up - up|^2`` with ``up`` (3,) the measured up in the
+    body frame and ``world_up`` (3,) the world's, both unit vectors; only the rotation block (the first three
+    rows and columns, ``omega``) is filled."""
+    R = np.asarray(R, dtype=np.float64)
+    world_up = np.asarray(world_up, dtype=np.float64)
+    r = R.T @ world_up - np.asarray(up, dtype=np.float64)
+    J = R.T @ skew(world_up)
+    H, g = np.zeros((6, 6)), np.zeros(6)
+    H[:3, :3] = weight * J.T @ J
+    g[:3] = weight * J.T @ r
+    return H, g, 0.5 * weight * float(r @ r)
+
+
 def match_scan(
-    pose, points, map_, iterations: int, road=None, tolerance: float = MATCH_TOLERANCE
+    pose,
+    points,
+    map_,
+    iterations: int,
+    road=None,
+    tolerance: float = MATCH_TOLERANCE,
+    tilt=None,
 ) -> np.ndarray:
     """``pose`` (4, 4) ``T_world_body`` moved by at most ``iterations`` Newton steps on the Gauss-Newton gradient
     to the nearest peak of ``map_``'s score for the body ``points`` (N, 3) (module docstring): ``(H + K) delta =
@@ -358,8 +397,9 @@ def match_scan(
     first that does not, or at the first step shorter than ``tolerance`` (``|delta|`` of ``(omega, v)``, radians
     and metres; that step is not taken).
     ``road`` (N,) bool marks road points (:func:`slamlib.slam3d.preprocess.road_mask`), which then pull only on the
-    height, roll and pitch (module docstring, "Road points"). Returns a new (4, 4) array; a copy of ``pose`` when
-    the map is not a voxel hash, empty, or ``iterations`` is 0.
+    height, roll and pitch (module docstring, "Road points"). ``tilt`` ``(up, world_up, weight)`` adds gravity's
+    term (:func:`tilt_equations`; module docstring, "Gravity's term"); None: the map score alone. Returns a new
+    (4, 4) array; a copy of ``pose`` when the map is not a voxel hash, empty, or ``iterations`` is 0.
     """
     T = np.array(pose, dtype=np.float64)
     if iterations <= 0 or len(map_) == 0 or len(points) == 0:
@@ -370,15 +410,23 @@ def match_scan(
     pts = np.ascontiguousarray(points, dtype=np.float32)
     args = (_road(road, len(pts)),) + _lookup_args(lookup) + _block_cache(len(pts))
     R, t = np.ascontiguousarray(T[:3, :3]), np.ascontiguousarray(T[:3, 3])
+
+    def equations(R, t, with_k):
+        H, g, cost, K = _normal_equations_nb(R, t, pts, *args, with_k)
+        if tilt is not None:
+            Hg, gg, Eg = tilt_equations(R, *tilt)
+            H, g, cost = H + Hg, g + gg, cost + Eg
+        return H, g, cost, K
+
     # K from the first pass only, held for the later steps (module docstring)
-    H, g, cost, K = _normal_equations_nb(R, t, pts, *args, True)
+    H, g, cost, K = equations(R, t, True)
     for _ in range(iterations):
         damping = MATCH_DAMPING * max(float(np.trace(H)), np.finfo(float).tiny)
         delta = -np.linalg.solve(H + K + damping * np.eye(6), g)
         if np.linalg.norm(delta) < tolerance:  # the peak is about this step away
             break
         R2, t2 = so3_exp(delta[:3]) @ R, t + delta[3:]
-        H2, g2, cost2, _ = _normal_equations_nb(R2, t2, pts, *args, False)
+        H2, g2, cost2, _ = equations(R2, t2, False)
         if not cost2 < cost:
             break
         R, t, H, g, cost = R2, t2, H2, g2, cost2

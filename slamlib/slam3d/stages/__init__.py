@@ -53,8 +53,9 @@ def choose_stages(config, frame, T0):
     IMU values (the KITTI odometry layout); then there is no tilt prior (no accelerometer) and the scan matcher
     holds the road's points to height and tilt. With an IMU: :class:`ImuMotion`, the tilt prior when
     ``config.prior.tilt_sigma`` is not 0. Scan matching (``config.polish.scan_match``): True on, False off,
-    ``"auto"`` on unless the tilt prior is, whose pull toward gravity the matcher would undo: its cost is the map
-    score alone, so it climbs back to the roll and pitch the map was built with.
+    ``"auto"`` on unless the tilt prior is, whose pull toward gravity a matcher on the map score alone would undo,
+    climbing back to the roll and pitch the map was built with; with ``config.polish.match_tilt`` the match's cost
+    carries the prior too, and ``"auto"`` is on with it.
     """
     points = config.filter.scored_points
     lidar_only = config.motion.model == "constant_velocity" or not has_imu(frame)
@@ -64,8 +65,9 @@ def choose_stages(config, frame, T0):
         motion = ImuMotion(config.motion, points, T0)
     tilt = bool(config.prior.tilt_sigma) and not lidar_only
     prior = TiltPrior(config.prior) if tilt else NoPrior()
+    held = tilt and config.polish.match_tilt
     match = config.polish.scan_match
-    match = not tilt if match == AUTO else match
+    match = (held or not tilt) if match == AUTO else match
     polish = (
         ScanMatch(
             config.polish.scan_match_iterations,
@@ -73,6 +75,8 @@ def choose_stages(config, frame, T0):
             voxel=config.polish.match_voxel,
             tolerance=config.polish.match_tolerance,
             gate=config.polish.match_gate,
+            prior=prior if held else None,
+            temperature=config.filter.temperature,
         )
         if match
         else NoPolish()

@@ -13,6 +13,10 @@ walks by step 6's noise between resamplings, and a pitch off by a few milliradia
 height; the matcher's climb takes the pitch the whole scan fits best ("Why these defaults", ``book/defaults.md``).
 Voxel hash map only (other maps are left as they are). :class:`NoPolish` keeps step 9's pose.
 
+With the tilt prior on and ``ScanMatchConfig.match_tilt``, the match's cost carries the prior's term as well
+(:func:`slamlib.slam3d.match.tilt_equations`; ``match``'s "Gravity's term"): the climb then ends where the map and
+gravity agree best, rather than undoing step 8's pull toward the measured up.
+
 The gate
 --------
 The Newton climb is local: started near a wrong peak of the score (a car driving alongside, a repeated facade) it
@@ -61,7 +65,9 @@ class ScanMatch:
     """Scan matching of step 9's pose (module docstring): at most ``iterations`` Newton steps on the points
     thinned to one per ``voxel`` cube (0: all), ending at the first step shorter than ``tolerance``; ``road``: the
     road's points hold height and tilt only (LIDAR-only); ``gate``: the farthest a kept match may move the pose, in
-    step 6's spreads (0: no gate; module docstring, "The gate"). ``n_matched`` counts the frames matched,
+    step 6's spreads (0: no gate; module docstring, "The gate"); ``prior``: a
+    :class:`~slamlib.slam3d.stages.TiltPrior` whose measured up the match's cost also holds, weighed as step 8
+    weighs it against a scan at ``temperature`` (None: the map score alone). ``n_matched`` counts the frames matched,
     ``n_rejected`` those whose match the gate rejected, ``last_distance`` the last frame's
     :func:`correction_distance` and ``max_kept_distance`` the largest of a kept match (0 before one; how near the
     gate came to closing on a run)."""
@@ -73,9 +79,12 @@ class ScanMatch:
         voxel: float = 0.0,
         tolerance: float = MATCH_TOLERANCE,
         gate: float = 0.0,
+        prior=None,
+        temperature: float = 1.0,
     ):
         self.iterations, self.road, self.voxel = int(iterations), bool(road), float(voxel)
         self.tolerance, self.gate = float(tolerance), float(gate)
+        self.prior, self.temperature = prior, float(temperature)
         self.n_matched = self.n_rejected = 0
         self.last_distance = float("nan")
         self.max_kept_distance = 0.0
@@ -88,7 +97,13 @@ class ScanMatch:
             points = crop_and_downsample(points, voxel_size=self.voxel)
         road = road_mask(points) if self.road else None
         matched = match_scan(
-            pose, points, world_map, self.iterations, road, self.tolerance
+            pose,
+            points,
+            world_map,
+            self.iterations,
+            road,
+            self.tolerance,
+            self._tilt(len(points)),
         )
         self.n_matched += 1
         if sigma is not None:
@@ -103,3 +118,13 @@ class ScanMatch:
             particles.t @ C[:3, :3].T + C[:3, 3],
         )
         return matched, moved
+
+    def _tilt(self, n: int):
+        """``match_scan``'s ``tilt`` for ``n`` matched points: the prior's up less its bias, its world's up and
+        ``w = n * temperature / sigma^2`` (:mod:`slamlib.slam3d.match`, "Gravity's term"); None without a prior
+        or before its first measured up."""
+        prior = self.prior
+        if prior is None or prior.up is None:
+            return None
+        weight = n * self.temperature / prior.sigma**2
+        return prior.up - prior.up_bias, prior.world_up, weight

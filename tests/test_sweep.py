@@ -350,6 +350,24 @@ def test_sweep_set_gives_any_setting_to_every_slamlib_run():
     }
 
 
+def test_a_seed_among_the_settings_is_the_filters_on_the_same_drive(cluster, tmp_path):
+    """The drive's seed is the filter's too, unless the settings name a ``seed``: then the same drive is run again
+    with that filter seed (repeats for development)."""
+    settings = [
+        {"particles": 40},
+        {"particles": 40, "seed": 0},
+        {"particles": 40, "seed": 5},
+    ]
+    tasks = sweep_tasks(["loop"], [0], ["raw"], ["slamlib"], settings, (0, 6))
+    rows = run_sweep(
+        tasks, tmp_path / "data", scheduler=cluster.scheduler_address, progress=False
+    )
+    errors = {r["settings"]: r["ate_rmse_m"] for r in rows}
+    assert len(errors) == 3 and {r["seed"] for r in rows} == {0}
+    same, again, other = (errors[json.dumps(s, sort_keys=True)] for s in settings)
+    assert same == again != other
+
+
 def test_sweep_refuses_to_overwrite_its_table(tmp_path):
     from slamlib.cli import main
 

@@ -4,7 +4,8 @@ A sweep is the cross product of
 
 * **routes** of the synthetic generator (``"07"``, ``"05"``, ``"00"``: the real KITTI odometry routes;
   ``"straight"``, ``"loop"``) with a frame selection (:func:`slamlib.synth.resolve_route`),
-* **seeds**: each seed is one synthetic drive (town, sensor and IMU noise) *and* the filter's seed,
+* **seeds**: each seed is one synthetic drive (town, sensor and IMU noise) *and* the filter's seed (unless the
+  settings name a ``seed``: then that is the filter's, to repeat runs on the same drives),
 * **layouts**: ``"raw"`` (KITTI raw drive: LIDAR + IMU) or ``"odometry"`` (KITTI odometry sequence: LIDAR only),
 * **methods**: ``"slamlib"`` for every entry of ``settings`` (dicts of :meth:`SLAM3DConfig.of` settings, e.g.
   ``{"particles": 100}`` or ``{"deskew": True}``), ``"slamlib_loop_closure"`` likewise, its poses re-anchored by
@@ -341,7 +342,7 @@ def run_task(task: SweepTask, base: str, threads: int | None = None) -> dict:
         closing = task.method == "slamlib_loop_closure"
         run = run_drive(
             frames,
-            SLAM3DConfig.of(seed=task.seed, **task.settings),
+            SLAM3DConfig.of(**{"seed": task.seed, **task.settings}),
             progress=False,
             loop_closure=closing,
         )

@@ -469,8 +469,8 @@ def _fake_match(monkeypatch, matched):
     """``match_scan`` replaced by one that records its arguments and answers ``matched``."""
     calls = []
 
-    def fake(pose, points, world_map, iterations, road=None, tolerance=None):
-        calls.append((pose, points, world_map, iterations, road, tolerance))
+    def fake(pose, points, world_map, iterations, road=None, tolerance=None, tilt=None):
+        calls.append((pose, points, world_map, iterations, road, tolerance, tilt))
         return matched
 
     monkeypatch.setattr("slamlib.slam3d.stages.polish.match_scan", fake)
@@ -494,6 +494,30 @@ def test_scan_match_passes_the_road_only_when_asked_and_its_tolerance(monkeypatc
     assert mask[:300].all() and not mask[300:].all()  # the scan has a road plane and more
     assert calls[1][3] == 4 and calls[1][2] == "map"
     np.testing.assert_array_equal(calls[1][4], mask)
+
+
+def test_scan_match_holds_the_priors_up_weighed_as_step_8_weighs_it(monkeypatch):
+    """With a tilt prior the stage hands the match the prior's up less its bias, its world's up, and the weight
+    ``n * temperature / sigma^2`` for its ``n`` matched points; none before the prior has measured an up, and
+    none without a prior."""
+    points, pose = _road_scan(), make_pose(np.eye(3), [1.0, 2.0, 0.0])
+    particles = Particles3D(np.eye(3)[None], np.zeros((1, 3)))
+    calls = _fake_match(monkeypatch, pose)
+    prior = SimpleNamespace(
+        up=None,
+        up_bias=np.array([0.002, -0.001, 0.0]),
+        world_up=np.array([0.0, 0.0, 1.0]),
+    )
+    prior.sigma = 0.004
+    ScanMatch(4, prior=prior, temperature=0.02)(pose, points, particles, "map")
+    prior.up = np.array([0.01, 0.0, 1.0])
+    ScanMatch(4, prior=prior, temperature=0.02)(pose, points, particles, "map")
+    ScanMatch(4)(pose, points, particles, "map")
+    assert calls[0][6] is None and calls[2][6] is None
+    up, world_up, weight = calls[1][6]
+    np.testing.assert_array_equal(up, [0.008, 0.001, 1.0])
+    assert world_up is prior.world_up
+    assert weight == pytest.approx(len(points) * 0.02 / 0.004**2)
 
 
 def test_scan_match_moves_every_particle_by_the_matched_correction_and_counts_frames(

@@ -68,7 +68,7 @@ Gravity's term
 With an accelerometer the filter knows which way is up (:mod:`slamlib.slam3d.stages.prior`), and step 8 weighs the
 particles by it; a match on the map score alone would climb back to the tilt the map was built with. So the cost
 may carry the same term (``tilt``): for the measured up ``u`` (body frame, less its fitted bias) and the world's
-up ``g_w``,
+up ``g_w``::
 
     E_g(R) = 0.5 w |R^T g_w - u|^2,   r = R^T g_w - u,   d r / d omega = R^T [g_w]_x,
 

@@ -688,24 +688,30 @@ def test_the_defaults_page_states_the_match_tilt_runs_as_committed():
         "base": [],
         "tilt5": ["--set tilt_sigma=0.005", "--set match_tilt=true"],
         "tilt": ["--set tilt_sigma=auto", "--set match_tilt=true"],
+        "tilt3": ["--set tilt_sigma=0.003", "--set match_tilt=true"],
+        "tilt_w4": [
+            "--set tilt_sigma=auto",
+            "--set tilt_window=4.0",
+            "--set match_tilt=true",
+        ],
     }
 
+    def errors(name, noise, tail=""):
+        """The errors of scene seeds 0-3 (by seed) of one sweep, after checking its command is that setting's."""
+        folder = dev / f"x{noise}_{name}{tail}"
+        command = json.loads((folder / "sweep.json").read_text())["command"]
+        assert f"--imu-noise {noise} " in command and "--seeds 0,1,2,3 " in command
+        assert ("--set seed=" in command) == (filter_seeds[tail] is not None), command
+        assert all(s in command for s in sets[name]) and ("match_tilt" in command) == (
+            name != "base"
+        ), command
+        rows = sorted(read_table(folder / "sweep.csv"), key=lambda r: r["seed"])
+        assert [(r["route"], r["seed"]) for r in rows] == [("07", s) for s in range(4)]
+        return [r["kitti_t_err_percent"] for r in rows]
+
     def runs(name, noise):
-        errors = []
-        for tail, seed in filter_seeds.items():
-            folder = dev / f"x{noise}_{name}{tail}"
-            command = json.loads((folder / "sweep.json").read_text())["command"]
-            assert f"--imu-noise {noise} " in command and "--seeds 0,1,2,3 " in command
-            assert ("--set seed=" in command) == (seed is not None), command
-            assert all(s in command for s in sets[name]) and (
-                "match_tilt" in command
-            ) == (name != "base"), command
-            rows = sorted(read_table(folder / "sweep.csv"), key=lambda r: r["seed"])
-            assert [(r["route"], r["seed"]) for r in rows] == [
-                ("07", s) for s in range(4)
-            ]
-            errors += [r["kitti_t_err_percent"] for r in rows]
-        return np.array(errors)
+        """The 12 errors of one setting at one IMU noise: every filter seed's sweep."""
+        return np.array([e for tail in filter_seeds for e in errors(name, noise, tail)])
 
     base = {n: runs("base", n) for n in (1, 2)}
     assert (
@@ -730,15 +736,7 @@ def test_the_defaults_page_states_the_match_tilt_runs_as_committed():
         ("tilt_w4", "window"),
         ("base", "there:"),
     ):
-        first = [
-            np.mean(
-                [
-                    r["kitti_t_err_percent"]
-                    for r in read_table(dev / f"x{n}_{name}/sweep.csv")
-                ]
-            )
-            for n in (1, 2)
-        ]
+        first = [np.mean(errors(name, n)) for n in (1, 2)]
         assert f"{lead} {first[0]:.4f} and {first[1]:.4f} %" in section, name
     c = SLAM3DConfig()
     assert c.polish.match_tilt is False and c.prior.tilt_sigma == 0

@@ -411,7 +411,7 @@ def test_tilt_prior_frame_without_an_accelerometer_empties_the_window():
     prior.measure(
         SimpleNamespace(), (np.zeros(3), np.zeros(3)), 0.25, None, [np.eye(4)] * 4
     )
-    assert prior.up is None and len(prior.samples) == 0
+    assert prior.up is None and len(prior.samples) == 0 and prior.held_up() is None
     log_weights = np.array([-1.0, -2.0])
     particles = Particles3D(np.stack([np.eye(3)] * 2), np.zeros((2, 3)))
     assert prior.weigh(particles, log_weights) is log_weights
@@ -442,6 +442,7 @@ def test_tilt_prior_calibrates_once_the_window_spans_tilt_window_with_weight_dt_
         Particles3D(R, np.zeros((3, 3))),
         np.array([-1.0, -2.0, -3.0]),
     )
+    np.testing.assert_array_equal(prior.held_up(), prior.up - bias)
     want = log_weights + tilt_log_prior(particles, prior.up - bias, sigma, world_up)
     np.testing.assert_array_equal(prior.weigh(particles, log_weights), want)
 
@@ -503,12 +504,8 @@ def test_scan_match_holds_the_priors_up_weighed_as_step_8_weighs_it(monkeypatch)
     points, pose = _road_scan(), make_pose(np.eye(3), [1.0, 2.0, 0.0])
     particles = Particles3D(np.eye(3)[None], np.zeros((1, 3)))
     calls = _fake_match(monkeypatch, pose)
-    prior = SimpleNamespace(
-        up=None,
-        up_bias=np.array([0.002, -0.001, 0.0]),
-        world_up=np.array([0.0, 0.0, 1.0]),
-    )
-    prior.sigma = 0.004
+    prior = TiltPrior(TiltConfig(tilt_sigma=0.004))
+    prior.up_bias = np.array([0.002, -0.001, 0.0])
     ScanMatch(4, prior=prior, temperature=0.02)(pose, points, particles, "map")
     prior.up = np.array([0.01, 0.0, 1.0])
     ScanMatch(4, prior=prior, temperature=0.02)(pose, points, particles, "map")

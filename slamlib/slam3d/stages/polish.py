@@ -124,7 +124,7 @@ class ScanMatch:
         ``w = n * temperature / sigma^2`` (:mod:`slamlib.slam3d.match`, "Gravity's term"); None without a prior
         or before its first measured up."""
         prior = self.prior
-        if prior is None or prior.up is None:
+        up = None if prior is None else prior.held_up()
+        if up is None:
             return None
-        weight = n * self.temperature / prior.sigma**2
-        return prior.up - prior.up_bias, prior.world_up, weight
+        return up, prior.world_up, n * self.temperature / prior.sigma**2

@@ -343,11 +343,19 @@ class TiltPrior:
         self.up_span = float(dts[1:].sum())
         self.up = gravity_up(R, force, velocity, dts)
 
-    def weigh(self, particles, log_weights):
-        """``log_weights`` plus :func:`tilt_log_prior` of the measured up less the bias."""
+    def held_up(self) -> np.ndarray | None:
+        """The up the prior holds the tilt to: this frame's measured up less the fitted bias (3,), body frame
+        (:func:`tilt_calibration`: a body ``R`` measures ``u = R^T g_w + beta``); None before an up is measured.
+        Step 8 (:meth:`weigh`) and the scan match's gravity term both hold to this one vector."""
         if self.up is None:
+            return None
+        return self.up - self.up_bias
+
+    def weigh(self, particles, log_weights):
+        """``log_weights`` plus :func:`tilt_log_prior` of the measured up less the bias (:meth:`held_up`)."""
+        up = self.held_up()
+        if up is None:
             return log_weights
-        up = self.up - self.up_bias
         return log_weights + tilt_log_prior(particles, up, self.sigma, self.world_up)
 
     def calibrate(self, pose, dt: float) -> None:
@@ -379,8 +387,7 @@ class TiltPrior:
         :func:`up_scatter` (``scatter``), and the up's own noise ``noise_sigma`` from it (module docstring);
         :meth:`calibrate` adds the bias fit's uncertainty to make ``sigma``."""
         self.time += dt
-        own = pose[:3, :3].T @ self.world_up
-        residual = self.up - self.up_bias - own
+        residual = self.held_up() - pose[:3, :3].T @ self.world_up
         self.residuals.append((self.time, residual))
         earlier = None
         while self.residuals and self.time - self.residuals[0][0] >= self.window:

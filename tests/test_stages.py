@@ -418,9 +418,9 @@ def test_tilt_prior_frame_without_an_accelerometer_empties_the_window():
 
 
 def test_tilt_prior_calibrates_once_the_window_spans_tilt_window_with_weight_dt_over_window():
-    """Frames 0.25 s apart, window 0.5 s: the first two frames (spans 0 and 0.25 s) add nothing, the third (span
-    exactly 0.5 s) adds ``dt / window / sigma^2`` to its heading's sector; the estimate follows the sums, and
-    step 8 weighs with the measured up less the bias against the estimated world's up."""
+    """Frames 0.25 s apart, window 0.5 s: the first two frames (spans 0 and 0.25 s) add nothing and hold nothing,
+    the third (span exactly 0.5 s) adds ``dt / window / sigma^2`` to its heading's sector; the estimate follows the
+    sums, and step 8 weighs with the measured up less the bias against the estimated world's up."""
     sigma, up = 0.005, rpy_to_matrix([0.01, -0.02, 0.0]).T @ [0.0, 0.0, 1.0]
     config = TiltConfig(tilt_sigma=sigma, tilt_window=0.5, tilt_world_sigma=0.02)
     prior = TiltPrior(config)
@@ -428,6 +428,7 @@ def test_tilt_prior_calibrates_once_the_window_spans_tilt_window_with_weight_dt_
         _measure_frame(prior, k, 0.25, up)
         prior.calibrate(np.eye(4), 0.25)
         assert prior.bins[2].sum() == (0.0 if k < 2 else 0.25 / 0.5 / sigma**2)
+        assert (prior.held_up() is None) == (k < 2)  # step 8 holds nothing until then
     sums = tilt_calibration_bins(config.tilt_heading_bins)
     tilt_calibration_add(sums, np.eye(3), prior.up, 0.25 / 0.5 / sigma**2)
     for got, want in zip(prior.bins, sums):
@@ -499,19 +500,21 @@ def test_scan_match_passes_the_road_only_when_asked_and_its_tolerance(monkeypatc
 
 def test_scan_match_holds_the_priors_up_weighed_as_step_8_weighs_it(monkeypatch):
     """With a tilt prior the stage hands the match the prior's up less its bias, its world's up, and the weight
-    ``n * temperature / sigma^2`` for its ``n`` matched points; none before the prior has measured an up, and
-    none without a prior."""
+    ``n * temperature / sigma^2`` for its ``n`` matched points; none before the prior has measured an up over a
+    whole window, and none without a prior."""
     points, pose = _road_scan(), make_pose(np.eye(3), [1.0, 2.0, 0.0])
     particles = Particles3D(np.eye(3)[None], np.zeros((1, 3)))
     calls = _fake_match(monkeypatch, pose)
     prior = TiltPrior(TiltConfig(tilt_sigma=0.004))
     prior.up_bias = np.array([0.002, -0.001, 0.0])
     ScanMatch(4, prior=prior, temperature=0.02)(pose, points, particles, "map")
-    prior.up = np.array([0.01, 0.0, 1.0])
+    prior.up, prior.up_span = np.array([0.01, 0.0, 1.0]), 0.9 * prior.window
+    ScanMatch(4, prior=prior, temperature=0.02)(pose, points, particles, "map")
+    prior.up_span = prior.window
     ScanMatch(4, prior=prior, temperature=0.02)(pose, points, particles, "map")
     ScanMatch(4)(pose, points, particles, "map")
-    assert calls[0][6] is None and calls[2][6] is None
-    up, world_up, weight = calls[1][6]
+    assert calls[0][6] is None and calls[1][6] is None and calls[3][6] is None
+    up, world_up, weight = calls[2][6]
     np.testing.assert_array_equal(up, [0.008, 0.001, 1.0])
     assert world_up is prior.world_up
     assert weight == pytest.approx(len(points) * 0.02 / 0.004**2)

@@ -7,7 +7,8 @@ earlier estimates: each frame's small tilt error goes into the map, and over tho
 (on a whole KITTI route tens of milliradians, which the motion turns into metres of height). Gravity is the one
 absolute reference on board. Each frame the stage reads the accelerometer
 (:func:`~slamlib.slam3d.steps.read_specific_force`), :func:`gravity_up` separates gravity from the
-vehicle's own acceleration over the last ``tilt_window`` seconds, and step 8 adds
+vehicle's own acceleration over the last ``tilt_window`` seconds, and, once the window spans them (a shorter one
+measures up with errors ~ 1 / its span: tens of milliradians in a drive's first frames), step 8 adds
 :func:`tilt_log_prior` to every weight: a measurement of two of the six pose coordinates, as
 an attitude filter uses its accelerometer. An accelerometer bias ``b`` tilts the measured up by ``b / g`` for good,
 so after step 9 each frame's estimated rotation and measured up also go into a least-squares estimate of the bias
@@ -345,9 +346,11 @@ class TiltPrior:
 
     def held_up(self) -> np.ndarray | None:
         """The up the prior holds the tilt to: this frame's measured up less the fitted bias (3,), body frame
-        (:func:`tilt_calibration`: a body ``R`` measures ``u = R^T g_w + beta``); None before an up is measured.
+        (:func:`tilt_calibration`: a body ``R`` measures ``u = R^T g_w + beta``); None until the window spans
+        ``tilt_window`` (as in :meth:`calibrate`: a window of ``T`` seconds measures up with errors ~ ``1 / T``,
+        tens of milliradians over the first frames, which ``sigma``, the full window's, would hold the tilt to).
         Step 8 (:meth:`weigh`) and the scan match's gravity term both hold to this one vector."""
-        if self.up is None:
+        if self.up is None or self.up_span < self.window:
             return None
         return self.up - self.up_bias
 

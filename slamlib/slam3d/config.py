@@ -598,7 +598,9 @@ class TiltConfig:
         ``sigma`` is the prior's weight against the map as much as an error bar on the measured up; the value the
         realistic sweeps use, and why: book chapter 09 and "Why these defaults" (``book/defaults.md``).
     tilt_window : float
-        Seconds of accelerometer samples behind each up measurement (longer: less noise from the velocities).
+        Seconds of accelerometer samples behind each up measurement (longer: less noise from the velocities); the
+        prior holds nothing until the window spans them, at a drive's start and after a frame without an
+        accelerometer.
     tilt_bias_sigma, tilt_world_sigma : float
         Radians; with the prior on, the filter also estimates, by least squares over the frames whose window spans
         ``tilt_window`` (:func:`slamlib.slam3d.stages.prior.tilt_calibration_update`), the accelerometer's bias as

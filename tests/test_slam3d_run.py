@@ -124,3 +124,32 @@ def test_run_drive_and_save_run_say_what_was_wrong_with_their_arguments(tmp_path
         ValueError, match=r"backend must be one of 'numpy', 'cpu', 'cuda', got 'gpu'"
     ):
         SLAM3DConfig.of(backend="gpu")
+
+
+def test_run_drive_takes_the_calibration_from_a_raw_drives_own_frames(open_drive):
+    """A list of a raw drive's frames, or a generator over them, runs as the drive does: the first frame's two
+    ground-truth poses give ``T_velo_imu`` (not the identity, which would leave the scans in the Velodyne's frame);
+    frames without them give None."""
+    from types import SimpleNamespace
+
+    from slamlib.slam3d import SLAM3DConfig
+    from slamlib.slam3d.run import frames_calibration
+
+    drive = open_drive()
+    frames = list(drive)
+    assert not np.allclose(drive.T_velo_imu, np.eye(4))
+    same, T = frames_calibration(frames)
+    assert same is frames
+    np.testing.assert_allclose(T, drive.T_velo_imu, atol=1e-12)
+    rest, T = frames_calibration(iter(frames))
+    assert list(rest) == frames  # the first frame put back
+    np.testing.assert_allclose(T, drive.T_velo_imu, atol=1e-12)
+    bare = [SimpleNamespace(T_w_imu=np.eye(4))]
+    assert frames_calibration(bare) == (bare, None)
+    assert list(frames_calibration(iter([]))[0]) == []
+    config = SLAM3DConfig.of(particles=10, scored_points=50, seed=0)
+    want = run_drive(drive, config, progress=False).poses
+    for given in (frames, (f for f in frames)):
+        np.testing.assert_array_equal(
+            run_drive(given, config, progress=False).poses, want
+        )

@@ -27,6 +27,7 @@ from slamlib.slam3d.pipeline import ParticleSLAM3D
 __all__ = [
     "SLAMRun",
     "run_drive",
+    "frames_calibration",
     "evaluate",
     "parse_frames",
     "save_run",
@@ -179,7 +180,8 @@ def run_drive(
     ----------
     frames : iterable of frames (``.scan``, ``.velocity``, ``.angular_rate``, ``.dt``; optional ground truth
         ``.T_w_body`` or ``.T_w_imu``, ``.time_s``, ``.index``), e.g. a :class:`slamlib.kitti.KittiRawDrive` or a
-        :class:`slamlib.kitti.KittiOdometrySequence` (its ``T_velo_imu`` is used when ``T_velo_imu`` is not given).
+        :class:`slamlib.kitti.KittiOdometrySequence` (its ``T_velo_imu`` is used when ``T_velo_imu`` is not given;
+        for a list of a raw drive's frames or a generator over them, the first frame's, :func:`frames_calibration`).
     config : filter settings.
     progress : show a tqdm bar with frames/s.
     snapshot_every : keep a copy of the map points every that many frames (0: none), for animations.
@@ -206,6 +208,8 @@ def run_drive(
         )
     if T_velo_imu is None:
         T_velo_imu = getattr(frames, "T_velo_imu", None)
+    if T_velo_imu is None:
+        frames, T_velo_imu = frames_calibration(frames)
     slam = ParticleSLAM3D(config, T_velo_imu=T_velo_imu)
     closer = None
     if loop_closure:
@@ -277,6 +281,28 @@ def run_drive(
         t0,
         loop_closed,
         closer,
+    )
+
+
+def frames_calibration(frames):
+    """``(frames, T_velo_imu)`` for frames that do not carry their drive's calibration: a list of a drive's frames,
+    or a generator over them (``itertools.islice(drive, n)``). A KITTI raw frame
+    (:class:`slamlib.kitti.raw.Frame`) has both ground-truth poses, ``T_w_velo = T_w_imu inv(T_velo_imu)``, so the
+    first frame gives ``T_velo_imu = inv(T_w_velo) T_w_imu`` (4, 4); None (the identity: the scans are in the body
+    frame) when it lacks either pose. ``frames`` comes back whole: an iterator with its first frame put back in
+    front, anything else as it was."""
+    import itertools
+
+    it = iter(frames)
+    first = next(it, None)
+    if it is frames:  # a one-pass iterator: the first frame is taken from it
+        frames = itertools.chain([] if first is None else [first], it)
+    T_w_imu, T_w_velo = (getattr(first, name, None) for name in ("T_w_imu", "T_w_velo"))
+    if T_w_imu is None or T_w_velo is None:
+        return frames, None
+    # the general inverse, as the reader's (T_imu_velo = inv(T_velo_imu)): the calibration comes back as it was read
+    return frames, np.linalg.inv(np.asarray(T_w_velo, dtype=np.float64)) @ np.asarray(
+        T_w_imu, dtype=np.float64
     )
 
 

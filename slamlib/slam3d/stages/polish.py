@@ -122,7 +122,7 @@ class ScanMatch:
     def _tilt(self, n: int):
         """``match_scan``'s ``tilt`` for ``n`` matched points: the prior's up less its bias, its world's up and
         ``w = n * temperature / sigma^2`` (:mod:`slamlib.slam3d.match`, "Gravity's term"); None without a prior
-        or before its first measured up."""
+        or while it holds nothing (:meth:`TiltPrior.held_up`: until its window spans ``tilt_window``)."""
         prior = self.prior
         up = None if prior is None else prior.held_up()
         if up is None:

@@ -371,6 +371,47 @@ def test_gravity_term_holds_the_tilt_a_tilted_map_pulls_away():
     assert abs(rolls[3]) < 1e-4
 
 
+def test_it_returns_the_maps_curvature_at_the_pose_it_started_from():
+    """``return_hessian``: the same pose as without it, and the symmetric part of the Newton matrix ``H + K`` of
+    the map score alone at the start pose (gravity's term left out); zeros where it matched nothing."""
+    rng = np.random.default_rng(6)
+    room = _room(rng)
+    m = _map(room)
+    T0 = make_pose(rpy_to_matrix([0.01, -0.005, 0.03]), np.array([0.2, -0.1, 0.05]))
+    up = np.array([0.0, 0.0, 1.0])
+    tilt = (up, up, 1e7)
+    T, H = match_scan(T0, room, m, 10, tilt=tilt, return_hessian=True)
+    np.testing.assert_array_equal(T, match_scan(T0, room, m, 10, tilt=tilt))
+    newton = gradient_jacobian(T0, room, m.lookup())
+    np.testing.assert_allclose(H, 0.5 * (newton + newton.T), rtol=1e-9)
+    assert np.all(np.linalg.eigvalsh(H) > 0)
+    T, H = match_scan(T0, room, VoxelHashMap(), 10, return_hessian=True)
+    np.testing.assert_array_equal(T, T0)
+    np.testing.assert_array_equal(H, np.zeros((6, 6)))
+
+
+@pytest.mark.parametrize("gain", [0.5, 0.8])
+def test_gravitys_weight_from_the_maps_curvature_moves_the_tilt_by_that_gain(gain):
+    """A map tilted by 10 mrad in roll, gravity saying level: with gravity's weight ``w = h k / (1 - k)`` for the
+    map's information ``h`` on the roll at its peak (from :func:`match_scan`'s ``return_hessian``, the other
+    coordinates free: ``1 / (C^-1)_00``), the match from the map's peak ends a fraction ``k`` of the way to
+    gravity's roll, as ``"adaptive"`` sets the weight (:func:`slamlib.slam3d.stages.prior.tilt_sigma_for_gain`)."""
+    rng = np.random.default_rng(3)
+    room = _room(rng).astype(np.float64)
+    tilt = 0.01
+    m = _map((room @ rpy_to_matrix([tilt, 0.0, 0.0]).T).astype(np.float32))
+    scan = room.astype(np.float32)
+    peak = match_scan(np.eye(4), scan, m, iterations=20)
+    roll_map = float(np.arctan2(peak[2, 1], peak[2, 2]))
+    _, C = match_scan(peak, scan, m, iterations=1, return_hessian=True)
+    h = 1 / np.linalg.inv(C)[0, 0]
+    up = np.array([0.0, 0.0, 1.0])
+    tilt = (up, up, h * gain / (1 - gain))
+    T = match_scan(peak, scan, m, iterations=50, tolerance=1e-9, tilt=tilt)
+    roll = float(np.arctan2(T[2, 1], T[2, 2]))
+    assert roll == pytest.approx((1 - gain) * roll_map, abs=0.05 * roll_map)
+
+
 def _rings(rng, height=1.73, per_ring=3000):
     """Road returns of a spinning LIDAR at ``height`` m: circles around the sensor, one per laser (body frame)."""
     radii = height / np.tan(np.radians([6.0, 7.5, 9.0, 11.0, 13.5, 17.0, 22.0]))

@@ -89,6 +89,7 @@ def test_min_range_above_max_range_is_refused():
         (dict(tuning_floor=(0.01,) * 5), "tuning_floor"),
         (dict(tuning_floor=(-0.01,) * 6), "tuning_floor"),
         (dict(tilt_sigma="strong"), "tilt_sigma"),
+        (dict(tilt_sigma="adaptiv"), "'adaptive'"),
         (dict(collapse_ess=1.5), "collapse_ess"),
         (dict(collapse_rounds=-1), "collapse_rounds"),
         ({"constant_velocity.start_line": "yes"}, "start_line must be"),

@@ -348,6 +348,92 @@ def test_auto_tilt_sigma_follows_the_accelerometers_consistency(noise):
     assert slam.prior.sigma >= slam.prior.noise_sigma
 
 
+def test_tilt_gain_is_the_steady_state_kalman_gain_of_a_random_walk():
+    """A state that random-walks ``q dt`` per frame, measured each frame with variance ``R = sigma^2 W / dt``: the
+    Riccati recursion's limit; about ``dt sqrt(q / (sigma^2 W))`` while that is small; 0 for no walk; and
+    :func:`tilt_sigma_for_gain`'s ``sigma`` against the map's information gives the frame that same gain."""
+    from slamlib.slam3d.stages.prior import tilt_gain, tilt_sigma_for_gain
+
+    q, noise, W, dt = 2e-6, 0.005**2, 2.0, 0.1
+    Q, R = q * dt, noise * W / dt
+    P = 1.0
+    for _ in range(20000):
+        k = P / (P + R)
+        P = (1 - k) * P + Q  # update, then the next frame's prediction
+    assert tilt_gain(q, noise, W, dt) == pytest.approx(P / (P + R), rel=1e-9)
+    assert tilt_gain(q, noise, W, dt) == pytest.approx(
+        dt * np.sqrt(q / (noise * W)), rel=0.05
+    )
+    assert tilt_gain(0.0, noise, W, dt) == tilt_gain(-1e-6, noise, W, dt) == 0.0
+    assert (
+        tilt_gain(4 * q, noise, W, dt)
+        > tilt_gain(q, noise, W, dt)
+        > tilt_gain(q, 4 * noise, W, dt)
+    )
+    information = 2e6  # rad^-2, the map's on the tilt
+    for k in (0.01, 0.3, 0.9):
+        hold = 1 / tilt_sigma_for_gain(k, information) ** 2
+        assert hold / (information + hold) == pytest.approx(k)
+    assert tilt_sigma_for_gain(0.0, information) == np.inf
+
+
+@pytest.mark.parametrize("q", [0.0, 4e-6])
+def test_adaptive_reads_the_tilts_walk_from_the_residuals_at_two_lags(q):
+    """Residuals that are a random walk of rate ``q`` per axis plus white noise of 5 mrad: ``walk_rate`` reads
+    ``q`` back (the noise, the same at both lags, drops out), and about 0 when nothing walks."""
+    from slamlib.slam3d.stages.prior import ADAPTIVE_TILT_LAG_S
+
+    prior = TiltPrior(TiltConfig(tilt_sigma="adaptive"))
+    rng = np.random.default_rng(11)
+    dt, sigma = 0.1, 0.005
+    walk = np.zeros(3)
+    rates = []
+    for k in range(12000):
+        walk[:2] += rng.normal(0, np.sqrt(q * dt), 2)
+        prior.time = k * dt
+        prior._walk(walk + rng.normal(0, sigma, 3) * [1, 1, 0], dt)
+        if prior.time > 2 * ADAPTIVE_TILT_LAG_S:
+            rates.append(prior.walk_rate())
+    # the mean over 20 minutes of 30 s running means
+    assert np.mean(rates) == pytest.approx(q, abs=max(0.3 * q, 0.3e-6))
+
+
+def test_adaptive_holds_the_match_to_gravity_and_reads_the_maps_information():
+    """``tilt_sigma="adaptive"``: the scan match carries the prior even with ``match_tilt`` off, the prior learns the
+    map's information on the tilt from it (per point and temperature: the Gauss-Newton tilt block over ``n T``),
+    and ``sigma`` starts at AUTO_TILT_SIGMA_START and stays within its bounds."""
+    from slamlib.slam3d.stages.prior import (
+        ADAPTIVE_TILT_SIGMA_MAX,
+        AUTO_TILT_SIGMA_MIN,
+        AUTO_TILT_SIGMA_START,
+    )
+
+    frames, _ = simulate(40, yaw_rate=0.3)
+    slam = ParticleSLAM3D(tiny_config(tilt_sigma="adaptive", tilt_window=1.0))
+    for f in frames[:3]:
+        slam.register_frame(f)
+    assert isinstance(slam.polish, ScanMatch) and slam.polish.prior is slam.prior
+    assert slam.prior.adaptive and slam.prior.sigma == AUTO_TILT_SIGMA_START
+    sigmas = []
+    for f in frames[3:]:
+        slam.register_frame(f)
+        sigmas.append(slam.prior.sigma)
+    assert slam.prior.map_information > 0
+    assert all(AUTO_TILT_SIGMA_MIN <= s <= ADAPTIVE_TILT_SIGMA_MAX for s in sigmas)
+    # the information from a known curvature: roll and pitch 4e6 and 2e6 over n T = 100 * 2, where roll and a
+    # sideways shift trade off, half of roll's is left with the shift free
+    prior = TiltPrior(TiltConfig(tilt_sigma="adaptive"))
+    C = np.diag([4e6, 2e6, 9e9, 1e6, 1e6, 1e6])
+    prior.observe_map(C, 100, 2.0)
+    assert prior.map_information == pytest.approx(3e6 / 200)
+    C[0, 4] = C[4, 0] = np.sqrt(0.5 * 4e6 * 1e6)
+    prior.observe_map(C, 100, 2.0)
+    assert prior.map_information == pytest.approx((2e6 + 2e6) / 2 / 200)
+    before = prior.map_information
+    prior.observe_map(-C, 100, 2.0)  # not positive definite: kept
+    assert prior.map_information == before
+
+
 # ------------------------------------------------------------------------------------------ prior: edge cases
 def test_gravity_up_of_a_window_that_spans_no_time_is_none():
     """Two samples 0 s apart: no time to integrate over, no up (not a division by zero)."""

@@ -331,6 +331,32 @@ def test_sweep_options_are_checked_before_any_work(tmp_path, argv, message):
     assert not (tmp_path / "o").exists()
 
 
+@pytest.mark.parametrize(
+    "word, value", [("0.003", 0.003), ("auto", "auto"), ("Adaptive", "adaptive")]
+)
+def test_sweep_tilt_sigma_reaches_every_slamlib_setting(
+    tmp_path, monkeypatch, word, value
+):
+    """``--tilt-sigma`` as a number or a word: every setting the sweep's tasks are made of carries it."""
+    import slamlib.experiments.sweep as sweep_module
+    from slamlib.cli import main
+
+    seen = []
+
+    def tasks(routes, seeds, layouts, methods, settings, *rest):
+        seen.extend(settings)
+        raise SystemExit("stop before any run")
+
+    monkeypatch.setattr(sweep_module, "sweep_tasks", tasks)
+    argv = ["sweep", "--out", str(tmp_path / "o"), "--particles", "20,40"]
+    with pytest.raises(SystemExit, match="stop before any run"):
+        main(argv + ["--tilt-sigma", word])
+    assert seen == [
+        {"particles": 20, "tilt_sigma": value},
+        {"particles": 40, "tilt_sigma": value},
+    ]
+
+
 def test_sweep_set_gives_any_setting_to_every_slamlib_run():
     """``--set NAME=VALUE`` (repeatable): VALUE read as JSON, else a word; added to every setting."""
     from slamlib.commands.sweep import parse_settings

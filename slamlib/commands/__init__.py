@@ -33,7 +33,10 @@ def particles(text: str):
 
 def tilt_sigma(text: str):
     """``--tilt-sigma``'s value: ``auto`` (:data:`slamlib.slam3d.config.AUTO`: the prior weighs the accelerometer by
-    its own consistency) or a number of radians (0 = off), checked by the configuration."""
-    from slamlib.slam3d.config import AUTO
+    its own consistency), ``adaptive`` (:data:`slamlib.slam3d.config.ADAPTIVE`: by the gain a Kalman filter would
+    give it, from that consistency, the tilt's walk and the map's hold) or a number of radians (0 = off), checked by
+    the configuration."""
+    from slamlib.slam3d.config import ADAPTIVE, AUTO
 
-    return AUTO if text.strip().lower() == AUTO else float(text)
+    word = text.strip().lower()
+    return word if word in (AUTO, ADAPTIVE) else float(text)

@@ -212,9 +212,11 @@ def add_arguments(parser) -> None:
         "--tilt-sigma",
         type=tilt_sigma,
         default=TiltConfig.tilt_sigma,
-        metavar="RAD|auto",
+        metavar="RAD|auto|adaptive",
         help="hold roll and pitch to the accelerometer's gravity with this uncertainty (TiltConfig."
-        "tilt_sigma, radians; auto: weighed by the accelerometer's own consistency; 0 = off; default "
+        "tilt_sigma, radians; auto: weighed by the accelerometer's own consistency; adaptive: by the gain a "
+        "Kalman filter would give it, from that consistency, the tilt's walk and the map's hold, in the scan "
+        "match too; 0 = off; default "
         f"{TiltConfig.tilt_sigma}; needs an IMU)",
     )
     se = parser.add_argument_group("search stage (steps 6-8 again inside a frame)")

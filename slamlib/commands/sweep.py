@@ -119,9 +119,10 @@ def add_arguments(parser) -> None:
         "--tilt-sigma",
         type=tilt_sigma,
         default=None,
-        metavar="RAD|auto",
+        metavar="RAD|auto|adaptive",
         help="slamlib holds roll and pitch to the accelerometer's gravity with this uncertainty "
-        "(TiltConfig.tilt_sigma, radians; auto: weighed by the accelerometer's own consistency; 0 = off; "
+        "(TiltConfig.tilt_sigma, radians; auto: weighed by the accelerometer's own consistency; adaptive: "
+        "by the gain a Kalman filter would give it, in the scan match too; 0 = off; "
         "default: the filter's default)",
     )
     parser.add_argument(
@@ -343,10 +344,12 @@ def main(args) -> int:
         if not 0 <= rounds <= MAX_ANNEAL_ROUNDS:
             _fail(f"--anneal-rounds must be in [0, {MAX_ANNEAL_ROUNDS}], got {rounds}")
         settings = [dict(s, anneal_rounds=rounds) for s in settings]
-    if args.tilt_sigma is not None and not isinstance(args.tilt_sigma, str):
-        if not (math.isfinite(args.tilt_sigma) and args.tilt_sigma >= 0):
+    if args.tilt_sigma is not None:
+        numeric = not isinstance(args.tilt_sigma, str)
+        if numeric and not (math.isfinite(args.tilt_sigma) and args.tilt_sigma >= 0):
             _fail(
-                f"--tilt-sigma must be a finite number >= 0 (radians), got {args.tilt_sigma}"
+                f"--tilt-sigma must be a finite number >= 0 (radians), auto or adaptive, got "
+                f"{args.tilt_sigma}"
             )
         settings = [dict(s, tilt_sigma=args.tilt_sigma) for s in settings]
     if args.deskew is not None:

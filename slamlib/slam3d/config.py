@@ -75,6 +75,9 @@ __all__ = [
 #: A setting left to the data: ``deskew`` (the scans that were swept), ``scan_match`` (on without the tilt prior),
 #: ``particles`` (by the mode).
 AUTO = "auto"
+#: ``TiltConfig.tilt_sigma = "adaptive"``: the prior's weight from how far the tilt has walked against the
+#: accelerometer's noise (:mod:`slamlib.slam3d.stages.prior`, "How much to trust the accelerometer").
+ADAPTIVE = "adaptive"
 #: ``FilterConfig.particles = "auto"`` with an IMU: with scan matching on, the fewest particles tried (100, 200, 300)
 #: that lost no development run to KISS-ICP ("Why these defaults", ``book/defaults.md``).
 IMU_PARTICLES = 300
@@ -597,6 +600,10 @@ class TiltConfig:
         (:func:`slamlib.slam3d.stages.prior.gravity_up`). 0 (default) = off; needs an IMU with ``specific_force``.
         ``sigma`` is the prior's weight against the map as much as an error bar on the measured up; the value the
         realistic sweeps use, and why: book chapter 09 and "Why these defaults" (``book/defaults.md``).
+        ``"auto"``: ``sigma`` is the measured up's own scatter; ``"adaptive"``: the weight is the gain a Kalman
+        filter would give gravity, from that scatter, how far the tilt has walked, and the map's own information
+        on the tilt, which the scan match measures, so ``"adaptive"`` also turns ``ScanMatchConfig.match_tilt``
+        on (:mod:`slamlib.slam3d.stages.prior`, "How much to trust the accelerometer").
     tilt_window : float
         Seconds of accelerometer samples behind each up measurement (longer: less noise from the velocities); the
         prior holds nothing until the window spans them, at a drive's start and after a frame without an
@@ -621,13 +628,18 @@ class TiltConfig:
     tilt_heading_bins: int = 8
 
     def __post_init__(self):
-        auto = isinstance(self.tilt_sigma, str) and self.tilt_sigma == AUTO
+        auto = isinstance(self.tilt_sigma, str)
+        if auto and self.tilt_sigma not in (AUTO, ADAPTIVE):
+            raise ValueError(
+                f"tilt_sigma must be a number >= 0, {AUTO!r} or {ADAPTIVE!r}, got {self.tilt_sigma!r}"
+            )
         if (
             not (auto or _finite("tilt_sigma", self.tilt_sigma) >= 0)
             or not _finite("tilt_window", self.tilt_window) > 0
         ):
             raise ValueError(
-                f"need tilt_sigma >= 0 (0 = off) and tilt_window > 0, got {self.tilt_sigma}, "
+                f"need tilt_sigma >= 0 (0 = off), {AUTO!r} or {ADAPTIVE!r} and tilt_window > 0, "
+                f"got {self.tilt_sigma}, "
                 f"{self.tilt_window}"
             )
         _integer("tilt_heading_bins", self.tilt_heading_bins, 1)

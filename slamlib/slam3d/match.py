@@ -390,7 +390,8 @@ def match_scan(
     road=None,
     tolerance: float = MATCH_TOLERANCE,
     tilt=None,
-) -> np.ndarray:
+    return_hessian: bool = False,
+):
     """``pose`` (4, 4) ``T_world_body`` moved by at most ``iterations`` Newton steps on the Gauss-Newton gradient
     to the nearest peak of ``map_``'s score for the body ``points`` (N, 3) (module docstring): ``(H + K) delta =
     -g``, with ``K`` from the first pass. Each step is taken only if it lowers the cost; the iteration stops at the
@@ -400,35 +401,48 @@ def match_scan(
     height, roll and pitch (module docstring, "Road points"). ``tilt`` ``(up, world_up, weight)`` adds gravity's
     term (:func:`tilt_equations`; module docstring, "Gravity's term"); None: the map score alone. Returns a new
     (4, 4) array; a copy of ``pose`` when the map is not a voxel hash, empty, or ``iterations`` is 0.
+    ``return_hessian``: return ``(pose, C)`` instead, ``C`` (6, 6) the map cost's curvature at ``pose``, the
+    symmetric part of the Newton matrix ``H + K`` of the first pass, without gravity's term (zeros where no match
+    was made): the map's information on the pose, in the cost's units (:class:`slamlib.slam3d.stages.TiltPrior`'s
+    ``"adaptive"`` reads its tilt block). The Gauss-Newton ``H`` alone overstates it: ``K``, from the voxel
+    Gaussians' own slopes, takes a good part of it back.
     """
     T = np.array(pose, dtype=np.float64)
+    unmatched = (T, np.zeros((6, 6))) if return_hessian else T
     if iterations <= 0 or len(map_) == 0 or len(points) == 0:
-        return T
+        return unmatched
     lookup = map_.lookup()
     if lookup.kind != KIND_VOXEL_HASH:
-        return T
+        return unmatched
     pts = np.ascontiguousarray(points, dtype=np.float32)
     args = (_road(road, len(pts)),) + _lookup_args(lookup) + _block_cache(len(pts))
     R, t = np.ascontiguousarray(T[:3, :3]), np.ascontiguousarray(T[:3, 3])
 
-    def equations(R, t, with_k):
-        H, g, cost, K = _normal_equations_nb(R, t, pts, *args, with_k)
-        if tilt is not None:
-            Hg, gg, Eg = tilt_equations(R, *tilt)
-            H, g, cost = H + Hg, g + gg, cost + Eg
-        return H, g, cost, K
+    def with_tilt(R, H, g, cost):
+        if tilt is None:
+            return H, g, cost
+        Hg, gg, Eg = tilt_equations(R, *tilt)
+        return H + Hg, g + gg, cost + Eg
+
+    def equations(R, t):
+        H, g, cost, _ = _normal_equations_nb(R, t, pts, *args, False)
+        return with_tilt(R, H, g, cost)
 
     # K from the first pass only, held for the later steps (module docstring)
-    H, g, cost, K = equations(R, t, True)
+    H_map, g, cost, K = _normal_equations_nb(R, t, pts, *args, True)
+    H, g, cost = with_tilt(R, H_map, g, cost)
     for _ in range(iterations):
         damping = MATCH_DAMPING * max(float(np.trace(H)), np.finfo(float).tiny)
         delta = -np.linalg.solve(H + K + damping * np.eye(6), g)
         if np.linalg.norm(delta) < tolerance:  # the peak is about this step away
             break
         R2, t2 = so3_exp(delta[:3]) @ R, t + delta[3:]
-        H2, g2, cost2, _ = equations(R2, t2, False)
+        H2, g2, cost2 = equations(R2, t2)
         if not cost2 < cost:
             break
         R, t, H, g, cost = R2, t2, H2, g2, cost2
     T[:3, :3], T[:3, 3] = R, t
-    return T
+    if not return_hessian:
+        return T
+    curvature = H_map + K
+    return T, 0.5 * (curvature + curvature.T)

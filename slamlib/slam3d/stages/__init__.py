@@ -22,7 +22,7 @@ upkeep         after step 10: what the map forgets            :class:`MapUpkeep`
 
 from __future__ import annotations
 
-from slamlib.slam3d.config import AUTO
+from slamlib.slam3d.config import ADAPTIVE, AUTO
 from slamlib.slam3d.stages.motion import ConstantVelocity, ImuMotion, has_imu, held_twist
 from slamlib.slam3d.stages.polish import NoPolish, ScanMatch
 from slamlib.slam3d.stages.prior import NoPrior, TiltPrior
@@ -54,8 +54,9 @@ def choose_stages(config, frame, T0):
     holds the road's points to height and tilt. With an IMU: :class:`ImuMotion`, the tilt prior when
     ``config.prior.tilt_sigma`` is not 0. Scan matching (``config.polish.scan_match``): True on, False off,
     ``"auto"`` on unless the tilt prior is, whose pull toward gravity a matcher on the map score alone would undo,
-    climbing back to the roll and pitch the map was built with; with ``config.polish.match_tilt`` the match's cost
-    carries the prior too, and ``"auto"`` is on with it.
+    climbing back to the roll and pitch the map was built with; with ``config.polish.match_tilt``, or the prior
+    ``"adaptive"`` (which reads the map's information on the tilt from the match), the match's cost carries the
+    prior too, and ``"auto"`` is on with it.
     """
     points = config.filter.scored_points
     lidar_only = config.motion.model == "constant_velocity" or not has_imu(frame)
@@ -65,7 +66,7 @@ def choose_stages(config, frame, T0):
         motion = ImuMotion(config.motion, points, T0)
     tilt = bool(config.prior.tilt_sigma) and not lidar_only
     prior = TiltPrior(config.prior) if tilt else NoPrior()
-    held = tilt and config.polish.match_tilt
+    held = tilt and (config.polish.match_tilt or config.prior.tilt_sigma == ADAPTIVE)
     match = config.polish.scan_match
     match = (held or not tilt) if match == AUTO else match
     polish = (

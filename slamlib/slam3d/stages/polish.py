@@ -96,15 +96,16 @@ class ScanMatch:
         if self.voxel > 0:
             points = crop_and_downsample(points, voxel_size=self.voxel)
         road = road_mask(points) if self.road else None
-        matched = match_scan(
-            pose,
-            points,
-            world_map,
-            self.iterations,
-            road,
-            self.tolerance,
-            self._tilt(len(points)),
-        )
+        args = (pose, points, world_map, self.iterations, road, self.tolerance)
+        if getattr(
+            self.prior, "adaptive", False
+        ):  # it weighs itself by the map's information
+            matched, hessian = match_scan(
+                *args, self._tilt(len(points)), return_hessian=True
+            )
+            self.prior.observe_map(hessian, len(points), self.temperature)
+        else:
+            matched = match_scan(*args, self._tilt(len(points)))
         self.n_matched += 1
         if sigma is not None:
             self.last_distance = correction_distance(pose, matched, sigma)

@@ -32,6 +32,30 @@ difference cannot see the bias, which is the same in both windows: the prior hol
 whose error is the fit's own (:func:`tilt_calibration_bias_variance`), large before the drive has turned and
 shrinking as it does. So ``sigma^2`` = the noise's variance + the bias's, within [:data:`AUTO_TILT_SIGMA_MIN`,
 :data:`AUTO_TILT_SIGMA_MAX`]: a weak hold until the bias is known, a firm one after.
+
+That is the measured up's error bar, not yet the prior's best *weight*: each frame's window overlaps the last
+``tilt_window / dt`` ones, and the map pulls every frame too. ``tilt_sigma = "adaptive"`` sets the weight as a
+Kalman filter would (Maybeck, "Stochastic Models, Estimation and Control", vol. 1, 1979, ch. 5), with the map's
+tilt error ``e``, a random walk of rate ``q`` (rad^2/s per axis), as the state, and each frame's up as a
+measurement of it with variance ``R = sigma_u^2 tilt_window / dt`` (``sigma_u`` the window noise above: a frame
+adds ``dt / tilt_window`` of an independent sample). The steady state's gain per frame (:func:`tilt_gain`) is
+
+    k = P / (P + R),     P = (Q + sqrt(Q^2 + 4 Q R)) / 2,     Q = q dt        (k ~ dt sqrt(q / (sigma_u^2 W))).
+
+``q`` is read off the residuals at two lags, ``2 W`` (``W = tilt_window``) and ``L`` = :data:`ADAPTIVE_TILT_LAG_S`:
+over either their difference holds the two windows' noise, and the walk over the lag (the bias, the same at both
+ends, drops out). So with ``D(tau)`` the running mean of :func:`up_scatter` at lag ``tau``, ``D(tau) = sigma_u^2 + q
+tau / 2`` and ``q = 2 (D(L) - D(2 W)) / (L - 2 W)``. (Not the lag ``W`` of ``"auto"``: two windows that meet share
+the velocity at their common end, whose error then enters their difference twice.) The map fixes the tilt with
+information ``I_m`` (step 8's log-weight curvature in roll and pitch: the scan match's curvature ``h`` there, the
+other coordinates free, over ``n T``, ``n`` matched points and ``T`` the temperature,
+:meth:`TiltPrior.observe_map`), gravity with ``1 / sigma^2``, so a frame moves the tilt toward gravity by ``(1 /
+sigma^2) / (I_m + 1 / sigma^2)``; setting that to ``k`` gives ``1 / sigma^2 = I_m k / (1 - k)``
+(:func:`tilt_sigma_for_gain`). Where the map holds its tilt ``q`` is small and so is the pull; a noisier
+accelerometer weakens it. Until the residuals span ``L`` seconds, or before a match, ``sigma`` is
+:data:`AUTO_TILT_SIGMA_START`; it stays within [:data:`AUTO_TILT_SIGMA_MIN`, :data:`ADAPTIVE_TILT_SIGMA_MAX`]. The
+walk is read with the prior on: a firm hold shortens it, which weakens the hold, so the two settle between (the
+fixed point), not at the open-loop rate.
 """
 
 from __future__ import annotations
@@ -42,7 +66,7 @@ import numpy as np
 
 from slamlib.odometry import increment_matrix
 from slamlib.slam3d import steps
-from slamlib.slam3d.config import AUTO, TiltConfig
+from slamlib.slam3d.config import ADAPTIVE, AUTO, TiltConfig
 from slamlib.slam3d.stages.tuning import ForgettingMean
 
 __all__ = [
@@ -50,7 +74,11 @@ __all__ = [
     "AUTO_TILT_SIGMA_MIN",
     "AUTO_TILT_SIGMA_START",
     "UP_SCATTER_MEMORY_S",
+    "ADAPTIVE_TILT_SIGMA_MAX",
+    "ADAPTIVE_TILT_LAG_S",
     "up_scatter",
+    "tilt_gain",
+    "tilt_sigma_for_gain",
     "NoPrior",
     "TiltPrior",
     "TILT_CALIBRATION_UNKNOWNS",
@@ -76,6 +104,11 @@ AUTO_TILT_SIGMA_MAX = 0.02
 AUTO_TILT_SIGMA_START = 0.01
 #: Seconds the running mean square of :func:`up_scatter` remembers.
 UP_SCATTER_MEMORY_S = 30.0
+#: ``tilt_sigma = "adaptive"``: the longer lag ``L`` (s) at which the residuals' scatter shows the tilt's walk:
+#: several windows, short against the drive.
+ADAPTIVE_TILT_LAG_S = 12.0
+#: ... and the most ``sigma`` (rad): where the tilt does not walk, a hold this weak leaves the map's tilt alone.
+ADAPTIVE_TILT_SIGMA_MAX = 0.1
 
 # ------------------------------------------------------------------------------------------------ the math
 
@@ -88,6 +121,29 @@ def up_scatter(residual, residual_before) -> float:
         residual_before, dtype=np.float64
     )
     return float(d @ d) / 4.0
+
+
+def tilt_gain(walk_rate: float, noise_variance: float, window: float, dt: float) -> float:
+    """The steady-state Kalman gain ``k`` (module docstring, "How much to trust the accelerometer") of one frame's
+    up for a tilt error that random-walks at ``walk_rate`` ``q`` (rad^2/s per axis), measured with ``R =
+    noise_variance * window / dt`` (a frame adds ``dt / window`` of an independent sample of the window's noise):
+    ``Q = q dt``, ``P = (Q + sqrt(Q^2 + 4 Q R)) / 2``, ``k = P / (P + R)``. 0 when ``q <= 0``."""
+    Q = max(float(walk_rate), 0.0) * float(dt)
+    if not Q > 0:
+        return 0.0
+    R = float(noise_variance) * float(window) / float(dt)
+    P = 0.5 * (Q + np.sqrt(Q * Q + 4 * Q * R))
+    return float(P / (P + R))
+
+
+def tilt_sigma_for_gain(gain: float, map_information: float) -> float:
+    """The prior's ``sigma`` (rad) that moves the tilt toward gravity by ``gain`` against the map's information
+    ``I_m`` on it (rad^-2, step 8's log-weight curvature): ``1 / sigma^2 = I_m k / (1 - k)``; ``inf`` for no
+    gain."""
+    k = float(gain)
+    if not k > 0:
+        return float("inf")
+    return float(np.sqrt((1 - k) / (float(map_information) * k)))
 
 
 def gravity_up(rotations, specific_force, velocity, dts) -> np.ndarray | None:
@@ -307,9 +363,17 @@ class TiltPrior:
 
     def __init__(self, config: TiltConfig):
         self.auto = config.tilt_sigma == AUTO
+        self.adaptive = config.tilt_sigma == ADAPTIVE
+        measured = self.auto or self.adaptive
         # "auto": the measured up's own scatter, and the prior's sigma with the bias's uncertainty added
-        self.noise_sigma = AUTO_TILT_SIGMA_START if self.auto else config.tilt_sigma
+        self.noise_sigma = AUTO_TILT_SIGMA_START if measured else config.tilt_sigma
         self.sigma = self.noise_sigma
+        # "adaptive": the residuals of the last ADAPTIVE_TILT_LAG_S, the mean of up_scatter at that lag,
+        # and the map's information on the tilt
+        self.lagged: deque = deque()
+        self.scatter_near = ForgettingMean(UP_SCATTER_MEMORY_S)
+        self.scatter_lagged = ForgettingMean(UP_SCATTER_MEMORY_S)
+        self.map_information = None
         self.window = config.tilt_window
         # "auto": (time, residual) of the frames of the last window, and the running mean of up_scatter
         self.residuals: deque = deque()
@@ -369,7 +433,7 @@ class TiltPrior:
         (:func:`balance_heading_bins`)."""
         if self.up is None or self.up_span < self.window:
             return
-        if self.auto:
+        if self.auto or self.adaptive:
             self._weigh_by_consistency(pose, dt)
         weight = dt / self.window / self.noise_sigma**2
         tilt_calibration_add(self.bins, pose[:3, :3], self.up, weight)
@@ -384,14 +448,65 @@ class TiltPrior:
             self.sigma = float(
                 np.clip(np.sqrt(variance), AUTO_TILT_SIGMA_MIN, AUTO_TILT_SIGMA_MAX)
             )
+        elif self.adaptive:
+            self.sigma = self._adaptive_sigma(dt)
+
+    def observe_map(self, hessian, n: int, temperature: float) -> None:
+        """``"adaptive"``: the map's information on the tilt, from the scan match's curvature ``hessian`` (6, 6;
+        rotation first, world frame; :func:`slamlib.slam3d.match.match_scan`'s ``return_hessian``) of ``n`` points
+        at ``temperature``: the information on roll and pitch with the other four coordinates free (the inverse of
+        the world x, y block of the inverse: a roll the map would take back partly by a shift sideways is held only
+        by what is left), the mean of its two diagonal entries, over ``n T`` as step 8's log-weight sees it. A
+        curvature that is not positive definite (a match on a flat patch) leaves the last value."""
+        C = np.asarray(hessian, dtype=np.float64)
+        if n <= 0 or not np.all(np.linalg.eigvalsh(C) > 0):
+            return
+        tilt = np.linalg.inv(np.linalg.inv(C)[:2, :2])
+        self.map_information = 0.5 * float(np.trace(tilt)) / (n * float(temperature))
+
+    def walk_rate(self) -> float:
+        """``"adaptive"``: the tilt's walk ``q = 2 (D(L) - D(2 W)) / (L - 2 W)`` (rad^2/s per axis; module
+        docstring), at least 0."""
+        D_L, D_near = self.scatter_lagged.value, self.scatter_near.value
+        return max(2 * (D_L - D_near) / (ADAPTIVE_TILT_LAG_S - 2 * self.window), 0.0)
+
+    def _adaptive_sigma(self, dt: float) -> float:
+        """``"adaptive"``: ``sigma`` from the gain a Kalman filter would give this frame's up (module docstring);
+        :data:`AUTO_TILT_SIGMA_START` until the residuals span :data:`ADAPTIVE_TILT_LAG_S` and a match has
+        measured the map."""
+        if self.map_information is None or self.scatter_lagged.weight == 0:
+            return AUTO_TILT_SIGMA_START
+        k = tilt_gain(self.walk_rate(), self.scatter.value, self.window, dt)
+        sigma = tilt_sigma_for_gain(k, self.map_information)
+        return float(np.clip(sigma, AUTO_TILT_SIGMA_MIN, ADAPTIVE_TILT_SIGMA_MAX))
+
+    def _walk(self, residual, dt: float) -> None:
+        """``"adaptive"``: this frame's ``residual`` against the ones ``2 W`` and :data:`ADAPTIVE_TILT_LAG_S`
+        earlier into the running means ``scatter_near`` and ``scatter_lagged`` of :func:`up_scatter` (``D(2 W)`` and
+        ``D(L)``, module docstring)."""
+        self.lagged.append((self.time, residual))
+        while (
+            len(self.lagged) > 1 and self.time - self.lagged[1][0] >= ADAPTIVE_TILT_LAG_S
+        ):
+            self.lagged.popleft()  # the rest still reaches back L seconds
+        if self.time - self.lagged[0][0] < ADAPTIVE_TILT_LAG_S:
+            return
+        near = next(
+            r for t, r in reversed(self.lagged) if self.time - t >= 2 * self.window
+        )
+        self.scatter_near.add(up_scatter(residual, near), dt)
+        self.scatter_lagged.add(up_scatter(residual, self.lagged[0][1]), dt)
 
     def _weigh_by_consistency(self, pose, dt: float) -> None:
-        """``tilt_sigma = "auto"``: this frame's residual against the one a window earlier into the running mean of
-        :func:`up_scatter` (``scatter``), and the up's own noise ``noise_sigma`` from it (module docstring);
-        :meth:`calibrate` adds the bias fit's uncertainty to make ``sigma``."""
+        """``tilt_sigma = "auto"`` or ``"adaptive"``: this frame's residual against the one a window earlier into the
+        running mean of :func:`up_scatter` (``scatter``), and the up's own noise ``noise_sigma`` from it (module
+        docstring); :meth:`calibrate` adds the bias fit's uncertainty to make ``sigma``. ``"adaptive"``: the
+        residual also against the one :data:`ADAPTIVE_TILT_LAG_S` earlier (:meth:`walk_rate`)."""
         self.time += dt
         residual = self.held_up() - pose[:3, :3].T @ self.world_up
         self.residuals.append((self.time, residual))
+        if self.adaptive:
+            self._walk(residual, dt)
         earlier = None
         while self.residuals and self.time - self.residuals[0][0] >= self.window:
             earlier = self.residuals.popleft()[1]

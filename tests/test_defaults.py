@@ -690,6 +690,7 @@ def test_the_defaults_page_states_the_match_tilt_runs_as_committed():
         "tilt5": ["--set tilt_sigma=0.005", "--set match_tilt=true"],
         "tilt": ["--set tilt_sigma=auto", "--set match_tilt=true"],
         "tilt3": ["--set tilt_sigma=0.003", "--set match_tilt=true"],
+        "adapt": ["--set tilt_sigma=adaptive"],  # the prior in the match by itself
         "tilt_w4": [
             "--set tilt_sigma=auto",
             "--set tilt_window=4.0",
@@ -704,7 +705,7 @@ def test_the_defaults_page_states_the_match_tilt_runs_as_committed():
         assert f"--imu-noise {noise} " in command and "--seeds 0,1,2,3 " in command
         assert ("--set seed=" in command) == (filter_seeds[tail] is not None), command
         assert all(s in command for s in sets[name]) and ("match_tilt" in command) == (
-            name != "base"
+            name not in ("base", "adapt")
         ), command
         rows = sorted(read_table(folder / "sweep.csv"), key=lambda r: r["seed"])
         assert [(r["route"], r["seed"]) for r in rows] == [("07", s) for s in range(4)]
@@ -720,7 +721,11 @@ def test_the_defaults_page_states_the_match_tilt_runs_as_committed():
         f"{max(b.max() for b in base.values()):.3f} %" in section
     )
     means = {}
-    for name, label in (("tilt5", "at 5 mrad"), ("tilt", '`tilt_sigma = "auto"`')):
+    for name, label in (
+        ("tilt5", "at 5 mrad"),
+        ("tilt", '`tilt_sigma = "auto"`'),
+        ("adapt", '`tilt_sigma = "adaptive"`'),
+    ):
         mine = {n: runs(name, n) for n in (1, 2)}
         lower = sum(int((mine[n] < base[n]).sum()) for n in (1, 2))
         text = (
@@ -732,9 +737,13 @@ def test_the_defaults_page_states_the_match_tilt_runs_as_committed():
     for name, text in (
         ("tilt5", "lowered the mean by {} %"),
         ("tilt", "scatter by {} %"),
+        ("adapt", "the mean {} % below the default's"),
     ):
         assert text.format(round(100 * (1 - means[name]))) in section, means
     assert means["tilt5"] < means["tilt"] < 1, means  # "helped less here"
+    assert means["tilt5"] < means["adapt"] < 1, means  # "far from the fixed 5 mrad's"
+    # "its worst run above the default's worst"
+    assert runs("adapt", 2).max() > max(b.max() for b in base.values())
 
     # the first tries, on the drives' own filter seed only, ran before the prior waited for a whole window: before
     # the runs above, which were rerun with it

@@ -698,10 +698,14 @@ def test_the_defaults_page_states_the_match_tilt_runs_as_committed():
         ],
     }
 
+    def info(folder):
+        """A development sweep's provenance (its ``sweep.json``)."""
+        return json.loads((dev / folder / "sweep.json").read_text())
+
     def errors(name, noise, tail=""):
         """The errors of scene seeds 0-3 (by seed) of one sweep, after checking its command is that setting's."""
         folder = dev / f"x{noise}_{name}{tail}"
-        command = json.loads((folder / "sweep.json").read_text())["command"]
+        command = info(folder.name)["command"]
         assert f"--imu-noise {noise} " in command and "--seeds 0,1,2,3 " in command
         assert ("--set seed=" in command) == (filter_seeds[tail] is not None), command
         assert all(s in command for s in sets[name]) and ("match_tilt" in command) == (
@@ -748,7 +752,7 @@ def test_the_defaults_page_states_the_match_tilt_runs_as_committed():
     # the first tries, on the drives' own filter seed only, ran before the prior waited for a whole window: before
     # the runs above, which were rerun with it
     def utc(folder):
-        return json.loads((dev / folder / "sweep.json").read_text())["machine"]["utc"]
+        return info(folder)["machine"]["utc"]
 
     rerun = min(
         utc(f"x{n}_{s}{t}")

@@ -97,15 +97,13 @@ class ScanMatch:
             points = crop_and_downsample(points, voxel_size=self.voxel)
         road = road_mask(points) if self.road else None
         args = (pose, points, world_map, self.iterations, road, self.tolerance)
-        if getattr(
-            self.prior, "adaptive", False
-        ):  # it weighs itself by the map's information
-            matched, hessian = match_scan(
-                *args, self._tilt(len(points)), return_hessian=True
-            )
+        tilt = self._tilt(len(points))
+        # "adaptive" weighs itself by the map's information on the tilt, which the match measures
+        if getattr(self.prior, "adaptive", False):
+            matched, hessian = match_scan(*args, tilt, return_hessian=True)
             self.prior.observe_map(hessian, len(points), self.temperature)
         else:
-            matched = match_scan(*args, self._tilt(len(points)))
+            matched = match_scan(*args, tilt)
         self.n_matched += 1
         if sigma is not None:
             self.last_distance = correction_distance(pose, matched, sigma)

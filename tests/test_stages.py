@@ -378,24 +378,34 @@ def test_tilt_gain_is_the_steady_state_kalman_gain_of_a_random_walk():
 
 
 @pytest.mark.parametrize("q", [0.0, 4e-6])
-def test_adaptive_reads_the_tilts_walk_from_the_residuals_at_two_lags(q):
+def test_adaptive_reads_the_tilts_walk_and_the_windows_noise_from_the_residuals_at_two_lags(
+    q,
+):
     """Residuals that are a random walk of rate ``q`` per axis plus white noise of 5 mrad: ``walk_rate`` reads
-    ``q`` back (the noise, the same at both lags, drops out), and about 0 when nothing walks."""
+    ``q`` back (the noise, the same at both lags, drops out), about 0 when nothing walks, and ``window_noise``
+    the noise's variance (``D(2 W) - q W``: the walk over the shorter lag taken out)."""
     from slamlib.slam3d.stages.prior import ADAPTIVE_TILT_LAG_S
 
     prior = TiltPrior(TiltConfig(tilt_sigma="adaptive"))
     rng = np.random.default_rng(11)
     dt, sigma = 0.1, 0.005
     walk = np.zeros(3)
-    rates = []
-    for k in range(12000):
+    rates, noises = [], []
+    for _ in range(12000):
         walk[:2] += rng.normal(0, np.sqrt(q * dt), 2)
-        prior.time = k * dt
-        prior._walk(walk + rng.normal(0, sigma, 3) * [1, 1, 0], dt)
+        prior.record(walk + rng.normal(0, sigma, 3) * [1, 1, 0], dt)
         if prior.time > 2 * ADAPTIVE_TILT_LAG_S:
             rates.append(prior.walk_rate())
-    # the mean over 20 minutes of 30 s running means
+            noises.append(prior.window_noise())
+    # the means over 20 minutes of 30 s running means
     assert np.mean(rates) == pytest.approx(q, abs=max(0.3 * q, 0.3e-6))
+    assert np.mean(noises) == pytest.approx(sigma**2, rel=0.1)
+    # the history reaches back the longer lag, no further
+    assert (
+        prior.time - prior.history[1][0]
+        < ADAPTIVE_TILT_LAG_S
+        <= (prior.time - prior.history[0][0])
+    )
 
 
 def test_adaptive_holds_the_match_to_gravity_and_reads_the_maps_information():

@@ -37,25 +37,24 @@ That is the measured up's error bar, not yet the prior's best *weight*: each fra
 ``tilt_window / dt`` ones, and the map pulls every frame too. ``tilt_sigma = "adaptive"`` sets the weight as a
 Kalman filter would (Maybeck, "Stochastic Models, Estimation and Control", vol. 1, 1979, ch. 5), with the map's
 tilt error ``e``, a random walk of rate ``q`` (rad^2/s per axis), as the state, and each frame's up as a
-measurement of it with variance ``R = sigma_u^2 tilt_window / dt`` (``sigma_u`` the window noise above: a frame
-adds ``dt / tilt_window`` of an independent sample). The steady state's gain per frame (:func:`tilt_gain`) is
+measurement of it with variance ``R = sigma_u^2 tilt_window / dt`` (``sigma_u`` the window's noise: a frame adds
+``dt / tilt_window`` of an independent sample). The steady state's gain per frame (:func:`tilt_gain`) is
 
     k = P / (P + R),     P = (Q + sqrt(Q^2 + 4 Q R)) / 2,     Q = q dt        (k ~ dt sqrt(q / (sigma_u^2 W))).
 
 ``q`` is read off the residuals at two lags, ``2 W`` (``W = tilt_window``) and ``L`` = :data:`ADAPTIVE_TILT_LAG_S`:
 over either their difference holds the two windows' noise, and the walk over the lag (the bias, the same at both
 ends, drops out). So with ``D(tau)`` the running mean of :func:`up_scatter` at lag ``tau``, ``D(tau) = sigma_u^2 + q
-tau / 2`` and ``q = 2 (D(L) - D(2 W)) / (L - 2 W)``. (Not the lag ``W`` of ``"auto"``: two windows that meet share
-the velocity at their common end, whose error then enters their difference twice.) The map fixes the tilt with
+tau / 2``: ``q = 2 (D(L) - D(2 W)) / (L - 2 W)`` and ``sigma_u^2 = D(2 W) - q W`` (:meth:`TiltPrior.walk_rate`,
+:meth:`TiltPrior.window_noise`). (Not the lag ``W`` of ``"auto"``: two windows that meet share the velocity at their
+common end, whose error then enters their difference twice.) The map fixes the tilt with
 information ``I_m`` (step 8's log-weight curvature in roll and pitch: the scan match's curvature ``h`` there, the
 other coordinates free, over ``n T``, ``n`` matched points and ``T`` the temperature,
 :meth:`TiltPrior.observe_map`), gravity with ``1 / sigma^2``, so a frame moves the tilt toward gravity by ``(1 /
 sigma^2) / (I_m + 1 / sigma^2)``; setting that to ``k`` gives ``1 / sigma^2 = I_m k / (1 - k)``
 (:func:`tilt_sigma_for_gain`). Where the map holds its tilt ``q`` is small and so is the pull; a noisier
 accelerometer weakens it. Until the residuals span ``L`` seconds, or before a match, ``sigma`` is
-:data:`AUTO_TILT_SIGMA_START`; it stays within [:data:`AUTO_TILT_SIGMA_MIN`, :data:`ADAPTIVE_TILT_SIGMA_MAX`]. The
-walk is read with the prior on: a firm hold shortens it, which weakens the hold, so the two settle between (the
-fixed point), not at the open-loop rate.
+:data:`AUTO_TILT_SIGMA_START`; it stays within [:data:`AUTO_TILT_SIGMA_MIN`, :data:`ADAPTIVE_TILT_SIGMA_MAX`].
 """
 
 from __future__ import annotations
@@ -368,16 +367,16 @@ class TiltPrior:
         # "auto": the measured up's own scatter, and the prior's sigma with the bias's uncertainty added
         self.noise_sigma = AUTO_TILT_SIGMA_START if measured else config.tilt_sigma
         self.sigma = self.noise_sigma
-        # "adaptive": the residuals of the last ADAPTIVE_TILT_LAG_S, the mean of up_scatter at that lag,
-        # and the map's information on the tilt
-        self.lagged: deque = deque()
+        self.window = config.tilt_window
+        # (time, residual) of the frames of the last window ("auto") or ADAPTIVE_TILT_LAG_S ("adaptive"), oldest
+        # first, and the running mean of up_scatter at lag W
+        self.history: deque = deque()
+        self.span = ADAPTIVE_TILT_LAG_S if self.adaptive else self.window
+        self.time, self.scatter = 0.0, ForgettingMean(UP_SCATTER_MEMORY_S)
+        # "adaptive": the means of up_scatter at lags 2 W and L, and the map's information on the tilt
         self.scatter_near = ForgettingMean(UP_SCATTER_MEMORY_S)
         self.scatter_lagged = ForgettingMean(UP_SCATTER_MEMORY_S)
         self.map_information = None
-        self.window = config.tilt_window
-        # "auto": (time, residual) of the frames of the last window, and the running mean of up_scatter
-        self.residuals: deque = deque()
-        self.time, self.scatter = 0.0, ForgettingMean(UP_SCATTER_MEMORY_S)
         self.samples: deque = deque()
         self.up, self.up_span = None, 0.0
         self.calibration_prior = tilt_calibration_prior(
@@ -470,49 +469,55 @@ class TiltPrior:
         D_L, D_near = self.scatter_lagged.value, self.scatter_near.value
         return max(2 * (D_L - D_near) / (ADAPTIVE_TILT_LAG_S - 2 * self.window), 0.0)
 
+    def window_noise(self) -> float:
+        """``"adaptive"``: the window's noise ``sigma_u^2 = D(2 W) - q W`` (rad^2 per axis; module docstring), at
+        least :data:`AUTO_TILT_SIGMA_MIN` squared."""
+        noise = self.scatter_near.value - self.walk_rate() * self.window
+        return max(noise, AUTO_TILT_SIGMA_MIN**2)
+
     def _adaptive_sigma(self, dt: float) -> float:
         """``"adaptive"``: ``sigma`` from the gain a Kalman filter would give this frame's up (module docstring);
         :data:`AUTO_TILT_SIGMA_START` until the residuals span :data:`ADAPTIVE_TILT_LAG_S` and a match has
         measured the map."""
         if self.map_information is None or self.scatter_lagged.weight == 0:
             return AUTO_TILT_SIGMA_START
-        k = tilt_gain(self.walk_rate(), self.scatter.value, self.window, dt)
+        k = tilt_gain(self.walk_rate(), self.window_noise(), self.window, dt)
         sigma = tilt_sigma_for_gain(k, self.map_information)
         return float(np.clip(sigma, AUTO_TILT_SIGMA_MIN, ADAPTIVE_TILT_SIGMA_MAX))
 
-    def _walk(self, residual, dt: float) -> None:
-        """``"adaptive"``: this frame's ``residual`` against the ones ``2 W`` and :data:`ADAPTIVE_TILT_LAG_S`
-        earlier into the running means ``scatter_near`` and ``scatter_lagged`` of :func:`up_scatter` (``D(2 W)`` and
-        ``D(L)``, module docstring)."""
-        self.lagged.append((self.time, residual))
-        while (
-            len(self.lagged) > 1 and self.time - self.lagged[1][0] >= ADAPTIVE_TILT_LAG_S
-        ):
-            self.lagged.popleft()  # the rest still reaches back L seconds
-        if self.time - self.lagged[0][0] < ADAPTIVE_TILT_LAG_S:
-            return
-        near = next(
-            r for t, r in reversed(self.lagged) if self.time - t >= 2 * self.window
-        )
-        self.scatter_near.add(up_scatter(residual, near), dt)
-        self.scatter_lagged.add(up_scatter(residual, self.lagged[0][1]), dt)
+    def _earlier(self, lag: float):
+        """The residual (3,) of the newest frame in :attr:`history` at least ``lag`` seconds before the last; None
+        if there is none."""
+        return next((r for t, r in reversed(self.history) if self.time - t >= lag), None)
+
+    def record(self, residual, dt: float) -> None:
+        """This frame's ``residual`` (3,), body frame, ``dt`` seconds after the last, into :attr:`history` and the
+        running means of :func:`up_scatter`: against the residual a window earlier (``scatter``, ``"auto"``'s noise),
+        and for ``"adaptive"``, once the history reaches back :data:`ADAPTIVE_TILT_LAG_S`, against those ``2 W`` and
+        ``L`` earlier (``scatter_near`` and ``scatter_lagged``: ``D(2 W)`` and ``D(L)``, module docstring)."""
+        self.time += dt
+        self.history.append((self.time, residual))
+        while len(self.history) > 1 and self.time - self.history[1][0] >= self.span:
+            self.history.popleft()  # the rest still reaches back span seconds
+        earlier = self._earlier(self.window)
+        if earlier is not None:
+            self.scatter.add(up_scatter(residual, earlier), dt)
+        if self.adaptive and self.time - self.history[0][0] >= ADAPTIVE_TILT_LAG_S:
+            for lag, mean in (
+                (2 * self.window, self.scatter_near),
+                (ADAPTIVE_TILT_LAG_S, self.scatter_lagged),
+            ):
+                mean.add(up_scatter(residual, self._earlier(lag)), dt)
 
     def _weigh_by_consistency(self, pose, dt: float) -> None:
-        """``tilt_sigma = "auto"`` or ``"adaptive"``: this frame's residual against the one a window earlier into the
-        running mean of :func:`up_scatter` (``scatter``), and the up's own noise ``noise_sigma`` from it (module
-        docstring); :meth:`calibrate` adds the bias fit's uncertainty to make ``sigma``. ``"adaptive"``: the
-        residual also against the one :data:`ADAPTIVE_TILT_LAG_S` earlier (:meth:`walk_rate`)."""
-        self.time += dt
-        residual = self.held_up() - pose[:3, :3].T @ self.world_up
-        self.residuals.append((self.time, residual))
-        if self.adaptive:
-            self._walk(residual, dt)
-        earlier = None
-        while self.residuals and self.time - self.residuals[0][0] >= self.window:
-            earlier = self.residuals.popleft()[1]
-        if earlier is None:
-            return
-        self.scatter.add(up_scatter(residual, earlier), dt)
-        self.noise_sigma = float(
-            np.clip(np.sqrt(self.scatter.value), AUTO_TILT_SIGMA_MIN, AUTO_TILT_SIGMA_MAX)
-        )
+        """``tilt_sigma = "auto"`` or ``"adaptive"``: this frame's residual ``r = u - beta - R^T g_w`` into
+        :meth:`record`, and the up's own noise ``noise_sigma`` from ``scatter`` (module docstring); :meth:`calibrate`
+        adds the bias fit's uncertainty to make ``sigma``."""
+        R = pose[:3, :3]
+        self.record(self.held_up() - R.T @ self.world_up, dt)
+        if self.scatter.weight > 0:
+            self.noise_sigma = float(
+                np.clip(
+                    np.sqrt(self.scatter.value), AUTO_TILT_SIGMA_MIN, AUTO_TILT_SIGMA_MAX
+                )
+            )

@@ -390,21 +390,50 @@ def test_adaptive_reads_the_tilts_walk_and_the_windows_noise_from_the_residuals_
     rng = np.random.default_rng(11)
     dt, sigma = 0.1, 0.005
     walk = np.zeros(3)
-    rates, noises = [], []
+    rates, noises, readings, errors = [], [], [], []
     for _ in range(12000):
         walk[:2] += rng.normal(0, np.sqrt(q * dt), 2)
         prior.record(walk + rng.normal(0, sigma, 3) * [1, 1, 0], dt)
         if prior.time > 2 * ADAPTIVE_TILT_LAG_S:
             rates.append(prior.walk_rate())
             noises.append(prior.window_noise())
+            readings.append(prior.scatter_lagged.value - prior.scatter_near.value)
+            errors.append(prior.walk_standard_error())
+    readings = 2 * np.array(readings) / (ADAPTIVE_TILT_LAG_S - 2 * prior.window)
     # the means over 20 minutes of 30 s running means
     assert np.mean(rates) == pytest.approx(q, abs=max(0.3 * q, 0.3e-6))
     assert np.mean(noises) == pytest.approx(sigma**2, rel=0.1)
+    # the walk's standard error bounds the readings' own spread from above (module docstring)
+    assert np.mean(errors) > np.std(readings) > 0
     # the history reaches back the longer lag, no further
     assert (
         prior.time - prior.history[1][0]
         < ADAPTIVE_TILT_LAG_S
         <= (prior.time - prior.history[0][0])
+    )
+
+
+def test_truncated_normal_mean_is_scipys():
+    """The walk's mean given that it is at least 0: scipy's truncated normal, also far below 0 (where the
+    ``phi / Phi`` ratio of the textbook form would be 0 / 0), and the reading itself, clipped, without a spread."""
+    from scipy.stats import truncnorm
+
+    from slamlib.slam3d.stages.prior import truncated_normal_mean
+
+    for mean, sd in (
+        (1.0, 1.0),
+        (0.0, 1.0),
+        (-3.0, 1.0),
+        (-40.0, 1.0),
+        (5e-6, 1e-6),
+        (-2e-6, 1e-6),
+    ):
+        expected = truncnorm.mean(-mean / sd, np.inf, loc=mean, scale=sd)
+        assert truncated_normal_mean(mean, sd) == pytest.approx(expected, rel=1e-9)
+    assert truncated_normal_mean(0.0, 1.0) == pytest.approx(np.sqrt(2 / np.pi))
+    assert (
+        truncated_normal_mean(-1e-6, 0.0) == 0.0
+        and truncated_normal_mean(2e-6, 0.0) == 2e-6
     )
 
 

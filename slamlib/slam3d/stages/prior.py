@@ -47,7 +47,15 @@ over either their difference holds the two windows' noise, and the walk over the
 ends, drops out). So with ``D(tau)`` the running mean of :func:`up_scatter` at lag ``tau``, ``D(tau) = sigma_u^2 + q
 tau / 2``: ``q = 2 (D(L) - D(2 W)) / (L - 2 W)`` and ``sigma_u^2 = D(2 W) - q W`` (:meth:`TiltPrior.walk_rate`,
 :meth:`TiltPrior.window_noise`). (Not the lag ``W`` of ``"auto"``: two windows that meet share the velocity at their
-common end, whose error then enters their difference twice.) The map fixes the tilt with
+common end, whose error then enters their difference twice.) Over the running means' memory that difference holds
+only a few independent samples, one per lag ``L``, and it often comes out at or below 0 while the tilt walks; a
+gain from ``q = 0`` would hold nothing. So the gain takes the walk's mean given that it is at least 0
+(:func:`truncated_normal_mean`): ``q`` read as a normal of its standard error ``s``
+(:meth:`TiltPrior.walk_standard_error`, from the scatter of the frames' differences) truncated at 0,
+``q + s phi(q / s) / Phi(q / s)``, which is ``q`` where the walk is well read and about ``0.8 s`` where it reads
+none. ``s`` counts one independent difference per lag ``L``, right for the walk's part; the noise's part
+decorrelates within a window, so ``s`` overstates the standard error (an upper bound: several times on white
+noise), and the walk it gives leans toward a firmer hold. The map fixes the tilt with
 information ``I_m`` (step 8's log-weight curvature in roll and pitch: the scan match's curvature ``h`` there, the
 other coordinates free, over ``n T``, ``n`` matched points and ``T`` the temperature,
 :meth:`TiltPrior.observe_map`), gravity with ``1 / sigma^2``, so a frame moves the tilt toward gravity by ``(1 /
@@ -78,6 +86,7 @@ __all__ = [
     "up_scatter",
     "tilt_gain",
     "tilt_sigma_for_gain",
+    "truncated_normal_mean",
     "NoPrior",
     "TiltPrior",
     "TILT_CALIBRATION_UNKNOWNS",
@@ -143,6 +152,20 @@ def tilt_sigma_for_gain(gain: float, map_information: float) -> float:
     if not k > 0:
         return float("inf")
     return float(np.sqrt((1 - k) / (float(map_information) * k)))
+
+
+def truncated_normal_mean(mean: float, sd: float) -> float:
+    """The mean of a normal of ``mean`` and standard deviation ``sd`` truncated to ``[0, inf)``:
+    ``mean + sd phi(z) / Phi(z)`` with ``z = mean / sd`` (Johnson, Kotz & Balakrishnan, "Continuous Univariate
+    Distributions", vol. 1, 1994, ch. 13), the posterior mean of a rate known to be at least 0 and read as ``mean``
+    with that standard error; ``max(mean, 0)`` for ``sd`` 0. ``phi / Phi`` as ``sqrt(2 / pi) / erfcx(-z / sqrt 2)``,
+    which stays finite far below 0 (where it tends to ``sd^2 / |mean|``)."""
+    from scipy.special import erfcx
+
+    mean, sd = float(mean), float(sd)
+    if not sd > 0:
+        return max(mean, 0.0)
+    return float(mean + sd * np.sqrt(2 / np.pi) / erfcx(-mean / sd / np.sqrt(2)))
 
 
 def gravity_up(rotations, specific_force, velocity, dts) -> np.ndarray | None:
@@ -376,6 +399,9 @@ class TiltPrior:
         # "adaptive": the means of up_scatter at lags 2 W and L, and the map's information on the tilt
         self.scatter_near = ForgettingMean(UP_SCATTER_MEMORY_S)
         self.scatter_lagged = ForgettingMean(UP_SCATTER_MEMORY_S)
+        # ... the mean square of the difference of the two samples (for the walk's standard error) and the last dt
+        self.walk_square = ForgettingMean(UP_SCATTER_MEMORY_S)
+        self.dt = 0.1
         self.map_information = None
         self.samples: deque = deque()
         self.up, self.up_span = None, 0.0
@@ -469,6 +495,17 @@ class TiltPrior:
         D_L, D_near = self.scatter_lagged.value, self.scatter_near.value
         return max(2 * (D_L - D_near) / (ADAPTIVE_TILT_LAG_S - 2 * self.window), 0.0)
 
+    def walk_standard_error(self) -> float:
+        """``"adaptive"``: the standard error ``s`` of :meth:`walk_rate`'s ``q`` (rad^2/s; module docstring): the
+        scatter of the frames' differences ``x = up_scatter at L - up_scatter at 2 W`` about their mean, over the
+        independent samples in the running means' memory (one per lag ``L``), times ``2 / (L - 2 W)``. An upper bound:
+        the noise in the differences decorrelates within a window, sooner than a lag ``L``."""
+        span = ADAPTIVE_TILT_LAG_S - 2 * self.window
+        d = self.scatter_lagged.value - self.scatter_near.value
+        spread = max(self.walk_square.value - d * d, 0.0)
+        independent = max(self.scatter_lagged.weight * self.dt / ADAPTIVE_TILT_LAG_S, 1.0)
+        return float(2 * np.sqrt(spread / independent) / span)
+
     def window_noise(self) -> float:
         """``"adaptive"``: the window's noise ``sigma_u^2 = D(2 W) - q W`` (rad^2 per axis; module docstring), at
         least :data:`AUTO_TILT_SIGMA_MIN` squared."""
@@ -481,7 +518,11 @@ class TiltPrior:
         measured the map."""
         if self.map_information is None or self.scatter_lagged.weight == 0:
             return AUTO_TILT_SIGMA_START
-        k = tilt_gain(self.walk_rate(), self.window_noise(), self.window, dt)
+        # the walk's point estimate (not yet clipped at 0) and its mean given that it is at least 0
+        q = 2 * (self.scatter_lagged.value - self.scatter_near.value)
+        q /= ADAPTIVE_TILT_LAG_S - 2 * self.window
+        walk = truncated_normal_mean(q, self.walk_standard_error())
+        k = tilt_gain(walk, self.window_noise(), self.window, dt)
         sigma = tilt_sigma_for_gain(k, self.map_information)
         return float(np.clip(sigma, AUTO_TILT_SIGMA_MIN, ADAPTIVE_TILT_SIGMA_MAX))
 
@@ -503,11 +544,12 @@ class TiltPrior:
         if earlier is not None:
             self.scatter.add(up_scatter(residual, earlier), dt)
         if self.adaptive and self.time - self.history[0][0] >= ADAPTIVE_TILT_LAG_S:
-            for lag, mean in (
-                (2 * self.window, self.scatter_near),
-                (ADAPTIVE_TILT_LAG_S, self.scatter_lagged),
-            ):
-                mean.add(up_scatter(residual, self._earlier(lag)), dt)
+            near = up_scatter(residual, self._earlier(2 * self.window))
+            lagged = up_scatter(residual, self._earlier(ADAPTIVE_TILT_LAG_S))
+            self.scatter_near.add(near, dt)
+            self.scatter_lagged.add(lagged, dt)
+            self.walk_square.add((lagged - near) ** 2, dt)
+            self.dt = dt
 
     def _weigh_by_consistency(self, pose, dt: float) -> None:
         """``tilt_sigma = "auto"`` or ``"adaptive"``: this frame's residual ``r = u - beta - R^T g_w`` into

@@ -397,9 +397,8 @@ def test_adaptive_reads_the_tilts_walk_and_the_windows_noise_from_the_residuals_
         if prior.time > 2 * ADAPTIVE_TILT_LAG_S:
             rates.append(prior.walk_rate())
             noises.append(prior.window_noise())
-            readings.append(prior.scatter_lagged.value - prior.scatter_near.value)
+            readings.append(prior.walk_reading())
             errors.append(prior.walk_standard_error())
-    readings = 2 * np.array(readings) / (ADAPTIVE_TILT_LAG_S - 2 * prior.window)
     # the means over 20 minutes of 30 s running means
     assert np.mean(rates) == pytest.approx(q, abs=max(0.3 * q, 0.3e-6))
     assert np.mean(noises) == pytest.approx(sigma**2, rel=0.1)

@@ -489,14 +489,18 @@ class TiltPrior:
         tilt = np.linalg.inv(np.linalg.inv(C)[:2, :2])
         self.map_information = 0.5 * float(np.trace(tilt)) / (n * float(temperature))
 
-    def walk_rate(self) -> float:
-        """``"adaptive"``: the tilt's walk ``q = 2 (D(L) - D(2 W)) / (L - 2 W)`` (rad^2/s per axis; module
-        docstring), at least 0."""
+    def walk_reading(self) -> float:
+        """``"adaptive"``: the tilt's walk as read, ``q = 2 (D(L) - D(2 W)) / (L - 2 W)`` (rad^2/s per axis; module
+        docstring), which the few independent samples can put below 0."""
         D_L, D_near = self.scatter_lagged.value, self.scatter_near.value
-        return max(2 * (D_L - D_near) / (ADAPTIVE_TILT_LAG_S - 2 * self.window), 0.0)
+        return 2 * (D_L - D_near) / (ADAPTIVE_TILT_LAG_S - 2 * self.window)
+
+    def walk_rate(self) -> float:
+        """``"adaptive"``: :meth:`walk_reading`, at least 0."""
+        return max(self.walk_reading(), 0.0)
 
     def walk_standard_error(self) -> float:
-        """``"adaptive"``: the standard error ``s`` of :meth:`walk_rate`'s ``q`` (rad^2/s; module docstring): the
+        """``"adaptive"``: the standard error ``s`` of :meth:`walk_reading`'s ``q`` (rad^2/s; module docstring): the
         scatter of the frames' differences ``x = up_scatter at L - up_scatter at 2 W`` about their mean, over the
         independent samples in the running means' memory (one per lag ``L``), times ``2 / (L - 2 W)``. An upper bound:
         the noise in the differences decorrelates within a window, sooner than a lag ``L``."""
@@ -518,10 +522,8 @@ class TiltPrior:
         measured the map."""
         if self.map_information is None or self.scatter_lagged.weight == 0:
             return AUTO_TILT_SIGMA_START
-        # the walk's point estimate (not yet clipped at 0) and its mean given that it is at least 0
-        q = 2 * (self.scatter_lagged.value - self.scatter_near.value)
-        q /= ADAPTIVE_TILT_LAG_S - 2 * self.window
-        walk = truncated_normal_mean(q, self.walk_standard_error())
+        # the walk's mean given that it is at least 0
+        walk = truncated_normal_mean(self.walk_reading(), self.walk_standard_error())
         k = tilt_gain(walk, self.window_noise(), self.window, dt)
         sigma = tilt_sigma_for_gain(k, self.map_information)
         return float(np.clip(sigma, AUTO_TILT_SIGMA_MIN, ADAPTIVE_TILT_SIGMA_MAX))
@@ -543,9 +545,10 @@ class TiltPrior:
         earlier = self._earlier(self.window)
         if earlier is not None:
             self.scatter.add(up_scatter(residual, earlier), dt)
-        if self.adaptive and self.time - self.history[0][0] >= ADAPTIVE_TILT_LAG_S:
+        before = self._earlier(ADAPTIVE_TILT_LAG_S) if self.adaptive else None
+        if before is not None:
             near = up_scatter(residual, self._earlier(2 * self.window))
-            lagged = up_scatter(residual, self._earlier(ADAPTIVE_TILT_LAG_S))
+            lagged = up_scatter(residual, before)
             self.scatter_near.add(near, dt)
             self.scatter_lagged.add(lagged, dt)
             self.walk_square.add((lagged - near) ** 2, dt)

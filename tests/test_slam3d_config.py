@@ -24,6 +24,8 @@ def test_config_rejects_bad_values():
         (dict(tilt_window=0.0), "tilt_window"),
         (dict(transient_span=-1), "transient_span must be >= 0"),
         (dict(tilt_heading_bins=0), "tilt_heading_bins must be >= 1"),
+        (dict(tilt_up="gps"), "tilt_up must be one of 'velocity', 'positions'"),
+        (dict(tilt_bias="median"), "tilt_bias must be one of 'sectors', 'kalman'"),
         (dict(transient_span=2.5), "transient_span must be an integer"),
         (
             dict(transient_span=10, kind="morton_bvh"),

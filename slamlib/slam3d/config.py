@@ -68,6 +68,8 @@ __all__ = [
     "ScanMatchConfig",
     "SLAM3DConfig",
     "MAP_KINDS",
+    "TILT_UP_SOURCES",
+    "TILT_BIAS_MODELS",
     "OLD_MAP_NAMES",
     "RENAMED",
 ]
@@ -78,6 +80,13 @@ AUTO = "auto"
 #: ``TiltConfig.tilt_sigma = "adaptive"``: the prior's weight from how far the tilt has walked against the
 #: accelerometer's noise (:mod:`slamlib.slam3d.stages.prior`, "How much to trust the accelerometer").
 ADAPTIVE = "adaptive"
+#: ``TiltConfig.tilt_up``: what separates gravity from the vehicle's acceleration, the IMU's velocities (the
+#: default) or the filter's own positions over the window (:mod:`slamlib.slam3d.stages.prior`).
+TILT_UP_SOURCES = ("velocity", "positions")
+#: ``TiltConfig.tilt_bias``: how the accelerometer's bias is told from the map's tilt, least squares in heading
+#: sectors with the world's up held (the default) or a Kalman filter that lets the tilt walk
+#: (:mod:`slamlib.slam3d.stages.prior`).
+TILT_BIAS_MODELS = ("sectors", "kalman")
 #: ``FilterConfig.particles = "auto"`` with an IMU: with scan matching on, the fewest particles tried (100, 200, 300)
 #: that lost no development run to KISS-ICP ("Why these defaults", ``book/defaults.md``).
 IMU_PARTICLES = 300
@@ -619,6 +628,17 @@ class TiltConfig:
     tilt_heading_bins : int
         Sectors of heading that weigh alike in that fit (:func:`slamlib.slam3d.stages.prior.balance_heading_bins`),
         so that a long straight does not pass its share of the map's tilt to the bias; 1 = every frame alike.
+    tilt_up : str
+        What separates gravity from the vehicle's own acceleration over the window: ``"velocity"`` (default) the
+        IMU's velocities at its ends (:func:`slamlib.slam3d.stages.prior.gravity_up`), ``"positions"`` the
+        filter's own positions over it (:func:`slamlib.slam3d.stages.prior.gravity_up_from_positions`: the
+        velocities' noise, scale error and bias drop out).
+    tilt_bias : str
+        How the bias is told from the map's tilt: ``"sectors"`` (default) least squares over the heading sectors,
+        the world's up held (:func:`slamlib.slam3d.stages.prior.tilt_calibration_update`); ``"kalman"`` a Kalman
+        filter whose state also holds the map's tilt error as a random walk
+        (:func:`slamlib.slam3d.stages.prior.tilt_kalman_update`; ``tilt_world_sigma`` is then where that tilt
+        starts, ``tilt_heading_bins`` unused).
     """
 
     tilt_sigma: float | str = 0.0
@@ -626,8 +646,18 @@ class TiltConfig:
     tilt_bias_sigma: float = 0.01
     tilt_world_sigma: float = 0.0
     tilt_heading_bins: int = 8
+    tilt_up: str = TILT_UP_SOURCES[0]
+    tilt_bias: str = TILT_BIAS_MODELS[0]
 
     def __post_init__(self):
+        for name, choices in (
+            ("tilt_up", TILT_UP_SOURCES),
+            ("tilt_bias", TILT_BIAS_MODELS),
+        ):
+            if getattr(self, name) not in choices:
+                raise ValueError(
+                    f"{name} must be one of {', '.join(map(repr, choices))}, got {getattr(self, name)!r}"
+                )
         auto = isinstance(self.tilt_sigma, str)
         if auto and self.tilt_sigma not in (AUTO, ADAPTIVE):
             raise ValueError(

@@ -7,7 +7,9 @@ earlier estimates: each frame's small tilt error goes into the map, and over tho
 (on a whole KITTI route tens of milliradians, which the motion turns into metres of height). Gravity is the one
 absolute reference on board. Each frame the stage reads the accelerometer
 (:func:`~slamlib.slam3d.steps.read_specific_force`), :func:`gravity_up` separates gravity from the
-vehicle's own acceleration over the last ``tilt_window`` seconds, and, once the window spans them (a shorter one
+vehicle's own acceleration over the last ``tilt_window`` seconds (with ``TiltConfig.tilt_up = "positions"``,
+:func:`gravity_up_from_positions`: by the filter's own positions over the window instead of the IMU's velocities
+at its ends, whose noise and scale error then drop out), and, once the window spans them (a shorter one
 measures up with errors ~ 1 / its span: tens of milliradians in a drive's first frames), step 8 adds
 :func:`tilt_log_prior` to every weight: a measurement of two of the six pose coordinates, as
 an attitude filter uses its accelerometer. An accelerometer bias ``b`` tilts the measured up by ``b / g`` for good,
@@ -15,6 +17,12 @@ so after step 9 each frame's estimated rotation and measured up also go into a l
 (:func:`tilt_calibration_update`; a bias turns with the body, a tilted map does not), and step 8
 compares each particle's ``R_i^T g_w`` with the measured up less the bias. ``g_w``, the world's up, is ``e_z``
 (the first body pose taken as level) unless ``TiltConfig.tilt_world_sigma > 0`` lets the fit move it.
+
+That fit takes the filter's own rotation as the truth, so whatever the map's tilt has walked between two turns it
+passes to the bias, and the prior then holds the tilt to an up that has moved with the map. With
+``TiltConfig.tilt_bias = "kalman"`` a Kalman filter estimates both (:func:`tilt_kalman_update`): the map's tilt
+error as a random walk of rate :data:`TILT_WALK_RATE`, the bias as a constant, from the same residual; a change
+the body's turning explains is bias, the rest is tilt.
 
 :class:`NoPrior` (``TiltConfig.tilt_sigma = 0``, or LIDAR-only: no accelerometer) adds nothing.
 
@@ -73,7 +81,13 @@ import numpy as np
 
 from slamlib.odometry import increment_matrix
 from slamlib.slam3d import steps
-from slamlib.slam3d.config import ADAPTIVE, AUTO, TiltConfig
+from slamlib.slam3d.config import (
+    ADAPTIVE,
+    AUTO,
+    TILT_BIAS_MODELS,
+    TILT_UP_SOURCES,
+    TiltConfig,
+)
 from slamlib.slam3d.stages.tuning import ForgettingMean
 
 __all__ = [
@@ -91,6 +105,7 @@ __all__ = [
     "TiltPrior",
     "TILT_CALIBRATION_UNKNOWNS",
     "gravity_up",
+    "gravity_up_from_positions",
     "tilt_log_prior",
     "tilt_calibration_prior",
     "tilt_calibration_update",
@@ -101,6 +116,8 @@ __all__ = [
     "tilt_calibration_add",
     "tilt_calibration_estimate",
     "tilt_calibration_bias_variance",
+    "tilt_kalman_update",
+    "TILT_WALK_RATE",
 ]
 
 
@@ -117,6 +134,10 @@ UP_SCATTER_MEMORY_S = 30.0
 ADAPTIVE_TILT_LAG_S = 12.0
 #: ... and the most ``sigma`` (rad): where the tilt does not walk, a hold this weak leaves the map's tilt alone.
 ADAPTIVE_TILT_SIGMA_MAX = 0.1
+#: ``tilt_bias = "kalman"``: the rate ``q`` (rad^2/s per axis) at which the Kalman filter lets the map's tilt walk.
+#: Without the prior the filter's tilt walked 8-12 mrad over the 100 s of route 07's development drive (scene seed
+#: 0, filter seeds 0 and 1): ``q ~ (10 mrad)^2 / 100 s``.
+TILT_WALK_RATE = 1e-6
 
 # ------------------------------------------------------------------------------------------------ the math
 
@@ -204,6 +225,56 @@ def gravity_up(rotations, specific_force, velocity, dts) -> np.ndarray | None:
     up_w = np.sum(0.5 * (f_w[:-1] + f_w[1:]) * dts[:, None], axis=0) - (v_w[-1] - v_w[0])
     up_b = R[-1].T @ up_w
     return up_b / np.linalg.norm(up_b)
+
+
+def gravity_up_from_positions(
+    rotations, positions, specific_force, dts
+) -> np.ndarray | None:
+    """Which way is up, in the body frame of the last of ``K + 1`` frames, from the accelerometer and the frames'
+    *positions* over them, not the IMU's velocities (:func:`gravity_up`'s other measurement).
+
+    Integrating ``a = R f_b - g e_z`` twice from ``t_0`` (``tau = t - t_0``; ``S(tau)``, the double integral of
+    ``R f_b``, by the trapezoid rule twice over the samples)::
+
+        p(tau) - S(tau) = p_0 + v_0 tau - g e_z tau^2 / 2,
+
+    so a least-squares fit of ``c_0 + c_1 tau + c_2 tau^2 / 2`` to ``p_k - S(tau_k)`` (three unknown vectors, each
+    axis alike) gives ``c_2 = -g e_z``: the up is ``-c_2``, normalised, turned into the last body frame by
+    ``R_K^T`` (only rotations and positions *relative* to the last frame matter, as in :func:`gravity_up`). The
+    start velocity is fitted, not read from the IMU, so the velocity's noise, scale error and bias drop out: over
+    ``T`` seconds a position error ``dp`` tilts the up by about ``dp / (g T^2 / 2)`` (1 cm over 2 s: 0.5 mrad,
+    against :func:`gravity_up`'s ``dv / (g T)``, 2.5 mrad for 0.05 m/s). A filter passes its own estimates: the
+    scan-matched positions over a second or two are good to centimetres. An accelerometer bias still tilts it by
+    ``b / g``.
+
+    Returns the unit vector ``R_K^T e_z`` (3,) as measured, or None when fewer than three frames or no time span.
+
+    Parameters
+    ----------
+    rotations : (K + 1, 3, 3) body-to-world rotations ``R_k``.
+    positions : (K + 1, 3) body positions ``p_k`` (m, world frame).
+    specific_force : (K + 1, 3) accelerometer samples ``f_b`` (m/s^2, body frame, gravity included).
+    dts : (K + 1,) ``dts[k] = t_k - t_{k-1}`` (s); ``dts[0]`` is ignored.
+    """
+    R = np.asarray(rotations, dtype=np.float64)
+    p = np.asarray(positions, dtype=np.float64)
+    dts = np.asarray(dts, dtype=np.float64)
+    if len(dts) < 3 or not dts[1:].sum() > 0:
+        return None
+    f_w = np.einsum("kij,kj->ki", R, np.asarray(specific_force, dtype=np.float64))
+    h = dts[1:, None]
+    velocity = np.concatenate(
+        [np.zeros((1, 3)), np.cumsum(0.5 * (f_w[:-1] + f_w[1:]) * h, axis=0)]
+    )
+    S = np.concatenate(
+        [np.zeros((1, 3)), np.cumsum(0.5 * (velocity[:-1] + velocity[1:]) * h, axis=0)]
+    )
+    tau = np.concatenate([[0.0], np.cumsum(dts[1:])])
+    A = np.stack([np.ones_like(tau), tau, 0.5 * tau * tau], axis=1)
+    c, *_ = np.linalg.lstsq(A, p - S, rcond=None)
+    up_b = R[-1].T @ -c[2]
+    norm = np.linalg.norm(up_b)
+    return up_b / norm if norm > 0 else None
 
 
 #: Unknowns of the tilt calibration, in order: the world's up ``g_w = normalise(e_z + (a, b, 0))`` (world x, y
@@ -331,6 +402,45 @@ def tilt_calibration_bias_variance(prior, sums) -> float:
     return float(np.mean(np.diag(cov)[bias]))
 
 
+def tilt_kalman_update(
+    state, cov, R, up, noise_variance: float, walk_variance: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """One frame of the tilt calibration as a Kalman filter (``TiltConfig.tilt_bias = "kalman"``; returns new
+    arrays): the state ``x = (a, b, c, d)`` of :data:`TILT_CALIBRATION_UNKNOWNS`, but with ``(a, b)`` the *filter's*
+    world up off gravity's, its map's tilt error, which random-walks, and ``(c, d)`` the accelerometer's bias,
+    which holds. The measurement is :func:`tilt_calibration_update`'s,
+
+        y = u - R^T e_z = H x + noise,    H = [R^T e_x, R^T e_y, e_x, e_y]    (3, 4),
+
+    the prediction adds ``walk_variance`` (``q dt``, rad^2 per axis) to the tilt's variance, and the update is the
+    standard one (Joseph form; Maybeck 1979, ch. 5): ``K = P H^T (H P H^T + r I)^-1``, ``x += K (y - H x)``,
+    ``P = (I - K H) P (I - K H)^T + r K K^T`` with ``r = noise_variance``. With no walk it is the least squares of
+    :func:`tilt_calibration_update` with weight ``1 / r``, the world's up free; those hold the world's up still
+    and pass the map's walk to the bias between turns, this one lets the tilt move and keeps as bias only what
+    stays put in the body as it turns.
+
+    Parameters
+    ----------
+    state : (4,) ``(a, b, c, d)`` (rad); cov : (4, 4) its covariance (rad^2).
+    R : (3, 3) the filter's body-to-world rotation; up : (3,) the measured up (body frame, :func:`gravity_up`).
+    noise_variance : the frame's measurement variance per axis (rad^2; a window of ``T`` s measured every ``dt``:
+        ``sigma_u^2 T / dt``, as each frame adds ``dt / T`` of an independent sample).
+    walk_variance : the tilt's random walk over the frame, ``q dt`` (rad^2 per axis).
+    """
+    R = np.asarray(R, dtype=np.float64)
+    P = np.array(cov, dtype=np.float64)
+    P[:2, :2] += float(walk_variance) * np.eye(2)
+    H = np.column_stack([R[0], R[1], np.eye(3)[:, 0], np.eye(3)[:, 1]])
+    y = np.asarray(up, dtype=np.float64) - R[2]
+    r = float(noise_variance)
+    K = P @ H.T @ np.linalg.inv(H @ P @ H.T + r * np.eye(3))
+    x = np.asarray(state, dtype=np.float64) + K @ (
+        y - H @ np.asarray(state, dtype=np.float64)
+    )
+    A = np.eye(4) - K @ H
+    return x, A @ P @ A.T + r * K @ K.T
+
+
 def tilt_log_prior(particles, up, sigma: float, world_up=None) -> np.ndarray:
     """Step 8's second term: log-prior ``(P,)`` of each particle's roll and pitch given the measured up direction.
 
@@ -391,6 +501,7 @@ class TiltPrior:
         self.noise_sigma = AUTO_TILT_SIGMA_START if measured else config.tilt_sigma
         self.sigma = self.noise_sigma
         self.window = config.tilt_window
+        self.from_positions = config.tilt_up == TILT_UP_SOURCES[1]
         # (time, residual) of the frames of the last window ("auto") or ADAPTIVE_TILT_LAG_S ("adaptive"), oldest
         # first, and the running mean of up_scatter at lag W
         self.history: deque = deque()
@@ -412,6 +523,13 @@ class TiltPrior:
         self.world_up, self.up_bias = tilt_calibration_estimate(
             self.calibration_prior, self.bins
         )
+        # "kalman": the map's tilt error and the bias as a Kalman filter's state, the tilt starting where the
+        # world's up may stand
+        self.kalman = config.tilt_bias == TILT_BIAS_MODELS[1]
+        self.state = np.zeros(4)
+        self.cov = np.diag(
+            np.repeat([config.tilt_world_sigma, config.tilt_bias_sigma], 2) ** 2
+        )
 
     def measure(self, frame, imu, dt: float, increment, poses) -> None:
         """This frame's up, from the accelerometer over the last ``tilt_window`` seconds
@@ -427,11 +545,14 @@ class TiltPrior:
         samples.append((force, imu[0], dt))
         while len(samples) > 2 and sum(s[2] for s in list(samples)[2:]) >= self.window:
             samples.popleft()  # the rest still spans the window
-        past = [T[:3, :3] for T in poses[len(poses) - len(samples) + 1 :]]
-        R = np.array(past + [poses[-1][:3, :3] @ increment_matrix(*increment)[:3, :3]])
+        past = list(poses[len(poses) - len(samples) + 1 :])
+        T = np.array(past + [poses[-1] @ increment_matrix(*increment)])
         force, velocity, dts = (np.array(x) for x in zip(*samples))
         self.up_span = float(dts[1:].sum())
-        self.up = gravity_up(R, force, velocity, dts)
+        if self.from_positions:
+            self.up = gravity_up_from_positions(T[:, :3, :3], T[:, :3, 3], force, dts)
+        else:
+            self.up = gravity_up(T[:, :3, :3], force, velocity, dts)
 
     def held_up(self) -> np.ndarray | None:
         """The up the prior holds the tilt to: this frame's measured up less the fitted bias (3,), body frame
@@ -460,16 +581,29 @@ class TiltPrior:
             return
         if self.auto or self.adaptive:
             self._weigh_by_consistency(pose, dt)
-        weight = dt / self.window / self.noise_sigma**2
-        tilt_calibration_add(self.bins, pose[:3, :3], self.up, weight)
-        self.world_up, self.up_bias = tilt_calibration_estimate(
-            self.calibration_prior, self.bins
-        )
-        if self.auto:
-            # the up less the fitted bias is off by the window's noise and by the fit's own error
-            variance = self.noise_sigma**2 + tilt_calibration_bias_variance(
+        if self.kalman:
+            self.state, self.cov = tilt_kalman_update(
+                self.state,
+                self.cov,
+                pose[:3, :3],
+                self.up,
+                self.noise_sigma**2 * self.window / dt,
+                TILT_WALK_RATE * dt,
+            )
+            self.up_bias = np.array([*self.state[2:], 0.0])
+            bias_variance = float(np.mean(np.diag(self.cov)[2:]))
+        else:
+            weight = dt / self.window / self.noise_sigma**2
+            tilt_calibration_add(self.bins, pose[:3, :3], self.up, weight)
+            self.world_up, self.up_bias = tilt_calibration_estimate(
                 self.calibration_prior, self.bins
             )
+            bias_variance = tilt_calibration_bias_variance(
+                self.calibration_prior, self.bins
+            )
+        if self.auto:
+            # the up less the fitted bias is off by the window's noise and by the fit's own error
+            variance = self.noise_sigma**2 + bias_variance
             self.sigma = float(
                 np.clip(np.sqrt(variance), AUTO_TILT_SIGMA_MIN, AUTO_TILT_SIGMA_MAX)
             )

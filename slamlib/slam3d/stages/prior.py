@@ -484,13 +484,16 @@ class TiltPrior:
 
     Attributes
     ----------
-    up : (3,) the accelerometer's up direction in this frame's body (:func:`gravity_up`); None
-        until a frame with an accelerometer has been measured.
+    up : (3,) the accelerometer's up direction in this frame's body (:func:`gravity_up`, or
+        :func:`gravity_up_from_positions` with ``tilt_up = "positions"``); None until a frame with an accelerometer
+        has been measured.
     samples : deque of ``(specific_force, velocity, dt)`` of the frames in the window; ``up_span`` the seconds
         it spans.
     world_up, up_bias : (3,) the estimated world's up (world frame) and accelerometer bias (an angle, body frame)
         (``e_z`` and 0 until frames come in). Behind them: ``calibration_prior`` ``(Lambda, eta, free)`` and
-        ``bins`` ``(Lambdas, etas, weights)``, the least-squares sums of each heading sector.
+        ``bins`` ``(Lambdas, etas, weights)``, the least-squares sums of each heading sector; with ``tilt_bias =
+        "kalman"`` instead ``state`` (4,) and ``cov`` (4, 4) of :func:`tilt_kalman_update` (the map's tilt error and
+        the bias; ``world_up`` then stays ``e_z``, the tilt error being the filter's to correct, not the world's).
     """
 
     def __init__(self, config: TiltConfig):

@@ -108,6 +108,7 @@ __all__ = [
     "gravity_up_from_positions",
     "tilt_log_prior",
     "tilt_calibration_prior",
+    "tilt_calibration_rows",
     "tilt_calibration_update",
     "tilt_calibration",
     "heading_bin",
@@ -301,6 +302,15 @@ def tilt_calibration_prior(
     return np.diag(info), np.zeros(4), free
 
 
+def tilt_calibration_rows(R, up) -> tuple[np.ndarray, np.ndarray]:
+    """The tilt calibration's linear measurement of one frame, ``(H (3, 4), y (3,))`` with ``y = u - R^T e_z =
+    H x``: ``H = [R^T e_x, R^T e_y, e_x, e_y]`` (the rows of ``R`` are ``R^T e_i``) for the unknowns of
+    :data:`TILT_CALIBRATION_UNKNOWNS` (derivation: :func:`tilt_calibration_update`)."""
+    R = np.asarray(R, dtype=np.float64)
+    H = np.column_stack([R[0], R[1], np.eye(3)[:, 0], np.eye(3)[:, 1]])
+    return H, np.asarray(up, dtype=np.float64) - R[2]
+
+
 def tilt_calibration_update(
     info, eta, R, up, weight: float
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -317,10 +327,7 @@ def tilt_calibration_update(
     Inertial, and Multisensor Integrated Navigation Systems", 2nd ed. 2013, ch. 14). ``Lambda += w H^T H``,
     ``eta += w H^T y`` with ``weight w = 1 / sigma_u^2`` times the frame's share of an independent sample.
     """
-    R = np.asarray(R, dtype=np.float64)
-    # rows of R: R^T e_x, R^T e_y
-    H = np.column_stack([R[0], R[1], np.eye(3)[:, 0], np.eye(3)[:, 1]])
-    y = np.asarray(up, dtype=np.float64) - R[2]
+    H, y = tilt_calibration_rows(R, up)
     return info + weight * H.T @ H, eta + weight * H.T @ y
 
 
@@ -427,16 +434,13 @@ def tilt_kalman_update(
         ``sigma_u^2 T / dt``, as each frame adds ``dt / T`` of an independent sample).
     walk_variance : the tilt's random walk over the frame, ``q dt`` (rad^2 per axis).
     """
-    R = np.asarray(R, dtype=np.float64)
     P = np.array(cov, dtype=np.float64)
     P[:2, :2] += float(walk_variance) * np.eye(2)
-    H = np.column_stack([R[0], R[1], np.eye(3)[:, 0], np.eye(3)[:, 1]])
-    y = np.asarray(up, dtype=np.float64) - R[2]
+    H, y = tilt_calibration_rows(R, up)
     r = float(noise_variance)
     K = P @ H.T @ np.linalg.inv(H @ P @ H.T + r * np.eye(3))
-    x = np.asarray(state, dtype=np.float64) + K @ (
-        y - H @ np.asarray(state, dtype=np.float64)
-    )
+    x = np.asarray(state, dtype=np.float64)
+    x = x + K @ (y - H @ x)
     A = np.eye(4) - K @ H
     return x, A @ P @ A.T + r * K @ K.T
 
@@ -490,10 +494,11 @@ class TiltPrior:
     samples : deque of ``(specific_force, velocity, dt)`` of the frames in the window; ``up_span`` the seconds
         it spans.
     world_up, up_bias : (3,) the estimated world's up (world frame) and accelerometer bias (an angle, body frame)
-        (``e_z`` and 0 until frames come in). Behind them: ``calibration_prior`` ``(Lambda, eta, free)`` and
-        ``bins`` ``(Lambdas, etas, weights)``, the least-squares sums of each heading sector; with ``tilt_bias =
-        "kalman"`` instead ``state`` (4,) and ``cov`` (4, 4) of :func:`tilt_kalman_update` (the map's tilt error and
-        the bias; ``world_up`` then stays ``e_z``, the tilt error being the filter's to correct, not the world's).
+        (``e_z`` and 0 until frames come in). Behind them: with ``tilt_bias = "sectors"`` ``calibration_prior``
+        ``(Lambda, eta, free)`` and ``bins`` ``(Lambdas, etas, weights)``, the least-squares sums of each heading
+        sector; with ``"kalman"`` ``state`` (4,) and ``cov`` (4, 4) of :func:`tilt_kalman_update` (the map's tilt
+        error and the bias; ``world_up`` then stays ``e_z``, the tilt error being the filter's to correct, not the
+        world's).
     """
 
     def __init__(self, config: TiltConfig):
@@ -519,20 +524,23 @@ class TiltPrior:
         self.map_information = None
         self.samples: deque = deque()
         self.up, self.up_span = None, 0.0
-        self.calibration_prior = tilt_calibration_prior(
-            config.tilt_world_sigma, config.tilt_bias_sigma
-        )
-        self.bins = tilt_calibration_bins(config.tilt_heading_bins)
-        self.world_up, self.up_bias = tilt_calibration_estimate(
-            self.calibration_prior, self.bins
-        )
-        # "kalman": the map's tilt error and the bias as a Kalman filter's state, the tilt starting where the
-        # world's up may stand
         self.kalman = config.tilt_bias == TILT_BIAS_MODELS[1]
-        self.state = np.zeros(4)
-        self.cov = np.diag(
-            np.repeat([config.tilt_world_sigma, config.tilt_bias_sigma], 2) ** 2
-        )
+        if self.kalman:
+            # the map's tilt error and the bias as a Kalman filter's state, the tilt starting where the world's
+            # up may stand
+            self.state = np.zeros(4)
+            self.cov = np.diag(
+                np.repeat([config.tilt_world_sigma, config.tilt_bias_sigma], 2) ** 2
+            )
+            self.world_up, self.up_bias = np.array([0.0, 0.0, 1.0]), np.zeros(3)
+        else:
+            self.calibration_prior = tilt_calibration_prior(
+                config.tilt_world_sigma, config.tilt_bias_sigma
+            )
+            self.bins = tilt_calibration_bins(config.tilt_heading_bins)
+            self.world_up, self.up_bias = tilt_calibration_estimate(
+                self.calibration_prior, self.bins
+            )
 
     def measure(self, frame, imu, dt: float, increment, poses) -> None:
         """This frame's up, from the accelerometer over the last ``tilt_window`` seconds
@@ -594,24 +602,27 @@ class TiltPrior:
                 TILT_WALK_RATE * dt,
             )
             self.up_bias = np.array([*self.state[2:], 0.0])
-            bias_variance = float(np.mean(np.diag(self.cov)[2:]))
         else:
             weight = dt / self.window / self.noise_sigma**2
             tilt_calibration_add(self.bins, pose[:3, :3], self.up, weight)
             self.world_up, self.up_bias = tilt_calibration_estimate(
                 self.calibration_prior, self.bins
             )
-            bias_variance = tilt_calibration_bias_variance(
-                self.calibration_prior, self.bins
-            )
         if self.auto:
             # the up less the fitted bias is off by the window's noise and by the fit's own error
-            variance = self.noise_sigma**2 + bias_variance
+            variance = self.noise_sigma**2 + self.bias_variance()
             self.sigma = float(
                 np.clip(np.sqrt(variance), AUTO_TILT_SIGMA_MIN, AUTO_TILT_SIGMA_MAX)
             )
         elif self.adaptive:
             self.sigma = self._adaptive_sigma(dt)
+
+    def bias_variance(self) -> float:
+        """The fitted bias's variance per axis (rad^2): the Kalman filter's, or the sectors' least squares'
+        (:func:`tilt_calibration_bias_variance`)."""
+        if self.kalman:
+            return float(np.mean(np.diag(self.cov)[2:]))
+        return tilt_calibration_bias_variance(self.calibration_prior, self.bins)
 
     def observe_map(self, hessian, n: int, temperature: float) -> None:
         """``"adaptive"``: the map's information on the tilt, from the scan match's curvature ``hessian`` (6, 6;

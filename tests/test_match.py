@@ -524,10 +524,12 @@ def test_pipeline_matches_every_frame_by_default_in_both_modes_and_none_when_off
         ).slam.n_matched
         == 0
     )
-    # with the tilt prior: off, unless the match's cost carries the prior too
+    # with the tilt prior: on, the match's cost carrying the prior too (match_tilt, the default); off with
+    # match_tilt off
     tilt = dict(particles=50, tilt_sigma="auto")
-    assert run_drive(raw, SLAM3DConfig.of(**tilt), progress=False).slam.n_matched == 0
-    held = run_drive(raw, SLAM3DConfig.of(**tilt, match_tilt=True), progress=False).slam
+    off = SLAM3DConfig.of(**tilt, match_tilt=False)
+    assert run_drive(raw, off, progress=False).slam.n_matched == 0
+    held = run_drive(raw, SLAM3DConfig.of(**tilt), progress=False).slam
     assert held.n_matched == 5 and held.polish.prior is held.prior
 
 

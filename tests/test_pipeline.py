@@ -168,9 +168,12 @@ def test_stages_are_chosen_once_from_the_settings_and_the_first_frame():
     imu.register_frame(_frame(scan))
     chosen = (imu.motion, imu.prior, imu.polish)
     assert isinstance(imu.motion, ImuMotion)
-    assert isinstance(imu.prior, NoPrior)
-    # scan matching on by default with an IMU too, the road's points not held
+    # the tilt prior on by default with an IMU (this frame has no accelerometer: nothing measured yet)
+    assert isinstance(imu.prior, TiltPrior) and imu.prior.up is None
+    assert imu.prior.sigma == config.prior.tilt_sigma > 0
+    # scan matching on by default with an IMU too, the road's points not held, the prior in its cost
     assert isinstance(imu.polish, ScanMatch) and not imu.polish.road
+    assert imu.polish.prior is imu.prior
     # the tilt prior that weighs itself; a frame without an accelerometer leaves it nothing to hold to
     auto = ParticleSLAM3D(config.with_(tilt_sigma="auto"))
     auto.register_frame(_frame(scan))
@@ -194,8 +197,9 @@ def test_stages_are_chosen_once_from_the_settings_and_the_first_frame():
     tilted.register_frame(_frame(scan, specific_force=np.array([0.0, 0.0, 9.81])))
     assert isinstance(tilted.prior, TiltPrior) and tilted.prior.sigma == 0.003
     assert isinstance(tilted.polish, ScanMatch) and not tilted.polish.road  # forced
-    # left to "auto", the tilt prior turns scan matching off: the matcher would undo its pull
-    prior_only = ParticleSLAM3D(config.with_(tilt_sigma=0.003))
+    # left to "auto" with match_tilt off, the tilt prior turns scan matching off: a matcher on the map score
+    # alone would undo its pull
+    prior_only = ParticleSLAM3D(config.with_(tilt_sigma=0.003, match_tilt=False))
     prior_only.register_frame(_frame(scan, specific_force=np.array([0.0, 0.0, 9.81])))
     assert isinstance(prior_only.prior, TiltPrior)
     assert isinstance(prior_only.polish, NoPolish)
@@ -369,8 +373,9 @@ def test_transient_voxels_are_evicted_every_span_frames(drive):
 def test_tilt_prior_pulls_a_tilted_start_back_to_gravity(drive):
     """Started with a 40 mrad pitch error (the map is built tilted), the map alone keeps the filter tilted; the
     accelerometer's up (step 3) in step 8 pulls it back toward level against that map (2 mrad: a strong prior; a
-    0.5 s window, exact on this noise-free IMU, so that it holds from the sixth of the 30 frames). A pose's up in
-    its body is its rotation's third row. The spread is held fixed: how fast the pull acts depends on step 6's
+    0.5 s window, the up from the IMU's velocities, near exact on this IMU, so that it holds from the sixth of the
+    30 frames; the up from the filter's positions over so short a window is not). A pose's up in its body is its
+    rotation's third row. The spread is held fixed: how fast the pull acts depends on step 6's
     spread in pitch, which self-tuning would narrow to the drive's own small pitch innovations (the pull per frame
     is at most about that spread)."""
     frames, gt = drive
@@ -385,7 +390,11 @@ def test_tilt_prior_pulls_a_tilted_start_back_to_gravity(drive):
     without, plain = run(tilt_sigma=0.0)
     # level world, no bias
     with_prior, slam = run(
-        tilt_sigma=0.002, tilt_window=0.5, tilt_world_sigma=0.0, tilt_bias_sigma=0.0
+        tilt_sigma=0.002,
+        tilt_window=0.5,
+        tilt_world_sigma=0.0,
+        tilt_bias_sigma=0.0,
+        tilt_up="velocity",
     )
     assert without > 0.03 and plain.prior.up is None  # the map holds the start's tilt
     assert with_prior < without / 2, (with_prior, without)

@@ -336,16 +336,31 @@ def test_slamlib_run_tilt_sigma_auto_and_self_tuning_reach_the_filter(
 
 
 def test_slamlib_run_match_tilt_reaches_the_filter(cli_drive, tmp_path):
-    """``--match-tilt`` with the tilt prior is recorded, and the scan match then runs on every frame after the
-    first (``auto``), where without it the prior turns the match off."""
+    """``--match-tilt`` (the default) with the tilt prior is recorded, and the scan match then runs on every frame
+    after the first (``auto``), where with ``--no-match-tilt`` the prior turns the match off; ``--tilt-up`` and
+    ``--tilt-bias`` are recorded as given."""
     from slamlib.cli import main
 
     args, _ = cli_drive
-    for flag, out in (([], tmp_path / "a"), (["--match-tilt"], tmp_path / "b")):
+    for flag, out in (
+        (
+            ["--no-match-tilt", "--tilt-up", "velocity", "--tilt-bias", "sectors"],
+            tmp_path / "a",
+        ),
+        ([], tmp_path / "b"),
+    ):
         assert main(args + ["--tilt-sigma", "0.005", *flag, "--out", str(out)]) == 0
     off, on = (json.loads((tmp_path / d / "metrics.json").read_text()) for d in "ab")
     assert off["config"]["polish"]["match_tilt"] is False
     assert on["config"]["polish"]["match_tilt"] is True
+    assert (off["config"]["prior"]["tilt_up"], off["config"]["prior"]["tilt_bias"]) == (
+        "velocity",
+        "sectors",
+    )
+    assert (on["config"]["prior"]["tilt_up"], on["config"]["prior"]["tilt_bias"]) == (
+        "positions",
+        "kalman",
+    )
     assert off["n_matched_frames"] == 0 < on["n_matched_frames"]
 
 
@@ -363,6 +378,8 @@ TUNING_OPTIONS = {
     "--temperature",
     "--scan-match",
     "--match-tilt",
+    "--tilt-up",
+    "--tilt-bias",
     "--deskew",
 }
 
@@ -627,6 +644,8 @@ def test_slamlib_run_help_groups_the_options_by_stage(capsys):
         ("--deskew", "scan stage"),
         ("--lidar-only", "motion stage"),
         ("--tilt-sigma", "prior stage"),
+        ("--tilt-up", "prior stage"),
+        ("--tilt-bias", "prior stage"),
         ("--anneal-rounds", "search stage"),
         ("--scan-match", "polish stage"),
         ("--match-tilt", "polish stage"),

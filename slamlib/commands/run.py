@@ -100,6 +100,8 @@ def add_arguments(parser) -> None:
         LIDAR_ONLY_PARTICLES,
         MAP_KINDS,
         OLD_MAP_NAMES,
+        TILT_BIAS_MODELS,
+        TILT_UP_SOURCES,
         AnnealConfig,
         FilterConfig,
         MapConfig,
@@ -219,6 +221,20 @@ def add_arguments(parser) -> None:
         "match too; 0 = off; default "
         f"{TiltConfig.tilt_sigma}; needs an IMU)",
     )
+    pr.add_argument(
+        "--tilt-up",
+        choices=TILT_UP_SOURCES,
+        default=TiltConfig.tilt_up,
+        help="what separates gravity from the car's acceleration over the window: the IMU's velocities or the "
+        f"filter's own positions (TiltConfig.tilt_up; default {TiltConfig.tilt_up})",
+    )
+    pr.add_argument(
+        "--tilt-bias",
+        choices=TILT_BIAS_MODELS,
+        default=TiltConfig.tilt_bias,
+        help="how the accelerometer's bias is told from the map's tilt: least squares over heading sectors or a "
+        f"Kalman filter that lets the tilt walk (TiltConfig.tilt_bias; default {TiltConfig.tilt_bias})",
+    )
     se = parser.add_argument_group("search stage (steps 6-8 again inside a frame)")
     se.add_argument(
         "--anneal-rounds",
@@ -249,9 +265,11 @@ def add_arguments(parser) -> None:
     )
     po.add_argument(
         "--match-tilt",
-        action="store_true",
-        help="with --tilt-sigma, the scan match's cost holds the tilt prior too, weighed as step 8 weighs it, "
-        "and --scan-match auto is on (ScanMatchConfig.match_tilt; default off)",
+        action=argparse.BooleanOptionalAction,
+        default=ScanMatchConfig.match_tilt,
+        help="with the tilt prior on (--tilt-sigma not 0), the scan match's cost holds it too, weighed as step 8 "
+        "weighs it, and --scan-match auto is on (ScanMatchConfig.match_tilt; default "
+        f"{'on' if ScanMatchConfig.match_tilt else 'off'})",
     )
     for old in (
         "--no-deskew",
@@ -466,6 +484,8 @@ def main(args) -> int:
             scan_match=args.scan_match,
             match_tilt=args.match_tilt,
             tilt_sigma=args.tilt_sigma,
+            tilt_up=args.tilt_up,
+            tilt_bias=args.tilt_bias,
             transient_span=args.transient_span,
             self_tuning=args.self_tuning,
         )

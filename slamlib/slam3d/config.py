@@ -74,17 +74,18 @@ __all__ = [
     "RENAMED",
 ]
 
-#: A setting left to the data: ``deskew`` (the scans that were swept), ``scan_match`` (on without the tilt prior),
+#: A setting left to the data: ``deskew`` (the scans that were swept), ``scan_match`` (on unless the tilt prior is on
+#: and ``match_tilt`` off),
 #: ``particles`` (by the mode).
 AUTO = "auto"
 #: ``TiltConfig.tilt_sigma = "adaptive"``: the prior's weight from how far the tilt has walked against the
 #: accelerometer's noise (:mod:`slamlib.slam3d.stages.prior`, "How much to trust the accelerometer").
 ADAPTIVE = "adaptive"
-#: ``TiltConfig.tilt_up``: what separates gravity from the vehicle's acceleration, the IMU's velocities (the
-#: default) or the filter's own positions over the window (:mod:`slamlib.slam3d.stages.prior`).
+#: ``TiltConfig.tilt_up``: what separates gravity from the vehicle's acceleration, the IMU's velocities or the
+#: filter's own positions over the window (the default) (:mod:`slamlib.slam3d.stages.prior`).
 TILT_UP_SOURCES = ("velocity", "positions")
 #: ``TiltConfig.tilt_bias``: how the accelerometer's bias is told from the map's tilt, least squares in heading
-#: sectors with the world's up held (the default) or a Kalman filter that lets the tilt walk
+#: sectors with the world's up held, or a Kalman filter that lets the tilt walk (the default)
 #: (:mod:`slamlib.slam3d.stages.prior`).
 TILT_BIAS_MODELS = ("sectors", "kalman")
 #: ``FilterConfig.particles = "auto"`` with an IMU: with scan matching on, the fewest particles tried (100, 200, 300)
@@ -606,9 +607,10 @@ class TiltConfig:
     tilt_sigma : float
         Radians; > 0 holds roll and pitch to gravity: step 8 adds :func:`slamlib.slam3d.stages.prior.tilt_log_prior`
         with the up direction the accelerometer measured over the last ``tilt_window`` seconds
-        (:func:`slamlib.slam3d.stages.prior.gravity_up`). 0 (default) = off; needs an IMU with ``specific_force``.
-        ``sigma`` is the prior's weight against the map as much as an error bar on the measured up; the value the
-        realistic sweeps use, and why: book chapter 09 and "Why these defaults" (``book/defaults.md``).
+        (:func:`slamlib.slam3d.stages.prior.gravity_up`). 0 = off; needs an IMU with ``specific_force`` (without
+        one the prior is off whatever this is). ``sigma`` is the prior's weight against the map as much as an error
+        bar on the measured up; the default 0.003 (3 mrad, with ``ScanMatchConfig.match_tilt`` on) and why: book
+        chapter 09 and "Why these defaults" (``book/defaults.md``).
         ``"auto"``: ``sigma`` is the measured up's own scatter; ``"adaptive"``: the weight is the gain a Kalman
         filter would give gravity, from that scatter, how far the tilt has walked, and the map's own information
         on the tilt, which the scan match measures, so ``"adaptive"`` also turns ``ScanMatchConfig.match_tilt``
@@ -629,25 +631,25 @@ class TiltConfig:
         Sectors of heading that weigh alike in that fit (:func:`slamlib.slam3d.stages.prior.balance_heading_bins`),
         so that a long straight does not pass its share of the map's tilt to the bias; 1 = every frame alike.
     tilt_up : str
-        What separates gravity from the vehicle's own acceleration over the window: ``"velocity"`` (default) the
-        IMU's velocities at its ends (:func:`slamlib.slam3d.stages.prior.gravity_up`), ``"positions"`` the
+        What separates gravity from the vehicle's own acceleration over the window: ``"velocity"`` the IMU's
+        velocities at its ends (:func:`slamlib.slam3d.stages.prior.gravity_up`), ``"positions"`` (default) the
         filter's own positions over it (:func:`slamlib.slam3d.stages.prior.gravity_up_from_positions`: the
         velocities' noise, scale error and bias drop out).
     tilt_bias : str
-        How the bias is told from the map's tilt: ``"sectors"`` (default) least squares over the heading sectors,
-        the world's up held (:func:`slamlib.slam3d.stages.prior.tilt_calibration_update`); ``"kalman"`` a Kalman
+        How the bias is told from the map's tilt: ``"sectors"`` least squares over the heading sectors, the world's
+        up held (:func:`slamlib.slam3d.stages.prior.tilt_calibration_update`); ``"kalman"`` (default) a Kalman
         filter whose state also holds the map's tilt error as a random walk
         (:func:`slamlib.slam3d.stages.prior.tilt_kalman_update`; ``tilt_world_sigma`` is then where that tilt
         starts, ``tilt_heading_bins`` unused).
     """
 
-    tilt_sigma: float | str = 0.0
+    tilt_sigma: float | str = 0.003
     tilt_window: float = 2.0
     tilt_bias_sigma: float = 0.01
     tilt_world_sigma: float = 0.0
     tilt_heading_bins: int = 8
-    tilt_up: str = TILT_UP_SOURCES[0]
-    tilt_bias: str = TILT_BIAS_MODELS[0]
+    tilt_up: str = TILT_UP_SOURCES[1]
+    tilt_bias: str = TILT_BIAS_MODELS[1]
 
     def __post_init__(self):
         for name, choices in (
@@ -722,10 +724,10 @@ class ScanMatchConfig:
         down-sampled scan thinned to ``match_voxel`` (:func:`slamlib.slam3d.match.match_scan`), and the particles
         with it (the improved proposal of Grisetti et al. 2007). ``"auto"`` (default): on in both modes (LIDAR-only
         with the road's points holding height and tilt only, :class:`slamlib.slam3d.stages.ScanMatch`), except
-        with the tilt prior (``TiltConfig.tilt_sigma`` not 0), whose pull toward gravity the matcher, climbing
-        the map score alone, would undo; True forces it, False turns it off (the filter alone). Why on with an
-        IMU: "Why these defaults". Voxel
-        hash map only (other maps are left as they are).
+        with the tilt prior (``TiltConfig.tilt_sigma`` not 0) and ``match_tilt`` off, when the matcher, climbing
+        the map score alone, would undo the prior's pull toward gravity; True forces it, False turns it off (the
+        filter alone). Why on with an IMU: "Why these defaults". Voxel hash map only (other maps are left as they
+        are).
     scan_match_iterations : int
         Most Newton steps per frame (each one only if it lowers the cost; the iteration also stops once a step is
         tiny). Default 15; why: "Why these defaults" (``book/defaults.md``).
@@ -751,7 +753,7 @@ class ScanMatchConfig:
     match_tilt : bool
         With the tilt prior on (``TiltConfig.tilt_sigma`` not 0), the match's cost carries it too, weighed as step
         8 weighs it (:mod:`slamlib.slam3d.match`, "Gravity's term"), and ``scan_match = "auto"`` is then on.
-        Default False (the match on the map score alone).
+        Default True; False: the match on the map score alone, and ``"auto"`` off with the prior.
     """
 
     scan_match: str | bool = AUTO
@@ -759,7 +761,7 @@ class ScanMatchConfig:
     match_voxel: float = 0.5
     match_tolerance: float = MATCH_TOLERANCE
     match_gate: float = MATCH_GATE
-    match_tilt: bool = False
+    match_tilt: bool = True
 
     def __post_init__(self):
         object.__setattr__(

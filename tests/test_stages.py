@@ -743,6 +743,54 @@ def test_tilt_prior_measures_the_up_from_the_source_it_was_given(source):
     assert np.linalg.norm(prior.up - R[-1].T @ [0.0, 0.0, 1.0]) < 6e-3
 
 
+def test_tilt_kalman_update_with_a_world_tilt_takes_a_tilted_start_for_the_world():
+    """A state of six: a world tilted 30 mrad from the start (a drive that starts on a slope), a bias, and a map
+    that starts right and walks later. The first windows' discrepancy goes to the world's tilt, not to the map's
+    walk or the bias; the turns then tell the bias apart. The four-state filter, with no world, takes the start's
+    tilt for bias (its map's tilt starts at 0 and walks slowly), and a turn later is still off by milliradians:
+    the prior would hold the tilt to an up off by that much."""
+    rng = np.random.default_rng(4)
+    world, bias = np.array([0.03, -0.01]), np.array([0.004, -0.002])
+    noise = 1e-3
+    x6, P6 = np.zeros(6), np.diag(np.repeat([0.05, 0.0, 0.01], 2) ** 2)
+    x4, P4 = np.zeros(4), np.diag(np.repeat([0.0, 0.01], 2) ** 2)
+    for k in range(600):
+        R = rpy_to_matrix([0.0, 0.0, 0.01 * k])  # a slow turn: every heading
+        g_w = np.array([*world, 1.0]) / np.linalg.norm([*world, 1.0])
+        up = R.T @ g_w + [*bias, 0.0] + rng.normal(0, noise, 3)
+        x6, P6 = tilt_kalman_update(x6, P6, R, up, noise**2, 1e-8)
+        x4, P4 = tilt_kalman_update(x4, P4, R, up, noise**2, 1e-8)
+        if k == 20:  # a few windows in, before the turn has gone far
+            assert np.abs(x6[:2] - world).max() < 0.005 and np.abs(x6[2:4]).max() < 0.005
+            assert np.abs(x4[2:] - bias).max() > 0.02  # the four-state: the tilt as bias
+    np.testing.assert_allclose(x6[:2], world, atol=2e-3)
+    np.testing.assert_allclose(x6[4:], bias, atol=1e-3)
+    assert np.abs(x6[2:4]).max() < 3e-3
+    assert np.abs(x4[2:] - bias).max() > 0.005
+
+
+def test_tilt_prior_with_a_kalman_world_holds_to_the_estimated_world_up():
+    """``tilt_bias = "kalman"`` with ``tilt_world_sigma`` > 0: six states, and step 8 holds the particles' up in
+    the estimated world's up (``world_up`` from the state's first two), less the bias."""
+    sigma, up = 0.005, rpy_to_matrix([0.02, -0.01, 0.0]).T @ [0.0, 0.0, 1.0]
+    config = TiltConfig(
+        tilt_sigma=sigma, tilt_window=0.5, tilt_bias="kalman", tilt_world_sigma=0.05
+    )
+    prior = TiltPrior(config)
+    assert prior.state.shape == (6,) and np.allclose(np.diag(prior.cov)[:2], 0.05**2)
+    for k in range(6):
+        _measure_frame(prior, k, 0.25, up)
+        prior.calibrate(np.eye(4), 0.25)
+    expected = np.array([*prior.state[:2], 1.0])
+    np.testing.assert_allclose(prior.world_up, expected / np.linalg.norm(expected))
+    # the measured up (body = world here) goes mostly to the world (prior sigma 50 mrad against
+    # the bias's 10)
+    assert np.all(0.8 * up[:2] < prior.world_up[:2]) and np.all(
+        prior.world_up[:2] < up[:2]
+    )
+    np.testing.assert_array_equal(prior.up_bias, [*prior.state[4:], 0.0])
+
+
 def test_tilt_prior_with_a_kalman_bias_holds_the_up_less_the_filters_bias():
     """``tilt_bias = "kalman"``: once the window spans ``tilt_window`` each frame goes into
     :func:`tilt_kalman_update` (the measurement's variance ``sigma^2 window / dt``, the walk ``TILT_WALK_RATE dt``,

@@ -639,8 +639,9 @@ class TiltConfig:
         How the bias is told from the map's tilt: ``"sectors"`` least squares over the heading sectors, the world's
         up held (:func:`slamlib.slam3d.stages.prior.tilt_calibration_update`); ``"kalman"`` (default) a Kalman
         filter whose state also holds the map's tilt error as a random walk
-        (:func:`slamlib.slam3d.stages.prior.tilt_kalman_update`; ``tilt_world_sigma`` is then where that tilt
-        starts, ``tilt_heading_bins`` unused).
+        (:func:`slamlib.slam3d.stages.prior.tilt_kalman_update`, the tilt starting at 0; with ``tilt_world_sigma``
+        > 0 the state holds the world's tilt too, constant, with that prior sigma, ahead of the walk, and step 8
+        holds to that world's up; ``tilt_heading_bins`` unused).
     """
 
     tilt_sigma: float | str = 0.003

@@ -426,22 +426,32 @@ def tilt_kalman_update(
     and pass the map's walk to the bias between turns, this one lets the tilt move and keeps as bias only what
     stays put in the body as it turns.
 
+    With a state of six, ``x = (a_0, b_0, a, b, c, d)``, ``(a_0, b_0)`` is the *world's* up off gravity's, which
+    holds (the first body pose defines the world, and a drive that starts on a slope or a cambered road starts
+    tilted), and ``(a, b)`` the map's tilt error from there on, which walks, starting at 0: both enter ``y`` alike
+    (``H = [R^T e_x, R^T e_y, R^T e_x, R^T e_y, e_x, e_y]``), so only their priors tell them apart: what the first
+    windows measure goes to the world, what comes later as a walk to the map.
+
     Parameters
     ----------
-    state : (4,) ``(a, b, c, d)`` (rad); cov : (4, 4) its covariance (rad^2).
+    state : (4,) ``(a, b, c, d)`` or (6,) ``(a_0, b_0, a, b, c, d)`` (rad); cov : (4, 4) or (6, 6) its covariance
+        (rad^2).
     R : (3, 3) the filter's body-to-world rotation; up : (3,) the measured up (body frame, :func:`gravity_up`).
     noise_variance : the frame's measurement variance per axis (rad^2; a window of ``T`` s measured every ``dt``:
         ``sigma_u^2 T / dt``, as each frame adds ``dt / T`` of an independent sample).
     walk_variance : the tilt's random walk over the frame, ``q dt`` (rad^2 per axis).
     """
+    x = np.asarray(state, dtype=np.float64)
+    walk = len(x) - 4  # the map's tilt: after the world's, when the state has it
     P = np.array(cov, dtype=np.float64)
-    P[:2, :2] += float(walk_variance) * np.eye(2)
+    P[walk : walk + 2, walk : walk + 2] += float(walk_variance) * np.eye(2)
     H, y = tilt_calibration_rows(R, up)
+    if walk:
+        H = np.column_stack([H[:, :2], H])
     r = float(noise_variance)
     K = P @ H.T @ np.linalg.inv(H @ P @ H.T + r * np.eye(3))
-    x = np.asarray(state, dtype=np.float64)
     x = x + K @ (y - H @ x)
-    A = np.eye(4) - K @ H
+    A = np.eye(len(x)) - K @ H
     return x, A @ P @ A.T + r * K @ K.T
 
 
@@ -526,12 +536,13 @@ class TiltPrior:
         self.up, self.up_span = None, 0.0
         self.kalman = config.tilt_bias == TILT_BIAS_MODELS[1]
         if self.kalman:
-            # the map's tilt error and the bias as a Kalman filter's state, the tilt starting where the world's
-            # up may stand
-            self.state = np.zeros(4)
-            self.cov = np.diag(
-                np.repeat([config.tilt_world_sigma, config.tilt_bias_sigma], 2) ** 2
-            )
+            # the map's tilt error and the bias as a Kalman filter's state, the tilt starting at 0; with
+            # tilt_world_sigma the world's tilt too, ahead of them
+            sigmas = [0.0, config.tilt_bias_sigma]
+            if config.tilt_world_sigma > 0:
+                sigmas = [config.tilt_world_sigma, *sigmas]
+            self.state = np.zeros(2 * len(sigmas))
+            self.cov = np.diag(np.repeat(sigmas, 2) ** 2)
             self.world_up, self.up_bias = np.array([0.0, 0.0, 1.0]), np.zeros(3)
         else:
             self.calibration_prior = tilt_calibration_prior(
@@ -601,7 +612,10 @@ class TiltPrior:
                 self.noise_sigma**2 * self.window / dt,
                 TILT_WALK_RATE * dt,
             )
-            self.up_bias = np.array([*self.state[2:], 0.0])
+            self.up_bias = np.array([*self.state[-2:], 0.0])
+            if len(self.state) == 6:
+                world = np.array([*self.state[:2], 1.0])
+                self.world_up = world / np.linalg.norm(world)
         else:
             weight = dt / self.window / self.noise_sigma**2
             tilt_calibration_add(self.bins, pose[:3, :3], self.up, weight)
@@ -621,7 +635,7 @@ class TiltPrior:
         """The fitted bias's variance per axis (rad^2): the Kalman filter's, or the sectors' least squares'
         (:func:`tilt_calibration_bias_variance`)."""
         if self.kalman:
-            return float(np.mean(np.diag(self.cov)[2:]))
+            return float(np.mean(np.diag(self.cov)[-2:]))
         return tilt_calibration_bias_variance(self.calibration_prior, self.bins)
 
     def observe_map(self, hessian, n: int, temperature: float) -> None:

@@ -321,6 +321,9 @@ def test_a_failing_task_names_itself_in_one_line_and_the_others_rows_are_kept(
         (["--set", "tuning_gain=0"], "--set: tuning_gain must be finite and > 0"),
         (["--set", "self_tuning"], "--set: expected NAME=VALUE, got 'self_tuning'"),
         (["--set", "tuning_floor=[1, 2]"], "--set: tuning_floor must be 6 finite"),
+        (["--start-tilt", "0.03"], "--start-tilt: start_tilt must be \\(roll, pitch\\)"),
+        (["--start-tilt", "0.03,x"], "--start-tilt: could not convert"),
+        (["--start-tilt", "0.6,0"], "--start-tilt: start_tilt must be"),
     ],
 )
 def test_sweep_options_are_checked_before_any_work(tmp_path, argv, message):
@@ -401,6 +404,37 @@ def test_sweep_refuses_to_overwrite_its_table(tmp_path):
     with pytest.raises(SystemExit, match="holds sweep.csv: pass --overwrite"):
         main(["sweep", "--out", str(tmp_path)])
     assert (tmp_path / "sweep.csv").read_text() == "mine\n"
+
+
+def test_a_start_tilt_reads_the_level_drive_with_gravity_turned(tmp_path, monkeypatch):
+    """``DriveOptions.start_tilt``: the drive's folder is the level drive's (only the reading differs), the label
+    and the journal's task key name it, the level drive's key is as before, and the run reads the drive through
+    :class:`slamlib.synth.tilt.StartTilted`."""
+    from slamlib.experiments import sweep as sweep_module
+    from slamlib.experiments.sweep import DriveOptions, task_key
+    from slamlib.synth.tilt import StartTilted
+
+    level = DriveOptions(True, 1.0, True)
+    tilted = DriveOptions(True, 1.0, True, 1.0, (0.0358, 0.009))
+    a, b = (
+        sweep_tasks(["07"], [0], ["raw"], ["slamlib"], [{}], (0, 5), o)[0]
+        for o in (level, tilted)
+    )
+    assert a.drive_key() == b.drive_key() and task_key(a) != task_key(b)
+    assert "start_tilt" not in task_key(a)  # journals of level drives keep their keys
+    assert (
+        tilted.label() == "distortion, traffic x1, bias walk, start tilted 35.8, 9 mrad"
+    )
+    import slamlib.kitti
+
+    class _Drive:
+        def ground_truth_poses(self, frame="imu"):
+            return np.eye(4)[None]
+
+    monkeypatch.setattr(slamlib.kitti, "KittiRawDrive", lambda *a: _Drive())
+    read = sweep_module._frames_of(b, str(tmp_path))
+    assert isinstance(read, StartTilted) and read.start_tilt == (0.0358, 0.009)
+    assert isinstance(sweep_module._frames_of(a, str(tmp_path)), _Drive)
 
 
 def test_drive_options_name_their_drives_and_reach_the_generator(monkeypatch, tmp_path):

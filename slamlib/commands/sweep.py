@@ -179,6 +179,14 @@ def add_arguments(parser) -> None:
         metavar="SCALE",
         help="multiply every IMU noise, bias, scale error and bias walk by SCALE (raw layout; default 1)",
     )
+    real.add_argument(
+        "--start-tilt",
+        default=None,
+        metavar="ROLL,PITCH",
+        help="the drive's first pose stands tilted against gravity by ROLL and PITCH radians, as a real drive's "
+        "may (KITTI raw drive 0001's: 0.0358,0.0090); applied to the accelerometer as the drive is read "
+        "(slamlib.synth.tilt.StartTilted; raw layout; default level)",
+    )
     parser.add_argument(
         "--data",
         type=Path,
@@ -415,9 +423,17 @@ def main(args) -> int:
     from slamlib.paths import cache_dir
     from slamlib.synth import GENERATOR_VERSION
 
-    drive = DriveOptions(
-        args.distortion, args.traffic or 0.0, args.bias_walk, args.imu_noise
-    )
+    try:
+        tilt = (
+            tuple(float(a) for a in args.start_tilt.split(","))
+            if args.start_tilt is not None
+            else (0.0, 0.0)
+        )
+        drive = DriveOptions(
+            args.distortion, args.traffic or 0.0, args.bias_walk, args.imu_noise, tilt
+        )
+    except ValueError as exc:
+        _fail(f"--start-tilt: {exc}")
     tasks = sweep_tasks(routes, seeds, layouts, methods, settings, frames, drive)
     data = args.data if args.data is not None else cache_dir() / "sweep"
     print(

@@ -36,7 +36,7 @@ import json
 import logging
 import time
 from collections import Counter
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -110,14 +110,17 @@ class DriveOptions:
     moving cars, cyclists and pedestrians at that multiple of a KITTI city drive's density
     (:data:`slamlib.synth.traffic.KITTI_CITY`; 0 = none); ``bias_walk``: the IMU biases wander
     (:data:`slamlib.synth.WANDERING_BIASES`); ``imu_noise``: every IMU noise, bias, scale error and bias walk
-    multiplied by this (:meth:`slamlib.synth.ImuNoise.scaled`; 1 = the generator's). The last two: raw layout
-    only, the odometry layout has no IMU.
+    multiplied by this (:meth:`slamlib.synth.ImuNoise.scaled`; 1 = the generator's); ``start_tilt``: ``(roll,
+    pitch)`` (rad) the drive's first pose stands tilted against gravity, applied to the accelerometer as the drive
+    is read (:class:`slamlib.synth.tilt.StartTilted`; the files, and so the drive's folder, are the level drive's).
+    The last three: raw layout only, the odometry layout has no IMU.
     """
 
     distortion: bool = False
     traffic: float = 0.0
     bias_walk: bool = False
     imu_noise: float = 1.0
+    start_tilt: tuple = (0.0, 0.0)
 
     def __post_init__(self):
         if not (np.isfinite(self.traffic) and self.traffic >= 0):
@@ -126,6 +129,13 @@ class DriveOptions:
             raise ValueError(
                 f"imu_noise must be a finite number >= 0, got {self.imu_noise}"
             )
+        tilt = tuple(float(a) for a in self.start_tilt)
+        if len(tilt) != 2 or not all(np.isfinite(a) and abs(a) < 0.5 for a in tilt):
+            raise ValueError(
+                f"start_tilt must be (roll, pitch) in radians, each finite and under 0.5 in size, got "
+                f"{self.start_tilt!r}"
+            )
+        object.__setattr__(self, "start_tilt", tilt)
 
     def label(self) -> str:
         """``"distortion, traffic x2, bias walk"`` (the options that are on), ``""`` for none."""
@@ -134,6 +144,15 @@ class DriveOptions:
             + ([f"traffic x{self.traffic:g}"] if self.traffic else [])
             + (["bias walk"] if self.bias_walk else [])
             + ([f"IMU noise x{self.imu_noise:g}"] if self.imu_noise != 1 else [])
+            + (
+                [
+                    "start tilted {:g}, {:g} mrad".format(
+                        *(1e3 * a for a in self.start_tilt)
+                    )
+                ]
+                if any(self.start_tilt)
+                else []
+            )
         )
         return ", ".join(on)
 
@@ -170,8 +189,8 @@ class SweepTask:
         from slamlib.synth import GENERATOR_VERSION
 
         key = [GENERATOR_VERSION, self.route, list(self.frames), self.seed, self.layout]
-        # drives without options keep the names they always had
-        if self.drive != DriveOptions():
+        # drives without options keep the names they always had; a start tilt is applied as the drive is read
+        if replace(self.drive, start_tilt=(0.0, 0.0)) != DriveOptions():
             options = [self.drive.distortion, self.drive.traffic, self.drive.bias_walk]
             # drives at the generator's IMU noise keep the names they had before the option
             if self.drive.imu_noise != 1:
@@ -314,7 +333,12 @@ def _frames_of(task: SweepTask, base: str):
     from slamlib.kitti import KittiOdometrySequence, KittiRawDrive
 
     if task.layout == "raw":
-        return KittiRawDrive(base, "2011_09_26", 1)
+        drive = KittiRawDrive(base, "2011_09_26", 1)
+        if any(task.drive.start_tilt):
+            from slamlib.synth.tilt import StartTilted
+
+            drive = StartTilted(drive, *task.drive.start_tilt)
+        return drive
     return KittiOdometrySequence(base, 0)
 
 
@@ -421,6 +445,9 @@ def task_key(task: SweepTask) -> str:
     """A task's identity in a journal of finished rows (:func:`append_journal`): every field, as JSON."""
     from dataclasses import asdict
 
+    drive = asdict(task.drive)
+    if not any(task.drive.start_tilt):
+        del drive["start_tilt"]  # journals written before the option keep their keys
     return json.dumps(
         [
             task.route,
@@ -429,7 +456,7 @@ def task_key(task: SweepTask) -> str:
             task.layout,
             task.method,
             task.settings,
-            asdict(task.drive),
+            drive,
         ],
         sort_keys=True,
     )

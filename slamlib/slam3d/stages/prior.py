@@ -506,9 +506,10 @@ class TiltPrior:
     world_up, up_bias : (3,) the estimated world's up (world frame) and accelerometer bias (an angle, body frame)
         (``e_z`` and 0 until frames come in). Behind them: with ``tilt_bias = "sectors"`` ``calibration_prior``
         ``(Lambda, eta, free)`` and ``bins`` ``(Lambdas, etas, weights)``, the least-squares sums of each heading
-        sector; with ``"kalman"`` ``state`` (4,) and ``cov`` (4, 4) of :func:`tilt_kalman_update` (the map's tilt
-        error and the bias; ``world_up`` then stays ``e_z``, the tilt error being the filter's to correct, not the
-        world's).
+        sector; with ``"kalman"`` ``state`` and ``cov`` of :func:`tilt_kalman_update`: (4,) and (4, 4), the map's
+        tilt error and the bias, ``world_up`` then staying ``e_z`` (the tilt error is the filter's to correct, not
+        the world's), or with ``tilt_world_sigma`` > 0 (6,) and (6, 6), the world's tilt ahead of them, which
+        ``world_up`` follows.
     """
 
     def __init__(self, config: TiltConfig):

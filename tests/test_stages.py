@@ -792,14 +792,17 @@ def test_tilt_prior_with_a_kalman_world_holds_to_the_estimated_world_up():
 
 
 def test_tilt_prior_with_a_kalman_bias_holds_the_up_less_the_filters_bias():
-    """``tilt_bias = "kalman"``: once the window spans ``tilt_window`` each frame goes into
-    :func:`tilt_kalman_update` (the measurement's variance ``sigma^2 window / dt``, the walk ``TILT_WALK_RATE dt``,
-    starting from the world's and the bias's prior sigmas), no heading sectors are kept, the world's up stays
-    ``e_z``, and step 8 holds to the up less the filter's bias."""
+    """``tilt_bias = "kalman"`` with the world held level (``tilt_world_sigma = 0``, four states): once the window
+    spans ``tilt_window`` each frame goes into :func:`tilt_kalman_update` (the measurement's variance
+    ``sigma^2 window / dt``, the walk ``TILT_WALK_RATE dt``, starting from the world's and the bias's prior
+    sigmas), no heading sectors are kept, the world's up stays ``e_z``, and step 8 holds to the up less the
+    filter's bias."""
     from slamlib.slam3d.stages.prior import TILT_WALK_RATE
 
     sigma, up = 0.005, rpy_to_matrix([0.01, -0.02, 0.0]).T @ [0.0, 0.0, 1.0]
-    config = TiltConfig(tilt_sigma=sigma, tilt_window=0.5, tilt_bias="kalman")
+    config = TiltConfig(
+        tilt_sigma=sigma, tilt_window=0.5, tilt_bias="kalman", tilt_world_sigma=0.0
+    )
     prior = TiltPrior(config)
     x, P = np.zeros(4), np.diag([0.0, 0.0, 0.01**2, 0.01**2])
     for k in range(4):

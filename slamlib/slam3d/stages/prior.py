@@ -508,8 +508,8 @@ class TiltPrior:
         ``(Lambda, eta, free)`` and ``bins`` ``(Lambdas, etas, weights)``, the least-squares sums of each heading
         sector; with ``"kalman"`` ``state`` and ``cov`` of :func:`tilt_kalman_update`: (4,) and (4, 4), the map's
         tilt error and the bias, ``world_up`` then staying ``e_z`` (the tilt error is the filter's to correct, not
-        the world's), or with ``tilt_world_sigma`` > 0 (6,) and (6, 6), the world's tilt ahead of them, which
-        ``world_up`` follows.
+        the world's), or with ``tilt_world_sigma`` > 0 (``world_state`` true) (6,) and (6, 6), the world's tilt
+        ahead of them, which ``world_up`` follows.
     """
 
     def __init__(self, config: TiltConfig):
@@ -540,7 +540,8 @@ class TiltPrior:
             # the map's tilt error and the bias as a Kalman filter's state, the tilt starting at 0; with
             # tilt_world_sigma the world's tilt too, ahead of them
             sigmas = [0.0, config.tilt_bias_sigma]
-            if config.tilt_world_sigma > 0:
+            self.world_state = config.tilt_world_sigma > 0
+            if self.world_state:
                 sigmas = [config.tilt_world_sigma, *sigmas]
             self.state = np.zeros(2 * len(sigmas))
             self.cov = np.diag(np.repeat(sigmas, 2) ** 2)
@@ -614,7 +615,7 @@ class TiltPrior:
                 TILT_WALK_RATE * dt,
             )
             self.up_bias = np.array([*self.state[-2:], 0.0])
-            if len(self.state) == 6:
+            if self.world_state:
                 world = np.array([*self.state[:2], 1.0])
                 self.world_up = world / np.linalg.norm(world)
         else:

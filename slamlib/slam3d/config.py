@@ -620,13 +620,17 @@ class TiltConfig:
         prior holds nothing until the window spans them, at a drive's start and after a frame without an
         accelerometer.
     tilt_bias_sigma, tilt_world_sigma : float
-        Radians; with the prior on, the filter also estimates, by least squares over the frames whose window spans
-        ``tilt_window`` (:func:`slamlib.slam3d.stages.prior.tilt_calibration_update`), the accelerometer's bias as
-        an angle ``b / g``, with prior standard deviation ``tilt_bias_sigma`` (default 0.01: 0.1 m/s^2), and how
-        far the world's z (the first body pose's) is from gravity's up, with ``tilt_world_sigma``. 0 holds either
-        at 0. The default 0 for the world takes the first pose as level (the synthetic drives start level): a slow
-        tilt drift of the map looks exactly like a tilted world, so estimating the world's up also gives in to
-        that drift. A bias turns with the body and a map's tilt does not, so turns tell those two apart.
+        Radians; with the prior on, the filter also estimates the accelerometer's bias as an angle ``b / g``, with
+        prior standard deviation ``tilt_bias_sigma`` (default 0.01: 0.1 m/s^2), and how far the world's z (the
+        first body pose's) is from gravity's up, with prior standard deviation ``tilt_world_sigma`` (default 0.05:
+        a drive may start on a slope or a cambered road; KITTI raw drive 0001's first pose stands 37 mrad from
+        level). 0 holds either at 0. With ``tilt_bias = "kalman"`` the world's tilt is a constant state beside the
+        map's walking tilt error, so what the first windows measure goes to the world and a slow drift after it
+        to the walk (book chapter 09, "A drive that starts tilted", and fresh10 in ``book/defaults.md``). With
+        ``"sectors"`` (least squares over the frames whose window spans ``tilt_window``,
+        :func:`slamlib.slam3d.stages.prior.tilt_calibration_update`) a slow tilt drift of the map looks exactly like
+        a tilted world, so a world estimated there also gives in to that drift; chapter 09 ran ``"sectors"`` with
+        the world held (0). A bias turns with the body and a map's tilt does not, so turns tell those two apart.
     tilt_heading_bins : int
         Sectors of heading that weigh alike in that fit (:func:`slamlib.slam3d.stages.prior.balance_heading_bins`),
         so that a long straight does not pass its share of the map's tilt to the bias; 1 = every frame alike.
@@ -647,7 +651,7 @@ class TiltConfig:
     tilt_sigma: float | str = 0.003
     tilt_window: float = 2.0
     tilt_bias_sigma: float = 0.01
-    tilt_world_sigma: float = 0.0
+    tilt_world_sigma: float = 0.05
     tilt_heading_bins: int = 8
     tilt_up: str = TILT_UP_SOURCES[1]
     tilt_bias: str = TILT_BIAS_MODELS[1]

@@ -34,6 +34,22 @@ def test_code_is_wrapped(path):
 
 
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.stem)
+def test_no_prose_line_starts_as_a_comment(path):
+    """A Markdown line that starts with ``%`` is a MyST comment: the build drops it without a warning, so a
+    sentence wrapped before "% of ..." or "%. ..." silently loses that line."""
+    dropped = [
+        f"cell {i}: {line[:60]}"
+        for i, c in enumerate(_cells(path))
+        if c["cell_type"] == "markdown"
+        for line in "".join(c["source"]).splitlines()
+        if line.lstrip().startswith("%")
+    ]
+    assert not dropped, f"{path.name}: prose lines MyST reads as comments:\n" + "\n".join(
+        dropped
+    )
+
+
+@pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.stem)
 def test_figures_are_named_captioned_and_cited(path):
     cells = _cells(path)
     figures = [

@@ -601,6 +601,13 @@ def _words(path) -> str:
     return " ".join(Path(path).read_text().split())
 
 
+def _section(title):
+    """``book/defaults.md``'s section ``title`` (its heading, words joined by single spaces)."""
+    page = _words(ROOT / "book" / "defaults.md")
+    section = page[page.index(title) :]
+    return section[: section.index("## ", 3)]
+
+
 def _dev_rows() -> dict[str, list[dict]]:
     """The rows of ``benchmarks/results/lidar_only_dev/rows.jsonl``, by run name."""
     import json
@@ -648,9 +655,7 @@ def test_the_defaults_page_states_the_imu_scan_match_development_runs_as_committ
     setting's mean error at IMU x1 and x2 and its losses to KISS-ICP, and the defaults are the setting with none."""
     import json
 
-    page = _words(ROOT / "book" / "defaults.md")
-    section = page[page.index("## With an IMU: `ScanMatchConfig.scan_match`") :]
-    section = section[: section.index("## ", 3)]
+    section = _section("## With an IMU: `ScanMatchConfig.scan_match`")
     folder = ROOT / "benchmarks" / "results" / "route07_dev"
     rows = [json.loads(line) for line in (folder / "rows.jsonl").read_text().splitlines()]
     kiss = {r["seed"]: r["t"] for r in rows if r["method"] == "kiss_icp"}
@@ -690,11 +695,7 @@ def test_the_defaults_page_states_the_match_tilt_runs_as_committed():
 
     from slamlib.experiments.sweep import read_table
 
-    page = _words(ROOT / "book" / "defaults.md")
-    section = page[
-        page.index("## Gravity in the scan match: `ScanMatchConfig.match_tilt`") :
-    ]
-    section = section[: section.index("## ", 3)]
+    section = _section("## Gravity in the scan match: `ScanMatchConfig.match_tilt`")
     dev = ROOT / "benchmarks/results/match_tilt_dev"
     filter_seeds = {"": None, "_f1": 1, "_f2": 2}
     sets = {
@@ -845,19 +846,42 @@ def test_the_defaults_page_states_the_match_tilt_runs_as_committed():
     assert f'level with `"adaptive"`\'s at x1 and {lower} % lower at x2' in section, over
 
 
-def test_the_defaults_page_states_fresh9_and_the_default_is_its_candidate():
-    """``book/defaults.md`` on fresh9 (``benchmarks/results/fresh9``): the seeds named, each sweep's command with the
-    candidate's four settings on slamlib's runs, the runs at most KISS-ICP's error, the mean and largest ratio, the
-    raw layout's worst run; and the defaults are those four settings, so that its table is the default's."""
+def _fresh_errors(folder, sweeps, candidate):
+    """``{(sweep, route, seed, method): KITTI error (%)}`` of a fresh-seed check's ``sweeps`` (folders of
+    ``folder``), each command passing ``candidate``'s settings with ``--set`` and each of slamlib's rows carrying
+    them (KISS-ICP's none)."""
     import json
 
     from slamlib.experiments.sweep import read_table
 
-    page = _words(ROOT / "book" / "defaults.md")
-    section = page[
-        page.index("## Gravity in the scan match: `ScanMatchConfig.match_tilt`") :
+    table = {}
+    for sweep in sweeps:
+        command = json.loads((folder / sweep / "sweep.json").read_text())["command"]
+        for name, value in candidate.items():
+            assert f"--set {name}={str(value).lower()} " in command, (name, command)
+        for r in read_table(folder / sweep / "sweep.csv"):
+            assert json.loads(r["settings"] or "{}") == (
+                candidate if r["method"] == "slamlib" else {}
+            ), r
+            table[sweep, r["route"], r["seed"], r["method"]] = r["kitti_t_err_percent"]
+    return table
+
+
+def _fresh_ratios(table, kiss_sweep=lambda sweep: sweep):
+    """``(ratio, sweep, route, seed)`` of each of slamlib's runs in ``table`` (:func:`_fresh_errors`): its error over
+    KISS-ICP's on the same drive, in the sweep ``kiss_sweep(sweep)``."""
+    return [
+        (err / table[kiss_sweep(sweep), route, seed, "kiss_icp"], sweep, route, seed)
+        for (sweep, route, seed, method), err in table.items()
+        if method == "slamlib"
     ]
-    section = section[: section.index("## ", 3)]
+
+
+def test_the_defaults_page_states_fresh9_and_the_default_is_its_candidate():
+    """``book/defaults.md`` on fresh9 (``benchmarks/results/fresh9``): the seeds named, each sweep's command with the
+    candidate's four settings on slamlib's runs, the runs at most KISS-ICP's error, the mean and largest ratio, the
+    raw layout's worst run; and the defaults are those four settings, so that its table is the default's."""
+    section = _section("## Gravity in the scan match: `ScanMatchConfig.match_tilt`")
     candidate = {
         "tilt_sigma": 0.003,
         "match_tilt": True,
@@ -868,40 +892,22 @@ def test_the_defaults_page_states_fresh9_and_the_default_is_its_candidate():
     plan = " ".join((folder / "plan.md").read_text().split())
     assert "**140, 141, 142, 143, 144 and 145**" in plan
     assert "named seeds 140-145 for it before any run" in section
-    ratios, worst = [], 0.0
-    for sweep in ("raw_x1", "raw_x2", "odometry"):
-        command = json.loads((folder / sweep / "sweep.json").read_text())["command"]
-        sets = (
-            "tilt_sigma=0.003",
-            "match_tilt=true",
-            "tilt_up=positions",
-            "tilt_bias=kalman",
-        )
-        assert all(f"--set {word} " in command for word in sets), command
-        rows = read_table(folder / sweep / "sweep.csv")
-        t = {(r["route"], r["seed"], r["method"]): r for r in rows}
-        assert {(r, s) for r, s, _ in t} == {
+    sweeps = ("raw_x1", "raw_x2", "odometry")
+    table = _fresh_errors(folder, sweeps, candidate)
+    for sweep in sweeps:
+        assert {(r, s) for sw, r, s, _ in table if sw == sweep} == {
             (r, s) for r in ("00", "05", "07") for s in range(140, 146)
         }
-        for (route, seed, method), row in t.items():
-            if method != "slamlib":
-                continue
-            assert json.loads(row["settings"]) == candidate, row["settings"]
-            ratio = (
-                row["kitti_t_err_percent"]
-                / t[route, seed, "kiss_icp"]["kitti_t_err_percent"]
-            )
-            ratios.append((ratio, route, seed, sweep))
-            if sweep != "odometry":
-                worst = max(worst, row["kitti_t_err_percent"])
+    ratios = _fresh_ratios(table)
+    worst = max(table[sw, r, s, "slamlib"] for _, sw, r, s in ratios if sw != "odometry")
     largest = max(ratios)
     assert len(ratios) == 54 and largest[0] <= 1, largest
     assert f"at most KISS-ICP's error on all {len(ratios)} runs" in section
     assert f"{np.mean([r[0] for r in ratios]):.2f} times it on average" in section
     assert (
-        f"the largest ratio {largest[0]:.3f}, route {largest[1]} seed {largest[2]} at IMU x1"
+        f"the largest ratio {largest[0]:.3f}, route {largest[2]} seed {largest[3]} at IMU x1"
         in section
-    ) and largest[3] == "raw_x1"
+    ) and largest[1] == "raw_x1"
     assert f"the raw layout's worst run {worst:.3f} %" in section
     c = SLAM3DConfig()
     default = {
@@ -912,14 +918,11 @@ def test_the_defaults_page_states_fresh9_and_the_default_is_its_candidate():
     }
     assert default == candidate, default
     # "run again with the defaults alone, gave the same error to the last digit"
+    from slamlib.experiments.sweep import read_table
+
     (check,) = read_table(folder / "default_check/sweep.csv")
     assert check["settings"] == "" and (check["route"], check["seed"]) == ("07", 140)
-    (same,) = [
-        r
-        for r in read_table(folder / "raw_x1/sweep.csv")
-        if (r["route"], r["seed"], r["method"]) == ("07", 140, "slamlib")
-    ]
-    assert check["kitti_t_err_percent"] == same["kitti_t_err_percent"], (check, same)
+    assert check["kitti_t_err_percent"] == table["raw_x1", "07", 140, "slamlib"], check
     assert "route 07 seed 140 at IMU x1, run again with the defaults alone" in section
 
 
@@ -932,38 +935,26 @@ def test_the_defaults_page_states_fresh10_and_the_default_is_its_candidate():
 
     from slamlib.experiments.sweep import read_table
 
-    page = _words(ROOT / "book" / "defaults.md")
-    section = page[page.index("## A tilted start: `TiltConfig.tilt_world_sigma`") :]
-    section = section[: section.index("## ", 3)]
+    section = _section("## A tilted start: `TiltConfig.tilt_world_sigma`")
     folder = ROOT / "benchmarks/results/fresh10"
     plan = " ".join((folder / "plan.md").read_text().split())
     assert "**150, 151, 152, 153, 154 and 155**" in plan
     assert "named seeds 150-155 for it before any run" in section
-    table = {}
-    for sweep in ("raw_x1", "tilted_x1", "raw_x2", "tilted_x2", "odometry"):
+    sweeps = ("raw_x1", "tilted_x1", "raw_x2", "tilted_x2", "odometry")
+    for sweep in sweeps:
         command = json.loads((folder / sweep / "sweep.json").read_text())["command"]
-        assert "--set tilt_world_sigma=0.05 " in command, command
         assert ("--start-tilt 0.0358,0.0090 --methods slamlib" in command) == (
             sweep.startswith("tilted")
         ), command
-        for r in read_table(folder / sweep / "sweep.csv"):
-            assert json.loads(r["settings"] or "{}") == (
-                {"tilt_world_sigma": 0.05} if r["method"] == "slamlib" else {}
-            ), r
-            table[sweep, r["route"], r["seed"], r["method"]] = r["kitti_t_err_percent"]
-    ratios, worst, cost = [], 0.0, {}
-    for sweep, route, seed, method in list(table):
-        if method != "slamlib":
-            continue
-        level = sweep.replace("tilted", "raw")  # KISS-ICP's runs of the same scans
-        ratio = table[sweep, route, seed, method] / table[level, route, seed, "kiss_icp"]
-        ratios.append((ratio, sweep, route, seed))
-        if sweep != "odometry":
-            worst = max(worst, table[sweep, route, seed, method])
-        if sweep.startswith("tilted"):
-            cost.setdefault(sweep, []).append(
-                (table[sweep, route, seed, method], table[level, route, seed, method])
-            )
+    table = _fresh_errors(folder, sweeps, {"tilt_world_sigma": 0.05})
+
+    def level(
+        sweep,
+    ):  # KISS-ICP's runs of the same scans, and slamlib's from a level start
+        return sweep.replace("tilted", "raw")
+
+    ratios = _fresh_ratios(table, level)
+    worst = max(table[sw, r, s, "slamlib"] for _, sw, r, s in ratios if sw != "odometry")
     assert len(ratios) == 90 and max(ratios)[0] <= 1, max(ratios)
     assert f"at most KISS-ICP's error on all {len(ratios)} runs" in section
     assert f"{np.mean([r[0] for r in ratios]):.2f} times it on average" in section
@@ -977,10 +968,15 @@ def test_the_defaults_page_states_fresh10_and_the_default_is_its_candidate():
     )
     assert near in section, near
     assert f"the raw layout's worst run {worst:.3f} %" in section
-    x1, x2 = (np.mean(cost[f"tilted_x{n}"], axis=0) for n in (1, 2))  # (tilted, level)
-    costs = (
-        f"{x1[0] / x1[1]:.2f} and {x2[0] / x2[1]:.2f} times its mean from level starts"
-    )
+    # the tilted start's cost: its mean error over the level starts' (slamlib's)
+    cost = [
+        np.mean([table[sw, r, s, "slamlib"] for _, sw, r, s in ratios if sw == tilted])
+        / np.mean(
+            [table[level(sw), r, s, "slamlib"] for _, sw, r, s in ratios if sw == tilted]
+        )
+        for tilted in ("tilted_x1", "tilted_x2")
+    ]
+    costs = f"{cost[0]:.2f} and {cost[1]:.2f} times its mean from level starts"
     assert costs in section, costs
     assert SLAM3DConfig().prior.tilt_world_sigma == 0.05
     # "run again with the defaults alone, gave the same error to the last digit"

@@ -305,10 +305,17 @@ def test_a_failing_task_names_itself_in_one_line_and_the_others_rows_are_kept(
     assert rows == list(done.values())
 
 
+def test_sweep_takes_fresh_roads_by_seed():
+    from slamlib.commands.sweep import _routes
+
+    assert _routes("07, random:12,random:0") == ["07", "random:12", "random:0"]
+
+
 @pytest.mark.parametrize(
     "argv, message",
     [
         (["--routes", "99"], "--routes: 99 not one of"),
+        (["--routes", "07,random:x"], "--routes: random:x not one of .* or random:SEED"),
         (["--seeds", "a"], "--seeds must be comma-separated int"),
         (["--seeds", "-1"], "--seeds must be >= 0"),
         (["--layouts", "bag"], "--layouts: bag not one of"),

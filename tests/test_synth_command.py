@@ -162,7 +162,30 @@ def test_bad_arguments_exit_with_one_line(tmp_path, args, message):
 def test_unknown_route_is_an_argparse_error(tmp_path, capsys):
     with pytest.raises(SystemExit) as exc:
         main(["synth", "--out", str(tmp_path), "--route", "08"])
-    assert exc.value.code == 2 and "invalid choice" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert exc.value.code == 2 and "route must be one of" in err and "random:SEED" in err
+
+
+def test_a_random_route_is_written_from_its_seed(tmp_path):
+    out = tmp_path / "fresh"
+    main(
+        [
+            "synth",
+            "--out",
+            str(out),
+            "--route",
+            "random:4",
+            "--frames",
+            "3",
+            "--columns",
+            "200",
+            "--no-progress",
+        ]
+    )
+    import pykitti
+
+    data = pykitti.raw(str(out), "2011_09_26", "0001")
+    assert len(data.oxts) == 3
 
 
 def test_parse_route_frames():

@@ -29,7 +29,10 @@ import time
 from pathlib import Path
 
 from slamlib.commands import tilt_sigma
-from slamlib.commands.synth import ROUTES  # the routes `slamlib synth` writes
+from slamlib.commands.synth import (
+    RANDOM_ROUTE,
+    ROUTES,
+)  # the routes `slamlib synth` writes
 
 NAME = "sweep"
 HELP = "Run SLAM (and KISS-ICP) over routes x seeds x settings as Dask tasks; write one table (CSV) and a plot."
@@ -74,7 +77,7 @@ def add_arguments(parser) -> None:
     parser.add_argument(
         "--routes",
         default="07",
-        help="comma-separated routes: 00, 05, 07, straight, loop (default 07)",
+        help="comma-separated routes: 00, 05, 07, straight, loop, random:SEED (default 07)",
     )
     parser.add_argument(
         "--frames",
@@ -311,10 +314,19 @@ def _list(text: str, option: str, allowed=None, kind=str) -> list:
     return items
 
 
+def _routes(text: str) -> list[str]:
+    """``--routes``: each a route ``slamlib synth --route`` takes (:func:`slamlib.commands.synth.route_name`)."""
+    items = _list(text, "--routes")
+    bad = [x for x in items if not (x in ROUTES or RANDOM_ROUTE.fullmatch(x))]
+    if bad:
+        _fail(f"--routes: {', '.join(bad)} not one of {', '.join(ROUTES)} or random:SEED")
+    return items
+
+
 def main(args) -> int:
     from slamlib.commands.synth import parse_route_frames
 
-    routes = _list(args.routes, "--routes", ROUTES)
+    routes = _routes(args.routes)
     seeds = _list(args.seeds, "--seeds", kind=int)
     if any(s < 0 for s in seeds):
         _fail(f"--seeds must be >= 0, got {args.seeds!r}")

@@ -30,6 +30,8 @@ HELP = "Write a synthetic drive (town + HDL-64E scans + OXTS) in the KITTI raw l
 
 # Kept here (and checked against slamlib.synth by the tests) so that `slamlib --help` does not import scipy/open3d.
 ROUTES = ("straight", "loop", "00", "05", "07")
+#: A road drawn from a seed (slamlib.synth.roads.RANDOM_PREFIX): "random:SEED".
+RANDOM_ROUTE = re.compile(r"random:\d+")
 #: Largest --traffic SCALE: ten times a city drive's density already fills the lanes (movers that would overlap are
 #: dropped).
 MAX_TRAFFIC = 10.0
@@ -48,10 +50,11 @@ def add_arguments(parser) -> None:
     )
     parser.add_argument(
         "--route",
-        choices=ROUTES,
+        type=route_name,
         default="07",
-        help="trajectory: a straight line (10 m/s, 60 s), a 60 m circle (8 m/s), or the real ground "
-        "truth of KITTI odometry sequence 00, 05 or 07 (default 07)",
+        help="trajectory: a straight line (10 m/s, 60 s), a 60 m circle (8 m/s), the real ground "
+        "truth of KITTI odometry sequence 00, 05 or 07 (default 07), or random:SEED, a fresh road of at least "
+        "1 km drawn from SEED (turns, hairpins, roundabouts, grades, stops, revisits)",
     )
     parser.add_argument(
         "--frames",
@@ -139,6 +142,19 @@ def add_arguments(parser) -> None:
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
+def route_name(text: str) -> str:
+    """A ``--route`` value: one of :data:`ROUTES` or ``random:SEED`` (SEED an integer >= 0); raises
+    ``argparse.ArgumentTypeError`` naming the choices otherwise."""
+    import argparse
+
+    name = str(text).strip()
+    if name in ROUTES or RANDOM_ROUTE.fullmatch(name):
+        return name
+    raise argparse.ArgumentTypeError(
+        f"route must be one of {', '.join(ROUTES)} or random:SEED (SEED an integer >= 0), got {text!r}"
+    )
+
+
 def _fail(message: str):
     raise SystemExit(f"slamlib synth: {message}")
 
@@ -147,7 +163,7 @@ def parse_route_frames(text: str, route: str):
     """``--frames`` text -> the ``frames`` argument of :func:`slamlib.synth.resolve_route`.
 
     KITTI routes: ``"A:B"`` -> ``(A, B)`` key frames, ``"A:"`` -> ``(A, None)``, ``":B"`` / ``"B"`` -> ``(0, B)``.
-    Straight / loop: ``"N"``, ``"0:N"`` or ``":N"`` -> ``N`` frames; ``"0:"`` / ``":"`` -> the whole route
+    Straight / loop / random:SEED: ``"N"``, ``"0:N"`` or ``":N"`` -> ``N`` frames; ``"0:"`` / ``":"`` -> the whole route
     (``None``). Raises ``ValueError`` with a one-line message otherwise.
     """
     s = str(text).strip()

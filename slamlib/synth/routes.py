@@ -236,11 +236,21 @@ def kitti_route(sequence: str = "07", frames: slice | tuple | None = None) -> Ro
 
 
 def get_route(name: str, frames=None) -> Route:
-    """Route by name: ``"straight"``, ``"loop"`` or a KITTI odometry sequence ``"00"``, ``"05"``, ``"07"``."""
+    """Route by name: ``"straight"``, ``"loop"``, a KITTI odometry sequence ``"00"``, ``"05"``, ``"07"``, or
+    ``"random:SEED"``, a fresh road drawn from ``SEED`` (:func:`slamlib.synth.roads.random_route`)."""
+    if name.startswith("random:"):
+        from slamlib.synth.roads import RANDOM_PREFIX, random_route
+
+        seed = name[len(RANDOM_PREFIX) :]
+        if not seed.isdigit():
+            raise ValueError(f"route {name!r}: random:SEED needs an integer SEED >= 0")
+        return random_route(int(seed))
     if name == "straight":
         return straight_route()
     if name == "loop":
         return loop_route()
     if name in ("00", "05", "07"):
         return kitti_route(name, frames)
-    raise ValueError(f"unknown route {name!r}; choose one of {ROUTE_NAMES}")
+    raise ValueError(
+        f"unknown route {name!r}; choose one of {ROUTE_NAMES} or random:SEED"
+    )

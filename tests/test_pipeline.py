@@ -1168,3 +1168,59 @@ def test_register_frame_rejects_non_finite_or_impossible_imu(field, value):
         ValueError, match=f"IMU {field} \\(frame 2\\) must be finite and within"
     ):
         slam.register_frame(frames[2])
+
+
+# ------------------------------------------------------------------------------------------------ hard roads
+def hard_road():
+    """One short road with every motion that reads as tilt to an accelerometer (issue "never diverge"): moving
+    off at 7.5 m/s and braking to 2 m/s in the first three seconds on level ground, hard braking (6.5 m/s^2) to a
+    stop, a hairpin whose body roll passes 6 degrees, grades of 12 %."""
+    from slamlib.synth.roads import Leg, road_route
+
+    legs = [
+        Leg(14.0, speed=7.5),
+        Leg(20.0, speed=2.0, brake=2.0),
+        Leg(40.0, speed=12.0, stop=1.0, brake=6.5),
+        Leg(20.0, speed=10.0),
+        Leg(9.0 * np.pi, np.pi, 12.0, 6.0),
+        Leg(60.0, speed=10.0),
+    ]
+    return road_route(legs, max_grade=0.12, terrain_seed=2, start_speed=7.5, name="hard")
+
+
+def test_the_default_holds_roll_and_pitch_through_braking_a_hairpin_and_a_climb(tmp_path):
+    """The default filter on :func:`hard_road`, a swept LIDAR and wandering IMU biases: no frame's roll or pitch
+    is more than 1 degree off the truth."""
+    from slamlib.kitti.raw import KittiRawDrive
+    from slamlib.slam3d.run import run_drive
+    from slamlib.synth import WANDERING_BIASES, Hdl64, write_drive
+    from slamlib.synth.roads import road_statistics
+
+    route = hard_road()
+    s = road_statistics(route)
+    assert s["longitudinal"].min() < -6.0  # hard braking
+    assert np.degrees(np.abs(s["roll"]).max()) > 6.0  # the hairpin's body roll
+    assert np.abs(s["grade"]).max() > 0.115  # a 12 % climb
+    assert route.velocity_body(0.0)[0, 0] == pytest.approx(
+        7.5, abs=0.05
+    )  # moving at the first frame
+    write_drive(
+        tmp_path,
+        route,
+        frames=None,
+        seed=1,
+        progress=False,
+        distortion=True,
+        noise=WANDERING_BIASES,
+        lidar=Hdl64(columns=1000),
+    )
+    drive = KittiRawDrive(tmp_path, "2011_09_26", 1)
+    run = run_drive(drive, None, T_velo_imu=drive.T_velo_imu, progress=False)
+    rpy = [
+        geometry.matrix_to_rpy(T[:, :3, :3])[:, :2] for T in (run.poses, run.ground_truth)
+    ]
+    error = np.degrees(np.abs(rpy[0] - rpy[1]))
+    assert len(error) > 300
+    assert error.max() < 1.0, (
+        f"roll/pitch {error.max():.2f} deg off at frame {error.max(axis=1).argmax()}"
+    )

@@ -48,6 +48,7 @@ __all__ = [
     "RPEResult",
     "relative_pose_error",
     "trajectory_metrics",
+    "tilt_errors",
     "KittiOdometryResult",
     "kitti_odometry_error",
     "plane_residuals",
@@ -384,11 +385,25 @@ def kitti_odometry_error(
     )
 
 
+def tilt_errors(estimate, ground_truth) -> np.ndarray:
+    """How far each estimated pose's roll and pitch are off, yaw aside: ``(F,)`` radians, the angle between the
+    world's up as the estimated and as the true body sees it, ``angle(R_est^T e_z, R_gt^T e_z)`` (both
+    ``T_world_body (F, 4, 4)`` in the same world frame, z up). A yaw error leaves it 0; for small errors it is
+    ``sqrt(d_roll^2 + d_pitch^2)``."""
+    est, gt = _as_poses(estimate, "estimate"), _as_poses(ground_truth, "ground_truth")
+    _same_length(est, gt)
+    up_est, up_gt = est[:, 2, :3], gt[:, 2, :3]  # R^T e_z: the third row
+    cos = np.einsum("ij,ij->i", up_est, up_gt)
+    sin = np.linalg.norm(np.cross(up_est, up_gt), axis=1)
+    return np.arctan2(sin, cos)
+
+
 def trajectory_metrics(estimate, ground_truth) -> dict:
     """The summary ``slamlib run`` reports for one trajectory against ground truth (same frame, same start).
 
     ``ate_rmse_m``, ``ate_max_m``, ``final_error_m`` (:func:`absolute_trajectory_error`, no alignment);
-    with more than 10 poses ``rpe_10f_trans_rmse_m`` and ``rpe_10f_rot_rmse_deg`` (:func:`relative_pose_error`
+    ``tilt_err_max_deg``, the largest roll-and-pitch error of a frame (:func:`tilt_errors`); with more than 10
+    poses ``rpe_10f_trans_rmse_m`` and ``rpe_10f_rot_rmse_deg`` (:func:`relative_pose_error`
     over 10 frames); for paths longer than 100 m the KITTI metric ``kitti_t_err_percent``,
     ``kitti_r_err_deg_per_m``, ``kitti_segments`` and the translational error's vertical and horizontal parts
     ``kitti_t_err_vertical_percent``, ``kitti_t_err_horizontal_percent`` (:func:`kitti_odometry_error`).
@@ -398,6 +413,7 @@ def trajectory_metrics(estimate, ground_truth) -> dict:
         "ate_rmse_m": ate.rmse,
         "ate_max_m": ate.max,
         "final_error_m": float(ate.errors[-1]),
+        "tilt_err_max_deg": float(np.degrees(tilt_errors(estimate, ground_truth).max())),
     }
     if len(ate.errors) > 10:
         rpe = relative_pose_error(estimate, ground_truth, delta=10)

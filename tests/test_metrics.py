@@ -524,6 +524,7 @@ def test_trajectory_metrics_values_and_thresholds():
         "ate_rmse_m",
         "ate_max_m",
         "final_error_m",
+        "tilt_err_max_deg",
         "rpe_10f_trans_rmse_m",
         "rpe_10f_rot_rmse_deg",
     }
@@ -543,6 +544,7 @@ def test_trajectory_metrics_values_and_thresholds():
         "ate_rmse_m",
         "ate_max_m",
         "final_error_m",
+        "tilt_err_max_deg",
     }
 
     def straight(xs):
@@ -669,3 +671,25 @@ def test_kitti_error_splits_exactly_into_its_vertical_and_horizontal_parts():
     m = trajectory_metrics(climbing, gt)
     assert m["kitti_t_err_vertical_percent"] == pytest.approx(0.3, rel=0.02)
     assert m["kitti_t_err_horizontal_percent"] < 1e-9
+
+
+def test_tilt_errors_are_roll_and_pitch_together_and_blind_to_yaw():
+    from slamlib.geometry import make_pose, rpy_to_matrix
+    from slamlib.metrics import tilt_errors, trajectory_metrics
+
+    rng = np.random.default_rng(2)
+    true_rpy = rng.uniform(-0.2, 0.2, (50, 3)) * [1, 1, 10]
+    gt = make_pose(rpy_to_matrix(true_rpy), rng.normal(0, 5, (50, 3)))
+    yawed = make_pose(rpy_to_matrix(true_rpy + [0.0, 0.0, 0.3]), gt[:, :3, 3])
+    np.testing.assert_allclose(tilt_errors(yawed, gt), 0.0, atol=1e-12)
+    # a level body rolled by a and pitched by b: sqrt(a^2 + b^2) to first order
+    a, b = 0.01, -0.02
+    gt[:, :3, :3] = rpy_to_matrix(true_rpy * [0, 0, 1])
+    off = gt.copy()
+    off[:, :3, :3] = gt[:, :3, :3] @ rpy_to_matrix([a, b, 0.0])
+    np.testing.assert_allclose(tilt_errors(off, gt), np.hypot(a, b), rtol=1e-3)
+    assert trajectory_metrics(off, gt)["tilt_err_max_deg"] == pytest.approx(
+        np.degrees(np.hypot(a, b)), rel=1e-3
+    )
+    with pytest.raises(ValueError):
+        tilt_errors(off[:3], gt)

@@ -77,7 +77,10 @@ LAYOUTS = ("raw", "odometry")
 #: ``match_rejected_frames`` and ``match_max_kept_distance``, slamlib's only, are the scan match's gate's
 #: :attr:`~slamlib.slam3d.ParticleSLAM3D.n_match_rejected` and ``match_max_kept_distance``, empty in older tables;
 #: ``start_lines_kept``, slamlib's only, the starts where ``ConstantVelocityConfig.start_line``'s search was kept,
-#: :attr:`~slamlib.slam3d.ParticleSLAM3D.n_start_lines_kept`, empty in older tables).
+#: :attr:`~slamlib.slam3d.ParticleSLAM3D.n_start_lines_kept`, empty in older tables; ``tilt_err_max_deg`` the largest
+#: roll-and-pitch error of a frame, :func:`slamlib.metrics.tilt_errors`, and ``frame_time_max_ratio``, slamlib's
+#: only, its slowest frame over its median one after the start-up, :meth:`~slamlib.slam3d.run.SLAMRun.frame_time_ratio`,
+#: both empty in older tables).
 COLUMNS = (
     "route",
     "frames",
@@ -99,6 +102,8 @@ COLUMNS = (
     "match_rejected_frames",
     "match_max_kept_distance",
     "start_lines_kept",
+    "tilt_err_max_deg",
+    "frame_time_max_ratio",
 )
 
 
@@ -394,6 +399,7 @@ def run_task(task: SweepTask, base: str, threads: int | None = None) -> dict:
             match_rejected_frames=run.n_match_rejected,
             match_max_kept_distance=run.match_max_kept_distance,
             start_lines_kept=run.n_start_lines_kept,
+            frame_time_max_ratio=run.frame_time_ratio(),
         )
         if run is not None
         else {}
@@ -417,6 +423,8 @@ def run_task(task: SweepTask, base: str, threads: int | None = None) -> dict:
         match_rejected_frames=counts.get("match_rejected_frames", float("nan")),
         match_max_kept_distance=counts.get("match_max_kept_distance", float("nan")),
         start_lines_kept=counts.get("start_lines_kept", float("nan")),
+        tilt_err_max_deg=m["tilt_err_max_deg"],
+        frame_time_max_ratio=counts.get("frame_time_max_ratio", float("nan")),
     )
     return {k: row[k] for k in COLUMNS}
 

@@ -87,6 +87,15 @@ class SLAMRun:
         spent = self.seconds - (self.warm_at - self.started_at)
         return n / spent if n > 0 and spent > 0 else float("nan")
 
+    def frame_time_ratio(self) -> float:
+        """The slowest frame's ``register_frame`` time over the median frame's, after the first
+        :data:`STARTUP_FRAMES` (which compile or load the kernels): how far one frame stalls a real-time run (nan
+        without frames after the start-up)."""
+        steady = np.asarray(self.frame_seconds[STARTUP_FRAMES:], dtype=np.float64)
+        if len(steady) == 0:
+            return float("nan")
+        return float(steady.max() / np.median(steady))
+
     def filters(self) -> list:
         """The filter of every segment, in order (one without a gap in time)."""
         return self.segments or [self.slam]

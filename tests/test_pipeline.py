@@ -1188,25 +1188,16 @@ def hard_road():
     return road_route(legs, max_grade=0.12, terrain_seed=2, start_speed=7.5, name="hard")
 
 
-def test_the_default_holds_roll_and_pitch_through_braking_a_hairpin_and_a_climb(tmp_path):
-    """The default filter on :func:`hard_road`, a swept LIDAR and wandering IMU biases: no frame's roll or pitch
-    is more than 1 degree off the truth."""
+@pytest.fixture(scope="module")
+def hard_drive(tmp_path_factory):
+    """:func:`hard_road` as a KITTI raw drive: a swept LIDAR (1,000 columns), wandering IMU biases."""
     from slamlib.kitti.raw import KittiRawDrive
-    from slamlib.slam3d.run import run_drive
     from slamlib.synth import WANDERING_BIASES, Hdl64, write_drive
-    from slamlib.synth.roads import road_statistics
 
-    route = hard_road()
-    s = road_statistics(route)
-    assert s["longitudinal"].min() < -6.0  # hard braking
-    assert np.degrees(np.abs(s["roll"]).max()) > 6.0  # the hairpin's body roll
-    assert np.abs(s["grade"]).max() > 0.115  # a 12 % climb
-    assert route.velocity_body(0.0)[0, 0] == pytest.approx(
-        7.5, abs=0.05
-    )  # moving at the first frame
+    base = tmp_path_factory.mktemp("hard")
     write_drive(
-        tmp_path,
-        route,
+        base,
+        hard_road(),
         frames=None,
         seed=1,
         progress=False,
@@ -1214,13 +1205,67 @@ def test_the_default_holds_roll_and_pitch_through_braking_a_hairpin_and_a_climb(
         noise=WANDERING_BIASES,
         lidar=Hdl64(columns=1000),
     )
-    drive = KittiRawDrive(tmp_path, "2011_09_26", 1)
-    run = run_drive(drive, None, T_velo_imu=drive.T_velo_imu, progress=False)
-    rpy = [
-        geometry.matrix_to_rpy(T[:, :3, :3])[:, :2] for T in (run.poses, run.ground_truth)
-    ]
-    error = np.degrees(np.abs(rpy[0] - rpy[1]))
+    return KittiRawDrive(base, "2011_09_26", 1)
+
+
+def _tilt_errors_deg(frames, T_velo_imu):
+    """The default filter run on ``frames``: each frame's roll-and-pitch error (degrees) and the run."""
+    from slamlib.metrics import tilt_errors
+    from slamlib.slam3d.run import run_drive
+
+    run = run_drive(frames, None, T_velo_imu=T_velo_imu, progress=False)
+    return np.degrees(tilt_errors(run.poses, run.ground_truth)), run
+
+
+def test_the_default_holds_roll_and_pitch_through_braking_a_hairpin_and_a_climb(
+    hard_drive,
+):
+    """The default filter on :func:`hard_road`: no frame's roll or pitch is more than 1 degree off the truth, and
+    the guard never steps the prior back."""
+    from slamlib.synth.roads import road_statistics
+
+    s = road_statistics(hard_road())
+    assert s["longitudinal"].min() < -6.0  # hard braking
+    assert np.degrees(np.abs(s["roll"]).max()) > 6.0  # the hairpin's body roll
+    assert np.abs(s["grade"]).max() > 0.115  # a 12 % climb
+    assert hard_road().velocity_body(0.0)[0, 0] == pytest.approx(
+        7.5, abs=0.05
+    )  # moving at once
+    error, run = _tilt_errors_deg(hard_drive, hard_drive.T_velo_imu)
     assert len(error) > 300
     assert error.max() < 1.0, (
-        f"roll/pitch {error.max():.2f} deg off at frame {error.max(axis=1).argmax()}"
+        f"roll/pitch {error.max():.2f} deg off at frame {error.argmax()}"
     )
+    assert run.slam.prior.n_stepped_back == 0
+
+
+def test_the_guard_lets_the_scan_decide_while_the_accelerometer_reads_a_wrong_up(
+    hard_drive,
+):
+    """Four seconds (frames 100-139, the climb) of an accelerometer that reads its specific force turned 5 degrees
+    in roll, as an acceleration read as tilt would: the guard steps the prior back within a few frames of the
+    window filling with it and holds it back while it lasts, every frame's roll and pitch stay within 1 degree,
+    and the prior holds again after. (Without the guard the filter followed the wrong up to 5.7 degrees, and,
+    the calibration having taken it for bias and the world's tilt, on to 22 degrees after it had ended.)"""
+    import dataclasses
+
+    wrong = rpy_to_matrix([np.radians(5.0), 0.0, 0.0])
+    bad = range(100, 140)
+
+    def frames():
+        for k, frame in enumerate(hard_drive):
+            if k in bad:
+                frame = dataclasses.replace(
+                    frame, specific_force=wrong @ frame.specific_force
+                )
+            yield frame
+
+    error, run = _tilt_errors_deg(list(frames()), hard_drive.T_velo_imu)
+    prior = run.slam.prior
+    assert error.max() < 1.0, (
+        f"roll/pitch {error.max():.2f} deg off at frame {error.argmax()}"
+    )
+    assert (
+        len(bad) // 2 < prior.n_stepped_back < len(bad) + 40
+    )  # the window's 2 s drain the bad samples
+    assert not prior.stepped_back and prior.held_up() is not None

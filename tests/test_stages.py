@@ -819,6 +819,96 @@ def test_tilt_prior_with_a_kalman_bias_holds_the_up_less_the_filters_bias():
     np.testing.assert_array_equal(prior.held_up(), prior.up - np.r_[x[2:], 0.0])
 
 
+def _settled_prior(up, frames: int = 40):
+    """A default-configured :class:`TiltPrior` (a 0.5 s window) after ``frames`` frames of a still, level body
+    measuring ``up``, each passing the guard and calibrated."""
+    prior = TiltPrior(TiltConfig(tilt_window=0.5))
+    for k in range(frames):
+        _measure_frame(prior, k, 0.25, up)
+        assert prior.check(np.eye(3))
+        prior.calibrate(np.eye(4), 0.25)
+    return prior
+
+
+def test_the_guard_steps_the_prior_back_where_the_up_and_the_maps_fit_disagree_and_resumes():
+    """:meth:`TiltPrior.check`: a measured up that agrees with the map's fit (the body level, the up level) passes;
+    one 5 degrees off, once the calibration knows the world and the bias, steps the prior back: no weight, no
+    held up (so no gravity in the match), no calibration; when they agree again the prior holds again."""
+    from slamlib.slam3d.stages.prior import TILT_GATE_CHI2
+
+    level = np.array([0.0, 0.0, 1.0])
+    prior = _settled_prior(level)
+    assert prior.n_stepped_back == 0 and prior.disagreement < 1.0
+    off = rpy_to_matrix([np.radians(5.0), 0.0, 0.0]).T @ level
+    states = []
+    for k in range(40, 48):  # the window fills with the wrong up
+        _measure_frame(prior, k, 0.25, off)
+        prior.check(np.eye(3))
+        prior.calibrate(np.eye(4), 0.25)
+        states.append((prior.stepped_back, prior.state.copy(), np.diag(prior.cov).copy()))
+    assert prior.stepped_back and prior.disagreement > TILT_GATE_CHI2
+    assert prior.held_up() is None and prior.measured_up() is not None
+    particles = Particles3D(np.stack([np.eye(3)] * 2), np.zeros((2, 3)))
+    log_w = np.array([-1.0, -2.0])
+    assert prior.weigh(particles, log_w) is log_w
+    # once stepped back, the wrong ups go neither into the world nor the bias
+    first = next(i for i, (back, _, _) in enumerate(states) if back)
+    assert first <= 2  # within the frames the window takes to fill
+    for _, state, var in states[first:]:
+        np.testing.assert_array_equal(state, states[first][1])
+        np.testing.assert_array_equal(var, states[first][2])
+    for k in range(48, 56):  # agreeing again
+        _measure_frame(prior, k, 0.25, level)
+        prior.check(np.eye(3))
+    assert not prior.stepped_back and prior.held_up() is not None
+    assert prior.n_stepped_back >= 4
+
+
+def test_the_guard_is_wide_open_while_the_worlds_tilt_is_unknown():
+    """At the start the world's tilt is known only to ``tilt_world_sigma`` (50 mrad): a body on a 3-degree slope
+    measures an up 3 degrees from the map's (the map's world is the first pose), which the guard lets pass, and
+    the calibration learns it as the world's tilt; the same disagreement later, once learnt, would not pass."""
+    slope = rpy_to_matrix([0.0, np.radians(3.0), 0.0]).T @ [0.0, 0.0, 1.0]
+    prior = _settled_prior(slope)  # every frame checked and passed inside
+    assert prior.n_stepped_back == 0
+    assert np.degrees(np.arccos(prior.world_up[2])) > 2.5  # learnt as the world's tilt
+    for k in range(40, 48):
+        _measure_frame(prior, k, 0.25, [0.0, 0.0, 1.0])
+        prior.check(np.eye(3))
+    assert prior.stepped_back
+
+
+def test_scan_match_takes_the_maps_own_fit_where_the_guard_steps_the_prior_back(
+    monkeypatch,
+):
+    """With a prior the stage matches twice: with gravity's term, then on from there on the map alone; the
+    second is checked against the measured up (:meth:`TiltPrior.check`), and is the frame's pose where they
+    disagree. While the prior is stepped back the match carries no gravity and is checked as it is."""
+    points, pose = _road_scan(), make_pose(np.eye(3), [1.0, 2.0, 0.0])
+    particles = Particles3D(np.eye(3)[None], np.zeros((1, 3)))
+    prior = _settled_prior(np.array([0.0, 0.0, 1.0]))
+    tilted = make_pose(rpy_to_matrix([np.radians(6.0), 0.0, 0.0]), [1.0, 2.0, 0.0])
+    answers = iter(
+        [pose, tilted, tilted]
+    )  # with gravity, the map alone; then the map alone again
+
+    calls = []
+
+    def fake(pose, points, world_map, iterations, road=None, tolerance=None, tilt=None):
+        calls.append(tilt)
+        return next(answers)
+
+    monkeypatch.setattr("slamlib.slam3d.stages.polish.match_scan", fake)
+    stage = ScanMatch(4, prior=prior, temperature=0.02)
+    matched, _ = stage(pose, points, particles, "map")
+    assert calls[0] is not None and calls[1] is None  # gravity's term, then none
+    assert prior.stepped_back
+    np.testing.assert_array_equal(matched, tilted)  # the scan decides
+    matched, _ = stage(pose, points, particles, "map")
+    assert len(calls) == 3 and calls[2] is None  # stepped back: one match, the map's
+    np.testing.assert_array_equal(matched, tilted)
+
+
 def test_no_prior_measures_weighs_and_calibrates_nothing():
     prior, log_weights = NoPrior(), np.array([-1.0, -2.0])
     particles = Particles3D(np.stack([np.eye(3)] * 2), np.zeros((2, 3)))

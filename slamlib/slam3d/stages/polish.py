@@ -37,7 +37,12 @@ from slamlib.slam3d.preprocess import crop_and_downsample, road_mask
 from slamlib.slam3d.stages.motion import measured_increment
 from slamlib.slam3d.steps import Particles3D
 
-__all__ = ["NoPolish", "ScanMatch", "correction_distance"]
+__all__ = ["NoPolish", "ScanMatch", "correction_distance", "GUARD_ITERATIONS"]
+
+#: Newton steps of the guard's match on the map alone, from the match with gravity's term: near the map's own peak
+#: already (the two terms pull apart by milliradians, or the guard is what is wanted), one step reaches it to
+#: well within the gate, at a fraction of a whole match's passes over the points.
+GUARD_ITERATIONS = 1
 
 
 def correction_distance(pose, matched, sigma) -> float:
@@ -104,6 +109,7 @@ class ScanMatch:
             self.prior.observe_map(hessian, len(points), self.temperature)
         else:
             matched = match_scan(*args, tilt)
+        matched = self._guard(matched, points, world_map, road, tilt)
         self.n_matched += 1
         if sigma is not None:
             self.last_distance = correction_distance(pose, matched, sigma)
@@ -117,6 +123,19 @@ class ScanMatch:
             particles.t @ C[:3, :3].T + C[:3, 3],
         )
         return matched, moved
+
+    def _guard(self, matched, points, world_map, road, tilt):
+        """The guard (:mod:`slamlib.slam3d.stages.prior`, "The guard"): the map's own fit of the scan, matched on from
+        ``matched`` without gravity's term, checked against the prior's measured up; where they disagree, the map's
+        fit is the frame's pose and the prior steps back. ``matched`` as it is without a prior."""
+        if self.prior is None:
+            return matched
+        free = matched
+        if tilt is not None:
+            free = match_scan(
+                matched, points, world_map, GUARD_ITERATIONS, road, self.tolerance
+            )
+        return matched if self.prior.check(free[:3, :3]) else free
 
     def _tilt(self, n: int):
         """``match_scan``'s ``tilt`` for ``n`` matched points: the prior's up less its bias, its world's up and

@@ -24,6 +24,23 @@ passes to the bias, and the prior then holds the tilt to an up that has moved wi
 error as a random walk of rate :data:`TILT_WALK_RATE`, the bias as a constant, from the same residual; a change
 the body's turning explains is bias, the rest is tilt.
 
+The guard
+---------
+An accelerometer cannot tell the car's acceleration from gravity in one sample; the window separates them only as
+well as its inputs allow. Where it fails (an acceleration the window does not explain, a glitch), the measured up
+is wrong, and at the prior's weight the particles follow it within a frame or two; the calibration then takes the
+wrong up for bias or the world's tilt, the filter's own rotations turn the next windows, and the error feeds on
+itself: a prior held to gravity diverges with nothing to stop it. So the scan keeps a say. Each frame the scan
+match (:class:`~slamlib.slam3d.stages.ScanMatch`) also fits the map alone, and :meth:`TiltPrior.check` tests the
+measured up against that fit as a Kalman filter tests a measurement against its prediction (Bar-Shalom, Li &
+Kirubarajan, "Estimation with Applications to Tracking and Navigation", 2001, sec. 5.4): the innovation ``nu`` of
+the calibration's measurement, with covariance ``S = H P H^T + s^2 I`` (the calibration's uncertainty and the
+up's own noise against the map, :data:`TILT_GATE_NOISE`), and ``nu^T S^-1 nu`` against the chi-square's 99.9 %
+(:data:`TILT_GATE_CHI2`). Where it fails, the prior steps back: the frame's pose is the map's fit, and until the
+two agree again step 8, the match and the calibration hold to no up. The scan decides while the accelerometer
+cannot; a map's slow tilt walk stays well inside the gate, which opens wide at the start, while the world's tilt
+is still unknown.
+
 :class:`NoPrior` (``TiltConfig.tilt_sigma = 0``, or LIDAR-only: no accelerometer) adds nothing.
 
 How much to trust the accelerometer (``tilt_sigma = "auto"``)
@@ -119,6 +136,9 @@ __all__ = [
     "tilt_calibration_bias_variance",
     "tilt_kalman_update",
     "TILT_WALK_RATE",
+    "TILT_GATE_NOISE",
+    "TILT_GATE_CHI2",
+    "tilt_kalman_rows",
 ]
 
 
@@ -139,6 +159,12 @@ ADAPTIVE_TILT_SIGMA_MAX = 0.1
 #: Without the prior the filter's tilt walked 8-12 mrad over the 100 s of route 07's development drive (scene seed
 #: 0, filter seeds 0 and 1): ``q ~ (10 mrad)^2 / 100 s``.
 TILT_WALK_RATE = 1e-6
+#: The guard: the measured up's own noise against the map's fit of a scan (rad), beside the calibration's
+#: uncertainty: the up's window noise and the map-only match's own tilt error, a few milliradians each.
+TILT_GATE_NOISE = 0.01
+#: ... and the most ``nu^T S^-1 nu`` it lets pass: the chi-square of two degrees of freedom (the tilt's two axes) at
+#: 99.9 %. Once the calibration knows the world and the bias, a disagreement of about 2 degrees.
+TILT_GATE_CHI2 = 13.8
 
 # ------------------------------------------------------------------------------------------------ the math
 
@@ -409,6 +435,16 @@ def tilt_calibration_bias_variance(prior, sums) -> float:
     return float(np.mean(np.diag(cov)[bias]))
 
 
+def tilt_kalman_rows(n_states: int, R, up) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`tilt_calibration_rows` for the Kalman filter's state of ``n_states`` (4 or 6, :func:`tilt_kalman_update`):
+    ``(H (3, n_states), y (3,))``, ``y = u - R^T e_z = H x + noise``; with six, the world's tilt and the map's walk
+    enter alike."""
+    H, y = tilt_calibration_rows(R, up)
+    if n_states == 6:
+        H = np.column_stack([H[:, :2], H])
+    return H, y
+
+
 def tilt_kalman_update(
     state, cov, R, up, noise_variance: float, walk_variance: float
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -445,9 +481,7 @@ def tilt_kalman_update(
     walk = len(x) - 4  # the map's tilt: after the world's, when the state has it
     P = np.array(cov, dtype=np.float64)
     P[walk : walk + 2, walk : walk + 2] += float(walk_variance) * np.eye(2)
-    H, y = tilt_calibration_rows(R, up)
-    if walk:
-        H = np.column_stack([H[:, :2], H])
+    H, y = tilt_kalman_rows(len(x), R, up)
     r = float(noise_variance)
     K = P @ H.T @ np.linalg.inv(H @ P @ H.T + r * np.eye(3))
     x = x + K @ (y - H @ x)
@@ -535,6 +569,8 @@ class TiltPrior:
         self.map_information = None
         self.samples: deque = deque()
         self.up, self.up_span = None, 0.0
+        # the guard's verdict on this frame's up, and the angle it read (check)
+        self.stepped_back, self.n_stepped_back, self.disagreement = False, 0, 0.0
         self.kalman = config.tilt_bias == TILT_BIAS_MODELS[1]
         if self.kalman:
             # the map's tilt error and the bias as a Kalman filter's state, the tilt starting at 0; with
@@ -578,15 +614,44 @@ class TiltPrior:
         else:
             self.up = gravity_up(T[:, :3, :3], force, velocity, dts)
 
-    def held_up(self) -> np.ndarray | None:
-        """The up the prior holds the tilt to: this frame's measured up less the fitted bias (3,), body frame
-        (:func:`tilt_calibration`: a body ``R`` measures ``u = R^T g_w + beta``); None until the window spans
-        ``tilt_window`` (as in :meth:`calibrate`: a window of ``T`` seconds measures up with errors ~ ``1 / T``,
-        tens of milliradians over the first frames, which ``sigma``, the full window's, would hold the tilt to).
-        Step 8 (:meth:`weigh`) and the scan match's gravity term both hold to this one vector."""
+    def measured_up(self) -> np.ndarray | None:
+        """This frame's measured up less the fitted bias (3,), body frame (:func:`tilt_calibration`: a body ``R``
+        measures ``u = R^T g_w + beta``); None until the window spans ``tilt_window`` (a window of ``T`` seconds
+        measures up with errors ~ ``1 / T``, tens of milliradians over the first frames, which ``sigma``, the full
+        window's, would hold the tilt to)."""
         if self.up is None or self.up_span < self.window:
             return None
         return self.up - self.up_bias
+
+    def held_up(self) -> np.ndarray | None:
+        """The up the prior holds the tilt to: :meth:`measured_up`, or None while the guard has stepped the prior
+        back (:meth:`check`). Step 8 (:meth:`weigh`), the scan match's gravity term and the calibration all hold
+        to this one vector."""
+        return None if self.stepped_back else self.measured_up()
+
+    def check(self, R_map) -> bool:
+        """The guard (module docstring, "The guard"): whether the measured up agrees with the body rotation ``R_map``
+        (3, 3) that the map alone fits this frame's scan best. The innovation ``nu = y - H x`` of the calibration's
+        measurement (:func:`tilt_kalman_rows`; without the Kalman filter, the measured up less the bias against
+        ``R_map^T g_w``) is weighed by its covariance ``S = H P H^T + s^2 I`` (``P`` the Kalman filter's, 0
+        without it; ``s`` = :data:`TILT_GATE_NOISE`): where ``nu^T S^-1 nu`` exceeds :data:`TILT_GATE_CHI2`, the
+        prior steps back (:attr:`stepped_back`: no weight, no gravity in the match, no calibration) until they agree
+        again. ``disagreement`` keeps the frame's ``nu^T S^-1 nu``, ``n_stepped_back`` counts the frames. True while
+        the prior holds nothing yet."""
+        up = self.measured_up()
+        if up is None:
+            return True
+        R_map = np.asarray(R_map, dtype=np.float64)
+        if self.kalman:
+            H, y = tilt_kalman_rows(len(self.state), R_map, self.up)
+            nu, S = y - H @ self.state, H @ self.cov @ H.T
+        else:
+            nu, S = up - R_map.T @ self.world_up, np.zeros((3, 3))
+        S = S + TILT_GATE_NOISE**2 * np.eye(3)
+        self.disagreement = float(nu @ np.linalg.solve(S, nu))
+        self.stepped_back = self.disagreement > TILT_GATE_CHI2
+        self.n_stepped_back += int(self.stepped_back)
+        return not self.stepped_back
 
     def weigh(self, particles, log_weights):
         """``log_weights`` plus :func:`tilt_log_prior` of the measured up less the bias (:meth:`held_up`)."""
@@ -601,7 +666,7 @@ class TiltPrior:
         sector: each frame weighs ``dt / tilt_window`` of an independent up measurement of standard deviation
         ``tilt_sigma`` (consecutive windows overlap), and the sectors weigh alike
         (:func:`balance_heading_bins`)."""
-        if self.up is None or self.up_span < self.window:
+        if self.held_up() is None:
             return
         if self.auto or self.adaptive:
             self._weigh_by_consistency(pose, dt)

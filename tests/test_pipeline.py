@@ -1171,28 +1171,13 @@ def test_register_frame_rejects_non_finite_or_impossible_imu(field, value):
 
 
 # ------------------------------------------------------------------------------------------------ hard roads
-def hard_road():
-    """One short road with every motion that reads as tilt to an accelerometer (issue "never diverge"): moving
-    off at 7.5 m/s and braking to 2 m/s in the first three seconds on level ground, hard braking (6.5 m/s^2) to a
-    stop, a hairpin whose body roll passes 6 degrees, grades of 12 %."""
-    from slamlib.synth.roads import Leg, road_route
-
-    legs = [
-        Leg(14.0, speed=7.5),
-        Leg(20.0, speed=2.0, brake=2.0),
-        Leg(40.0, speed=12.0, stop=1.0, brake=6.5),
-        Leg(20.0, speed=10.0),
-        Leg(9.0 * np.pi, np.pi, 12.0, 6.0),
-        Leg(60.0, speed=10.0),
-    ]
-    return road_route(legs, max_grade=0.12, terrain_seed=2, start_speed=7.5, name="hard")
-
-
 @pytest.fixture(scope="module")
 def hard_drive(tmp_path_factory):
-    """:func:`hard_road` as a KITTI raw drive: a swept LIDAR (1,000 columns), wandering IMU biases."""
+    """:func:`slamlib.synth.roads.hard_road` as a KITTI raw drive: a swept LIDAR (1,000 columns), wandering IMU
+    biases."""
     from slamlib.kitti.raw import KittiRawDrive
     from slamlib.synth import WANDERING_BIASES, Hdl64, write_drive
+    from slamlib.synth.roads import hard_road
 
     base = tmp_path_factory.mktemp("hard")
     write_drive(
@@ -1220,9 +1205,9 @@ def _tilt_errors_deg(frames, T_velo_imu):
 def test_the_default_holds_roll_and_pitch_through_braking_a_hairpin_and_a_climb(
     hard_drive,
 ):
-    """The default filter on :func:`hard_road`: no frame's roll or pitch is more than 1 degree off the truth, and
-    the guard never steps the prior back."""
-    from slamlib.synth.roads import road_statistics
+    """The default filter on :func:`slamlib.synth.roads.hard_road`: no frame's roll or pitch is more than 1 degree
+    off the truth, and the guard never steps the prior back."""
+    from slamlib.synth.roads import hard_road, road_statistics
 
     s = road_statistics(hard_road())
     assert s["longitudinal"].min() < -6.0  # hard braking

@@ -48,6 +48,7 @@ __all__ = [
     "random_road",
     "random_route",
     "road_statistics",
+    "hard_road",
     "RANDOM_PREFIX",
     "ROAD_FEATURES",
 ]
@@ -337,6 +338,21 @@ def _there_and_back(rng, there: Leg) -> list[Leg]:
     feature = "revisit, opposite direction"
     back = Leg(there.length, 0.0, there.speed, feature=feature)
     return [there, *_roundabout(rng, np.pi, feature), back]
+
+
+def hard_road() -> Route:
+    """A short road (about 180 m, 34 s) with every motion an accelerometer reads as tilt: moving off at 7.5 m/s and
+    braking to 2 m/s within the first three seconds on level ground, hard braking (6.5 m/s^2) to a stop, a hairpin
+    whose body roll passes 6 degrees, grades of 12 %. The filter's tests and book chapter 09 drive it."""
+    legs = [
+        Leg(14.0, speed=7.5),
+        Leg(20.0, speed=2.0, brake=2.0),
+        Leg(40.0, speed=12.0, stop=1.0, brake=6.5),
+        Leg(20.0, speed=10.0),
+        Leg(9.0 * np.pi, np.pi, 12.0, 6.0),
+        Leg(60.0, speed=10.0),
+    ]
+    return road_route(legs, max_grade=0.12, terrain_seed=2, start_speed=7.5, name="hard")
 
 
 def random_route(seed: int, length: float = 1000.0) -> Route:

@@ -537,6 +537,8 @@ class TiltPrior:
         has been measured.
     samples : deque of ``(specific_force, velocity, dt)`` of the frames in the window; ``up_span`` the seconds
         it spans.
+    stepped_back : whether the guard has stepped the prior back (:meth:`check`); ``disagreement`` the last
+        frame's innovation test ``nu^T S^-1 nu``, ``n_stepped_back`` the frames it stepped back.
     world_up, up_bias : (3,) the estimated world's up (world frame) and accelerometer bias (an angle, body frame)
         (``e_z`` and 0 until frames come in). Behind them: with ``tilt_bias = "sectors"`` ``calibration_prior``
         ``(Lambda, eta, free)`` and ``bins`` ``(Lambdas, etas, weights)``, the least-squares sums of each heading
@@ -569,7 +571,7 @@ class TiltPrior:
         self.map_information = None
         self.samples: deque = deque()
         self.up, self.up_span = None, 0.0
-        # the guard's verdict on this frame's up, and the angle it read (check)
+        # the guard's verdict on this frame's up, its innovation test, the frames it stepped back (check)
         self.stepped_back, self.n_stepped_back, self.disagreement = False, 0, 0.0
         self.kalman = config.tilt_bias == TILT_BIAS_MODELS[1]
         if self.kalman:

@@ -862,6 +862,8 @@ def test_the_guard_steps_the_prior_back_where_the_up_and_the_maps_fit_disagree_a
         prior.check(np.eye(3))
     assert not prior.stepped_back and prior.held_up() is not None
     assert prior.n_stepped_back >= 4
+    prior.stepped_back, prior.up = True, None  # no up measured: nothing to disagree with
+    assert prior.check(np.eye(3)) and not prior.stepped_back and prior.disagreement == 0.0
 
 
 def test_the_guard_is_wide_open_while_the_worlds_tilt_is_unknown():

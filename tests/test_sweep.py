@@ -314,8 +314,8 @@ def test_sweep_takes_fresh_roads_by_seed():
 @pytest.mark.parametrize(
     "argv, message",
     [
-        (["--routes", "99"], "--routes: 99 not one of"),
-        (["--routes", "07,random:x"], "--routes: random:x not one of .* or random:SEED"),
+        (["--routes", "99"], "--routes: route must be one of .*got '99'"),
+        (["--routes", "07,random:x"], "--routes: .* or random:SEED .*got 'random:x'"),
         (["--seeds", "a"], "--seeds must be comma-separated int"),
         (["--seeds", "-1"], "--seeds must be >= 0"),
         (["--layouts", "bag"], "--layouts: bag not one of"),

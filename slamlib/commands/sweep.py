@@ -29,10 +29,7 @@ import time
 from pathlib import Path
 
 from slamlib.commands import tilt_sigma
-from slamlib.commands.synth import (
-    RANDOM_ROUTE,
-    ROUTES,
-)  # the routes `slamlib synth` writes
+from slamlib.commands.synth import route_name
 
 NAME = "sweep"
 HELP = "Run SLAM (and KISS-ICP) over routes x seeds x settings as Dask tasks; write one table (CSV) and a plot."
@@ -317,9 +314,11 @@ def _list(text: str, option: str, allowed=None, kind=str) -> list:
 def _routes(text: str) -> list[str]:
     """``--routes``: each a route ``slamlib synth --route`` takes (:func:`slamlib.commands.synth.route_name`)."""
     items = _list(text, "--routes")
-    bad = [x for x in items if not (x in ROUTES or RANDOM_ROUTE.fullmatch(x))]
-    if bad:
-        _fail(f"--routes: {', '.join(bad)} not one of {', '.join(ROUTES)} or random:SEED")
+    for item in items:
+        try:
+            route_name(item)
+        except argparse.ArgumentTypeError as error:
+            _fail(f"--routes: {error}")
     return items
 
 

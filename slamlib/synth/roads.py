@@ -40,7 +40,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from slamlib.geometry import make_pose, rpy_to_matrix
-from slamlib.synth.routes import Route
+from slamlib.synth.routes import RANDOM_PREFIX, Route
 
 __all__ = [
     "Leg",
@@ -53,8 +53,6 @@ __all__ = [
     "ROAD_FEATURES",
 ]
 
-#: ``get_route`` name prefix of a drawn road: ``"random:SEED"``.
-RANDOM_PREFIX = "random:"
 #: Sample spacing along the road (m) of the geometry and the speed profile.
 ROAD_STEP_M = 0.25
 #: Length (m) over which a change of curvature is eased in.

@@ -50,6 +50,8 @@ __all__ = [
 ]
 
 ROUTE_NAMES = ("straight", "loop", "00", "05", "07")
+#: The name of a road drawn from a seed, ``"random:SEED"`` (:func:`slamlib.synth.roads.random_route`).
+RANDOM_PREFIX = "random:"
 
 
 @dataclass
@@ -238,12 +240,14 @@ def kitti_route(sequence: str = "07", frames: slice | tuple | None = None) -> Ro
 def get_route(name: str, frames=None) -> Route:
     """Route by name: ``"straight"``, ``"loop"``, a KITTI odometry sequence ``"00"``, ``"05"``, ``"07"``, or
     ``"random:SEED"``, a fresh road drawn from ``SEED`` (:func:`slamlib.synth.roads.random_route`)."""
-    if name.startswith("random:"):
-        from slamlib.synth.roads import RANDOM_PREFIX, random_route
+    if name.startswith(RANDOM_PREFIX):
+        from slamlib.synth.roads import random_route  # scipy: only for a drawn road
 
         seed = name[len(RANDOM_PREFIX) :]
         if not seed.isdigit():
-            raise ValueError(f"route {name!r}: random:SEED needs an integer SEED >= 0")
+            raise ValueError(
+                f"route {name!r}: {RANDOM_PREFIX}SEED needs an integer SEED >= 0"
+            )
         return random_route(int(seed))
     if name == "straight":
         return straight_route()
@@ -252,5 +256,5 @@ def get_route(name: str, frames=None) -> Route:
     if name in ("00", "05", "07"):
         return kitti_route(name, frames)
     raise ValueError(
-        f"unknown route {name!r}; choose one of {ROUTE_NAMES} or random:SEED"
+        f"unknown route {name!r}; choose one of {ROUTE_NAMES} or {RANDOM_PREFIX}SEED"
     )

@@ -638,10 +638,11 @@ class TiltPrior:
         ``R_map^T g_w``) is weighed by its covariance ``S = H P H^T + s^2 I`` (``P`` the Kalman filter's, 0
         without it; ``s`` = :data:`TILT_GATE_NOISE`): where ``nu^T S^-1 nu`` exceeds :data:`TILT_GATE_CHI2`, the
         prior steps back (:attr:`stepped_back`: no weight, no gravity in the match, no calibration) until they agree
-        again. ``disagreement`` keeps the frame's ``nu^T S^-1 nu``, ``n_stepped_back`` counts the frames. True while
-        the prior holds nothing yet."""
+        again. ``disagreement`` keeps the frame's ``nu^T S^-1 nu``, ``n_stepped_back`` counts the frames. True (and
+        not stepped back) while the prior measures no up."""
         up = self.measured_up()
         if up is None:
+            self.stepped_back, self.disagreement = False, 0.0
             return True
         R_map = np.asarray(R_map, dtype=np.float64)
         if self.kalman:

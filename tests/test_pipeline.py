@@ -11,8 +11,10 @@ from __future__ import annotations
 
 import ast
 import inspect
+import os
 import textwrap
 from dataclasses import dataclass, fields, is_dataclass
+from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
@@ -1254,3 +1256,41 @@ def test_the_guard_lets_the_scan_decide_while_the_accelerometer_reads_a_wrong_up
         len(bad) // 2 < prior.n_stepped_back < len(bad) + 40
     )  # the window's 2 s drain the bad samples
     assert not prior.stepped_back and prior.held_up() is not None
+
+
+# The default filter's trajectories, committed (tests/golden/): any change to the code that moves the default by one
+# bit fails here. A deliberate change of the default regenerates them (SLAMLIB_WRITE_GOLDEN=1) and says why.
+GOLDEN = Path(__file__).parent / "golden" / "default_trajectories.npz"
+GOLDEN_LIDAR_FRAMES = 150  # LIDAR-only: the hard road's first 15 s
+
+
+def _golden_runs(hard_drive):
+    """The default on the hard road with its IMU, and LIDAR-only (its swept scans as odometry-layout frames, no
+    IMU) on its first :data:`GOLDEN_LIDAR_FRAMES` frames: ``{name: poses (N, 4, 4)}``."""
+    from slamlib.kitti.sequence import OdometryFrame
+    from slamlib.slam3d.run import run_drive
+
+    frames = list(hard_drive)
+    scans = [
+        OdometryFrame(
+            f.index, f.time_s, f.dt, f.scan, f.T_w_velo, f.velodyne_path, swept=f.swept
+        )
+        for f in frames[:GOLDEN_LIDAR_FRAMES]
+    ]
+    return {
+        "imu": run_drive(
+            frames, None, T_velo_imu=hard_drive.T_velo_imu, progress=False
+        ).poses,
+        "lidar_only": run_drive(scans, None, progress=False).poses,
+    }
+
+
+def test_the_default_reproduces_its_committed_trajectories_to_the_last_bit(hard_drive):
+    runs = _golden_runs(hard_drive)
+    if os.environ.get("SLAMLIB_WRITE_GOLDEN") == "1":
+        GOLDEN.parent.mkdir(exist_ok=True)
+        np.savez_compressed(GOLDEN, **runs)
+    golden = np.load(GOLDEN)
+    assert set(golden.files) == set(runs)
+    for name, poses in runs.items():
+        np.testing.assert_array_equal(poses, golden[name], err_msg=name)

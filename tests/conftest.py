@@ -2,6 +2,9 @@
 
 import os
 
+#: The simulator's switch as pytest found it: the notebooks run with it (fixture ``book_environment``), as the book
+#: build runs them.
+CUDASIM_AT_START = os.environ.get("NUMBA_ENABLE_CUDASIM")
 # Run numba.cuda kernels in Numba's CUDA simulator unless a real GPU run is asked for
 # (SLAMLIB_REAL_CUDA=1 on a machine with a GPU and numba-cuda[cu12]).
 if os.environ.get("SLAMLIB_REAL_CUDA") != "1":
@@ -22,6 +25,16 @@ if signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
 
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
+
+
+@pytest.fixture
+def book_environment(monkeypatch):
+    """The environment ``jupyter-book build`` would give a notebook's kernel: the one pytest started in, without
+    the CUDA simulator this file switches on for the tests (a kernel inherits the environment)."""
+    if CUDASIM_AT_START is None:
+        monkeypatch.delenv("NUMBA_ENABLE_CUDASIM", raising=False)
+    else:
+        monkeypatch.setenv("NUMBA_ENABLE_CUDASIM", CUDASIM_AT_START)
 
 
 @pytest.fixture(scope="module")

@@ -118,18 +118,25 @@ def _markdown(cell):
     return "".join(cell["source"]) if cell["cell_type"] == "markdown" else ""
 
 
+def _kind(path) -> str:
+    """ "chapter" (``NN_topic``) or "appendix" (``appendix_topic``: a record of results, fewer exercises)."""
+    return "chapter" if path.stem[:2].isdigit() else "appendix"
+
+
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.stem)
 def test_every_chapter_has_a_frame(path):
-    """A chapter opens with what it teaches and needs, and closes with a summary, exercises with hidden solutions
-    and the checks that assert its claims, under one heading, after which only code cells follow."""
+    """A chapter (or appendix) opens with what it teaches and needs, and closes with a summary, exercises with
+    hidden solutions (a chapter at least three) and the checks that assert its claims, under one heading, after
+    which only code cells follow."""
     cells = _cells(path)
     prose = [_markdown(c) for c in cells]
+    kind = _kind(path)
     assert any(
-        ":::{admonition} In this chapter" in text
+        f":::{{admonition}} In this {kind}" in text
         and "**You will learn**" in text
         and "**You need first**" in text
         for text in prose[:3]
-    ), f"{path.name}: no 'In this chapter' admonition in the first 3 cells"
+    ), f"{path.name}: no 'In this {kind}' admonition in the first 3 cells"
     assert any(
         line.strip() == "## Summary" for text in prose for line in text.splitlines()
     ), f"{path.name}: no '## Summary' cell"
@@ -139,7 +146,10 @@ def test_every_chapter_has_a_frame(path):
     assert len(opened) == len(closed), f"{path.name}: an unclosed ::: directive"
     exercises = re.findall(r"^:::\{exercise\}\n:label: (\S+)$", text, re.M)
     solutions = re.findall(r"^:::\{solution\} (\S+)\n:class: dropdown$", text, re.M)
-    assert len(exercises) >= 3, f"{path.name}: {len(exercises)} exercises, want 3"
+    wanted = 3 if kind == "chapter" else 1
+    assert len(exercises) >= wanted, (
+        f"{path.name}: {len(exercises)} exercises, want {wanted}"
+    )
     assert len(exercises) == len(set(exercises)) and set(solutions) == set(exercises), (
         path.name,
         exercises,
@@ -155,9 +165,10 @@ def test_every_chapter_has_a_frame(path):
     assert not reused, (
         f"{path.name}: exercise labels used elsewhere in the book: {reused}"
     )
-    heading = [i for i, t in enumerate(prose) if t.splitlines()[:1] == [CHECKS_HEADING]]
-    assert len(heading) == 1, f"{path.name}: want one '{CHECKS_HEADING}' cell"
+    checks = CHECKS_HEADING.replace("chapter", kind)
+    heading = [i for i, t in enumerate(prose) if t.splitlines()[:1] == [checks]]
+    assert len(heading) == 1, f"{path.name}: want one '{checks}' cell"
     after = cells[heading[0] + 1 :]
     assert after and all(c["cell_type"] == "code" for c in after), (
-        f"{path.name}: only the check cells may follow '{CHECKS_HEADING}'"
+        f"{path.name}: only the check cells may follow '{checks}'"
     )

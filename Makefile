@@ -51,7 +51,7 @@ book: setup mathjax
 # The whole test suite: unit tests and every notebook run to its end (tests/test_notebooks.py; each ends with assert
 # cells), the notebooks' runs stored for `make book`.
 test: setup lint
-	$(BIN)/python -m pytest -p no:dash tests
+	$(BIN)/python -m pytest -p no:dash --durations=15 tests
 
 # The formatter and linter ([tool.ruff] in pyproject.toml): fails on unformatted code or a lint finding.
 lint: setup

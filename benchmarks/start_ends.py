@@ -6,7 +6,7 @@
 choice (:attr:`slamlib.slam3d.stages.Annealing.last_start`) beside the true motion over the first frame: the
 positions in the start pose's frame (body axes, x forward, metres), the raw step-8 scores, and which search was
 kept (``slamlib.slam3d.stages.search``, "The start's line"). A study of the start, not a timing: the drives it was
-run on are named in the file, which ``book/defaults.md`` quotes.
+run on are named in the file, which ``book/defaults_record.md`` quotes.
 """
 
 from __future__ import annotations

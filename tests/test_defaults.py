@@ -602,8 +602,8 @@ def _words(path) -> str:
 
 
 def _section(title):
-    """``book/defaults.md``'s section ``title`` (its heading, words joined by single spaces)."""
-    page = _words(ROOT / "book" / "defaults.md")
+    """``book/defaults_record.md``'s section ``title`` (its heading, words joined by single spaces)."""
+    page = _words(ROOT / "book" / "defaults_record.md")
     section = page[page.index(title) :]
     return section[: section.index("## ", 3)]
 
@@ -622,10 +622,10 @@ def _dev_rows() -> dict[str, list[dict]]:
 
 
 def test_the_defaults_page_states_the_lidar_only_development_runs_as_committed():
-    """``book/defaults.md`` quotes the mean errors of ``benchmarks/results/lidar_only_dev`` that chose the LIDAR-only
+    """``book/defaults_record.md`` quotes the mean errors of ``benchmarks/results/lidar_only_dev`` that chose the LIDAR-only
     particle count and ``match_voxel``: each run's mean over its four drives, as written on the page, and the
     default's settings are those of the run the page calls the default."""
-    page = _words(ROOT / "book" / "defaults.md")
+    page = _words(ROOT / "book" / "defaults_record.md")
     rows = _dev_rows()
     dev = ("base", "mv05", "mv10", "mv05p150", "mv05p100", "kiss-odo")
     assert all(len(rows[k]) == 4 for k in dev)
@@ -651,7 +651,7 @@ def test_the_defaults_page_states_the_lidar_only_development_runs_as_committed()
 
 
 def test_the_defaults_page_states_the_imu_scan_match_development_runs_as_committed():
-    """``book/defaults.md``'s section on scan matching with an IMU quotes ``benchmarks/results/route07_dev``: each
+    """``book/defaults_record.md``'s section on scan matching with an IMU quotes ``benchmarks/results/route07_dev``: each
     setting's mean error at IMU x1 and x2 and its losses to KISS-ICP, and the defaults are the setting with none."""
     import json
 
@@ -685,7 +685,7 @@ def test_the_defaults_page_states_the_imu_scan_match_development_runs_as_committ
 
 
 def test_the_defaults_page_states_the_match_tilt_runs_as_committed():
-    """``book/defaults.md``'s section on ``match_tilt`` quotes ``benchmarks/results/match_tilt_dev``: on the
+    """``book/defaults_record.md``'s section on ``match_tilt`` quotes ``benchmarks/results/match_tilt_dev``: on the
     development drives, each filter seed's runs without gravity in the match (the default), with the prior at 5
     mrad in it, with ``tilt_sigma = "auto"`` in it and with ``"adaptive"`` as first built and as it stands: the means
     at IMU x1 and x2, the runs below the default's, the worst run, how much lower the mean; each sweep's command is
@@ -878,7 +878,7 @@ def _fresh_ratios(table, kiss_sweep=lambda sweep: sweep):
 
 
 def test_the_defaults_page_states_fresh9_and_the_default_is_its_candidate():
-    """``book/defaults.md`` on fresh9 (``benchmarks/results/fresh9``): the seeds named, each sweep's command with the
+    """``book/defaults_record.md`` on fresh9 (``benchmarks/results/fresh9``): the seeds named, each sweep's command with the
     candidate's four settings on slamlib's runs, the runs at most KISS-ICP's error, the mean and largest ratio, the
     raw layout's worst run; and the defaults are those four settings, so that its table is the default's."""
     section = _section("## Gravity in the scan match: `ScanMatchConfig.match_tilt`")
@@ -927,7 +927,7 @@ def test_the_defaults_page_states_fresh9_and_the_default_is_its_candidate():
 
 
 def test_the_defaults_page_states_fresh10_and_the_default_is_its_candidate():
-    """``book/defaults.md`` on fresh10 (``benchmarks/results/fresh10``): the seeds named, each sweep's command with
+    """``book/defaults_record.md`` on fresh10 (``benchmarks/results/fresh10``): the seeds named, each sweep's command with
     ``tilt_world_sigma=0.05`` on slamlib's runs, the tilted sweeps (slamlib alone) scored against the level sweeps'
     KISS-ICP runs, every run at most KISS-ICP's error, the mean and largest ratio, the raw layout's worst run, the
     tilted start's cost; and the default is that setting, run again on the nearest drive to the same error."""
@@ -990,9 +990,9 @@ def test_the_defaults_page_states_fresh10_and_the_default_is_its_candidate():
 
 
 def test_the_defaults_page_states_the_scan_match_iterations_runs_as_committed():
-    """``book/defaults.md``'s section on ``scan_match_iterations`` quotes ``lidar_only.json`` as committed in
+    """``book/defaults_record.md``'s section on ``scan_match_iterations`` quotes ``lidar_only.json`` as committed in
     074c905 (5 steps) and c93f47d (15): route 05's error in each, and the other two routes' moves."""
-    page = _words(ROOT / "book" / "defaults.md")
+    page = _words(ROOT / "book" / "defaults_record.md")
     section = page[page.index("`ScanMatchConfig.scan_match_iterations`") :]
     section = section[: section.index("## ")]
     res = "benchmarks/results/lidar_only.json"
@@ -1014,12 +1014,12 @@ def test_the_defaults_page_states_the_scan_match_iterations_runs_as_committed():
 
 
 def test_the_defaults_page_states_the_tolerance_and_scored_points_runs_as_committed():
-    """``book/defaults.md``'s section on ``match_tolerance`` (and the 500 scored points tried there) quotes the
+    """``book/defaults_record.md``'s section on ``match_tolerance`` (and the 500 scored points tried there) quotes the
     ``lidar_only_dev`` runs and the benchmarks as committed in 8b85ece: the means, the count of drives that lost,
     each whole sequence and each peers drive; the defaults are not the settings it turned down."""
     import json
 
-    page = _words(ROOT / "book" / "defaults.md")
+    page = _words(ROOT / "book" / "defaults_record.md")
     section = page[page.index("`ScanMatchConfig.match_tolerance`") :]
     section = section[: section.index("## ")]
     rows = _dev_rows()
@@ -1076,12 +1076,12 @@ def test_the_defaults_page_states_the_tolerance_and_scored_points_runs_as_commit
 
 
 def test_the_defaults_page_states_the_match_gate_runs_as_committed():
-    """``book/defaults.md``'s section on ``match_gate`` quotes ``benchmarks/results/match_gate_dev``: the leaps'
+    """``book/defaults_record.md``'s section on ``match_gate`` quotes ``benchmarks/results/match_gate_dev``: the leaps'
     distances, each run's error and ATE without the gate, with the default one and with the chi-square gate, the
     frames rejected, the largest corrections kept, and the default lies between what the runs kept and the leaps."""
     import json
 
-    page = _words(ROOT / "book" / "defaults.md")
+    page = _words(ROOT / "book" / "defaults_record.md")
     section = page[page.index("`ScanMatchConfig.match_gate`") :]
     section = section[: section.index("## ")]
     rows: dict[str, list[dict]] = {}
@@ -1126,7 +1126,7 @@ def test_the_defaults_page_states_the_match_gate_runs_as_committed():
 
 
 def test_the_defaults_page_states_the_start_line_runs_as_committed():
-    """``book/defaults.md``'s section on ``start_line`` quotes the committed runs: route 00's two failed LIDAR-only
+    """``book/defaults_record.md``'s section on ``start_line`` quotes the committed runs: route 00's two failed LIDAR-only
     fresh runs (``fresh2`` seed 75, ``fresh3`` seed 84) and KISS-ICP's on them; the same drives with the line's
     first version (``start_line_dev/spent00_on``), the second (``spent00_apart``), the third (``spent00_farther``)
     and the default's, the fourth (``spent00_off_still``, with ``fresh5``'s failed seed 103); the development drives
@@ -1143,7 +1143,7 @@ def test_the_defaults_page_states_the_start_line_runs_as_committed():
 
     from slamlib.experiments.sweep import read_table
 
-    page = _words(ROOT / "book" / "defaults.md")
+    page = _words(ROOT / "book" / "defaults_record.md")
     section = page[page.index("`ConstantVelocityConfig.start_line`") :]
     section = section[: section.index("## ")]
     results = ROOT / "benchmarks/results"
@@ -1316,10 +1316,10 @@ def _committed_json(rev: str, path: str) -> dict:
 
 
 def test_the_defaults_page_states_the_lidar_only_benchmarks_as_committed():
-    """The LIDAR-only results ``book/defaults.md`` quotes from before and after the particle count and
+    """The LIDAR-only results ``book/defaults_record.md`` quotes from before and after the particle count and
     ``match_voxel`` changed are those of the ``lidar_only``, ``peers`` and ``stages`` benchmarks as committed then
     (commits f15e99f and 8b85ece, named on the page)."""
-    page = _words(ROOT / "book" / "defaults.md")
+    page = _words(ROOT / "book" / "defaults_record.md")
     assert "commit f15e99f" in page and "commit 8b85ece" in page
     res = "benchmarks/results"
     before = _committed_json("f15e99f", f"{res}/lidar_only.json")["routes"]
@@ -1355,7 +1355,7 @@ def test_the_defaults_page_states_the_fresh_lidar_only_check_as_committed():
     row per drive)."""
     import csv
 
-    page = _words(ROOT / "book" / "defaults.md")
+    page = _words(ROOT / "book" / "defaults_record.md")
     folder = ROOT / "benchmarks/results/fresh_lidar_only"
     rows = list(csv.DictReader((folder / "sweep.csv").open()))
     plan = _words(folder / "plan.md")

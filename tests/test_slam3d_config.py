@@ -1,11 +1,15 @@
 """The 3D filter's settings (:mod:`slamlib.slam3d.config`): the groups' checks and the defaults ``of`` keeps."""
 
+import functools
 import json
 import math
+import re
+from pathlib import Path
 
 import pytest
 
 from slamlib.slam3d import SLAM3DConfig
+from slamlib.slam3d.config import _PATHS
 
 
 def test_config_rejects_bad_values():
@@ -186,3 +190,51 @@ def test_none_for_a_tri_state_is_auto_with_a_deprecation_warning(name):
     with pytest.warns(DeprecationWarning, match=f"{name}='auto'"):
         c = SLAM3DConfig.of(**{name: None})
     assert getattr(c.scan if name == "deskew" else c.polish, name) == "auto"
+
+
+def _reference_entries() -> dict[str, str]:
+    """``book/defaults.md``'s definition list: each term's setting names -> the definition's text."""
+    text = (Path(__file__).resolve().parents[1] / "book" / "defaults.md").read_text(
+        encoding="utf-8"
+    )
+    entries = {}
+    for term, definition in re.findall(
+        r"^(`[^\n]+)\n: (.*?)(?=\n\n|\Z)", text, re.M | re.S
+    ):
+        for name in re.findall(r"`([\w.]+)`", term):
+            entries[name] = " ".join(definition.split())
+    return entries
+
+
+def _shown(value) -> list[str]:
+    """The ways the reference may print a default: each element of a tuple, numbers as written or with
+    thousands separators, strings quoted."""
+    if isinstance(value, tuple):
+        return [s for v in value for s in _shown(v)]
+    if isinstance(value, str):
+        return [f'"{value}"']
+    if isinstance(value, bool):
+        return [str(value)]
+    return [f"{value:g}".replace("e-05", "e-5"), f"{value:,}"]
+
+
+def test_the_settings_reference_lists_every_setting_with_its_default():
+    """``book/defaults.md`` has an entry for every name :meth:`SLAM3DConfig.setting_names` takes (a map
+    parameter by its own name), and each entry states the default: every element of it, as written."""
+    config, entries = SLAM3DConfig(), _reference_entries()
+    names = [
+        n
+        for n in SLAM3DConfig.setting_names()
+        if not n.startswith(("voxel_hash.", "morton_bvh."))
+    ]
+    missing = [n for n in names if n not in entries]
+    assert not missing, f"book/defaults.md lacks {missing}"
+    for name in names:
+        value = functools.reduce(getattr, _PATHS.get(name, (name,)), config)
+        elements = value if isinstance(value, tuple) else (value,)
+        for element in elements:
+            assert any(s in entries[name] for s in _shown(element)), (
+                f"book/defaults.md's entry of {name} does not state its default {value!r}"
+            )
+    unknown = sorted(set(entries) - set(SLAM3DConfig.setting_names()))
+    assert not unknown, f"book/defaults.md lists settings that do not exist: {unknown}"

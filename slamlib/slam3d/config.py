@@ -89,10 +89,10 @@ TILT_UP_SOURCES = ("velocity", "positions")
 #: (:mod:`slamlib.slam3d.stages.prior`).
 TILT_BIAS_MODELS = ("sectors", "kalman")
 #: ``FilterConfig.particles = "auto"`` with an IMU: with scan matching on, the fewest particles tried (100, 200, 300)
-#: that lost no development run to KISS-ICP ("Why these defaults", ``book/defaults.md``).
+#: that lost no development run to KISS-ICP ("Why these defaults", ``book/defaults_record.md``).
 IMU_PARTICLES = 300
 #: ``FilterConfig.particles = "auto"`` LIDAR-only: scan matching climbs from step 9's pose to the peak, so the
-#: particles need only find its basin (why this many: "Why these defaults", ``book/defaults.md``).
+#: particles need only find its basin (why this many: "Why these defaults", ``book/defaults_record.md``).
 LIDAR_ONLY_PARTICLES = 100
 #: Map kinds (:func:`slamlib.maps.make_map`, the keys of :data:`slamlib.maps.MAP_TYPES`): hashed NDT voxels, exact
 #: points in a Morton-code BVH.
@@ -118,7 +118,7 @@ MAX_SCAN_MATCH_ITERATIONS = 100
 #: 6 degrees of freedom); they are not: the spread is the motion's uncertainty, and the climb's own steps add a
 #: heavier tail. On the route 07 development drives (scene seeds 0-3, with and without the IMU) every correction
 #: outside two leaps was at most 18.9 spreads; the leaps, which broke two LIDAR-only runs, were 114 and 353
-#: (``book/defaults.md``, "The scan match's gate"). Too low a gate rejects a true correction, and the next frame
+#: (``book/defaults_record.md``, "The scan match's gate"). Too low a gate rejects a true correction, and the next frame
 #: then needs a larger one; too high a gate lets a smaller leap through. 30 is 1.6 times the first, a quarter of
 #: the second.
 MATCH_GATE = 30.0
@@ -358,7 +358,7 @@ class MotionConfig:
     step 6 by ``sqrt((tuning_gain q)^2 + tuning_floor^2)``, ``q`` the innovations' scatter per axis; the spreads
     above then serve only the first ``tuning_warmup`` frames. ``tuning_memory`` and ``tuning_noise_memory`` are the
     seconds the fit and the scatter remember; ``tuning_floor`` (6,) is in m, m, m, rad, rad, rad. Why these values:
-    "Why these defaults" (``book/defaults.md``).
+    "Why these defaults" (``book/defaults_record.md``).
     """
 
     sigma_xyz_per_m: tuple = (0.02, 0.02, 0.01)
@@ -610,7 +610,7 @@ class TiltConfig:
         (:func:`slamlib.slam3d.stages.prior.gravity_up`). 0 = off; needs an IMU with ``specific_force`` (without
         one the prior is off whatever this is). ``sigma`` is the prior's weight against the map as much as an error
         bar on the measured up; the default 0.003 (3 mrad, with ``ScanMatchConfig.match_tilt`` on) and why: book
-        chapter 09 and "Why these defaults" (``book/defaults.md``).
+        chapter 09 and "Why these defaults" (``book/defaults_record.md``).
         ``"auto"``: ``sigma`` is the measured up's own scatter; ``"adaptive"``: the weight is the gain a Kalman
         filter would give gravity, from that scatter, how far the tilt has walked, and the map's own information
         on the tilt, which the scan match measures, so ``"adaptive"`` also turns ``ScanMatchConfig.match_tilt``
@@ -626,7 +626,7 @@ class TiltConfig:
         a drive may start on a slope or a cambered road; KITTI raw drive 0001's first pose stands 37 mrad from
         level). 0 holds either at 0. With ``tilt_bias = "kalman"`` the world's tilt is a constant state beside the
         map's walking tilt error, so what the first windows measure goes to the world and a slow drift after it
-        to the walk (book chapter 09, "A drive that starts tilted", and fresh10 in ``book/defaults.md``). With
+        to the walk (book chapter 09, "A drive that starts tilted", and fresh10 in ``book/defaults_record.md``). With
         ``"sectors"`` (least squares over the frames whose window spans ``tilt_window``,
         :func:`slamlib.slam3d.stages.prior.tilt_calibration_update`) a slow tilt drift of the map looks exactly like
         a tilted world, so a world estimated there also gives in to that drift; chapter 09 ran ``"sectors"`` with
@@ -735,7 +735,7 @@ class ScanMatchConfig:
         are).
     scan_match_iterations : int
         Most Newton steps per frame (each one only if it lowers the cost; the iteration also stops once a step is
-        tiny). Default 15; why: "Why these defaults" (``book/defaults.md``).
+        tiny). Default 15; why: "Why these defaults" (``book/defaults_record.md``).
     match_voxel : float
         The scan is matched on its points thinned to one per cube of this edge (metres; 0 = every down-sampled
         point, :func:`slamlib.slam3d.preprocess.voxel_downsample` order). KISS-ICP registers a scan thinned

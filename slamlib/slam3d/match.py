@@ -105,7 +105,7 @@ __all__ = [
 MATCH_DAMPING = 1e-6
 #: Stop when a step would move the pose by less than this (radians and metres alike: 1e-5 rad at 50 m is 0.5 mm).
 #: KISS-ICP stops at 1e-4, but its ICP converges faster than this linear climb; 1e-4 here lost accuracy
-#: ("Why these defaults", ``book/defaults.md``).
+#: ("Why these defaults", ``book/defaults_record.md``).
 MATCH_TOLERANCE = 1e-5
 
 # The score's voxel pieces, inlined (the pattern of slamlib.kernels.cpu; after editing slamlib/kernels/device.py

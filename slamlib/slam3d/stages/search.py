@@ -17,7 +17,7 @@ spread is metres forward and centimetres in the other directions. Along the forw
 peak at the true motion, as wide as the scan resolves (a few tenths of a metre), beside broad basins: the road's
 rings and the traffic moving with the car favour no motion at all. A hundred independent draws in six dimensions
 rarely land in the narrow peak, and the halving rounds then settle in a basin; the filter holds the wrong speed,
-its first frames' spread too narrow to leave it, until the scan match pulls it out (``book/defaults.md``, "The
+its first frames' spread too narrow to leave it, until the scan match pulls it out (``book/defaults_record.md``, "The
 LIDAR-only start"). So with ``start_line`` the start search runs a second time from a line (:func:`forward_line`):
 ``P`` poses along the cloud's mean forward axis at the quantiles of the forward spread, the same normal distribution
 stratified (one draw per ``1/P`` of probability), which puts a pose every few centimetres near the speeds a car has;

@@ -18,6 +18,8 @@ from sphinx.pycode import ModuleAnalyzer
 
 ROOT = Path(__file__).resolve().parents[1]
 API_PAGE = ROOT / "book" / "api.md"
+#: The reference's pages: the index and one page a package.
+API_PAGES = [API_PAGE, *sorted((ROOT / "book" / "api").glob("*.md"))]
 TOC = ROOT / "_toc.yml"
 
 #: Public modules left out of the reference on purpose, with the reason (none: every module, the CUDA ones
@@ -46,7 +48,8 @@ def _eval_rst_blocks(text: str) -> list[str]:
 def _automodules() -> dict[str, list[str]]:
     """``{module: its option lines}`` for every ``.. automodule::`` of the page's eval-rst blocks."""
     found: dict[str, list[str]] = {}
-    for _fence, body in _eval_rst_blocks(API_PAGE.read_text(encoding="utf-8")):
+    text = "\n".join(p.read_text(encoding="utf-8") for p in API_PAGES)
+    for _fence, body in _eval_rst_blocks(text):
         for m in re.finditer(
             r"^\.\. automodule:: *(\S+)\n((?:[ \t]+:.*\n?)*)", body, re.M
         ):
@@ -62,11 +65,14 @@ DOCUMENTED = _automodules()
 PACKAGES = [m for m in PUBLIC if (ROOT / m.replace(".", "/") / "__init__.py").is_file()]
 
 
-def test_the_page_is_in_the_toc():
+def test_the_pages_are_in_the_toc():
     files = re.findall(
         r"^\s*-\s*file:\s*(\S+)\s*$", TOC.read_text(encoding="utf-8"), re.M
     )
-    assert "book/api" in files, "book/api.md is not in _toc.yml"
+    pages = [str(p.relative_to(ROOT).with_suffix("")) for p in API_PAGES]
+    assert len(pages) > 10 and not set(pages) - set(files), (
+        f"not in _toc.yml: {sorted(set(pages) - set(files))}"
+    )
 
 
 def test_every_public_module_is_documented():

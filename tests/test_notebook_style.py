@@ -68,6 +68,15 @@ def test_figures_are_named_captioned_and_cited(path):
         )
     names = [f["name"] for f in figures]
     assert len(names) == len(set(names)), names
+    no_alt = [
+        c["metadata"]["mystnb"]["figure"]["name"]
+        for c in cells
+        if "figure" in c.get("metadata", {}).get("mystnb", {})
+        and len(c["metadata"]["mystnb"].get("image", {}).get("alt", "").split()) < 4
+    ]
+    assert not no_alt, (
+        f"{path.name}: figures without alt text (mystnb.image.alt): {no_alt}"
+    )
 
 
 # Plotting and plumbing hidden, code that teaches shown: a code cell that makes a figure and is longer than this

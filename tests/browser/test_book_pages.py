@@ -7,7 +7,8 @@ with Playwright driving Debian's Chromium; a page fails, with a message naming i
 - a request that failed: any request to a host other than 127.0.0.1 (they are all aborted: the book must work
   offline, e.g. MathJax is served from the book's own `_static/mathjax`), or a local one answered >= 400;
 - math left unrendered (MathJax did not turn the page's math into `mjx-container`s);
-- an image that did not load (`img.complete && img.naturalWidth == 0`);
+- an image that did not load (`img.complete && img.naturalWidth == 0`), or a figure whose alt text is empty or
+  its file's path (each figure cell gives `mystnb.image.alt`: what the figure shows);
 - a broken internal link: an `a[href]` to a local file that is not in the build, or to `page.html#anchor`
   with no element of that id in the page;
 - a table left as raw pipes: a paragraph whose text has `| ... |` lines and a `---` rule row;
@@ -251,7 +252,7 @@ _INSPECT_JS = """() => ({
       .map(i => ({src: i.id || (i.getAttribute('src') || '').slice(0, 80), natural: i.naturalWidth,
                   // the size the page asks for (a retina PNG's 1x size), else the image's own
                   intended: parseFloat(i.style.width) || parseFloat(i.getAttribute('width')) || i.naturalWidth,
-                  svg: (i.getAttribute('src') || '').includes('svg'),
+                  svg: (i.getAttribute('src') || '').includes('svg'), alt: i.getAttribute('alt') || '',
                   shown: i.getBoundingClientRect().width, animation: i.id.startsWith('_anim_img'),
                   captioned: !!(i.closest('figure') && i.closest('figure').querySelector('figcaption'))})),
 })"""
@@ -363,6 +364,14 @@ def test_book_page(page_path, server, browser):
                 problems.append(
                     f"image {im['src']} has {im['natural']} px for {im['intended']:.0f} px shown: draw it at "
                     f"{BOOK_PIXEL_DENSITY}x pixel density (slamlib.plotstyle.book_style in the set-up cell)"
+                )
+            if not im["animation"] and (
+                not im["alt"].strip()
+                or re.search(r"\.(png|jpe?g|svg|gif)$|_images/", im["alt"])
+            ):
+                problems.append(
+                    f"image {im['src']} has no alt text of its own ({im['alt']!r}): give its figure cell "
+                    "mystnb.image.alt, what the figure shows"
                 )
             if not im["captioned"]:
                 what = "animation" if im["animation"] else "image"

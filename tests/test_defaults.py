@@ -622,7 +622,7 @@ def _dev_rows() -> dict[str, list[dict]]:
 
 
 def test_the_defaults_page_states_the_lidar_only_development_runs_as_committed():
-    """``book/defaults_record.md`` quotes the mean errors of ``benchmarks/results/lidar_only_dev`` that chose the LIDAR-only
+    """``defaults_record.md`` quotes the mean errors of ``benchmarks/results/lidar_only_dev`` that chose the LIDAR-only
     particle count and ``match_voxel``: each run's mean over its four drives, as written on the page, and the
     default's settings are those of the run the page calls the default."""
     page = _words(ROOT / "book" / "defaults_record.md")
@@ -651,7 +651,7 @@ def test_the_defaults_page_states_the_lidar_only_development_runs_as_committed()
 
 
 def test_the_defaults_page_states_the_imu_scan_match_development_runs_as_committed():
-    """``book/defaults_record.md``'s section on scan matching with an IMU quotes ``benchmarks/results/route07_dev``: each
+    """``defaults_record.md``'s section on scan matching with an IMU quotes ``benchmarks/results/route07_dev``: each
     setting's mean error at IMU x1 and x2 and its losses to KISS-ICP, and the defaults are the setting with none."""
     import json
 
@@ -878,7 +878,7 @@ def _fresh_ratios(table, kiss_sweep=lambda sweep: sweep):
 
 
 def test_the_defaults_page_states_fresh9_and_the_default_is_its_candidate():
-    """``book/defaults_record.md`` on fresh9 (``benchmarks/results/fresh9``): the seeds named, each sweep's command with the
+    """``defaults_record.md`` on fresh9 (``benchmarks/results/fresh9``): the seeds named, each sweep's command with the
     candidate's four settings on slamlib's runs, the runs at most KISS-ICP's error, the mean and largest ratio, the
     raw layout's worst run; and the defaults are those four settings, so that its table is the default's."""
     section = _section("## Gravity in the scan match: `ScanMatchConfig.match_tilt`")
@@ -927,7 +927,7 @@ def test_the_defaults_page_states_fresh9_and_the_default_is_its_candidate():
 
 
 def test_the_defaults_page_states_fresh10_and_the_default_is_its_candidate():
-    """``book/defaults_record.md`` on fresh10 (``benchmarks/results/fresh10``): the seeds named, each sweep's command with
+    """``defaults_record.md`` on fresh10 (``benchmarks/results/fresh10``): the seeds named, each sweep's command with
     ``tilt_world_sigma=0.05`` on slamlib's runs, the tilted sweeps (slamlib alone) scored against the level sweeps'
     KISS-ICP runs, every run at most KISS-ICP's error, the mean and largest ratio, the raw layout's worst run, the
     tilted start's cost; and the default is that setting, run again on the nearest drive to the same error."""
@@ -1126,7 +1126,7 @@ def test_the_defaults_page_states_the_match_gate_runs_as_committed():
 
 
 def test_the_defaults_page_states_the_start_line_runs_as_committed():
-    """``book/defaults_record.md``'s section on ``start_line`` quotes the committed runs: route 00's two failed LIDAR-only
+    """``defaults_record.md``'s section on ``start_line`` quotes the committed runs: route 00's two failed LIDAR-only
     fresh runs (``fresh2`` seed 75, ``fresh3`` seed 84) and KISS-ICP's on them; the same drives with the line's
     first version (``start_line_dev/spent00_on``), the second (``spent00_apart``), the third (``spent00_farther``)
     and the default's, the fourth (``spent00_off_still``, with ``fresh5``'s failed seed 103); the development drives

@@ -10,7 +10,7 @@ the constant-velocity prior is weak, and the map's pull toward the truth has to 
 there the road's points keep only the vertical row of the Jacobian (:func:`slamlib.slam3d.preprocess.road_mask`),
 so the LIDAR's rings on the road cannot pull a moving scan back. With an IMU it is on too: the particles' tilt
 walks by step 6's noise between resamplings, and a pitch off by a few milliradians climbs or sinks the drive's
-height; the matcher's climb takes the pitch the whole scan fits best ("Why these defaults", ``book/defaults_record.md``).
+height; the matcher's climb takes the pitch the whole scan fits best ("Why these defaults", ``defaults_record.md``).
 Voxel hash map only (other maps are left as they are). :class:`NoPolish` keeps step 9's pose.
 
 With the tilt prior on and ``ScanMatchConfig.match_tilt``, the match's cost carries the prior's term as well
